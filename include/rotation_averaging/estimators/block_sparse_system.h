@@ -1,0 +1,66 @@
+// Symmetric block-sparse normal equations H x = b with 3x3 blocks, one block
+// row per free view. The sparsity pattern is fixed at construction, so the
+// symbolic factorisation (fill-reducing ordering, elimination tree) is done
+// once and reused by every numeric factorisation. Only the lower block
+// triangle is stored.
+#ifndef ROTATION_AVERAGING_ESTIMATORS_BLOCK_SPARSE_SYSTEM_H_
+#define ROTATION_AVERAGING_ESTIMATORS_BLOCK_SPARSE_SYSTEM_H_
+
+#include <Eigen/Core>
+#include <Eigen/SparseCore>
+#include <memory>
+#include <utility>
+#include <vector>
+
+namespace rotation_averaging {
+
+class BlockSparseSystem {
+ public:
+  // `num_blocks` free variables of dimension 3; `pairs` lists the (unordered)
+  // block pairs that are coupled (duplicates and self-pairs are fine).
+  BlockSparseSystem(int num_blocks, const std::vector<std::pair<int, int>>& pairs);
+  ~BlockSparseSystem();
+
+  int NumBlocks() const { return num_blocks_; }
+  void SetZero();
+  // H(row block, col block) += m, for row >= col (lower triangle); the
+  // diagonal block takes the full 3x3.
+  void AddBlock(int row, int col, const Eigen::Matrix3d& m);
+  // H(a, b) += m and H(b, a) += m^T for any a != b, or H(a, a) += m.
+  void AddSymmetric(int a, int b, const Eigen::Matrix3d& m) {
+    if (a >= b) AddBlock(a, b, m); else AddBlock(b, a, m.transpose());
+  }
+  Eigen::VectorXd& Rhs() { return rhs_; }
+  // Solves (H + lambda I) x = rhs. On a failed factorisation, retries with
+  // increasing lambda (relative to the mean diagonal) up to max_retries times.
+  // Returns false if every attempt failed; `lambda_used` reports the last.
+  //
+  // When a factor of an earlier matrix exists (same pattern), the system is
+  // first solved by conjugate gradients preconditioned with that factor
+  // (relative residual 1e-5); only if that fails to converge in
+  // kMaxPcgIterations is the matrix factorised again.
+  bool Solve(double relative_lambda, int max_retries, Eigen::VectorXd* x, double* lambda_used = nullptr);
+  void SetReuseFactorization(bool reuse) { reuse_factorization_ = reuse; }
+  int NumFactorizations() const { return num_factorizations_; }
+  int LastPcgIterations() const { return last_pcg_iterations_; }
+
+  static constexpr int kMaxPcgIterations = 8;
+  static constexpr int kRefactorAfterPcgIterations = 4;
+
+ private:
+  struct Index;
+  int num_blocks_;
+  Eigen::SparseMatrix<double> matrix_;
+  std::vector<int> diagonal_positions_;  // value index of each scalar diagonal entry
+  std::unique_ptr<Index> index_;
+  Eigen::VectorXd rhs_;
+  bool reuse_factorization_ = true;
+  int num_factorizations_ = 0;
+  int last_pcg_iterations_ = 0;
+  struct Factorization;
+  std::unique_ptr<Factorization> factorization_;
+};
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_ESTIMATORS_BLOCK_SPARSE_SYSTEM_H_

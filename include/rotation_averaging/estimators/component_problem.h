@@ -1,0 +1,66 @@
+// One connected component of the view graph in solver form: dense view
+// indices, edges with their information matrices, the current estimate.
+// Shared by every solver; built by BuildComponentProblems().
+#ifndef ROTATION_AVERAGING_ESTIMATORS_COMPONENT_PROBLEM_H_
+#define ROTATION_AVERAGING_ESTIMATORS_COMPONENT_PROBLEM_H_
+
+#include <Eigen/Core>
+#include <vector>
+
+#include "rotation_averaging/estimators/robust_loss.h"
+#include "rotation_averaging/estimators/rotation_averaging.h"
+
+namespace rotation_averaging {
+
+struct ComponentEdge {
+  int i = 0, j = 0;                  // local view indices
+  Eigen::Matrix3d measured;          // M_ij = R_i R_j^T (measured)
+  Eigen::Matrix3d information;       // W = D D^T
+  Eigen::Matrix3d sqrt_information;  // D^T, so that |D^T r|^2 = r^T W r
+  double tree_weight = 1.0;          // for the maximum spanning tree
+  std::size_t graph_index = 0;       // index in ViewGraph::Edges()
+};
+
+struct ComponentProblem {
+  std::vector<ViewId> view_ids;
+  std::vector<Eigen::Matrix3d> rotations;  // current world-to-camera estimates
+  std::vector<bool> has_initial;           // rotation came from a warm start
+  std::vector<ComponentEdge> edges;
+  int gauge = 0;  // local index of the view held fixed
+
+  // r_ij = Log(M_ij^T R_i R_j^T).
+  Eigen::Vector3d Residual(const ComponentEdge& e) const {
+    return ResidualOf(e, rotations);
+  }
+  static Eigen::Vector3d ResidualOf(const ComponentEdge& e, const std::vector<Eigen::Matrix3d>& rotations);
+  // 0.5 * sum rho(|D^T r|^2).
+  double Cost(const RobustLoss& loss) const;
+  static double CostOf(const std::vector<ComponentEdge>& edges, const std::vector<Eigen::Matrix3d>& rotations,
+                       const RobustLoss& loss);
+};
+
+// Splits the graph into components of >= 2 views and fills edges with their
+// information per the options. Warnings (e.g. covariance weighting asked for
+// but missing on every edge, which falls back to no weighting) are appended
+// to `warnings`; `effective_weighting` receives the weighting actually used.
+std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, const RotationAveragingOptions& options,
+                                                     const Orientations& initial, std::vector<std::string>* warnings,
+                                                     EdgeWeighting* effective_weighting = nullptr);
+
+// Chooses the gauge (the view with the largest total tree weight, preferring
+// warm-started views) and fills every view without a warm start by chaining
+// edges along a maximum spanning tree grown from the warm-started views (or
+// from the gauge, which is then set to identity).
+void InitializeBySpanningTree(ComponentProblem* problem);
+
+// Solvers; each updates problem->rotations and fills the summary.
+void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
+                        ComponentSummary* summary);
+void SolveComponentCeres(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
+                         ComponentSummary* summary);
+void SolveComponentL1Irls(const RotationAveragingOptions& options, ComponentProblem* problem,
+                          ComponentSummary* summary);
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_ESTIMATORS_COMPONENT_PROBLEM_H_

@@ -1,0 +1,221 @@
+#include "rotation_averaging/estimators/component_problem.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+#include <queue>
+#include <unordered_map>
+
+#include "rotation_averaging/geometry/so3.h"
+
+namespace rotation_averaging {
+namespace {
+
+double Median(std::vector<double> values) {
+  if (values.empty()) return 0.0;
+  const std::size_t mid = values.size() / 2;
+  std::nth_element(values.begin(), values.begin() + mid, values.end());
+  return values[mid];
+}
+
+// W = s C^-1 for a symmetric positive definite C (validated by ViewGraph).
+Eigen::Matrix3d InformationFromCovariance(const Eigen::Matrix3d& covariance, double scale) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(covariance);
+  const Eigen::Vector3d inv = eig.eigenvalues().cwiseMax(1e-300).cwiseInverse() * scale;
+  return eig.eigenvectors() * inv.asDiagonal() * eig.eigenvectors().transpose();
+}
+
+}  // namespace
+
+Eigen::Vector3d ComponentProblem::ResidualOf(const ComponentEdge& e, const std::vector<Eigen::Matrix3d>& rotations) {
+  return LogSO3(e.measured.transpose() * rotations[e.i] * rotations[e.j].transpose());
+}
+
+double ComponentProblem::CostOf(const std::vector<ComponentEdge>& edges, const std::vector<Eigen::Matrix3d>& rotations,
+                                const RobustLoss& loss) {
+  double cost = 0.0;
+  double rho[3];
+  for (const ComponentEdge& e : edges) {
+    const Eigen::Vector3d w = e.sqrt_information * ResidualOf(e, rotations);
+    loss.Evaluate(w.squaredNorm(), rho);
+    cost += 0.5 * rho[0];
+  }
+  return cost;
+}
+
+double ComponentProblem::Cost(const RobustLoss& loss) const { return CostOf(edges, rotations, loss); }
+
+std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, const RotationAveragingOptions& options,
+                                                     const Orientations& initial, std::vector<std::string>* warnings,
+                                                     EdgeWeighting* effective_weighting) {
+  const std::vector<RelativeRotation>& graph_edges = graph.Edges();
+
+  // Graph-wide statistics for the normalisation of the weightings.
+  std::vector<double> inliers, traces, norms;
+  for (const RelativeRotation& e : graph_edges) {
+    if (e.num_inliers > 0) inliers.push_back(e.num_inliers);
+    if (e.has_covariance) {
+      traces.push_back(e.covariance.trace());
+      norms.push_back(e.covariance.norm());
+    }
+  }
+  EdgeWeighting weighting = options.weighting;
+  if ((weighting == EdgeWeighting::kCovariance || weighting == EdgeWeighting::kTrace ||
+       weighting == EdgeWeighting::kFrobenius) &&
+      traces.empty() && !graph_edges.empty()) {
+    if (warnings) {
+      warnings->push_back(std::string("weighting '") + EdgeWeightingName(weighting) +
+                          "' needs covariances but no edge has one: using no weighting");
+    }
+    weighting = EdgeWeighting::kNone;
+  }
+  if (weighting == EdgeWeighting::kInliers && inliers.empty() && !graph_edges.empty()) {
+    if (warnings) warnings->push_back("weighting 'inliers' but no edge has an inlier count: using no weighting");
+    weighting = EdgeWeighting::kNone;
+  }
+  if (effective_weighting) *effective_weighting = weighting;
+  const double median_inliers = Median(inliers);
+  const double median_trace = Median(traces);
+  const double median_norm = Median(norms);
+  std::size_t missing = 0;
+  const double info_scale = options.covariance_normalization == CovarianceNormalization::kPaper
+                                ? 1.0 / options.paper_covariance_scale
+                                : 1.0;
+
+  SpanningTreeWeight tree_weight = options.spanning_tree_weight;
+  if (tree_weight == SpanningTreeWeight::kAuto) {
+    tree_weight = weighting != EdgeWeighting::kNone ? SpanningTreeWeight::kInformation
+                  : !inliers.empty()                ? SpanningTreeWeight::kInliers
+                                                    : SpanningTreeWeight::kUniform;
+  }
+
+  // Edge information per graph edge.
+  std::vector<Eigen::Matrix3d> information(graph_edges.size());
+  for (std::size_t k = 0; k < graph_edges.size(); ++k) {
+    const RelativeRotation& e = graph_edges[k];
+    double scalar = 1.0;
+    switch (weighting) {
+      case EdgeWeighting::kNone: break;
+      case EdgeWeighting::kInliers:
+        if (e.num_inliers > 0) scalar = e.num_inliers / median_inliers; else ++missing;
+        break;
+      case EdgeWeighting::kTrace:
+        if (e.has_covariance) scalar = median_trace / e.covariance.trace(); else ++missing;
+        break;
+      case EdgeWeighting::kFrobenius:
+        if (e.has_covariance) scalar = median_norm / e.covariance.norm(); else ++missing;
+        break;
+      case EdgeWeighting::kCovariance: break;
+    }
+    if (weighting == EdgeWeighting::kCovariance) {
+      if (e.has_covariance) {
+        information[k] = InformationFromCovariance(e.covariance, info_scale);
+      } else {
+        ++missing;
+        information[k] = Eigen::Matrix3d::Identity() * (3.0 / median_trace) * info_scale;
+      }
+    } else {
+      information[k] = Eigen::Matrix3d::Identity() * scalar;
+    }
+  }
+  if (missing > 0 && warnings) {
+    warnings->push_back(std::to_string(missing) + " edge(s) lack what weighting '" + EdgeWeightingName(weighting) +
+                        "' needs and were given the median weight");
+  }
+
+  // Components.
+  std::unordered_map<ViewId, std::pair<int, int>> where;  // view -> (component, local index)
+  std::vector<ComponentProblem> problems;
+  for (const std::vector<ViewId>& component : graph.ConnectedComponents()) {
+    if (component.size() < 2) continue;
+    ComponentProblem p;
+    p.view_ids = component;
+    p.rotations.assign(component.size(), Eigen::Matrix3d::Identity());
+    p.has_initial.assign(component.size(), false);
+    for (std::size_t v = 0; v < component.size(); ++v) {
+      where[component[v]] = {static_cast<int>(problems.size()), static_cast<int>(v)};
+      if (options.warm_start) {
+        auto it = initial.find(component[v]);
+        if (it != initial.end() && IsRotationMatrix(it->second, 1e-6)) {
+          p.rotations[v] = it->second;
+          p.has_initial[v] = true;
+        }
+      }
+    }
+    problems.push_back(std::move(p));
+  }
+  for (std::size_t k = 0; k < graph_edges.size(); ++k) {
+    const RelativeRotation& e = graph_edges[k];
+    const auto& a = where.at(e.view1);
+    const auto& b = where.at(e.view2);
+    ComponentEdge ce;
+    ce.i = a.second;
+    ce.j = b.second;
+    ce.measured = e.rotation;
+    ce.information = information[k];
+    ce.sqrt_information = Eigen::LLT<Eigen::Matrix3d>(information[k]).matrixL().transpose();
+    switch (tree_weight) {
+      case SpanningTreeWeight::kInliers: ce.tree_weight = std::max(e.num_inliers, 0); break;
+      case SpanningTreeWeight::kInformation: ce.tree_weight = information[k].trace(); break;
+      default: ce.tree_weight = 1.0; break;
+    }
+    ce.graph_index = k;
+    problems[a.first].edges.push_back(ce);
+  }
+  return problems;
+}
+
+void InitializeBySpanningTree(ComponentProblem* problem) {
+  const int n = static_cast<int>(problem->view_ids.size());
+  std::vector<std::vector<int>> incident(n);
+  std::vector<double> strength(n, 0.0);
+  for (int k = 0; k < static_cast<int>(problem->edges.size()); ++k) {
+    const ComponentEdge& e = problem->edges[k];
+    incident[e.i].push_back(k);
+    incident[e.j].push_back(k);
+    strength[e.i] += e.tree_weight;
+    strength[e.j] += e.tree_weight;
+  }
+  bool any_initial = false;
+  for (int v = 0; v < n; ++v) any_initial = any_initial || problem->has_initial[v];
+  int gauge = -1;
+  for (int v = 0; v < n; ++v) {
+    if (any_initial && !problem->has_initial[v]) continue;
+    if (gauge < 0 || strength[v] > strength[gauge]) gauge = v;
+  }
+  problem->gauge = gauge;
+
+  // Prim's algorithm grown from every warm-started view at once (or the gauge).
+  std::vector<bool> done(n, false);
+  using Item = std::pair<double, int>;  // (tree weight, edge index)
+  std::priority_queue<Item> queue;
+  auto visit = [&](int v) {
+    done[v] = true;
+    for (int k : incident[v]) {
+      const ComponentEdge& e = problem->edges[k];
+      if (!done[e.i == v ? e.j : e.i]) queue.push({e.tree_weight, k});
+    }
+  };
+  if (any_initial) {
+    for (int v = 0; v < n; ++v)
+      if (problem->has_initial[v]) visit(v);
+  } else {
+    problem->rotations[gauge] = Eigen::Matrix3d::Identity();
+    visit(gauge);
+  }
+  while (!queue.empty()) {
+    const ComponentEdge& e = problem->edges[queue.top().second];
+    queue.pop();
+    if (done[e.i] && done[e.j]) continue;
+    if (done[e.i]) {
+      problem->rotations[e.j] = e.measured.transpose() * problem->rotations[e.i];
+      visit(e.j);
+    } else {
+      problem->rotations[e.i] = e.measured * problem->rotations[e.j];
+      visit(e.i);
+    }
+  }
+}
+
+}  // namespace rotation_averaging

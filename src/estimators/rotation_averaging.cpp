@@ -1,0 +1,205 @@
+#include "rotation_averaging/estimators/rotation_averaging.h"
+
+#include <chrono>
+#include <algorithm>
+#include <cmath>
+#include <iomanip>
+#include <sstream>
+
+#include "rotation_averaging/estimators/component_problem.h"
+#include "rotation_averaging/geometry/so3.h"
+
+namespace rotation_averaging {
+namespace {
+
+template <typename Enum, std::size_t N>
+bool ParseByName(const std::string& text, const Enum (&all)[N], const char* (*name)(Enum), Enum* out) {
+  for (Enum e : all) {
+    if (text == name(e)) {
+      *out = e;
+      return true;
+    }
+  }
+  return false;
+}
+
+constexpr EdgeWeighting kAllWeightings[] = {EdgeWeighting::kNone, EdgeWeighting::kInliers, EdgeWeighting::kTrace,
+                                            EdgeWeighting::kFrobenius, EdgeWeighting::kCovariance};
+constexpr SolverType kAllSolvers[] = {SolverType::kIrls, SolverType::kCeres, SolverType::kL1Irls};
+constexpr CovarianceNormalization kAllNormalizations[] = {CovarianceNormalization::kStandardDeviations,
+                                                          CovarianceNormalization::kPaper};
+
+bool IsRedescending(LossType type) {
+  return type == LossType::kMagsac || type == LossType::kTukey || type == LossType::kGemanMcClure;
+}
+
+// Default scales. Whitened residuals in standard deviations (calibrated
+// covariances): inlier |D^T r| follows chi(3), whose 99% quantile is 3.37, so
+// sigma_max = 3 keeps inliers whose covariance is up to ~3x too optimistic
+// while cutting at 3.37 * 3 = 10 standard deviations. Unweighted residuals
+// in radians: 5 degrees (the L1-IRLS baseline's Geman-McClure scale).
+constexpr double kScaleStandardDeviations = 3.0;
+constexpr double kScalePaper = 0.02;
+constexpr double kScaleRadians = 5.0 * kPi / 180.0;
+
+double DefaultScaleFor(EdgeWeighting weighting, CovarianceNormalization normalization) {
+  if (weighting == EdgeWeighting::kCovariance) {
+    return normalization == CovarianceNormalization::kPaper ? kScalePaper : kScaleStandardDeviations;
+  }
+  return kScaleRadians;
+}
+
+}  // namespace
+
+const char* EdgeWeightingName(EdgeWeighting w) {
+  switch (w) {
+    case EdgeWeighting::kNone: return "none";
+    case EdgeWeighting::kInliers: return "inliers";
+    case EdgeWeighting::kTrace: return "trace";
+    case EdgeWeighting::kFrobenius: return "frobenius";
+    case EdgeWeighting::kCovariance: return "covariance";
+  }
+  return "?";
+}
+bool ParseEdgeWeighting(const std::string& text, EdgeWeighting* w) {
+  return ParseByName(text, kAllWeightings, &EdgeWeightingName, w);
+}
+const char* SolverTypeName(SolverType s) {
+  switch (s) {
+    case SolverType::kIrls: return "irls";
+    case SolverType::kCeres: return "ceres";
+    case SolverType::kL1Irls: return "l1_irls";
+  }
+  return "?";
+}
+bool ParseSolverType(const std::string& text, SolverType* s) { return ParseByName(text, kAllSolvers, &SolverTypeName, s); }
+const char* CovarianceNormalizationName(CovarianceNormalization n) {
+  return n == CovarianceNormalization::kPaper ? "paper" : "std";
+}
+bool ParseCovarianceNormalization(const std::string& text, CovarianceNormalization* n) {
+  return ParseByName(text, kAllNormalizations, &CovarianceNormalizationName, n);
+}
+
+double DefaultLossScale(const RotationAveragingOptions& options) {
+  return DefaultScaleFor(options.weighting, options.covariance_normalization);
+}
+
+bool RotationAveragingSummary::Success() const {
+  for (const ComponentSummary& c : components)
+    if (!std::isfinite(c.final_cost)) return false;
+  return true;
+}
+
+std::string RotationAveragingSummary::Report() const {
+  std::ostringstream out;
+  std::size_t views = 0, edges_in = 0;
+  int iterations = 0;
+  double initial = 0.0, final_cost = 0.0;
+  for (const ComponentSummary& c : components) {
+    views += c.num_views;
+    edges_in += c.num_edges;
+    iterations += c.iterations;
+    initial += c.initial_cost;
+    final_cost += c.final_cost;
+  }
+  out << "components solved: " << components.size() << " (" << views << " views, " << edges_in << " edges)";
+  if (num_isolated_views) out << ", isolated views not oriented: " << num_isolated_views;
+  out << "\niterations: " << iterations << "\ninitial cost: " << std::setprecision(8) << initial
+      << "\nfinal cost: " << final_cost << "\nloss scale: " << loss_scale << "\noutlier edges (weight < 0.01): "
+      << num_outlier_edges << "\nsolve time: " << std::setprecision(4) << solve_time_s << " s";
+  for (std::size_t k = 0; k < components.size() && k < 5; ++k) {
+    const ComponentSummary& c = components[k];
+    out << "\n  component " << k << ": " << c.num_views << " views, " << c.num_edges << " edges, " << c.iterations
+        << " iterations, " << c.status;
+  }
+  if (components.size() > 5) out << "\n  ... " << components.size() - 5 << " more components";
+  for (const std::string& w : warnings) out << "\nwarning: " << w;
+  return out.str();
+}
+
+bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptions& options,
+                            Orientations* orientations, RotationAveragingSummary* summary) {
+  const auto start = std::chrono::steady_clock::now();
+  *summary = RotationAveragingSummary();
+  EdgeWeighting weighting = options.weighting;
+  std::vector<ComponentProblem> problems =
+      BuildComponentProblems(graph, options, *orientations, &summary->warnings, &weighting);
+  const double scale =
+      options.loss_scale > 0.0 ? options.loss_scale : DefaultScaleFor(weighting, options.covariance_normalization);
+  summary->loss_scale = scale;
+  const std::unique_ptr<RobustLoss> loss = CreateLoss(options.loss, scale);
+
+  std::size_t solved_views = 0;
+  summary->edges.assign(graph.NumEdges(), EdgeResult());
+  for (ComponentProblem& problem : problems) {
+    ComponentSummary cs;
+    cs.num_views = problem.view_ids.size();
+    cs.num_edges = problem.edges.size();
+    bool all_warm = true;
+    for (bool h : problem.has_initial) all_warm = all_warm && h;
+    InitializeBySpanningTree(&problem);
+    cs.gauge_view = problem.view_ids[problem.gauge];
+    const std::vector<Eigen::Matrix3d> initial_rotations = problem.rotations;
+
+    if (options.solver == SolverType::kL1Irls) {
+      SolveComponentL1Irls(options, &problem, &cs);
+    } else {
+      auto solve_with = [&](const RotationAveragingOptions& o, const RobustLoss& l) {
+        if (o.solver == SolverType::kCeres) {
+          SolveComponentCeres(o, l, &problem, &cs);
+        } else {
+          SolveComponentIrls(o, l, &problem, &cs);
+        }
+      };
+      auto solve = [&](const RobustLoss& l) { solve_with(options, l); };
+      // Graduated non-convexity for redescending losses started from a tree.
+      if (IsRedescending(options.loss) && !all_warm && options.gnc_initial_scale_factor > 1.0 &&
+          options.gnc_scale_step > 1.0) {
+        // Intermediate stages only need to move into the right basin: a few
+        // iterations each, not convergence.
+        RotationAveragingOptions stage_options = options;
+        stage_options.max_iterations = std::min(options.max_iterations, options.gnc_stage_max_iterations);
+        for (double s = scale * options.gnc_initial_scale_factor; s > scale * 1.0001; s /= options.gnc_scale_step) {
+          solve_with(stage_options, *CreateLoss(options.loss, s));
+        }
+      }
+      solve(*loss);
+      // The reported initial cost is that of the starting point under the final loss.
+      cs.initial_cost = ComponentProblem::CostOf(problem.edges, initial_rotations, *loss);
+    }
+
+    // A solve that produced non-finite numbers keeps the initial orientations.
+    bool finite = true;
+    for (const Eigen::Matrix3d& r : problem.rotations) finite = finite && r.allFinite();
+    if (!finite || !std::isfinite(cs.final_cost)) {
+      problem.rotations = initial_rotations;
+      cs.status = "solve failed (non-finite result); kept the initial orientations: " + cs.status;
+      cs.converged = false;
+      cs.final_cost = problem.Cost(*loss);
+      summary->warnings.push_back(cs.status);
+    }
+    // Per-edge results under the final loss and the weighting of the options
+    // (the L1-IRLS baseline reports its own unweighted residuals).
+    for (const ComponentEdge& e : problem.edges) {
+      EdgeResult& er = summary->edges[e.graph_index];
+      const Eigen::Vector3d r = problem.Residual(e);
+      er.residual_rad = r.norm();
+      er.whitened_squared = (e.sqrt_information * r).squaredNorm();
+      er.robust_weight = options.solver == SolverType::kL1Irls
+                             ? GemanMcClureLoss(DegToRad(options.l1_irls_sigma_deg)).Weight(er.whitened_squared)
+                             : loss->Weight(er.whitened_squared);
+      er.solved = true;
+      if (er.robust_weight < 0.01) ++summary->num_outlier_edges;
+    }
+    for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
+      (*orientations)[problem.view_ids[v]] = problem.rotations[v];
+    }
+    solved_views += problem.view_ids.size();
+    summary->components.push_back(cs);
+  }
+  summary->num_isolated_views = graph.NumViews() - solved_views;
+  summary->solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return summary->Success();
+}
+
+}  // namespace rotation_averaging

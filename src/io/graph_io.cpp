@@ -1,0 +1,279 @@
+#include "rotation_averaging/io/graph_io.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <filesystem>
+#include <unordered_set>
+
+#include "rotation_averaging/geometry/so3.h"
+#include "rotation_averaging/io/text_lines.h"
+
+namespace rotation_averaging {
+namespace {
+
+namespace fs = std::filesystem;
+
+bool ParseDoubles(const std::vector<std::string>& tokens, std::size_t first, std::size_t count, double* out) {
+  if (tokens.size() < first + count) return false;
+  for (std::size_t k = 0; k < count; ++k) {
+    if (!ParseDouble(tokens[first + k], &out[k])) return false;
+  }
+  return true;
+}
+
+// 6x6 symmetric matrix from its upper triangle, row-major (21 numbers).
+Eigen::Matrix<double, 6, 6> FromUpperTriangle(const double* v) {
+  Eigen::Matrix<double, 6, 6> m;
+  int k = 0;
+  for (int r = 0; r < 6; ++r) {
+    for (int c = r; c < 6; ++c) {
+      m(r, c) = v[k];
+      m(c, r) = v[k];
+      ++k;
+    }
+  }
+  return m;
+}
+
+// Rotation block (rows/cols 3..5) of the inverse of a 6x6 information matrix,
+// i.e. the marginal covariance of the rotation part. False if not invertible.
+bool MarginalRotationCovariance(const Eigen::Matrix<double, 6, 6>& information, Eigen::Matrix3d* covariance) {
+  if (!information.allFinite()) return false;
+  Eigen::FullPivLU<Eigen::Matrix<double, 6, 6>> lu(information);
+  if (!lu.isInvertible()) return false;
+  *covariance = lu.inverse().block<3, 3>(3, 3);
+  return covariance->allFinite();
+}
+
+void AddEdgeOrWarn(const LineReader& reader, const RelativeRotation& edge, ViewGraph* graph, ReadReport* report) {
+  graph->AddView(edge.view1);
+  graph->AddView(edge.view2);
+  std::string why;
+  if (graph->AddEdge(edge, &why) == AddEdgeResult::kRejected) {
+    report->warnings.push_back(reader.Where("edge skipped: " + why));
+  }
+}
+
+bool ParseIds(const std::vector<std::string>& tokens, std::size_t first, ViewId* a, ViewId* b) {
+  return tokens.size() > first + 1 && ParseUint64(tokens[first], a) && ParseUint64(tokens[first + 1], b);
+}
+
+}  // namespace
+
+ReadReport ReadOneDsfm(const std::string& egs_path, const std::string& cc_path, ViewGraph* graph) {
+  ReadReport report;
+  std::unordered_set<ViewId> keep;
+  if (!cc_path.empty()) {
+    LineReader cc(cc_path);
+    if (!cc.IsOpen()) return {"cannot open " + cc_path};
+    std::string line;
+    while (cc.Next(&line)) {
+      if (IsBlankOrComment(line)) continue;
+      const std::vector<std::string> tokens = SplitTokens(line);
+      ViewId id;
+      if (tokens.size() != 1 || !ParseUint64(tokens[0], &id)) return {cc.Where("expected one camera index")};
+      keep.insert(id);
+      graph->AddView(id);
+    }
+  }
+  LineReader reader(egs_path);
+  if (!reader.IsOpen()) return {"cannot open " + egs_path};
+  std::string line;
+  while (reader.Next(&line)) {
+    if (IsBlankOrComment(line)) continue;
+    const std::vector<std::string> tokens = SplitTokens(line);
+    RelativeRotation edge;
+    double r[9];
+    if ((tokens.size() != 11 && tokens.size() != 14) || !ParseIds(tokens, 0, &edge.view1, &edge.view2) ||
+        !ParseDoubles(tokens, 2, 9, r)) {
+      return {reader.Where("expected 'i j R_ij(9) [t_ij(3)]'")};
+    }
+    if (!cc_path.empty() && (!keep.count(edge.view1) || !keep.count(edge.view2))) continue;
+    edge.rotation = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(r);
+    AddEdgeOrWarn(reader, edge, graph, &report);
+  }
+  report.lines = reader.LineNumber();
+  return report;
+}
+
+ReadReport ReadG2o(const std::string& path, ViewGraph* graph) {
+  ReadReport report;
+  LineReader reader(path);
+  if (!reader.IsOpen()) return {"cannot open " + path};
+  std::string line;
+  while (reader.Next(&line)) {
+    if (IsBlankOrComment(line)) continue;
+    const std::vector<std::string> tokens = SplitTokens(line);
+    const std::string& tag = tokens[0];
+    if (tag == "VERTEX_SE3:QUAT") {
+      ViewId id;
+      if (tokens.size() != 9 || !ParseUint64(tokens[1], &id)) return {reader.Where("malformed VERTEX_SE3:QUAT")};
+      graph->AddView(id);
+    } else if (tag == "EDGE_SE3:QUAT") {
+      RelativeRotation edge;
+      double v[28];  // x y z qx qy qz qw I(21)
+      if (tokens.size() != 31 || !ParseIds(tokens, 1, &edge.view1, &edge.view2) || !ParseDoubles(tokens, 3, 28, v)) {
+        return {reader.Where("expected 'EDGE_SE3:QUAT i j x y z qx qy qz qw I(21)'")};
+      }
+      if (Eigen::Vector4d(v[3], v[4], v[5], v[6]).norm() < 1e-12) return {reader.Where("zero quaternion")};
+      edge.rotation = QuaternionToRotation(v[6], v[3], v[4], v[5]);
+      Eigen::Matrix3d cov_q;
+      if (MarginalRotationCovariance(FromUpperTriangle(v + 7), &cov_q)) {
+        edge.has_covariance = true;
+        edge.covariance = 4.0 * cov_q;  // quaternion vector part -> angle-axis
+      } else {
+        report.warnings.push_back(reader.Where("information matrix not invertible: edge kept without covariance"));
+      }
+      AddEdgeOrWarn(reader, edge, graph, &report);
+    } else if (tag == "FIX") {
+      continue;
+    } else {
+      return {reader.Where("unsupported g2o record '" + tag + "' (only VERTEX_SE3:QUAT and EDGE_SE3:QUAT)")};
+    }
+  }
+  report.lines = reader.LineNumber();
+  return report;
+}
+
+ReadReport ReadToro(const std::string& path, ViewGraph* graph) {
+  ReadReport report;
+  LineReader reader(path);
+  if (!reader.IsOpen()) return {"cannot open " + path};
+  std::string line;
+  while (reader.Next(&line)) {
+    if (IsBlankOrComment(line)) continue;
+    const std::vector<std::string> tokens = SplitTokens(line);
+    const std::string& tag = tokens[0];
+    if (tag == "VERTEX3") {
+      ViewId id;
+      if (tokens.size() != 8 || !ParseUint64(tokens[1], &id)) return {reader.Where("malformed VERTEX3")};
+      graph->AddView(id);
+    } else if (tag == "EDGE3") {
+      RelativeRotation edge;
+      double v[27];  // x y z roll pitch yaw I(21)
+      if (tokens.size() != 30 || !ParseIds(tokens, 1, &edge.view1, &edge.view2) || !ParseDoubles(tokens, 3, 27, v)) {
+        return {reader.Where("expected 'EDGE3 i j x y z roll pitch yaw I(21)'")};
+      }
+      edge.rotation = RotationFromRollPitchYaw(v[3], v[4], v[5]);
+      Eigen::Matrix3d cov_rpy;
+      if (MarginalRotationCovariance(FromUpperTriangle(v + 6), &cov_rpy)) {
+        const Eigen::Matrix3d j = RollPitchYawToRightTangentJacobian(v[3], v[4]);
+        edge.has_covariance = true;
+        edge.covariance = j * cov_rpy * j.transpose();
+      } else {
+        report.warnings.push_back(reader.Where("information matrix not invertible: edge kept without covariance"));
+      }
+      AddEdgeOrWarn(reader, edge, graph, &report);
+    } else {
+      return {reader.Where("unsupported TORO record '" + tag + "' (only VERTEX3 and EDGE3)")};
+    }
+  }
+  report.lines = reader.LineNumber();
+  return report;
+}
+
+ReadReport ReadIRotAvg(const std::string& path, ViewGraph* graph) {
+  ReadReport report;
+  LineReader reader(path);
+  if (!reader.IsOpen()) return {"cannot open " + path};
+  std::string line;
+  int m = -1, n = -1, f = -1;
+  while (reader.Next(&line)) {
+    if (IsBlankOrComment(line)) continue;
+    const std::vector<std::string> tokens = SplitTokens(line);
+    if (tokens.size() != 3 || !ParseInt(tokens[0], &m) || !ParseInt(tokens[1], &n) || !ParseInt(tokens[2], &f) ||
+        m < 0 || n < 0 || f < 0) {
+      return {reader.Where("expected header 'num_edges num_views num_fixed'")};
+    }
+    break;
+  }
+  if (m < 0) return {path + ": empty file"};
+  for (int id = 1; id <= n; ++id) graph->AddView(static_cast<ViewId>(id));
+  int edges_read = 0;
+  while (edges_read < m && reader.Next(&line)) {
+    if (IsBlankOrComment(line)) continue;
+    const std::vector<std::string> tokens = SplitTokens(line);
+    RelativeRotation edge;
+    double q[4];
+    if (tokens.size() != 6 || !ParseIds(tokens, 0, &edge.view1, &edge.view2) || !ParseDoubles(tokens, 2, 4, q)) {
+      return {reader.Where("expected 'i j qw qx qy qz'")};
+    }
+    ++edges_read;
+    const double norm = Eigen::Vector4d(q[0], q[1], q[2], q[3]).norm();
+    if (!(std::abs(norm - 1.0) < 1e-3)) {
+      report.warnings.push_back(reader.Where("edge skipped: quaternion is not unit (norm " + std::to_string(norm) + ")"));
+      continue;
+    }
+    edge.rotation = QuaternionToRotation(q[0], q[1], q[2], q[3]);
+    AddEdgeOrWarn(reader, edge, graph, &report);
+  }
+  if (edges_read < m) {
+    return {path + ": header announces " + std::to_string(m) + " edges but only " + std::to_string(edges_read) +
+            " were found"};
+  }
+  report.lines = reader.LineNumber();
+  return report;
+}
+
+const char* GraphFormatName(GraphFormat format) {
+  switch (format) {
+    case GraphFormat::kAuto: return "auto";
+    case GraphFormat::kOneDsfm: return "1dsfm";
+    case GraphFormat::kG2o: return "g2o";
+    case GraphFormat::kToro: return "toro";
+    case GraphFormat::kIRotAvg: return "irotavg";
+  }
+  return "?";
+}
+
+bool ParseGraphFormat(const std::string& text, GraphFormat* format) {
+  for (GraphFormat f : {GraphFormat::kAuto, GraphFormat::kOneDsfm, GraphFormat::kG2o, GraphFormat::kToro,
+                        GraphFormat::kIRotAvg}) {
+    if (text == GraphFormatName(f)) {
+      *format = f;
+      return true;
+    }
+  }
+  return false;
+}
+
+GraphFormat DetectGraphFormat(const std::string& path) {
+  std::error_code ec;
+  if (fs::is_directory(path, ec) || fs::path(path).filename() == "EGs.txt") return GraphFormat::kOneDsfm;
+  if (fs::path(path).extension() == ".g2o") return GraphFormat::kG2o;
+  LineReader reader(path);
+  std::string line;
+  while (reader.Next(&line)) {
+    if (IsBlankOrComment(line)) continue;
+    const std::vector<std::string> tokens = SplitTokens(line);
+    const std::string& tag = tokens[0];
+    if (tag == "VERTEX_SE3:QUAT" || tag == "EDGE_SE3:QUAT") return GraphFormat::kG2o;
+    if (tag == "VERTEX3" || tag == "EDGE3") return GraphFormat::kToro;
+    if (tokens.size() == 3) return GraphFormat::kIRotAvg;
+    if (tokens.size() == 11 || tokens.size() == 14) return GraphFormat::kOneDsfm;
+    break;
+  }
+  return GraphFormat::kAuto;
+}
+
+ReadReport ReadViewGraph(const std::string& path, GraphFormat format, ViewGraph* graph) {
+  if (format == GraphFormat::kAuto) format = DetectGraphFormat(path);
+  switch (format) {
+    case GraphFormat::kOneDsfm: {
+      std::error_code ec;
+      fs::path egs = path, cc;
+      if (fs::is_directory(path, ec)) egs = fs::path(path) / "EGs.txt";
+      if (fs::exists(egs.parent_path() / "cc.txt", ec)) cc = egs.parent_path() / "cc.txt";
+      return ReadOneDsfm(egs.string(), cc.string(), graph);
+    }
+    case GraphFormat::kG2o: return ReadG2o(path, graph);
+    case GraphFormat::kToro: return ReadToro(path, graph);
+    case GraphFormat::kIRotAvg: return ReadIRotAvg(path, graph);
+    case GraphFormat::kAuto: break;
+  }
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return {"cannot open " + path};
+  return {path + ": unknown graph format (use --format 1dsfm|g2o|toro|irotavg)"};
+}
+
+}  // namespace rotation_averaging

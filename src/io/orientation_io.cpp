@@ -1,0 +1,214 @@
+#include "rotation_averaging/io/orientation_io.h"
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+
+#include "rotation_averaging/geometry/so3.h"
+#include "rotation_averaging/io/text_lines.h"
+
+namespace rotation_averaging {
+namespace {
+
+namespace fs = std::filesystem;
+
+bool ParseQuaternion(const std::vector<std::string>& tokens, std::size_t first, Eigen::Matrix3d* rotation,
+                     std::string* why) {
+  double q[4];
+  for (int k = 0; k < 4; ++k) {
+    if (!ParseDouble(tokens[first + k], &q[k])) {
+      *why = "'" + tokens[first + k] + "' is not a number";
+      return false;
+    }
+  }
+  const double norm = Eigen::Vector4d(q[0], q[1], q[2], q[3]).norm();
+  if (!std::isfinite(norm) || std::abs(norm - 1.0) > 1e-3) {
+    *why = "quaternion is not unit (norm " + std::to_string(norm) + ")";
+    return false;
+  }
+  *rotation = QuaternionToRotation(q[0], q[1], q[2], q[3]);
+  return true;
+}
+
+}  // namespace
+
+ReadReport ReadOrientationsCsv(const std::string& path, NamedOrientations* orientations) {
+  LineReader reader(path);
+  if (!reader.IsOpen()) return {"cannot open " + path};
+  std::string line;
+  while (reader.Next(&line)) {
+    if (IsBlankOrComment(line)) continue;
+    const std::vector<std::string> tokens = SplitTokens(line, /*comma=*/true);
+    if (reader.LineNumber() == 1 && !tokens.empty() && tokens[0] == "name") continue;
+    if (tokens.size() != 5) return {reader.Where("expected 'name,qw,qx,qy,qz'")};
+    Eigen::Matrix3d r;
+    std::string why;
+    if (!ParseQuaternion(tokens, 1, &r, &why)) return {reader.Where(why)};
+    if (!orientations->emplace(tokens[0], r).second) return {reader.Where("duplicate view '" + tokens[0] + "'")};
+  }
+  return {};
+}
+
+bool WriteOrientationsCsv(const std::string& path, const NamedOrientations& orientations, std::string* error) {
+  // Write to a temporary file and rename, so readers never see half a file.
+  const std::string temporary = path + ".tmp";
+  {
+    std::ofstream out(temporary);
+    if (!out) {
+      if (error) *error = "cannot write " + temporary;
+      return false;
+    }
+    out << "name,qw,qx,qy,qz\n" << std::setprecision(17);
+    for (const auto& [name, r] : orientations) {
+      if (name.find_first_of(",\n\r") != std::string::npos) {
+        if (error) *error = "view name '" + name + "' contains a comma or newline";
+        return false;
+      }
+      const Eigen::Vector4d q = RotationToQuaternion(r);
+      out << name << ',' << q[0] << ',' << q[1] << ',' << q[2] << ',' << q[3] << '\n';
+    }
+    if (!out.flush()) {
+      if (error) *error = "write to " + temporary + " failed";
+      return false;
+    }
+  }
+  std::error_code ec;
+  fs::rename(temporary, path, ec);
+  if (ec) {
+    if (error) *error = "cannot rename " + temporary + " to " + path + ": " + ec.message();
+    return false;
+  }
+  return true;
+}
+
+NamedOrientations NameOrientations(const ViewGraph& graph, const Orientations& orientations) {
+  NamedOrientations named;
+  for (const auto& [id, r] : orientations) {
+    const View* view = graph.FindView(id);
+    named[view ? view->name : std::to_string(id)] = r;
+  }
+  return named;
+}
+
+ReadReport ReadStrechaGroundTruth(const std::string& directory, NamedOrientations* orientations) {
+  std::error_code ec;
+  const fs::path folder = fs::path(directory) / "gt_cameras";
+  if (!fs::is_directory(folder, ec)) return {directory + ": no gt_cameras/ folder"};
+  std::vector<fs::path> files;
+  for (const auto& entry : fs::directory_iterator(folder, ec)) {
+    if (entry.path().extension() == ".camera") files.push_back(entry.path());
+  }
+  std::sort(files.begin(), files.end());
+  if (files.empty()) return {folder.string() + ": no .camera files"};
+  for (const fs::path& file : files) {
+    LineReader reader(file.string());
+    if (!reader.IsOpen()) return {"cannot open " + file.string()};
+    std::vector<std::vector<double>> rows;
+    std::string line;
+    while (reader.Next(&line)) {
+      const std::vector<std::string> tokens = SplitTokens(line);
+      if (tokens.empty()) continue;
+      std::vector<double> row;
+      for (const std::string& t : tokens) {
+        double v;
+        if (!ParseDouble(t, &v)) return {reader.Where("'" + t + "' is not a number")};
+        row.push_back(v);
+      }
+      rows.push_back(row);
+    }
+    if (rows.size() < 7 || rows[4].size() != 3 || rows[5].size() != 3 || rows[6].size() != 3) {
+      return {file.string() + ": expected K (3 lines), distortion, R (3 lines of 3), C, size"};
+    }
+    Eigen::Matrix3d camera_to_world;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) camera_to_world(r, c) = rows[4 + r][c];
+    if (!IsRotationMatrix(camera_to_world, 1e-4)) return {file.string() + ": R is not a rotation"};
+    (*orientations)[file.stem().string()] = ProjectToSO3(camera_to_world).transpose();
+  }
+  return {};
+}
+
+ReadReport ReadColmapGroundTruth(const std::string& path, NamedOrientations* orientations) {
+  std::error_code ec;
+  const std::string file = fs::is_directory(path, ec) ? (fs::path(path) / "images.txt").string() : path;
+  LineReader reader(file);
+  if (!reader.IsOpen()) return {"cannot open " + file};
+  std::string line;
+  bool expect_image = true;
+  while (reader.Next(&line)) {
+    if (line.rfind('#', 0) == 0) continue;
+    if (!expect_image) {  // the 2D points line (may be empty)
+      expect_image = true;
+      continue;
+    }
+    const std::vector<std::string> tokens = SplitTokens(line);
+    if (tokens.empty()) continue;
+    if (tokens.size() < 10) return {reader.Where("expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'")};
+    Eigen::Matrix3d r;
+    std::string why;
+    if (!ParseQuaternion(tokens, 1, &r, &why)) return {reader.Where(why)};
+    (*orientations)[tokens[9]] = r;
+    expect_image = false;
+  }
+  if (orientations->empty()) return {file + ": no images"};
+  return {};
+}
+
+ReadReport ReadChainedGroundTruth(const std::string& graph_path, GraphFormat format, NamedOrientations* orientations) {
+  ViewGraph graph;
+  ReadReport report = ReadViewGraph(graph_path, format, &graph);
+  if (!report.ok()) return report;
+  // A spanning tree with no noise reproduces the poses; solve nothing.
+  RotationAveragingOptions options;
+  options.max_iterations = 0;
+  options.gnc_initial_scale_factor = 1.0;
+  options.weighting = EdgeWeighting::kNone;
+  Orientations solved;
+  RotationAveragingSummary summary;
+  SolveRotationAveraging(graph, options, &solved, &summary);
+  // Express in the frame of the lowest id of each component.
+  for (const std::vector<ViewId>& component : graph.ConnectedComponents()) {
+    if (component.size() < 2) continue;
+    const Eigen::Matrix3d anchor = solved.at(component.front());
+    for (ViewId id : component) (*orientations)[graph.FindView(id)->name] = solved.at(id) * anchor.transpose();
+  }
+  return report;
+}
+
+bool ParseGroundTruthFormat(const std::string& text, GroundTruthFormat* format) {
+  static const std::pair<const char*, GroundTruthFormat> kNames[] = {{"auto", GroundTruthFormat::kAuto},
+                                                                      {"csv", GroundTruthFormat::kCsv},
+                                                                      {"strecha", GroundTruthFormat::kStrecha},
+                                                                      {"colmap", GroundTruthFormat::kColmap},
+                                                                      {"chain", GroundTruthFormat::kChain}};
+  for (const auto& [name, f] : kNames) {
+    if (text == name) {
+      *format = f;
+      return true;
+    }
+  }
+  return false;
+}
+
+ReadReport ReadGroundTruth(const std::string& path, GroundTruthFormat format, NamedOrientations* orientations) {
+  std::error_code ec;
+  if (format == GroundTruthFormat::kAuto) {
+    const fs::path p(path);
+    if (fs::is_directory(p / "gt_cameras", ec)) format = GroundTruthFormat::kStrecha;
+    else if (p.filename() == "images.txt" || fs::exists(p / "images.txt", ec)) format = GroundTruthFormat::kColmap;
+    else if (p.extension() == ".csv") format = GroundTruthFormat::kCsv;
+    else format = GroundTruthFormat::kChain;
+  }
+  switch (format) {
+    case GroundTruthFormat::kCsv: return ReadOrientationsCsv(path, orientations);
+    case GroundTruthFormat::kStrecha: return ReadStrechaGroundTruth(path, orientations);
+    case GroundTruthFormat::kColmap: return ReadColmapGroundTruth(path, orientations);
+    case GroundTruthFormat::kChain:
+    case GroundTruthFormat::kAuto: return ReadChainedGroundTruth(path, GraphFormat::kAuto, orientations);
+  }
+  return {"unknown ground-truth format"};
+}
+
+}  // namespace rotation_averaging
