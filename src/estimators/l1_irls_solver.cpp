@@ -10,6 +10,7 @@
 #include <Eigen/SparseCholesky>
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 
 #include "rotation_averaging/estimators/component_problem.h"
 #include "rotation_averaging/geometry/so3.h"
@@ -21,8 +22,7 @@ double Shrink(double v, double kappa) { return v > kappa ? v - kappa : (v < -kap
 
 }  // namespace
 
-void SolveComponentL1Irls(const RotationAveragingOptions& options, ComponentProblem* problem,
-                          ComponentSummary* summary) {
+int RefineByL1(const RotationAveragingOptions& options, ComponentProblem* problem, std::string* status) {
   const int n = static_cast<int>(problem->view_ids.size());
   const int m = static_cast<int>(problem->edges.size());
   std::vector<int> var(n, -1);
@@ -47,7 +47,7 @@ void SolveComponentL1Irls(const RotationAveragingOptions& options, ComponentProb
   Eigen::SimplicialLLT<Eigen::SparseMatrix<double>> cholesky(laplacian);
   int iterations = 0;
   if (num_free > 0 && cholesky.info() != Eigen::Success) {
-    summary->status = "L1 stage: Laplacian factorisation failed";
+    *status = "L1 stage: Laplacian factorisation failed";
   } else if (num_free > 0) {
     // Each edge row: (A x)_e = x_j - x_i, b_e = -e_ij; per coordinate.
     Eigen::MatrixXd b(m, 3), z(m, 3), u(m, 3), ax(m, 3), x(num_free, 3), rhs(num_free, 3);
@@ -74,7 +74,7 @@ void SolveComponentL1Irls(const RotationAveragingOptions& options, ComponentProb
         const ComponentEdge& e = problem->edges[k];
         b.row(k) = -LogSO3(problem->rotations[e.i].transpose() * e.measured * problem->rotations[e.j]).transpose();
       }
-      z = -b;  // z = A x - b at x = 0
+      z.setZero();
       u.setZero();
       x.setZero();
       for (int it = 0; it < options.l1_admm_max_iterations; ++it) {
@@ -91,7 +91,7 @@ void SolveComponentL1Irls(const RotationAveragingOptions& options, ComponentProb
         // Primal residual A x - b - z and dual residual rho A^T (z - z_old).
         const double primal = (ax - b - z).norm();
         const double dual = rho * (z - z_old).norm();
-        if (change < 1e-8 || (primal < 1e-6 * std::sqrt(m) && dual < 1e-6 * std::sqrt(m))) break;
+        if (change < 1e-5 || (primal < 1e-6 * std::sqrt(m) && dual < 1e-6 * std::sqrt(m))) break;
       }
       double max_update = 0.0;
       for (int v = 0; v < n; ++v) {
@@ -104,6 +104,13 @@ void SolveComponentL1Irls(const RotationAveragingOptions& options, ComponentProb
     }
     for (Eigen::Matrix3d& r : problem->rotations) r = ProjectToSO3(r);
   }
+  return iterations;
+}
+
+void SolveComponentL1Irls(const RotationAveragingOptions& options, ComponentProblem* problem,
+                          ComponentSummary* summary) {
+  std::string l1_status;
+  const int iterations = RefineByL1(options, problem, &l1_status);
 
   // IRLS stage: unweighted Geman-McClure.
   for (ComponentEdge& e : problem->edges) {
@@ -119,7 +126,8 @@ void SolveComponentL1Irls(const RotationAveragingOptions& options, ComponentProb
   summary->initial_cost = irls_summary.initial_cost;
   summary->final_cost = irls_summary.final_cost;
   summary->converged = irls_summary.converged;
-  summary->status = "L1 (" + std::to_string(iterations) + " ADMM iterations) then IRLS: " + irls_summary.status;
+  summary->status = (l1_status.empty() ? "" : l1_status + "; ") + "L1 (" + std::to_string(iterations) +
+                    " ADMM iterations) then IRLS: " + irls_summary.status;
 }
 
 }  // namespace rotation_averaging

@@ -152,6 +152,11 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
         }
       };
       auto solve = [&](const RobustLoss& l) { solve_with(options, l); };
+      if (options.l1_initialization && !all_warm) {
+        std::string l1_status;
+        cs.iterations += RefineByL1(options, &problem, &l1_status);
+        if (!l1_status.empty()) summary->warnings.push_back(l1_status);
+      }
       // Graduated non-convexity for redescending losses started from a tree.
       if (IsRedescending(options.loss) && !all_warm && options.gnc_initial_scale_factor > 1.0 &&
           options.gnc_scale_step > 1.0) {

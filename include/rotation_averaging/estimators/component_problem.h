@@ -58,6 +58,9 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
                         ComponentSummary* summary);
 void SolveComponentCeres(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
                          ComponentSummary* summary);
+// Chatterjee-Govindu L1 refinement (ADMM, world-frame linearisation); returns
+// the number of ADMM iterations. Robust to outliers in the starting tree.
+int RefineByL1(const RotationAveragingOptions& options, ComponentProblem* problem, std::string* status);
 void SolveComponentL1Irls(const RotationAveragingOptions& options, ComponentProblem* problem,
                           ComponentSummary* summary);
 

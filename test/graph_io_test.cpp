@@ -1,0 +1,132 @@
+#include "rotation_averaging/io/graph_io.h"
+
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include "rotation_averaging/geometry/so3.h"
+#include "rotation_averaging/io/orientation_io.h"
+
+namespace rotation_averaging {
+namespace {
+
+namespace fs = std::filesystem;
+
+class TempDir {
+ public:
+  TempDir() : path_(fs::temp_directory_path() / ("rotavg_io_" + std::to_string(::getpid()) + "_" + std::to_string(counter_++))) {
+    fs::create_directories(path_);
+  }
+  ~TempDir() { fs::remove_all(path_); }
+  std::string Write(const std::string& name, const std::string& text) const {
+    const fs::path p = path_ / name;
+    std::ofstream(p) << text;
+    return p.string();
+  }
+  std::string Path() const { return path_.string(); }
+
+ private:
+  static inline int counter_ = 0;
+  fs::path path_;
+};
+
+TEST(GraphIo, OneDsfmReadsRowMajorRotationsAndFiltersByCc) {
+  TempDir dir;
+  const Eigen::Matrix3d r = ExpSO3(Eigen::Vector3d(0.1, 0.2, 0.3));
+  std::ostringstream egs;
+  egs.precision(17);
+  for (int k = 0; k < 9; ++k) egs << (k ? " " : "0 1 ") << r(k / 3, k % 3);
+  egs << " 0 0 1\n2 3 1 0 0 0 1 0 0 0 1 0 0 1\n";
+  const std::string egs_path = dir.Write("EGs.txt", egs.str());
+  dir.Write("cc.txt", "0\n1\n");
+  ViewGraph g;
+  ASSERT_TRUE(ReadViewGraph(dir.Path(), GraphFormat::kAuto, &g).ok());
+  ASSERT_EQ(g.NumEdges(), 1u);  // edge 2-3 is outside cc.txt
+  EXPECT_LT((g.Edges()[0].rotation - r).norm(), 1e-12);
+}
+
+TEST(GraphIo, MalformedLinesNameFileAndLine) {
+  TempDir dir;
+  const std::string p = dir.Write("bad.g2o", "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nEDGE_SE3:QUAT 0 1 0 0 0 0 0 0 1 oops\n");
+  ViewGraph g;
+  const ReadReport r = ReadG2o(p, &g);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error.find("bad.g2o:2:"), std::string::npos) << r.error;
+  const std::string csv = dir.Write("o.csv", "name,qw,qx,qy,qz\na,1,0,0,0\nb,1,0,0\n");
+  NamedOrientations o;
+  const ReadReport rc = ReadOrientationsCsv(csv, &o);
+  ASSERT_FALSE(rc.ok());
+  EXPECT_NE(rc.error.find("o.csv:3:"), std::string::npos) << rc.error;
+  const std::string irot = dir.Write("ravg.txt", "3 3 1\n1 2 1 0 0 0\n");
+  EXPECT_NE(ReadIRotAvg(irot, &g).error.find("announces 3 edges"), std::string::npos);
+}
+
+TEST(GraphIo, G2oCovarianceIsTheMarginalRotationBlockInAngleAxisUnits) {
+  TempDir dir;
+  // Diagonal information: translation 10, rotation 400 (quaternion-vector units)
+  // -> angle-axis variance 4 / 400 = 0.01 rad^2.
+  const std::string p = dir.Write(
+      "a.g2o", "EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 10 0 0 0 0 0 10 0 0 0 0 10 0 0 0 400 0 0 400 0 400\n");
+  ViewGraph g;
+  ASSERT_TRUE(ReadG2o(p, &g).ok());
+  ASSERT_EQ(g.NumEdges(), 1u);
+  EXPECT_TRUE(g.Edges()[0].has_covariance);
+  EXPECT_LT((g.Edges()[0].covariance - 0.01 * Eigen::Matrix3d::Identity()).norm(), 1e-12);
+}
+
+TEST(GraphIo, InvalidEdgesAreSkippedWithAWarning) {
+  TempDir dir;
+  const std::string p = dir.Write("r.txt", "3 3 0\n1 2 1 0 0 0\n2 2 1 0 0 0\n2 3 0.5 0 0 0\n");
+  ViewGraph g;
+  const ReadReport r = ReadIRotAvg(p, &g);
+  ASSERT_TRUE(r.ok()) << r.error;
+  EXPECT_EQ(g.NumEdges(), 1u);
+  ASSERT_EQ(r.warnings.size(), 2u);
+  EXPECT_NE(r.warnings[0].find("r.txt:3:"), std::string::npos);
+  EXPECT_NE(r.warnings[1].find("not unit"), std::string::npos);
+}
+
+TEST(OrientationIo, CsvRoundTripIsExact) {
+  TempDir dir;
+  NamedOrientations o;
+  o["img_0001.jpg"] = ExpSO3(Eigen::Vector3d(0.3, -0.2, 2.9));
+  o["7"] = ExpSO3(Eigen::Vector3d(-1.0, 0.5, 0.1));
+  const std::string p = dir.Path() + "/o.csv";
+  std::string error;
+  ASSERT_TRUE(WriteOrientationsCsv(p, o, &error)) << error;
+  NamedOrientations back;
+  ASSERT_TRUE(ReadOrientationsCsv(p, &back).ok());
+  ASSERT_EQ(back.size(), 2u);
+  for (const auto& [name, r] : o) EXPECT_LT((back.at(name) - r).norm(), 1e-14);
+  EXPECT_FALSE(fs::exists(p + ".tmp"));
+}
+
+TEST(OrientationIo, ColmapAndStrechaConventions) {
+  TempDir dir;
+  const Eigen::Matrix3d world_to_camera = ExpSO3(Eigen::Vector3d(0.2, 0.4, -0.1));
+  const Eigen::Vector4d q = RotationToQuaternion(world_to_camera);
+  std::ostringstream images;
+  images.precision(17);
+  images << "# comment\n1 " << q[0] << " " << q[1] << " " << q[2] << " " << q[3] << " 0 0 0 1 a.jpg\n10 20 -1\n";
+  dir.Write("images.txt", images.str());
+  NamedOrientations colmap;
+  ASSERT_TRUE(ReadGroundTruth(dir.Path(), GroundTruthFormat::kAuto, &colmap).ok());
+  EXPECT_LT((colmap.at("a.jpg") - world_to_camera).norm(), 1e-12);
+
+  fs::create_directories(dir.Path() + "/s/gt_cameras");
+  std::ostringstream cam;
+  cam.precision(17);
+  const Eigen::Matrix3d c2w = world_to_camera.transpose();
+  cam << "1 0 0\n0 1 0\n0 0 1\n0 0 0\n";
+  for (int r = 0; r < 3; ++r) cam << c2w(r, 0) << " " << c2w(r, 1) << " " << c2w(r, 2) << "\n";
+  cam << "1 2 3\n100 100\n";
+  std::ofstream(dir.Path() + "/s/gt_cameras/0000.jpg.camera") << cam.str();
+  NamedOrientations strecha;
+  ASSERT_TRUE(ReadGroundTruth(dir.Path() + "/s", GroundTruthFormat::kAuto, &strecha).ok());
+  EXPECT_LT((strecha.at("0000.jpg") - world_to_camera).norm(), 1e-12);
+}
+
+}  // namespace
+}  // namespace rotation_averaging
