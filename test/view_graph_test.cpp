@@ -41,6 +41,30 @@ TEST(ViewGraph, DuplicatePolicyReplacesSameSourceAndKeepsOtherSources) {
   EXPECT_EQ(g.NumEdges(), 1u);
 }
 
+TEST(ViewGraph, KeepBothPolicyKeepsRepeatedMeasurementsAndRemovalStaysConsistent) {
+  ViewGraph g = ThreeViews();
+  EXPECT_EQ(g.AddEdge(Edge(1, 2), nullptr, DuplicatePolicy::kKeepBoth), AddEdgeResult::kAdded);
+  EXPECT_EQ(g.AddEdge(Edge(2, 3), nullptr, DuplicatePolicy::kKeepBoth), AddEdgeResult::kAdded);
+  EXPECT_EQ(g.AddEdge(Edge(2, 1), nullptr, DuplicatePolicy::kKeepBoth), AddEdgeResult::kAdded);
+  EXPECT_EQ(g.AddEdge(Edge(1, 3), nullptr, DuplicatePolicy::kKeepBoth), AddEdgeResult::kAdded);
+  EXPECT_EQ(g.NumEdges(), 4u);
+  // Removing the pair removes both of its measurements and keeps the others addressable.
+  EXPECT_TRUE(g.RemoveEdge(1, 2, EdgeSource::kOther));
+  EXPECT_EQ(g.NumEdges(), 2u);
+  EXPECT_TRUE(g.RemoveEdge(3, 1, EdgeSource::kOther));
+  ASSERT_EQ(g.NumEdges(), 1u);
+  EXPECT_EQ(g.Edges()[0].view1, 2u);
+  EXPECT_TRUE(g.RemoveEdge(2, 3, EdgeSource::kOther));
+  EXPECT_EQ(g.NumEdges(), 0u);
+  // Replace policy on top of a kept pair replaces the latest one.
+  g.AddEdge(Edge(1, 2), nullptr, DuplicatePolicy::kKeepBoth);
+  g.AddEdge(Edge(1, 2), nullptr, DuplicatePolicy::kKeepBoth);
+  EXPECT_EQ(g.AddEdge(Edge(1, 2)), AddEdgeResult::kReplaced);
+  EXPECT_EQ(g.NumEdges(), 2u);
+  EXPECT_TRUE(g.RemoveView(1));
+  EXPECT_EQ(g.NumEdges(), 0u);
+}
+
 TEST(ViewGraph, RejectsBadInputAndCountsIt) {
   ViewGraph g = ThreeViews();
   std::string why;

@@ -49,7 +49,7 @@ void AddEdgeOrWarn(const LineReader& reader, const RelativeRotation& edge, ViewG
   graph->AddView(edge.view1);
   graph->AddView(edge.view2);
   std::string why;
-  if (graph->AddEdge(edge, &why) == AddEdgeResult::kRejected) {
+  if (graph->AddEdge(edge, &why, DuplicatePolicy::kKeepBoth) == AddEdgeResult::kRejected) {
     report->warnings.push_back(reader.Where("edge skipped: " + why));
   }
 }

@@ -117,7 +117,7 @@ bool ViewGraph::ValidateEdge(RelativeRotation* edge, std::string* error, bool* c
   return true;
 }
 
-AddEdgeResult ViewGraph::AddEdge(const RelativeRotation& input, std::string* error) {
+AddEdgeResult ViewGraph::AddEdge(const RelativeRotation& input, std::string* error, DuplicatePolicy duplicates) {
   if (!HasView(input.view1) || !HasView(input.view2)) {
     if (input.view1 == input.view2) {
       ++stats_.rejected_self_loop;
@@ -145,26 +145,34 @@ AddEdgeResult ViewGraph::AddEdge(const RelativeRotation& input, std::string* err
     return AddEdgeResult::kRejected;
   }
   if (repaired) ++stats_.repaired_covariance;
-  const EdgeKey key = KeyOf(edge.view1, edge.view2, edge.source);
-  auto it = edge_index_.find(key);
-  if (it != edge_index_.end()) {
-    edges_[it->second] = edge;
+  std::vector<std::size_t>& same = edge_index_[KeyOf(edge.view1, edge.view2, edge.source)];
+  if (!same.empty() && duplicates == DuplicatePolicy::kReplace) {
+    edges_[same.back()] = edge;
     ++stats_.edges_replaced;
     return AddEdgeResult::kReplaced;
   }
-  edge_index_[key] = edges_.size();
+  same.push_back(edges_.size());
   edges_.push_back(edge);
   ++stats_.edges_added;
   return AddEdgeResult::kAdded;
 }
 
 void ViewGraph::EraseEdgeAt(std::size_t index) {
-  const RelativeRotation& e = edges_[index];
-  edge_index_.erase(KeyOf(e.view1, e.view2, e.source));
-  if (index + 1 != edges_.size()) {
-    edges_[index] = edges_.back();
-    const RelativeRotation& moved = edges_[index];
-    edge_index_[KeyOf(moved.view1, moved.view2, moved.source)] = index;
+  auto unlink = [this](std::size_t at, std::size_t replacement) {
+    const RelativeRotation& e = edges_[at];
+    auto it = edge_index_.find(KeyOf(e.view1, e.view2, e.source));
+    std::vector<std::size_t>& list = it->second;
+    for (std::size_t& k : list) {
+      if (k == at) k = replacement;
+    }
+    list.erase(std::remove(list.begin(), list.end(), static_cast<std::size_t>(-1)), list.end());
+    if (list.empty()) edge_index_.erase(it);
+  };
+  const std::size_t last = edges_.size() - 1;
+  unlink(index, static_cast<std::size_t>(-1));
+  if (index != last) {
+    unlink(last, index);
+    edges_[index] = edges_[last];
   }
   edges_.pop_back();
 }
@@ -172,7 +180,11 @@ void ViewGraph::EraseEdgeAt(std::size_t index) {
 bool ViewGraph::RemoveEdge(ViewId view1, ViewId view2, EdgeSource source) {
   auto it = edge_index_.find(KeyOf(view1, view2, source));
   if (it == edge_index_.end()) return false;
-  EraseEdgeAt(it->second);
+  const std::vector<std::size_t> indices = it->second;
+  // Erase from the highest index down so that the others stay valid.
+  std::vector<std::size_t> sorted = indices;
+  std::sort(sorted.rbegin(), sorted.rend());
+  for (std::size_t k : sorted) EraseEdgeAt(k);
   return true;
 }
 

@@ -18,6 +18,7 @@
 #include "rotation_averaging/eval/rotation_evaluation.h"
 #include "rotation_averaging/io/graph_io.h"
 #include "rotation_averaging/io/orientation_io.h"
+#include "rotation_averaging/scene/synthetic_graph.h"
 
 namespace ra = rotation_averaging;
 
@@ -39,6 +40,10 @@ const char* kUsage = R"(usage:
       --gt-format F         auto (default), csv, strecha, colmap, chain
   rotavg eval --estimate orientations.csv --gt PATH [--gt-format F] [--json]
       prints views in ground truth / estimated / common, median and mean error, AUC@2/5/10/20
+  rotavg demo [--views N] [--noise-deg D] [--outlier-ratio R] [--seed S]
+      built-in synthetic graph with ground truth (default 500 views, 3 deg noise varying 5x from
+      edge to edge, 20% outlier edges): solves it with the squared loss, the L1-IRLS baseline and
+      MAGSAC with covariance weights, and prints the scores of each
 )";
 
 int Fail(const std::string& message) {
@@ -176,6 +181,53 @@ int EvalCommand(int argc, char** argv) {
   return Evaluate(estimate, args.Get("--gt"), args.Get("--gt-format", "auto"), args.Has("--json"));
 }
 
+int Demo(int argc, char** argv) {
+  Args args;
+  std::string error;
+  if (!ParseArgs(argc, argv, 2, {}, &args, &error)) return Fail(error);
+  if (!CheckKnown(args, {"--views", "--noise-deg", "--outlier-ratio", "--seed"}, &error)) return Fail(error);
+  ra::SyntheticGraphOptions go;
+  go.num_views = std::atoi(args.Get("--views", "500").c_str());
+  go.noise_deg = std::atof(args.Get("--noise-deg", "3").c_str());
+  go.outlier_ratio = std::atof(args.Get("--outlier-ratio", "0.2").c_str());
+  go.seed = std::strtoull(args.Get("--seed", "1").c_str(), nullptr, 10);
+  go.noise_spread = 5.0;
+  go.anisotropic = true;
+  if (go.num_views < 2 || !(go.noise_deg >= 0.0) || !(go.outlier_ratio >= 0.0 && go.outlier_ratio < 1.0)) {
+    return Fail("demo needs --views >= 2, --noise-deg >= 0 and 0 <= --outlier-ratio < 1");
+  }
+  const ra::SyntheticGraph sg = ra::MakeSyntheticGraph(go);
+  std::cout << "synthetic view graph: " << sg.graph.NumViews() << " views, " << sg.graph.NumEdges() << " edges, "
+            << go.noise_deg << " deg noise (per-edge spread x" << go.noise_spread << ", anisotropic, covariances known), "
+            << 100.0 * go.outlier_ratio << "% outlier edges\n\n";
+  struct Method {
+    std::string label;
+    ra::RotationAveragingOptions options;
+  };
+  std::vector<Method> methods(3);
+  methods[0].label = "squared loss, no weighting";
+  methods[0].options.loss = ra::LossType::kSquared;
+  methods[0].options.weighting = ra::EdgeWeighting::kNone;
+  methods[1].label = "L1-IRLS baseline (Chatterjee-Govindu)";
+  methods[1].options.solver = ra::SolverType::kL1Irls;
+  methods[2].label = "MAGSAC + covariance weights (default)";
+  std::cout << std::left << std::setw(40) << "method" << std::right << std::setw(12) << "median deg" << std::setw(10)
+            << "AUC@2" << std::setw(10) << "AUC@5" << std::setw(10) << "AUC@10" << std::setw(10) << "AUC@20"
+            << std::setw(12) << "solve s" << "\n";
+  for (const Method& m : methods) {
+    ra::Orientations orientations;
+    ra::RotationAveragingSummary summary;
+    ra::SolveRotationAveraging(sg.graph, m.options, &orientations, &summary);
+    const ra::EvaluationResult e = ra::EvaluateOrientations(ra::NameOrientations(sg.graph, orientations),
+                                                            ra::NameOrientations(sg.graph, sg.ground_truth));
+    std::cout << std::left << std::setw(40) << m.label << std::right << std::fixed << std::setprecision(3)
+              << std::setw(12) << e.median_error_deg << std::setprecision(1);
+    for (const auto& [t, a] : e.auc) std::cout << std::setw(9) << 100.0 * a << "%";
+    std::cout << std::setprecision(4) << std::setw(12) << summary.solve_time_s << "\n";
+  }
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -187,6 +239,7 @@ int main(int argc, char** argv) {
   try {
     if (command == "solve") return Solve(argc, argv);
     if (command == "eval") return EvalCommand(argc, argv);
+    if (command == "demo") return Demo(argc, argv);
   } catch (const std::exception& e) {
     return Fail(e.what());
   }

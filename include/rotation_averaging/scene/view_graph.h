@@ -5,10 +5,12 @@
 // (rad^2) is that of a right perturbation, in camera j's frame.
 //
 // Duplicate policy: an edge is identified by its unordered view pair AND its
-// source kind. Adding an edge whose (pair, source) already exists REPLACES the
-// old one (a front end re-estimating the same pair); edges of different
-// sources between the same pair (say a sequential edge and a loop closure) are
-// independent measurements and are BOTH kept and used.
+// source kind. By default (DuplicatePolicy::kReplace, for live input) adding
+// an edge whose (pair, source) already exists REPLACES the old one (a front
+// end re-estimating the same pair); edges of different sources between the
+// same pair (say a sequential edge and a loop closure) are independent
+// measurements and are BOTH kept and used. File readers use kKeepBoth: a file
+// that lists a pair twice holds two measurements, and both are used.
 //
 // Every edge is validated when added: non-finite or non-rotation matrices,
 // self-loops and unknown views are rejected; a covariance that is not finite
@@ -53,6 +55,7 @@ struct RelativeRotation {
 };
 
 enum class AddEdgeResult { kAdded, kReplaced, kRejected };
+enum class DuplicatePolicy { kReplace, kKeepBoth };
 
 class ViewGraph {
  public:
@@ -92,8 +95,9 @@ class ViewGraph {
 
   // Validates and adds (or replaces) an edge; both views must exist. On
   // rejection, `error` (if given) says why.
-  AddEdgeResult AddEdge(const RelativeRotation& edge, std::string* error = nullptr);
-  // Removes the edge of this pair and source (either direction). False if absent.
+  AddEdgeResult AddEdge(const RelativeRotation& edge, std::string* error = nullptr,
+                        DuplicatePolicy duplicates = DuplicatePolicy::kReplace);
+  // Removes the edge(s) of this pair and source (either direction). False if absent.
   bool RemoveEdge(ViewId view1, ViewId view2, EdgeSource source);
   void Clear();
 
@@ -128,7 +132,8 @@ class ViewGraph {
   std::vector<View> views_;
   std::unordered_map<ViewId, std::size_t> view_index_;
   std::vector<RelativeRotation> edges_;
-  std::unordered_map<EdgeKey, std::size_t, EdgeKeyHash> edge_index_;
+  // (pair, source) -> indices of its edges (more than one only with kKeepBoth).
+  std::unordered_map<EdgeKey, std::vector<std::size_t>, EdgeKeyHash> edge_index_;
   InputStats stats_;
 };
 

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Installs every build and test dependency from Debian bookworm's packages
+# (run as root on a fresh machine), then configures and builds the package
+# into ./build. Safe to run again: installed packages are skipped.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export PATH=/usr/bin:$PATH  # ROS tools run on Debian's python3, not a pyenv one
+
+PACKAGES=(
+  build-essential cmake ninja-build pkg-config
+  catkin ros-message-generation ros-base-dev
+  libtf2-ros-dev libtf2-eigen-dev librosbag-dev librostest-dev python3-rostest
+  libcv-bridge-dev libimage-transport-dev
+  libceres-dev libeigen3-dev libsuitesparse-dev libopencv-dev libgtest-dev
+)
+missing=()
+for p in "${PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ "${#missing[@]}" -gt 0 ]; then
+  echo "setup: installing ${missing[*]}"
+  SUDO=""
+  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release -DPYTHON_EXECUTABLE=/usr/bin/python3 >/dev/null
+cmake --build build
+echo "setup: built into $(pwd)/build (tools in build/devel/lib/rotation_averaging)"
