@@ -21,19 +21,29 @@
 
 namespace rotation_averaging {
 
+IrlsWorkspace::IrlsWorkspace() = default;
+IrlsWorkspace::~IrlsWorkspace() = default;
+
 void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
-                        ComponentSummary* summary) {
+                        ComponentSummary* summary, IrlsWorkspace* workspace) {
   const int n = static_cast<int>(problem->view_ids.size());
-  std::vector<int> var(n, -1);
-  int num_free = 0;
-  for (int v = 0; v < n; ++v)
-    if (v != problem->gauge) var[v] = num_free++;
-  std::vector<std::pair<int, int>> pairs;
-  pairs.reserve(problem->edges.size());
-  for (const ComponentEdge& e : problem->edges) {
-    if (var[e.i] >= 0 && var[e.j] >= 0) pairs.emplace_back(var[e.i], var[e.j]);
+  IrlsWorkspace local;
+  IrlsWorkspace& ws = workspace ? *workspace : local;
+  if (!ws.system) {
+    ws.var.assign(n, -1);
+    int free_blocks = 0;
+    for (int v = 0; v < n; ++v)
+      if (v != problem->gauge) ws.var[v] = free_blocks++;
+    std::vector<std::pair<int, int>> pairs;
+    pairs.reserve(problem->edges.size());
+    for (const ComponentEdge& e : problem->edges) {
+      if (ws.var[e.i] >= 0 && ws.var[e.j] >= 0) pairs.emplace_back(ws.var[e.i], ws.var[e.j]);
+    }
+    ws.system = std::make_unique<BlockSparseSystem>(free_blocks, pairs);
   }
-  BlockSparseSystem system(num_free, pairs);
+  const std::vector<int>& var = ws.var;
+  BlockSparseSystem& system = *ws.system;
+  const int num_free = system.NumBlocks();
 
   const std::size_t m = problem->edges.size();
   std::vector<Eigen::Vector3d> residuals(m);

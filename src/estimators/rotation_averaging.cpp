@@ -144,17 +144,18 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
     if (options.solver == SolverType::kL1Irls) {
       SolveComponentL1Irls(options, &problem, &cs);
     } else {
+      IrlsWorkspace workspace;
       auto solve_with = [&](const RotationAveragingOptions& o, const RobustLoss& l) {
         if (o.solver == SolverType::kCeres) {
           SolveComponentCeres(o, l, &problem, &cs);
         } else {
-          SolveComponentIrls(o, l, &problem, &cs);
+          SolveComponentIrls(o, l, &problem, &cs, &workspace);
         }
       };
       auto solve = [&](const RobustLoss& l) { solve_with(options, l); };
       if (options.l1_initialization && !all_warm) {
         std::string l1_status;
-        cs.iterations += RefineByL1(options, &problem, &l1_status);
+        cs.iterations += RefineByL1(options.l1_init_max_iterations, options.l1_init_admm_iterations, &problem, &l1_status);
         if (!l1_status.empty()) summary->warnings.push_back(l1_status);
       }
       // Graduated non-convexity for redescending losses started from a tree.

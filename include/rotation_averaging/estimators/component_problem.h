@@ -5,6 +5,7 @@
 #define ROTATION_AVERAGING_ESTIMATORS_COMPONENT_PROBLEM_H_
 
 #include <Eigen/Core>
+#include <memory>
 #include <vector>
 
 #include "rotation_averaging/estimators/robust_loss.h"
@@ -53,14 +54,26 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
 // from the gauge, which is then set to identity).
 void InitializeBySpanningTree(ComponentProblem* problem);
 
-// Solvers; each updates problem->rotations and fills the summary.
+class BlockSparseSystem;
+
+// State kept between IRLS solves of the same component (GNC stages, the final
+// solve): the normal-equation pattern, its symbolic analysis and last factor.
+struct IrlsWorkspace {
+  IrlsWorkspace();
+  ~IrlsWorkspace();
+  std::unique_ptr<BlockSparseSystem> system;
+  std::vector<int> var;  // local view -> free block (-1 for the gauge)
+};
+
+// Solvers; each updates problem->rotations and fills the summary. The IRLS
+// solver reuses `workspace` when given (same problem and gauge).
 void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
-                        ComponentSummary* summary);
+                        ComponentSummary* summary, IrlsWorkspace* workspace = nullptr);
 void SolveComponentCeres(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
                          ComponentSummary* summary);
 // Chatterjee-Govindu L1 refinement (ADMM, world-frame linearisation); returns
 // the number of ADMM iterations. Robust to outliers in the starting tree.
-int RefineByL1(const RotationAveragingOptions& options, ComponentProblem* problem, std::string* status);
+int RefineByL1(int max_outer_iterations, int max_admm_iterations, ComponentProblem* problem, std::string* status);
 void SolveComponentL1Irls(const RotationAveragingOptions& options, ComponentProblem* problem,
                           ComponentSummary* summary);
 

@@ -81,6 +81,8 @@ struct RotationAveragingOptions {
   // starts the robust loss directly from the tree, which a single outlier in
   // the tree can defeat.
   bool l1_initialization = true;
+  int l1_init_max_iterations = 5;        // outer relinearisations of the L1 start
+  int l1_init_admm_iterations = 200;     // ADMM iterations per relinearisation
   // Graduated non-convexity for redescending losses (MAGSAC, Tukey,
   // Geman-McClure): start at gnc_initial_scale_factor times the loss scale
   // and divide it by gnc_scale_step until it reaches the loss scale. Protects
