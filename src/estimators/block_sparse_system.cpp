@@ -160,6 +160,7 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ve
       rz = rz_new;
     }
     if (converged && xs.allFinite()) {
+      ++num_pcg_solves_;
       f.refactor_next = last_pcg_iterations_ > kRefactorAfterPcgIterations;
       for (int k = 0; k < n; ++k) values[diagonal_positions_[k]] -= applied;
       if (lambda_used) *lambda_used = lambda;

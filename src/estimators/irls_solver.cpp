@@ -143,6 +143,8 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   // Keep the rotations exactly orthonormal after many small updates.
   for (Eigen::Matrix3d& r : problem->rotations) r = ProjectToSO3(r);
   summary->iterations += iteration;
+  summary->factorizations = system.NumFactorizations();
+  summary->preconditioned_solves = system.NumPreconditionedSolves();
   summary->final_cost = evaluate(problem->rotations, &residuals);
 }
 

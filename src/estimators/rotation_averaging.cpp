@@ -110,7 +110,8 @@ std::string RotationAveragingSummary::Report() const {
   for (std::size_t k = 0; k < components.size() && k < 5; ++k) {
     const ComponentSummary& c = components[k];
     out << "\n  component " << k << ": " << c.num_views << " views, " << c.num_edges << " edges, " << c.iterations
-        << " iterations, " << c.status;
+        << " iterations (" << c.factorizations << " factorisations, " << c.preconditioned_solves
+        << " preconditioned solves), " << c.status;
   }
   if (components.size() > 5) out << "\n  ... " << components.size() - 5 << " more components";
   for (const std::string& w : warnings) out << "\nwarning: " << w;

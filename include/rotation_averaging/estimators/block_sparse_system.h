@@ -42,6 +42,7 @@ class BlockSparseSystem {
   bool Solve(double relative_lambda, int max_retries, Eigen::VectorXd* x, double* lambda_used = nullptr);
   void SetReuseFactorization(bool reuse) { reuse_factorization_ = reuse; }
   int NumFactorizations() const { return num_factorizations_; }
+  int NumPreconditionedSolves() const { return num_pcg_solves_; }
   int LastPcgIterations() const { return last_pcg_iterations_; }
 
   static constexpr int kMaxPcgIterations = 8;
@@ -56,6 +57,7 @@ class BlockSparseSystem {
   Eigen::VectorXd rhs_;
   bool reuse_factorization_ = true;
   int num_factorizations_ = 0;
+  int num_pcg_solves_ = 0;
   int last_pcg_iterations_ = 0;
   struct Factorization;
   std::unique_ptr<Factorization> factorization_;

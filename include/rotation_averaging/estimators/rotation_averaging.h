@@ -110,6 +110,8 @@ struct ComponentSummary {
   std::size_t num_edges = 0;
   ViewId gauge_view = 0;
   int iterations = 0;
+  int factorizations = 0;        // numeric Cholesky factorisations (IRLS solver)
+  int preconditioned_solves = 0; // IRLS steps solved by PCG with an earlier factor
   double initial_cost = 0.0;
   double final_cost = 0.0;
   bool converged = false;
