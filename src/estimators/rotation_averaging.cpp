@@ -49,6 +49,18 @@ double DefaultScaleFor(EdgeWeighting weighting, CovarianceNormalization normaliz
   return kScaleRadians;
 }
 
+// Fraction of edges whose whitened residual at the current (spanning-tree)
+// estimate lies beyond the MAGSAC cut-off k * scale.
+double TreeDisagreement(const ComponentProblem& problem, double scale) {
+  if (problem.edges.empty()) return 0.0;
+  const double cutoff = MagsacLoss::kChiQuantile * MagsacLoss::kChiQuantile * scale * scale;
+  std::size_t beyond = 0;
+  for (const ComponentEdge& e : problem.edges) {
+    if ((e.sqrt_information * problem.Residual(e)).squaredNorm() > cutoff) ++beyond;
+  }
+  return static_cast<double>(beyond) / problem.edges.size();
+}
+
 }  // namespace
 
 const char* EdgeWeightingName(EdgeWeighting w) {
@@ -154,7 +166,8 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
         }
       };
       auto solve = [&](const RobustLoss& l) { solve_with(options, l); };
-      if (options.l1_initialization && !all_warm) {
+      if (options.l1_initialization && !all_warm &&
+          TreeDisagreement(problem, scale) > options.l1_initialization_min_disagreement) {
         std::string l1_status;
         cs.iterations += RefineByL1(options.l1_init_max_iterations, options.l1_init_admm_iterations, &problem, &l1_status);
         if (!l1_status.empty()) summary->warnings.push_back(l1_status);
