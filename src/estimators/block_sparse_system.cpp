@@ -140,6 +140,7 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ve
     Eigen::VectorXd& xs = *x;
     xs = f.ApplyInverse(rhs_);
     Eigen::VectorXd r = rhs_ - h * xs;
+    const double initial_residual2 = r.squaredNorm();
     Eigen::VectorXd z = f.ApplyInverse(r);
     Eigen::VectorXd p = z;
     double rz = r.dot(z);
@@ -154,6 +155,9 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ve
       ++last_pcg_iterations_;
       converged = r.squaredNorm() <= target;
       if (converged) break;
+      // A stale factor shows at once: if three iterations have not reduced
+      // the residual tenfold, refactorising is cheaper than going on.
+      if (last_pcg_iterations_ == 3 && r.squaredNorm() > 1e-2 * initial_residual2) break;
       z = f.ApplyInverse(r);
       const double rz_new = r.dot(z);
       p = z + (rz_new / rz) * p;

@@ -166,14 +166,17 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
         }
       };
       auto solve = [&](const RobustLoss& l) { solve_with(options, l); };
-      if (options.l1_initialization && !all_warm &&
-          TreeDisagreement(problem, scale) > options.l1_initialization_min_disagreement) {
+      // A start that already agrees with (almost) every edge needs neither
+      // the L1 start nor graduated non-convexity.
+      const bool needs_robust_start =
+          !all_warm && TreeDisagreement(problem, scale) > options.l1_initialization_min_disagreement;
+      if (options.l1_initialization && needs_robust_start) {
         std::string l1_status;
         cs.iterations += RefineByL1(options.l1_init_max_iterations, options.l1_init_admm_iterations, &problem, &l1_status);
         if (!l1_status.empty()) summary->warnings.push_back(l1_status);
       }
       // Graduated non-convexity for redescending losses started from a tree.
-      if (IsRedescending(options.loss) && !all_warm && options.gnc_initial_scale_factor > 1.0 &&
+      if (IsRedescending(options.loss) && needs_robust_start && options.gnc_initial_scale_factor > 1.0 &&
           options.gnc_scale_step > 1.0) {
         // Intermediate stages only need to move into the right basin: a few
         // iterations each, not convergence.

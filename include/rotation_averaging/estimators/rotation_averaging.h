@@ -81,10 +81,10 @@ struct RotationAveragingOptions {
   // starts the robust loss directly from the tree, which a single outlier in
   // the tree can defeat.
   bool l1_initialization = true;
-  // ... but only when more than this fraction of edges disagree with the tree
-  // beyond the MAGSAC cut-off (k * loss scale). Clean SLAM pose graphs have
-  // none (measured on the shared data) and skip the L1 cost; a tree that
-  // contains an outlier makes many edges disagree.
+  // The L1 start and GNC run only when more than this fraction of edges
+  // disagree with the spanning tree beyond the MAGSAC cut-off (k * loss
+  // scale). Clean SLAM pose graphs have none (measured on the shared data) and
+  // skip both; a tree that contains an outlier makes many edges disagree.
   double l1_initialization_min_disagreement = 0.02;
   int l1_init_max_iterations = 5;        // outer relinearisations of the L1 start
   int l1_init_admm_iterations = 200;     // ADMM iterations per relinearisation
