@@ -1,0 +1,82 @@
+// Two-view relative pose with the covariance of its rotation.
+//
+// Convention (camera 1 = view i, camera 2 = view j of an edge): the estimate
+// maps camera-1 coordinates to camera-2 coordinates, x2 = R x1 + t, so with
+// world-to-camera R_i, R_j, R = R_j R_i^T = R_ji and |t| = 1. The rotation is
+// refined as R = Exp(omega) R_hat (a LEFT perturbation of R_ji), and the
+// covariance is that of omega. For the view-graph edge (i, j), which stores
+// R_ij = R^T = R_hat^T Exp(-omega), this is exactly the covariance of the
+// edge's right perturbation (geometry/so3.h): no frame change is needed.
+//
+// Pipeline: essential matrix by OpenCV's USAC MAGSAC++ on normalised
+// coordinates, cheirality by recoverPose, then Ceres refinement of R and t
+// (t on the unit sphere) minimising the Sampson error over the inliers, in
+// pixels. With J the Jacobian of the Sampson residuals w.r.t. (omega, t) at the
+// optimum and sigma^2 the pixel noise variance estimated from the residuals:
+//   conditional (the paper's code, t held fixed):  C = (J_w^T J_w)^-1
+//   marginal over t (Schur complement):           C = [(J^T J)^-1]_ww
+// each times sigma^2 to be in rad^2 (the paper leaves it unscaled).
+#ifndef ROTATION_AVERAGING_ESTIMATORS_RELATIVE_POSE_H_
+#define ROTATION_AVERAGING_ESTIMATORS_RELATIVE_POSE_H_
+
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+namespace rotation_averaging {
+
+enum class RotationCovarianceModel {
+  kMarginal,     // marginal over the translation direction, scaled to rad^2 (default)
+  kConditional,  // conditional on t (the paper's), scaled to rad^2
+};
+const char* RotationCovarianceModelName(RotationCovarianceModel model);
+bool ParseRotationCovarianceModel(const std::string& text, RotationCovarianceModel* model);
+
+enum class TwoViewFailure {
+  kNone,
+  kTooFewMatches,       // fewer than min_inliers correspondences to start with
+  kEssentialFailed,     // the robust estimator found no model
+  kTooFewInliers,       // model found, but fewer than min_inliers consistent (and in front of both cameras)
+  kPureRotation,        // median parallax too small: translation unobservable, E ill-conditioned
+  kRefinementFailed,    // the Sampson refinement diverged or produced non-finite numbers
+  kSingularInformation  // J^T J (nearly) singular: the rotation is not constrained
+};
+const char* TwoViewFailureName(TwoViewFailure failure);
+
+struct RelativePoseOptions {
+  double ransac_threshold_px = 3.0;    // MAGSAC++ inlier threshold, pixels (1 px truncates the inliers of 0.5 px noise and biases R)
+  double ransac_confidence = 0.9999;   // probability of finding the best model
+  int ransac_max_iterations = 10000;
+  int min_inliers = 20;                // fewer inliers: pair rejected
+  double min_median_parallax_deg = 0.3;  // below: near-pure rotation, rejected
+  int refine_max_iterations = 50;      // Ceres iterations of the Sampson refinement
+  double max_condition_number = 1e10;  // of J^T J; larger: rejected as singular
+  RotationCovarianceModel covariance_model = RotationCovarianceModel::kMarginal;
+};
+
+struct RelativePoseResult {
+  bool success = false;
+  TwoViewFailure failure = TwoViewFailure::kNone;
+  std::string message;
+  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();  // R_21 (refined)
+  Eigen::Vector3d translation = Eigen::Vector3d::Zero();   // unit t_21
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();  // of omega, rad^2, per covariance_model
+  Eigen::Matrix3d covariance_marginal = Eigen::Matrix3d::Identity();     // rad^2
+  Eigen::Matrix3d covariance_conditional = Eigen::Matrix3d::Identity();  // rad^2
+  Eigen::Matrix3d covariance_paper = Eigen::Matrix3d::Identity();        // (J_w^T J_w)^-1, unscaled, 1/px^2
+  double sigma_px = 0.0;              // estimated pixel noise (RMS Sampson residual, dof-corrected)
+  double median_parallax_deg = 0.0;
+  std::vector<int> inliers;           // indices into the input correspondences
+  int refine_iterations = 0;
+};
+
+// points1/points2: corresponding pixel coordinates (same length) in images
+// with intrinsics K1/K2 (undistorted).
+RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::Vector2d>& points1,
+                                                      const std::vector<Eigen::Vector2d>& points2,
+                                                      const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
+                                                      const RelativePoseOptions& options = RelativePoseOptions());
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_ESTIMATORS_RELATIVE_POSE_H_

@@ -1,0 +1,51 @@
+// Local features and matching for the two-view front end (OpenCV).
+#ifndef ROTATION_AVERAGING_FEATURES_FEATURES_H_
+#define ROTATION_AVERAGING_FEATURES_FEATURES_H_
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace rotation_averaging {
+
+enum class FeatureType { kSift, kOrb };
+const char* FeatureTypeName(FeatureType type);
+bool ParseFeatureType(const std::string& text, FeatureType* type);
+
+struct FeatureOptions {
+  FeatureType type = FeatureType::kSift;
+  int max_features = 8000;      // strongest kept
+  // Images are resized by this factor before detection (1 = full resolution,
+  // 0.25 = a quarter of the width); keypoints are returned in the coordinates
+  // of the resized image, whose intrinsics are scaled to match.
+  double downsample = 1.0;
+};
+
+struct ImageFeatures {
+  std::vector<Eigen::Vector2d> keypoints_px;  // in the (possibly resized) image
+  cv::Mat descriptors;                        // one row per keypoint (CV_32F SIFT, CV_8U ORB)
+  FeatureType type = FeatureType::kSift;
+  int width = 0, height = 0;                  // of the image features were detected in
+};
+
+// Detects and describes features in an 8-bit image (grey or colour).
+ImageFeatures ExtractFeatures(const cv::Mat& image, const FeatureOptions& options);
+
+struct MatchOptions {
+  double ratio = 0.8;          // Lowe's ratio test: best < ratio * second best
+  bool mutual = true;          // keep only mutual nearest neighbours
+};
+
+// Index pairs (into a.keypoints_px, b.keypoints_px). SIFT uses a FLANN
+// kd-tree, ORB brute-force Hamming.
+std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const ImageFeatures& b,
+                                               const MatchOptions& options = MatchOptions());
+
+// Intrinsics of an image resized by `downsample` (pixel centres preserved).
+Eigen::Matrix3d ScaleIntrinsics(const Eigen::Matrix3d& k, double downsample);
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_FEATURES_FEATURES_H_

@@ -1,0 +1,295 @@
+#include "rotation_averaging/estimators/relative_pose.h"
+
+#include <ceres/ceres.h>
+#include <ceres/rotation.h>
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
+
+#include "rotation_averaging/geometry/so3.h"
+
+namespace rotation_averaging {
+namespace {
+
+// Sampson error of one correspondence in pixels, for R = Exp(omega) R_hat and
+// unit t: with F = K2^-T [t]x R K1^-1 and pixel points x1, x2,
+//   r = x2^T F x1 / sqrt((F x1)_0^2 + (F x1)_1^2 + (F^T x2)_0^2 + (F^T x2)_1^2).
+struct SampsonResidual {
+  SampsonResidual(const Eigen::Matrix3d& rotation_hat, const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                  const Eigen::Vector2d& p1, const Eigen::Vector2d& p2)
+      : rotation_hat_(rotation_hat), k1_inv_(k1_inv), k2_inv_t_(k2_inv.transpose()), p1_(p1), p2_(p2) {}
+
+  template <typename T>
+  bool operator()(const T* omega, const T* t, T* residual) const {
+    T rw[9];
+    ceres::AngleAxisToRotationMatrix(omega, rw);  // column-major
+    Eigen::Matrix<T, 3, 3> exp_omega;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) exp_omega(r, c) = rw[r + 3 * c];
+    const Eigen::Matrix<T, 3, 3> rotation = exp_omega * rotation_hat_.cast<T>();
+    Eigen::Matrix<T, 3, 3> t_hat;
+    t_hat << T(0), -t[2], t[1], t[2], T(0), -t[0], -t[1], t[0], T(0);
+    const Eigen::Matrix<T, 3, 3> f = k2_inv_t_.cast<T>() * t_hat * rotation * k1_inv_.cast<T>();
+    const Eigen::Matrix<T, 3, 1> x1(T(p1_.x()), T(p1_.y()), T(1));
+    const Eigen::Matrix<T, 3, 1> x2(T(p2_.x()), T(p2_.y()), T(1));
+    const Eigen::Matrix<T, 3, 1> fx1 = f * x1;
+    const Eigen::Matrix<T, 3, 1> ftx2 = f.transpose() * x2;
+    const T denominator = fx1[0] * fx1[0] + fx1[1] * fx1[1] + ftx2[0] * ftx2[0] + ftx2[1] * ftx2[1];
+    residual[0] = x2.dot(fx1) / sqrt(denominator + T(1e-300));
+    return true;
+  }
+
+  Eigen::Matrix3d rotation_hat_, k1_inv_, k2_inv_t_;
+  Eigen::Vector2d p1_, p2_;
+};
+
+double SampsonPx(const Eigen::Matrix3d& f, const Eigen::Vector2d& p1, const Eigen::Vector2d& p2) {
+  const Eigen::Vector3d x1 = p1.homogeneous(), x2 = p2.homogeneous();
+  const Eigen::Vector3d fx1 = f * x1, ftx2 = f.transpose() * x2;
+  return x2.dot(fx1) / std::sqrt(fx1[0] * fx1[0] + fx1[1] * fx1[1] + ftx2[0] * ftx2[0] + ftx2[1] * ftx2[1] + 1e-300);
+}
+
+// True if the point seen along bearings b1, b2 triangulates in front of both
+// cameras (least-squares depths of lambda2 b2 = lambda1 R b1 + t).
+bool InFront(const Eigen::Matrix3d& rotation, const Eigen::Vector3d& t, const Eigen::Vector3d& b1,
+             const Eigen::Vector3d& b2) {
+  Eigen::Matrix<double, 3, 2> a;
+  a.col(0) = rotation * b1;
+  a.col(1) = -b2;
+  const Eigen::Vector2d depths = (a.transpose() * a).ldlt().solve(a.transpose() * -t);
+  return depths[0] > 0.0 && depths[1] > 0.0;
+}
+
+cv::Mat ToCv(const std::vector<Eigen::Vector2d>& points, const Eigen::Matrix3d& k_inv) {
+  cv::Mat out(static_cast<int>(points.size()), 2, CV_64F);
+  for (int i = 0; i < out.rows; ++i) {
+    const Eigen::Vector3d n = k_inv * points[i].homogeneous();
+    out.at<double>(i, 0) = n.x() / n.z();
+    out.at<double>(i, 1) = n.y() / n.z();
+  }
+  return out;
+}
+
+constexpr int kMaxReselectionRounds = 4;
+
+RelativePoseResult Fail(TwoViewFailure failure, const std::string& message) {
+  RelativePoseResult r;
+  r.success = false;
+  r.failure = failure;
+  r.message = message;
+  return r;
+}
+
+}  // namespace
+
+const char* RotationCovarianceModelName(RotationCovarianceModel model) {
+  return model == RotationCovarianceModel::kConditional ? "conditional" : "marginal";
+}
+
+bool ParseRotationCovarianceModel(const std::string& text, RotationCovarianceModel* model) {
+  if (text == "marginal") *model = RotationCovarianceModel::kMarginal;
+  else if (text == "conditional") *model = RotationCovarianceModel::kConditional;
+  else return false;
+  return true;
+}
+
+const char* TwoViewFailureName(TwoViewFailure failure) {
+  switch (failure) {
+    case TwoViewFailure::kNone: return "none";
+    case TwoViewFailure::kTooFewMatches: return "too_few_matches";
+    case TwoViewFailure::kEssentialFailed: return "essential_failed";
+    case TwoViewFailure::kTooFewInliers: return "too_few_inliers";
+    case TwoViewFailure::kPureRotation: return "pure_rotation";
+    case TwoViewFailure::kRefinementFailed: return "refinement_failed";
+    case TwoViewFailure::kSingularInformation: return "singular_information";
+  }
+  return "?";
+}
+
+RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::Vector2d>& points1,
+                                                      const std::vector<Eigen::Vector2d>& points2,
+                                                      const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
+                                                      const RelativePoseOptions& options) {
+  const int n = static_cast<int>(std::min(points1.size(), points2.size()));
+  if (points1.size() != points2.size()) {
+    return Fail(TwoViewFailure::kTooFewMatches, "point lists differ in length");
+  }
+  if (n < std::max(options.min_inliers, 5)) {
+    return Fail(TwoViewFailure::kTooFewMatches, std::to_string(n) + " correspondences");
+  }
+  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+  if (!k1_inv.allFinite() || !k2_inv.allFinite()) return Fail(TwoViewFailure::kEssentialFailed, "singular intrinsics");
+  const double focal = 0.25 * (k1(0, 0) + k1(1, 1) + k2(0, 0) + k2(1, 1));
+
+  // 1. Robust essential matrix on normalised coordinates, then cheirality.
+  const cv::Mat n1 = ToCv(points1, k1_inv), n2 = ToCv(points2, k2_inv);
+  cv::Mat mask;
+  cv::Mat essential;
+  try {
+    essential = cv::findEssentialMat(n1, n2, cv::Mat::eye(3, 3, CV_64F), cv::USAC_MAGSAC, options.ransac_confidence,
+                                     options.ransac_threshold_px / focal, options.ransac_max_iterations, mask);
+  } catch (const cv::Exception& e) {
+    return Fail(TwoViewFailure::kEssentialFailed, std::string("OpenCV: ") + e.what());
+  }
+  if (essential.rows < 3 || essential.cols != 3) return Fail(TwoViewFailure::kEssentialFailed, "no essential matrix");
+  essential = essential.rowRange(0, 3).clone();
+  cv::Mat r_cv, t_cv;
+  int in_front = 0;
+  try {
+    in_front = cv::recoverPose(essential, n1, n2, cv::Mat::eye(3, 3, CV_64F), r_cv, t_cv, mask);
+  } catch (const cv::Exception& e) {
+    return Fail(TwoViewFailure::kEssentialFailed, std::string("OpenCV: ") + e.what());
+  }
+  std::vector<int> inliers;
+  for (int i = 0; i < n; ++i)
+    if (mask.at<unsigned char>(i)) inliers.push_back(i);
+  if (in_front < options.min_inliers || static_cast<int>(inliers.size()) < options.min_inliers) {
+    return Fail(TwoViewFailure::kTooFewInliers, std::to_string(inliers.size()) + " inliers");
+  }
+  Eigen::Matrix3d rotation;
+  Eigen::Vector3d t;
+  for (int r = 0; r < 3; ++r) {
+    t[r] = t_cv.at<double>(r);
+    for (int c = 0; c < 3; ++c) rotation(r, c) = r_cv.at<double>(r, c);
+  }
+  rotation = ProjectToSO3(rotation);
+  t.normalize();
+
+  // 2. Parallax: the angle between rotated bearings; ~0 for a pure rotation.
+  std::vector<double> parallax;
+  parallax.reserve(inliers.size());
+  for (int i : inliers) {
+    const Eigen::Vector3d b1 = rotation * (k1_inv * points1[i].homogeneous()).normalized();
+    const Eigen::Vector3d b2 = (k2_inv * points2[i].homogeneous()).normalized();
+    parallax.push_back(std::atan2(b1.cross(b2).norm(), b1.dot(b2)));
+  }
+  std::nth_element(parallax.begin(), parallax.begin() + parallax.size() / 2, parallax.end());
+  const double median_parallax_deg = RadToDeg(parallax[parallax.size() / 2]);
+  if (median_parallax_deg < options.min_median_parallax_deg) {
+    RelativePoseResult r = Fail(TwoViewFailure::kPureRotation, "median parallax " + std::to_string(median_parallax_deg) + " deg");
+    r.median_parallax_deg = median_parallax_deg;
+    return r;
+  }
+
+  // 3. Sampson refinement of (omega, t) over the inliers. The robust
+  // estimator's inlier set is cut at its own (less accurate) model, which
+  // biases the refinement towards that model and truncates the noise estimate:
+  // so after each refinement, inliers are re-selected from all correspondences
+  // (|Sampson| < 3 sigma, sigma from the median absolute residual, in front of
+  // both cameras) and the refinement repeated until the set settles.
+  double omega[3] = {0.0, 0.0, 0.0};
+  double tv[3] = {t.x(), t.y(), t.z()};
+  auto build = [&](ceres::Problem* problem, const Eigen::Matrix3d& r_hat) {
+    for (int i : inliers) {
+      problem->AddResidualBlock(new ceres::AutoDiffCostFunction<SampsonResidual, 1, 3, 3>(
+                                    new SampsonResidual(r_hat, k1_inv, k2_inv, points1[i], points2[i])),
+                                nullptr, omega, tv);
+    }
+    problem->SetManifold(tv, new ceres::SphereManifold<3>());
+  };
+  ceres::Solver::Summary summary;
+  int refine_iterations = 0;
+  for (int round = 0; round < kMaxReselectionRounds; ++round) {
+    omega[0] = omega[1] = omega[2] = 0.0;
+    ceres::Problem problem;
+    build(&problem, rotation);
+    ceres::Solver::Options solver_options;
+    solver_options.linear_solver_type = ceres::DENSE_QR;
+    solver_options.max_num_iterations = options.refine_max_iterations;
+    solver_options.function_tolerance = 1e-12;
+    solver_options.parameter_tolerance = 1e-12;
+    solver_options.logging_type = ceres::SILENT;
+    solver_options.num_threads = 1;
+    ceres::Solve(solver_options, &problem, &summary);
+    refine_iterations += static_cast<int>(summary.iterations.size());
+    const Eigen::Vector3d w(omega[0], omega[1], omega[2]);
+    if (!w.allFinite() || !std::isfinite(tv[0] + tv[1] + tv[2]) || w.norm() > 0.5) {
+      return Fail(TwoViewFailure::kRefinementFailed, "refinement moved the rotation by " +
+                                                         std::to_string(RadToDeg(w.norm())) + " deg or diverged");
+    }
+    rotation = ExpSO3(w) * rotation;
+    t = Eigen::Vector3d(tv[0], tv[1], tv[2]).normalized();
+
+    // Re-select.
+    const Eigen::Matrix3d f = k2_inv.transpose() * Hat(t) * rotation * k1_inv;
+    std::vector<double> residual(n), absolute;
+    absolute.reserve(n);
+    for (int i = 0; i < n; ++i) {
+      residual[i] = SampsonPx(f, points1[i], points2[i]);
+      absolute.push_back(std::abs(residual[i]));
+    }
+    std::vector<double> inlier_abs;
+    for (int i : inliers) inlier_abs.push_back(absolute[i]);
+    std::nth_element(inlier_abs.begin(), inlier_abs.begin() + inlier_abs.size() / 2, inlier_abs.end());
+    const double sigma = 1.4826 * inlier_abs[inlier_abs.size() / 2];
+    std::vector<int> selected;
+    for (int i = 0; i < n; ++i) {
+      if (absolute[i] > 3.0 * sigma) continue;
+      const Eigen::Vector3d b1 = k1_inv * points1[i].homogeneous(), b2 = k2_inv * points2[i].homogeneous();
+      if (InFront(rotation, t, b1, b2)) selected.push_back(i);
+    }
+    if (static_cast<int>(selected.size()) < options.min_inliers) {
+      return Fail(TwoViewFailure::kTooFewInliers, std::to_string(selected.size()) + " inliers after refinement");
+    }
+    const bool settled = selected == inliers;
+    inliers.swap(selected);
+    tv[0] = t.x();
+    tv[1] = t.y();
+    tv[2] = t.z();
+    if (settled) break;
+  }
+
+  // 4. Jacobian at the optimum (omega = 0) w.r.t. omega (3) and the tangent of t (2).
+  omega[0] = omega[1] = omega[2] = 0.0;
+  tv[0] = t.x();
+  tv[1] = t.y();
+  tv[2] = t.z();
+  ceres::Problem problem;
+  build(&problem, rotation);
+  ceres::Problem::EvaluateOptions evaluate;
+  evaluate.parameter_blocks = {omega, tv};
+  std::vector<double> residuals;
+  ceres::CRSMatrix crs;
+  double cost = 0.0;
+  problem.Evaluate(evaluate, &cost, &residuals, nullptr, &crs);
+  Eigen::MatrixXd jacobian = Eigen::MatrixXd::Zero(crs.num_rows, crs.num_cols);
+  for (int r = 0; r < crs.num_rows; ++r)
+    for (int k = crs.rows[r]; k < crs.rows[r + 1]; ++k) jacobian(r, crs.cols[k]) = crs.values[k];
+  if (crs.num_cols != 5 || !jacobian.allFinite()) {
+    return Fail(TwoViewFailure::kRefinementFailed, "Jacobian is not finite");
+  }
+  const int m = static_cast<int>(residuals.size());
+  double sum_squares = 0.0;
+  for (double r : residuals) sum_squares += r * r;
+  const double sigma2 = sum_squares / std::max(1, m - 5);
+  const Eigen::Matrix<double, 5, 5> jtj = jacobian.transpose() * jacobian;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 5, 5>> eig(jtj);
+  const double min_eig = eig.eigenvalues().minCoeff(), max_eig = eig.eigenvalues().maxCoeff();
+  if (!(min_eig > 0.0) || max_eig / min_eig > options.max_condition_number) {
+    return Fail(TwoViewFailure::kSingularInformation,
+                "J^T J condition number " + std::to_string(min_eig > 0.0 ? max_eig / min_eig : INFINITY));
+  }
+  const Eigen::Matrix<double, 5, 5> jtj_inv =
+      eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+
+  RelativePoseResult result;
+  result.success = true;
+  result.rotation = rotation;
+  result.translation = t;
+  result.inliers = std::move(inliers);
+  result.sigma_px = std::sqrt(sigma2);
+  result.median_parallax_deg = median_parallax_deg;
+  result.refine_iterations = refine_iterations;
+  result.covariance_paper = jtj.topLeftCorner<3, 3>().inverse();
+  result.covariance_conditional = sigma2 * result.covariance_paper;
+  result.covariance_marginal = sigma2 * jtj_inv.topLeftCorner<3, 3>();
+  result.covariance_marginal = 0.5 * (result.covariance_marginal + result.covariance_marginal.transpose()).eval();
+  result.covariance = options.covariance_model == RotationCovarianceModel::kConditional ? result.covariance_conditional
+                                                                                       : result.covariance_marginal;
+  return result;
+}
+
+}  // namespace rotation_averaging

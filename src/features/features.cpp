@@ -1,0 +1,96 @@
+#include "rotation_averaging/features/features.h"
+
+#include <algorithm>
+#include <opencv2/features2d.hpp>
+#include <opencv2/flann.hpp>
+#include <opencv2/imgproc.hpp>
+
+namespace rotation_averaging {
+
+const char* FeatureTypeName(FeatureType type) { return type == FeatureType::kOrb ? "orb" : "sift"; }
+
+bool ParseFeatureType(const std::string& text, FeatureType* type) {
+  if (text == "sift") *type = FeatureType::kSift;
+  else if (text == "orb") *type = FeatureType::kOrb;
+  else return false;
+  return true;
+}
+
+Eigen::Matrix3d ScaleIntrinsics(const Eigen::Matrix3d& k, double s) {
+  // Pixel (u, v) at full resolution maps to ((u + 0.5) s - 0.5, (v + 0.5) s - 0.5).
+  Eigen::Matrix3d scaled = k;
+  scaled(0, 0) *= s;
+  scaled(1, 1) *= s;
+  scaled(0, 1) *= s;
+  scaled(0, 2) = (k(0, 2) + 0.5) * s - 0.5;
+  scaled(1, 2) = (k(1, 2) + 0.5) * s - 0.5;
+  return scaled;
+}
+
+ImageFeatures ExtractFeatures(const cv::Mat& image, const FeatureOptions& options) {
+  ImageFeatures out;
+  out.type = options.type;
+  if (image.empty()) return out;
+  cv::Mat grey;
+  if (image.channels() == 3) cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
+  else if (image.channels() == 4) cv::cvtColor(image, grey, cv::COLOR_BGRA2GRAY);
+  else grey = image;
+  if (options.downsample > 0.0 && options.downsample != 1.0) {
+    cv::resize(grey, grey, cv::Size(), options.downsample, options.downsample, cv::INTER_AREA);
+  }
+  out.width = grey.cols;
+  out.height = grey.rows;
+  cv::Ptr<cv::Feature2D> detector;
+  if (options.type == FeatureType::kOrb) {
+    detector = cv::ORB::create(options.max_features);
+  } else {
+    detector = cv::SIFT::create(options.max_features);
+  }
+  std::vector<cv::KeyPoint> keypoints;
+  detector->detectAndCompute(grey, cv::noArray(), keypoints, out.descriptors);
+  out.keypoints_px.reserve(keypoints.size());
+  for (const cv::KeyPoint& k : keypoints) out.keypoints_px.emplace_back(k.pt.x, k.pt.y);
+  return out;
+}
+
+namespace {
+
+// For each row of `query`, the best train index if it passes the ratio test, else -1.
+std::vector<int> RatioMatches(const cv::Ptr<cv::DescriptorMatcher>& matcher, const cv::Mat& query,
+                              const cv::Mat& train, double ratio) {
+  std::vector<std::vector<cv::DMatch>> knn;
+  matcher->knnMatch(query, train, knn, 2);
+  std::vector<int> best(query.rows, -1);
+  for (const auto& m : knn) {
+    if (m.size() == 2 && m[0].distance < ratio * m[1].distance) best[m[0].queryIdx] = m[0].trainIdx;
+    if (m.size() == 1) best[m[0].queryIdx] = m[0].trainIdx;
+  }
+  return best;
+}
+
+}  // namespace
+
+std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const ImageFeatures& b,
+                                               const MatchOptions& options) {
+  std::vector<std::pair<int, int>> matches;
+  if (a.descriptors.rows < 2 || b.descriptors.rows < 2 || a.type != b.type) return matches;
+  cv::Ptr<cv::DescriptorMatcher> matcher;
+  if (a.type == FeatureType::kOrb) {
+    matcher = cv::BFMatcher::create(cv::NORM_HAMMING);
+  } else {
+    matcher = cv::makePtr<cv::FlannBasedMatcher>(cv::makePtr<cv::flann::KDTreeIndexParams>(4),
+                                                 cv::makePtr<cv::flann::SearchParams>(64));
+  }
+  const std::vector<int> ab = RatioMatches(matcher, a.descriptors, b.descriptors, options.ratio);
+  std::vector<int> ba;
+  if (options.mutual) ba = RatioMatches(matcher, b.descriptors, a.descriptors, options.ratio);
+  for (int i = 0; i < static_cast<int>(ab.size()); ++i) {
+    const int j = ab[i];
+    if (j < 0) continue;
+    if (options.mutual && ba[j] != i) continue;
+    matches.emplace_back(i, j);
+  }
+  return matches;
+}
+
+}  // namespace rotation_averaging

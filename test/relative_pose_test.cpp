@@ -1,0 +1,132 @@
+#include "rotation_averaging/estimators/relative_pose.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+#include <random>
+
+#include "rotation_averaging/geometry/so3.h"
+
+namespace rotation_averaging {
+namespace {
+
+struct Scene {
+  Eigen::Matrix3d k;
+  Eigen::Matrix3d rotation;  // R_21
+  Eigen::Vector3d translation;
+  std::vector<Eigen::Vector3d> points;  // in camera 1
+};
+
+Scene MakeScene(double baseline, std::mt19937& rng) {
+  Scene s;
+  s.k << 800, 0, 320, 0, 800, 240, 0, 0, 1;
+  s.rotation = ExpSO3(Eigen::Vector3d(0.05, -0.2, 0.03));
+  s.translation = baseline * Eigen::Vector3d(-1.0, 0.1, 0.05).normalized();
+  std::uniform_real_distribution<double> xy(-2.0, 2.0), z(4.0, 8.0);
+  while (s.points.size() < 300) {
+    const Eigen::Vector3d p(xy(rng), xy(rng), z(rng));
+    const Eigen::Vector3d q = s.rotation * p + s.translation;
+    const Eigen::Vector3d u1 = s.k * p, u2 = s.k * q;
+    if (q.z() < 1.0) continue;
+    const double x1 = u1.x() / u1.z(), y1 = u1.y() / u1.z(), x2 = u2.x() / u2.z(), y2 = u2.y() / u2.z();
+    if (x1 < 0 || x1 > 640 || y1 < 0 || y1 > 480 || x2 < 0 || x2 > 640 || y2 < 0 || y2 > 480) continue;
+    s.points.push_back(p);
+  }
+  return s;
+}
+
+void Observe(const Scene& s, double sigma_px, double outlier_ratio, std::mt19937& rng, std::vector<Eigen::Vector2d>* p1,
+             std::vector<Eigen::Vector2d>* p2) {
+  std::normal_distribution<double> noise(0.0, sigma_px);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  p1->clear();
+  p2->clear();
+  for (const Eigen::Vector3d& p : s.points) {
+    const Eigen::Vector3d u1 = s.k * p, u2 = s.k * (s.rotation * p + s.translation);
+    p1->emplace_back(u1.x() / u1.z() + noise(rng), u1.y() / u1.z() + noise(rng));
+    if (unit(rng) < outlier_ratio) {
+      p2->emplace_back(640 * unit(rng), 480 * unit(rng));
+    } else {
+      p2->emplace_back(u2.x() / u2.z() + noise(rng), u2.y() / u2.z() + noise(rng));
+    }
+  }
+}
+
+TEST(RelativePose, RecoversThePoseWithOutliers) {
+  std::mt19937 rng(1);
+  const Scene s = MakeScene(0.8, rng);
+  std::vector<Eigen::Vector2d> p1, p2;
+  Observe(s, 0.5, 0.2, rng, &p1, &p2);
+  const RelativePoseResult r = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+  ASSERT_TRUE(r.success) << r.message;
+  // Within three predicted standard deviations (this geometry, with its
+  // rotation-translation ambiguity, gives about 0.15 deg at 0.5 px), and small.
+  const double error = AngularDistanceRad(r.rotation, s.rotation);
+  EXPECT_LT(error, 3.0 * std::sqrt(r.covariance.trace()));
+  EXPECT_LT(RadToDeg(error), 0.5);
+  EXPECT_LT(RadToDeg(std::acos(std::min(1.0, r.translation.dot(s.translation.normalized())))), 2.0);
+  EXPECT_NEAR(r.sigma_px, 0.5, 0.1);  // the Sampson distance has one residual dimension: RMS sigma
+  // 300 correspondences, about 60 replaced by random points: the true inliers
+  // are kept and the random ones (a few may land near an epipolar line) not.
+  EXPECT_GT(r.inliers.size(), 225u);
+  EXPECT_LT(r.inliers.size(), 255u);
+}
+
+// Monte Carlo: over many noise draws, the marginal covariance must predict
+// the spread of the rotation estimates (e^T C^-1 e ~ chi2(3), mean 3); the
+// conditional one (t held fixed) is never larger, so it is more confident.
+TEST(RelativePose, MarginalCovariancePredictsTheSpreadOfEstimates) {
+  std::mt19937 rng(7);
+  const Scene s = MakeScene(0.6, rng);
+  std::vector<Eigen::Vector2d> p1, p2;
+  double nees_marginal = 0.0, nees_conditional = 0.0;
+  Eigen::Matrix3d empirical = Eigen::Matrix3d::Zero(), predicted = Eigen::Matrix3d::Zero();
+  int runs = 0;
+  for (int k = 0; k < 120; ++k) {
+    Observe(s, 1.0, 0.0, rng, &p1, &p2);
+    const RelativePoseResult r = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+    ASSERT_TRUE(r.success) << r.message;
+    const Eigen::Vector3d e = LogSO3(r.rotation * s.rotation.transpose());  // R = Exp(e) R_true
+    nees_marginal += e.dot(r.covariance_marginal.ldlt().solve(e));
+    nees_conditional += e.dot(r.covariance_conditional.ldlt().solve(e));
+    empirical += e * e.transpose();
+    predicted += r.covariance_marginal;
+    ++runs;
+  }
+  nees_marginal /= runs;
+  nees_conditional /= runs;
+  EXPECT_GT(nees_marginal, 2.2);
+  EXPECT_LT(nees_marginal, 3.9);
+  EXPECT_GT(nees_conditional, nees_marginal);
+  EXPECT_NEAR(empirical.trace() / predicted.trace(), 1.0, 0.35);
+}
+
+TEST(RelativePose, DegenerateInputsFailWithAReason) {
+  std::mt19937 rng(3);
+  Scene s = MakeScene(0.8, rng);
+  std::vector<Eigen::Vector2d> p1, p2;
+  Observe(s, 0.5, 0.0, rng, &p1, &p2);
+  // Too few correspondences.
+  std::vector<Eigen::Vector2d> few1(p1.begin(), p1.begin() + 10), few2(p2.begin(), p2.begin() + 10);
+  EXPECT_EQ(EstimateRelativePoseWithCovariance(few1, few2, s.k, s.k).failure, TwoViewFailure::kTooFewMatches);
+  // Pure rotation: no parallax.
+  s.translation.setZero();
+  Observe(s, 0.3, 0.0, rng, &p1, &p2);
+  const RelativePoseResult pure = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+  EXPECT_FALSE(pure.success);
+  EXPECT_TRUE(pure.failure == TwoViewFailure::kPureRotation || pure.failure == TwoViewFailure::kTooFewInliers ||
+              pure.failure == TwoViewFailure::kSingularInformation)
+      << TwoViewFailureName(pure.failure);
+  // Pure noise: no consistent geometry.
+  std::uniform_real_distribution<double> u(0.0, 480.0);
+  for (auto& p : p2) p = Eigen::Vector2d(u(rng), u(rng));
+  EXPECT_FALSE(EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k).success);
+  // Mismatched lengths and singular intrinsics do not crash.
+  p2.pop_back();
+  EXPECT_FALSE(EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k).success);
+  p2.push_back(p2.back());
+  EXPECT_FALSE(EstimateRelativePoseWithCovariance(p1, p2, Eigen::Matrix3d::Zero(), s.k).success);
+}
+
+}  // namespace
+}  // namespace rotation_averaging
