@@ -88,6 +88,49 @@ TEST(GraphIo, InvalidEdgesAreSkippedWithAWarning) {
   EXPECT_NE(r.warnings[1].find("not unit"), std::string::npos);
 }
 
+TEST(GraphIo, NativeGraphFormatRoundTripsEveryField) {
+  TempDir dir;
+  ViewGraph g;
+  g.AddView(3, "img_003.jpg");
+  g.AddView(7, "img_007.jpg");
+  g.AddView(9, "img_009.jpg");
+  RelativeRotation e;
+  e.view1 = 3;
+  e.view2 = 7;
+  e.rotation = ExpSO3(Eigen::Vector3d(0.1, -0.2, 0.3));
+  e.has_covariance = true;
+  e.covariance << 4e-6, 1e-7, 0, 1e-7, 2e-6, -3e-8, 0, -3e-8, 9e-6;
+  e.num_inliers = 812;
+  e.source = EdgeSource::kLoopClosure;
+  g.AddEdge(e);
+  e.view2 = 9;
+  e.has_covariance = false;
+  e.source = EdgeSource::kSequential;
+  g.AddEdge(e);
+  const std::string p = dir.Path() + "/graph.txt";
+  std::string error;
+  ASSERT_TRUE(WriteRotavgGraph(p, g, &error)) << error;
+  ViewGraph back;
+  ASSERT_TRUE(ReadViewGraph(p, GraphFormat::kAuto, &back).ok());
+  ASSERT_EQ(back.NumViews(), 3u);
+  ASSERT_EQ(back.NumEdges(), 2u);
+  EXPECT_EQ(back.FindView(7)->name, "img_007.jpg");
+  const RelativeRotation& a = back.Edges()[0];
+  EXPECT_EQ(a.source, EdgeSource::kLoopClosure);
+  EXPECT_EQ(a.num_inliers, 812);
+  EXPECT_TRUE(a.has_covariance);
+  EXPECT_LT((a.covariance - g.Edges()[0].covariance).norm(), 1e-20);
+  EXPECT_LT((a.rotation - g.Edges()[0].rotation).norm(), 1e-14);
+  EXPECT_FALSE(back.Edges()[1].has_covariance);
+  // Names with whitespace cannot be written.
+  g.AddView(11, "bad name");
+  EXPECT_FALSE(WriteRotavgGraph(p, g, &error));
+  // An edge before its views is an error naming the line.
+  const std::string bad = dir.Write("bad.txt", "VIEW 1 a\nEDGE 1 2 other 1 0 0 0 5 -\n");
+  ViewGraph h;
+  EXPECT_NE(ReadViewGraph(bad, GraphFormat::kAuto, &h).error.find("bad.txt:2:"), std::string::npos);
+}
+
 TEST(OrientationIo, CsvRoundTripIsExact) {
   TempDir dir;
   NamedOrientations o;

@@ -107,7 +107,11 @@ std::string EvaluationResult::ToText() const {
   out << "views in ground truth: " << views_in_ground_truth << "\nviews estimated: " << views_estimated
       << "\nviews common: " << views_common << std::fixed << std::setprecision(4)
       << "\nmedian error: " << median_error_deg << " deg\nmean error: " << mean_error_deg << " deg";
-  for (const auto& [t, a] : auc) out << "\nAUC@" << t << ": " << std::setprecision(2) << 100.0 * a << " %";
+  for (const auto& [t, a] : auc) {
+    std::ostringstream threshold;
+    threshold << t;  // shortest form: 2, 0.5
+    out << "\nAUC@" << threshold.str() << ": " << std::setprecision(2) << 100.0 * a << " %";
+  }
   return out.str();
 }
 

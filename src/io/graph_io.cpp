@@ -2,7 +2,10 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
+#include <algorithm>
 #include <filesystem>
+#include <fstream>
+#include <iomanip>
 #include <unordered_set>
 
 #include "rotation_averaging/geometry/so3.h"
@@ -215,6 +218,104 @@ ReadReport ReadIRotAvg(const std::string& path, ViewGraph* graph) {
   return report;
 }
 
+ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph) {
+  ReadReport report;
+  LineReader reader(path);
+  if (!reader.IsOpen()) return {"cannot open " + path};
+  std::string line;
+  while (reader.Next(&line)) {
+    if (IsBlankOrComment(line)) continue;
+    const std::vector<std::string> tokens = SplitTokens(line);
+    if (tokens[0] == "VIEW") {
+      ViewId id;
+      if (tokens.size() != 3 || !ParseUint64(tokens[1], &id)) return {reader.Where("expected 'VIEW id name'")};
+      if (!graph->AddView(id, tokens[2]) && graph->FindView(id)->name != tokens[2]) {
+        return {reader.Where("view " + tokens[1] + " declared twice with different names")};
+      }
+    } else if (tokens[0] == "EDGE") {
+      RelativeRotation edge;
+      double q[4];
+      if ((tokens.size() != 10 && tokens.size() != 15) || !ParseIds(tokens, 1, &edge.view1, &edge.view2) ||
+          !ParseEdgeSource(tokens[3], &edge.source) || !ParseDoubles(tokens, 4, 4, q) ||
+          !ParseInt(tokens[8], &edge.num_inliers)) {
+        return {reader.Where("expected 'EDGE id1 id2 source qw qx qy qz num_inliers (c00 c01 c02 c11 c12 c22 | -)'")};
+      }
+      if (tokens.size() == 15) {
+        double c[6];
+        if (!ParseDoubles(tokens, 9, 6, c)) return {reader.Where("malformed covariance")};
+        edge.has_covariance = true;
+        edge.covariance << c[0], c[1], c[2], c[1], c[3], c[4], c[2], c[4], c[5];
+      } else if (tokens[9] != "-") {
+        return {reader.Where("covariance must be six numbers or '-'")};
+      }
+      const double norm = Eigen::Vector4d(q[0], q[1], q[2], q[3]).norm();
+      if (!(std::abs(norm - 1.0) < 1e-3)) {
+        report.warnings.push_back(reader.Where("edge skipped: quaternion is not unit (norm " + std::to_string(norm) + ")"));
+        continue;
+      }
+      edge.rotation = QuaternionToRotation(q[0], q[1], q[2], q[3]);
+      if (!graph->HasView(edge.view1) || !graph->HasView(edge.view2)) {
+        return {reader.Where("edge uses a view that no VIEW line declared")};
+      }
+      std::string why;
+      if (graph->AddEdge(edge, &why, DuplicatePolicy::kKeepBoth) == AddEdgeResult::kRejected) {
+        report.warnings.push_back(reader.Where("edge skipped: " + why));
+      }
+    } else {
+      return {reader.Where("unknown record '" + tokens[0] + "' (VIEW or EDGE)")};
+    }
+  }
+  report.lines = reader.LineNumber();
+  return report;
+}
+
+bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::string* error) {
+  const std::string temporary = path + ".tmp";
+  {
+    std::ofstream out(temporary);
+    if (!out) {
+      if (error) *error = "cannot write " + temporary;
+      return false;
+    }
+    out << "# rotation_averaging view graph v1\n"
+        << "# VIEW id name | EDGE id1 id2 source qw qx qy qz num_inliers (c00 c01 c02 c11 c12 c22 | -)\n"
+        << "# R_12 = R_1 R_2^T (world-to-camera R); covariance of a right perturbation, rad^2\n";
+    out << std::setprecision(17);
+    std::vector<View> views = graph.Views();
+    std::sort(views.begin(), views.end(), [](const View& a, const View& b) { return a.id < b.id; });
+    for (const View& v : views) {
+      if (v.name.empty() || v.name.find_first_of(" \t\r\n") != std::string::npos) {
+        if (error) *error = "view name '" + v.name + "' is empty or contains whitespace";
+        return false;
+      }
+      out << "VIEW " << v.id << ' ' << v.name << '\n';
+    }
+    for (const RelativeRotation& e : graph.Edges()) {
+      const Eigen::Vector4d q = RotationToQuaternion(e.rotation);
+      out << "EDGE " << e.view1 << ' ' << e.view2 << ' ' << EdgeSourceName(e.source) << ' ' << q[0] << ' ' << q[1]
+          << ' ' << q[2] << ' ' << q[3] << ' ' << e.num_inliers;
+      if (e.has_covariance) {
+        const Eigen::Matrix3d& c = e.covariance;
+        out << ' ' << c(0, 0) << ' ' << c(0, 1) << ' ' << c(0, 2) << ' ' << c(1, 1) << ' ' << c(1, 2) << ' ' << c(2, 2);
+      } else {
+        out << " -";
+      }
+      out << '\n';
+    }
+    if (!out.flush()) {
+      if (error) *error = "write to " + temporary + " failed";
+      return false;
+    }
+  }
+  std::error_code ec;
+  fs::rename(temporary, path, ec);
+  if (ec) {
+    if (error) *error = "cannot rename " + temporary + ": " + ec.message();
+    return false;
+  }
+  return true;
+}
+
 const char* GraphFormatName(GraphFormat format) {
   switch (format) {
     case GraphFormat::kAuto: return "auto";
@@ -222,13 +323,14 @@ const char* GraphFormatName(GraphFormat format) {
     case GraphFormat::kG2o: return "g2o";
     case GraphFormat::kToro: return "toro";
     case GraphFormat::kIRotAvg: return "irotavg";
+    case GraphFormat::kRotavg: return "rotavg";
   }
   return "?";
 }
 
 bool ParseGraphFormat(const std::string& text, GraphFormat* format) {
   for (GraphFormat f : {GraphFormat::kAuto, GraphFormat::kOneDsfm, GraphFormat::kG2o, GraphFormat::kToro,
-                        GraphFormat::kIRotAvg}) {
+                        GraphFormat::kIRotAvg, GraphFormat::kRotavg}) {
     if (text == GraphFormatName(f)) {
       *format = f;
       return true;
@@ -249,6 +351,7 @@ GraphFormat DetectGraphFormat(const std::string& path) {
     const std::string& tag = tokens[0];
     if (tag == "VERTEX_SE3:QUAT" || tag == "EDGE_SE3:QUAT") return GraphFormat::kG2o;
     if (tag == "VERTEX3" || tag == "EDGE3") return GraphFormat::kToro;
+    if (tag == "VIEW" || tag == "EDGE") return GraphFormat::kRotavg;
     if (tokens.size() == 3) return GraphFormat::kIRotAvg;
     if (tokens.size() == 11 || tokens.size() == 14) return GraphFormat::kOneDsfm;
     break;
@@ -269,11 +372,12 @@ ReadReport ReadViewGraph(const std::string& path, GraphFormat format, ViewGraph*
     case GraphFormat::kG2o: return ReadG2o(path, graph);
     case GraphFormat::kToro: return ReadToro(path, graph);
     case GraphFormat::kIRotAvg: return ReadIRotAvg(path, graph);
+    case GraphFormat::kRotavg: return ReadRotavgGraph(path, graph);
     case GraphFormat::kAuto: break;
   }
   std::error_code ec;
   if (!fs::exists(path, ec)) return {"cannot open " + path};
-  return {path + ": unknown graph format (use --format 1dsfm|g2o|toro|irotavg)"};
+  return {path + ": unknown graph format (use --format 1dsfm|g2o|toro|irotavg|rotavg)"};
 }
 
 }  // namespace rotation_averaging

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "rotation_averaging/controllers/image_pipeline.h"
 #include "rotation_averaging/estimators/rotation_averaging.h"
 #include "rotation_averaging/eval/rotation_evaluation.h"
 #include "rotation_averaging/io/graph_io.h"
@@ -27,7 +28,7 @@ namespace {
 const char* kUsage = R"(usage:
   rotavg solve INPUT --output orientations.csv [options]
       INPUT                 1DSfM EGs.txt (or its folder; cc.txt beside it is used), g2o, TORO or iRotAvg file
-      --format F            auto (default), 1dsfm, g2o, toro, irotavg
+      --format F            auto (default), 1dsfm, g2o, toro, irotavg, rotavg (the package's graph file)
       --solver S            irls (default, fast sparse IRLS), ceres, l1_irls (Chatterjee-Govindu baseline)
       --loss L              magsac (default), squared, huber, soft_l1, l0.5, cauchy, geman_mcclure, tukey
       --weighting W         covariance (default), none, inliers, trace, frobenius
@@ -40,6 +41,11 @@ const char* kUsage = R"(usage:
       --gt-format F         auto (default), csv, strecha, colmap, chain
   rotavg eval --estimate orientations.csv --gt PATH [--gt-format F] [--json]
       prints views in ground truth / estimated / common, median and mean error, AUC@2/5/10/20
+  rotavg images --images DIR --intrinsics K.txt [--downsample F] [--features sift|orb] [--max-features N]
+               [--pairs exhaustive|sequential:N] [--covariance marginal|conditional] [--graph-out graph.txt]
+               [--output orientations.csv] [--gt PATH] [--verbose] [all averaging options of solve]
+      features, matching, relative poses with rotation covariances, then averaging; prints per-stage
+      timings and per-pair statistics; --graph-out writes the view graph for `rotavg solve`
   rotavg demo [--views N] [--noise-deg D] [--outlier-ratio R] [--seed S]
       built-in synthetic graph with ground truth (default 500 views, 3 deg noise varying 5x from
       edge to edge, 20% outlier edges): solves it with the squared loss, the L1-IRLS baseline and
@@ -94,6 +100,39 @@ bool CheckKnown(const Args& args, const std::vector<std::string>& known, std::st
   return true;
 }
 
+const std::vector<std::string> kAveragingFlags = {"--solver", "--loss", "--weighting", "--sigma-max",
+                                                  "--normalization", "--max-iterations"};
+
+bool ParseAveragingOptions(const Args& args, ra::RotationAveragingOptions* options, std::string* error) {
+  auto fail = [error](const std::string& e) {
+    *error = e;
+    return false;
+  };
+  if (!ra::ParseSolverType(args.Get("--solver", "irls"), &options->solver)) return fail("unknown --solver");
+  if (!ra::ParseLossType(args.Get("--loss", "magsac"), &options->loss)) return fail("unknown --loss");
+  if (!ra::ParseEdgeWeighting(args.Get("--weighting", "covariance"), &options->weighting)) {
+    return fail("unknown --weighting");
+  }
+  if (!ra::ParseCovarianceNormalization(args.Get("--normalization", "std"), &options->covariance_normalization)) {
+    return fail("unknown --normalization (std or paper)");
+  }
+  if (args.Has("--sigma-max")) {
+    options->loss_scale = std::atof(args.Get("--sigma-max").c_str());
+    if (!(options->loss_scale > 0.0)) return fail("--sigma-max must be positive");
+  }
+  if (args.Has("--max-iterations")) {
+    options->max_iterations = std::atoi(args.Get("--max-iterations").c_str());
+    if (options->max_iterations < 0) return fail("--max-iterations must be >= 0");
+  }
+  if (args.Has("--no-gnc")) options->gnc_initial_scale_factor = 1.0;
+  return true;
+}
+
+std::vector<std::string> Concat(std::vector<std::string> a, const std::vector<std::string>& b) {
+  a.insert(a.end(), b.begin(), b.end());
+  return a;
+}
+
 int Evaluate(const ra::NamedOrientations& estimate, const std::string& gt_path, const std::string& gt_format_text,
              bool json) {
   ra::GroundTruthFormat gt_format;
@@ -110,32 +149,14 @@ int Solve(int argc, char** argv) {
   Args args;
   std::string error;
   if (!ParseArgs(argc, argv, 2, {"--no-gnc", "--json"}, &args, &error)) return Fail(error);
-  if (!CheckKnown(args, {"--format", "--solver", "--loss", "--weighting", "--sigma-max", "--normalization",
-                         "--max-iterations", "--output", "--gt", "--gt-format"},
-                  &error)) {
+  if (!CheckKnown(args, Concat({"--format", "--output", "--gt", "--gt-format"}, kAveragingFlags), &error)) {
     return Fail(error);
   }
   if (args.positional.size() != 1) return Fail("solve takes exactly one INPUT\n" + std::string(kUsage));
   ra::RotationAveragingOptions options;
   ra::GraphFormat format;
   if (!ra::ParseGraphFormat(args.Get("--format", "auto"), &format)) return Fail("unknown --format");
-  if (!ra::ParseSolverType(args.Get("--solver", "irls"), &options.solver)) return Fail("unknown --solver");
-  if (!ra::ParseLossType(args.Get("--loss", "magsac"), &options.loss)) return Fail("unknown --loss");
-  if (!ra::ParseEdgeWeighting(args.Get("--weighting", "covariance"), &options.weighting)) {
-    return Fail("unknown --weighting");
-  }
-  if (!ra::ParseCovarianceNormalization(args.Get("--normalization", "std"), &options.covariance_normalization)) {
-    return Fail("unknown --normalization (std or paper)");
-  }
-  if (args.Has("--sigma-max")) {
-    options.loss_scale = std::atof(args.Get("--sigma-max").c_str());
-    if (!(options.loss_scale > 0.0)) return Fail("--sigma-max must be positive");
-  }
-  if (args.Has("--max-iterations")) {
-    options.max_iterations = std::atoi(args.Get("--max-iterations").c_str());
-    if (options.max_iterations < 0) return Fail("--max-iterations must be >= 0");
-  }
-  if (args.Has("--no-gnc")) options.gnc_initial_scale_factor = 1.0;
+  if (!ParseAveragingOptions(args, &options, &error)) return Fail(error);
   const std::string output = args.Get("--output");
   if (output.empty() && !args.Has("--gt")) return Fail("solve needs --output (and/or --gt)");
 
@@ -179,6 +200,78 @@ int EvalCommand(int argc, char** argv) {
   const ra::ReadReport report = ra::ReadOrientationsCsv(args.Get("--estimate"), &estimate);
   if (!report.ok()) return Fail(report.error);
   return Evaluate(estimate, args.Get("--gt"), args.Get("--gt-format", "auto"), args.Has("--json"));
+}
+
+int Images(int argc, char** argv) {
+  Args args;
+  std::string error;
+  if (!ParseArgs(argc, argv, 2, {"--no-gnc", "--json", "--verbose"}, &args, &error)) return Fail(error);
+  if (!CheckKnown(args,
+                  Concat({"--images", "--intrinsics", "--downsample", "--features", "--max-features", "--pairs",
+                          "--covariance", "--graph-out", "--output", "--gt", "--gt-format"},
+                         kAveragingFlags),
+                  &error)) {
+    return Fail(error);
+  }
+  if (!args.Has("--images") || !args.Has("--intrinsics")) return Fail("images needs --images DIR and --intrinsics K.txt");
+  ra::ImagePipelineOptions pipeline;
+  if (!ra::ParseFeatureType(args.Get("--features", "sift"), &pipeline.features.type)) return Fail("unknown --features");
+  pipeline.features.downsample = std::atof(args.Get("--downsample", "1").c_str());
+  if (!(pipeline.features.downsample > 0.0 && pipeline.features.downsample <= 1.0)) {
+    return Fail("--downsample must be in (0, 1] (0.25 = a quarter of the width)");
+  }
+  pipeline.features.max_features = std::atoi(args.Get("--max-features", "8000").c_str());
+  if (pipeline.features.max_features < 10) return Fail("--max-features must be >= 10");
+  if (!ra::PairSelection::Parse(args.Get("--pairs", "exhaustive"), &pipeline.pairs)) {
+    return Fail("--pairs must be exhaustive or sequential:N");
+  }
+  if (!ra::ParseRotationCovarianceModel(args.Get("--covariance", "marginal"), &pipeline.relative_pose.covariance_model)) {
+    return Fail("--covariance must be marginal or conditional");
+  }
+  ra::RotationAveragingOptions options;
+  if (!ParseAveragingOptions(args, &options, &error)) return Fail(error);
+  const std::string output = args.Get("--output");
+  if (output.empty() && !args.Has("--gt") && !args.Has("--graph-out")) {
+    return Fail("images needs --output, --graph-out or --gt");
+  }
+  Eigen::Matrix3d k;
+  if (!ra::ReadIntrinsics(args.Get("--intrinsics"), &k, &error)) return Fail(error);
+  const std::vector<std::string> images = ra::ListImages(args.Get("--images"));
+  if (images.size() < 2) return Fail("need at least two images in " + args.Get("--images"));
+
+  const ra::ImagePipelineResult front = ra::BuildViewGraphFromImages(images, k, pipeline);
+  std::cout << front.Report() << "\n";
+  const bool verbose = args.Has("--verbose");
+  std::cout << "per pair (image1 image2: matches, inliers, sigma px, parallax deg, ms, result):\n";
+  int shown = 0;
+  for (const ra::PairReport& p : front.pairs) {
+    if (!verbose && shown >= 20) break;
+    ++shown;
+    std::cout << "  " << front.graph.FindView(p.image1)->name << " " << front.graph.FindView(p.image2)->name << ": "
+              << p.matches << ", " << p.pose.inliers.size() << ", " << std::setprecision(3) << p.pose.sigma_px << ", "
+              << p.pose.median_parallax_deg << ", " << p.milliseconds << ", "
+              << (p.pose.success ? "ok" : std::string(ra::TwoViewFailureName(p.pose.failure)) + " (" + p.pose.message + ")")
+              << "\n";
+  }
+  if (!verbose && front.pairs.size() > 20) std::cout << "  ... " << front.pairs.size() - 20 << " more (--verbose)\n";
+  if (args.Has("--graph-out")) {
+    if (!ra::WriteRotavgGraph(args.Get("--graph-out"), front.graph, &error)) return Fail(error);
+    std::cout << "wrote the view graph to " << args.Get("--graph-out") << "\n";
+  }
+  ra::Orientations orientations;
+  ra::RotationAveragingSummary summary;
+  const bool ok = ra::SolveRotationAveraging(front.graph, options, &orientations, &summary);
+  std::cout << "averaging: " << summary.Report() << std::endl;
+  const ra::NamedOrientations named = ra::NameOrientations(front.graph, orientations);
+  if (!output.empty()) {
+    if (!ra::WriteOrientationsCsv(output, named, &error)) return Fail(error);
+    std::cout << "wrote " << named.size() << " orientations to " << output << std::endl;
+  }
+  if (args.Has("--gt")) {
+    const int rc = Evaluate(named, args.Get("--gt"), args.Get("--gt-format", "auto"), args.Has("--json"));
+    if (rc != 0) return rc;
+  }
+  return ok ? 0 : 1;
 }
 
 int Demo(int argc, char** argv) {
@@ -240,6 +333,7 @@ int main(int argc, char** argv) {
     if (command == "solve") return Solve(argc, argv);
     if (command == "eval") return EvalCommand(argc, argv);
     if (command == "demo") return Demo(argc, argv);
+    if (command == "images") return Images(argc, argv);
   } catch (const std::exception& e) {
     return Fail(e.what());
   }

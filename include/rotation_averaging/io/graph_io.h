@@ -48,13 +48,29 @@ ReadReport ReadToro(const std::string& path, ViewGraph* graph);
 // (ignored). No covariances.
 ReadReport ReadIRotAvg(const std::string& path, ViewGraph* graph);
 
-enum class GraphFormat { kAuto, kOneDsfm, kG2o, kToro, kIRotAvg };
+// The package's own view-graph text format (written by `rotavg images`, read
+// by `rotavg solve`); conventions of geometry/so3.h, one record per line:
+//
+//   # rotation_averaging view graph v1
+//   VIEW <id> <name>
+//   EDGE <id1> <id2> <source> <qw> <qx> <qy> <qz> <num_inliers> <covariance>
+//
+// <source> is rig | sequential | loop_closure | other; the quaternion is
+// R_12 = R_1 R_2^T; <covariance> is the upper triangle c00 c01 c02 c11 c12 c22
+// of the right-perturbation covariance in rad^2, or a single '-' when there is
+// none. Names contain no whitespace. VIEW lines come before the EDGE lines
+// that use them. Edges are kept as listed (repeated pairs are kept).
+ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph);
+bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::string* error);
+
+enum class GraphFormat { kAuto, kOneDsfm, kG2o, kToro, kIRotAvg, kRotavg };
 const char* GraphFormatName(GraphFormat format);
 bool ParseGraphFormat(const std::string& text, GraphFormat* format);
 // Guesses the format from the file name and first record: a directory or a
 // file named EGs.txt is 1DSfM (cc.txt beside it is used), *.g2o or a file
 // starting with VERTEX_SE3:QUAT/EDGE_SE3:QUAT is g2o, EDGE3/VERTEX3 is TORO,
-// and a first line of three integers is iRotAvg.
+// a first line of three integers is iRotAvg, and VIEW/EDGE records are the
+// package's own format.
 GraphFormat DetectGraphFormat(const std::string& path);
 ReadReport ReadViewGraph(const std::string& path, GraphFormat format, ViewGraph* graph);
 

@@ -1,0 +1,73 @@
+// From images to a view graph with rotation covariances: features, pair
+// selection, matching, relative pose with covariance per pair.
+#ifndef ROTATION_AVERAGING_CONTROLLERS_IMAGE_PIPELINE_H_
+#define ROTATION_AVERAGING_CONTROLLERS_IMAGE_PIPELINE_H_
+
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "rotation_averaging/estimators/relative_pose.h"
+#include "rotation_averaging/features/features.h"
+#include "rotation_averaging/scene/view_graph.h"
+
+namespace rotation_averaging {
+
+struct PairSelection {
+  enum class Mode { kExhaustive, kSequential, kList } mode = Mode::kExhaustive;
+  int window = 5;                                // kSequential: each image with the next `window`
+  std::vector<std::pair<int, int>> pairs;        // kList: image indices
+  // "exhaustive" or "sequential:N".
+  static bool Parse(const std::string& text, PairSelection* selection);
+};
+
+struct ImagePipelineOptions {
+  FeatureOptions features;
+  MatchOptions matching;
+  RelativePoseOptions relative_pose;
+  PairSelection pairs;
+};
+
+struct PairReport {
+  int image1 = 0, image2 = 0;
+  int matches = 0;
+  RelativePoseResult pose;  // R_21 with covariance, inliers, failure reason
+  double milliseconds = 0.0;  // matching + relative pose + covariance
+};
+
+struct ImagePipelineResult {
+  ViewGraph graph;                 // view id = image index, name = file name
+  std::vector<PairReport> pairs;   // every pair tried
+  std::vector<int> features_per_image;
+  double features_s = 0.0, matching_s = 0.0, relative_pose_s = 0.0;
+  std::map<std::string, int> failures;  // reason -> count
+  std::vector<std::string> errors;      // images that could not be read
+  std::string Report() const;
+};
+
+// Lists the images (jpg, jpeg, png, ppm, pgm, tif, tiff, bmp) of a folder,
+// sorted by name.
+std::vector<std::string> ListImages(const std::string& directory);
+
+// Reads a 3x3 intrinsics matrix (nine numbers, row-major, whitespace separated).
+bool ReadIntrinsics(const std::string& path, Eigen::Matrix3d* k, std::string* error);
+
+// Runs the front end over images that share the intrinsics `k` (of the
+// full-resolution images). Edge (i, j) stores R_ij = R_i R_j^T and the
+// covariance of its right perturbation (estimators/relative_pose.h).
+ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& image_paths, const Eigen::Matrix3d& k,
+                                             const ImagePipelineOptions& options);
+
+// Same, from features already extracted (e.g. by the node), with their
+// intrinsics at the resolution the features were detected in.
+ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>& features,
+                                               const std::vector<std::string>& names, const Eigen::Matrix3d& k,
+                                               const ImagePipelineOptions& options);
+
+// The edge of one successful pair (i, j).
+RelativeRotation EdgeFromPair(const PairReport& pair);
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_CONTROLLERS_IMAGE_PIPELINE_H_

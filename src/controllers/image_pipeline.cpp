@@ -1,0 +1,199 @@
+#include "rotation_averaging/controllers/image_pipeline.h"
+
+#include <algorithm>
+#include <chrono>
+#include <filesystem>
+#include <iomanip>
+#include <opencv2/imgcodecs.hpp>
+#include <sstream>
+
+#include "rotation_averaging/io/text_lines.h"
+
+namespace rotation_averaging {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
+
+std::vector<std::pair<int, int>> SelectPairs(int n, const PairSelection& selection) {
+  std::vector<std::pair<int, int>> pairs;
+  switch (selection.mode) {
+    case PairSelection::Mode::kExhaustive:
+      for (int i = 0; i < n; ++i)
+        for (int j = i + 1; j < n; ++j) pairs.emplace_back(i, j);
+      break;
+    case PairSelection::Mode::kSequential:
+      for (int i = 0; i < n; ++i)
+        for (int j = i + 1; j < n && j <= i + selection.window; ++j) pairs.emplace_back(i, j);
+      break;
+    case PairSelection::Mode::kList:
+      for (const auto& [i, j] : selection.pairs) {
+        if (i >= 0 && j >= 0 && i < n && j < n && i != j) pairs.emplace_back(std::min(i, j), std::max(i, j));
+      }
+      break;
+  }
+  return pairs;
+}
+
+}  // namespace
+
+bool PairSelection::Parse(const std::string& text, PairSelection* selection) {
+  if (text == "exhaustive") {
+    selection->mode = Mode::kExhaustive;
+    return true;
+  }
+  if (text.rfind("sequential:", 0) == 0) {
+    int window = 0;
+    if (!ParseInt(text.substr(11), &window) || window < 1) return false;
+    selection->mode = Mode::kSequential;
+    selection->window = window;
+    return true;
+  }
+  return false;
+}
+
+std::vector<std::string> ListImages(const std::string& directory) {
+  std::vector<std::string> images;
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator(directory, ec)) {
+    std::string ext = entry.path().extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+    if (ext == ".jpg" || ext == ".jpeg" || ext == ".png" || ext == ".ppm" || ext == ".pgm" || ext == ".tif" ||
+        ext == ".tiff" || ext == ".bmp") {
+      images.push_back(entry.path().string());
+    }
+  }
+  std::sort(images.begin(), images.end());
+  return images;
+}
+
+bool ReadIntrinsics(const std::string& path, Eigen::Matrix3d* k, std::string* error) {
+  LineReader reader(path);
+  if (!reader.IsOpen()) {
+    *error = "cannot open " + path;
+    return false;
+  }
+  std::vector<double> values;
+  std::string line;
+  while (reader.Next(&line)) {
+    if (IsBlankOrComment(line)) continue;
+    for (const std::string& t : SplitTokens(line)) {
+      double v;
+      if (!ParseDouble(t, &v) || !std::isfinite(v)) {
+        *error = reader.Where("'" + t + "' is not a finite number");
+        return false;
+      }
+      values.push_back(v);
+    }
+  }
+  if (values.size() != 9) {
+    *error = path + ": expected 9 numbers (3x3 K), found " + std::to_string(values.size());
+    return false;
+  }
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) (*k)(r, c) = values[3 * r + c];
+  if (!((*k)(0, 0) > 0.0 && (*k)(1, 1) > 0.0 && std::abs((*k)(2, 2) - 1.0) < 1e-9)) {
+    *error = path + ": K must have positive focal lengths and K(2,2) = 1";
+    return false;
+  }
+  return true;
+}
+
+RelativeRotation EdgeFromPair(const PairReport& pair) {
+  RelativeRotation edge;
+  edge.view1 = static_cast<ViewId>(pair.image1);
+  edge.view2 = static_cast<ViewId>(pair.image2);
+  edge.rotation = pair.pose.rotation.transpose();  // R_ij = R_ji^T
+  edge.has_covariance = true;
+  edge.covariance = pair.pose.covariance;  // left perturbation of R_ji = right perturbation of R_ij
+  edge.num_inliers = static_cast<int>(pair.pose.inliers.size());
+  edge.source = pair.image2 == pair.image1 + 1 ? EdgeSource::kSequential : EdgeSource::kOther;
+  return edge;
+}
+
+ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>& features,
+                                               const std::vector<std::string>& names, const Eigen::Matrix3d& k,
+                                               const ImagePipelineOptions& options) {
+  ImagePipelineResult result;
+  const int n = static_cast<int>(features.size());
+  for (int i = 0; i < n; ++i) {
+    result.graph.AddView(static_cast<ViewId>(i), i < static_cast<int>(names.size()) ? names[i] : "");
+    result.features_per_image.push_back(static_cast<int>(features[i].keypoints_px.size()));
+  }
+  for (const auto& [i, j] : SelectPairs(n, options.pairs)) {
+    PairReport report;
+    report.image1 = i;
+    report.image2 = j;
+    const auto start = Clock::now();
+    const std::vector<std::pair<int, int>> matches = MatchFeatures(features[i], features[j], options.matching);
+    result.matching_s += Seconds(start);
+    report.matches = static_cast<int>(matches.size());
+    std::vector<Eigen::Vector2d> p1, p2;
+    p1.reserve(matches.size());
+    p2.reserve(matches.size());
+    for (const auto& [a, b] : matches) {
+      p1.push_back(features[i].keypoints_px[a]);
+      p2.push_back(features[j].keypoints_px[b]);
+    }
+    const auto pose_start = Clock::now();
+    report.pose = EstimateRelativePoseWithCovariance(p1, p2, k, k, options.relative_pose);
+    result.relative_pose_s += Seconds(pose_start);
+    report.milliseconds = 1e3 * Seconds(start);
+    if (report.pose.success) {
+      std::string why;
+      if (result.graph.AddEdge(EdgeFromPair(report), &why) == AddEdgeResult::kRejected) {
+        report.pose.success = false;
+        report.pose.message = "edge rejected: " + why;
+        ++result.failures["edge_rejected"];
+      }
+    } else {
+      ++result.failures[TwoViewFailureName(report.pose.failure)];
+    }
+    result.pairs.push_back(std::move(report));
+  }
+  return result;
+}
+
+ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& image_paths, const Eigen::Matrix3d& k,
+                                             const ImagePipelineOptions& options) {
+  std::vector<ImageFeatures> features(image_paths.size());
+  std::vector<std::string> names;
+  std::vector<std::string> errors;
+  const auto start = Clock::now();
+  for (std::size_t i = 0; i < image_paths.size(); ++i) {
+    names.push_back(fs::path(image_paths[i]).filename().string());
+    const cv::Mat image = cv::imread(image_paths[i], cv::IMREAD_GRAYSCALE);
+    if (image.empty()) {
+      errors.push_back("cannot read image " + image_paths[i]);
+      continue;
+    }
+    features[i] = ExtractFeatures(image, options.features);
+  }
+  const double features_s = Seconds(start);
+  const double s = options.features.downsample > 0.0 ? options.features.downsample : 1.0;
+  ImagePipelineResult result = BuildViewGraphFromFeatures(features, names, ScaleIntrinsics(k, s), options);
+  result.features_s = features_s;
+  result.errors = std::move(errors);
+  return result;
+}
+
+std::string ImagePipelineResult::Report() const {
+  std::ostringstream out;
+  const int n = static_cast<int>(features_per_image.size());
+  int ok = 0;
+  for (const PairReport& p : pairs) ok += p.pose.success;
+  double mean_features = 0.0;
+  for (int f : features_per_image) mean_features += f;
+  out << std::fixed << std::setprecision(1) << "images: " << n << ", features per image: "
+      << (n ? mean_features / n : 0.0) << "\npairs: " << pairs.size() << " tried, " << ok << " with a relative pose";
+  for (const auto& [reason, count] : failures) out << "\n  rejected (" << reason << "): " << count;
+  out << "\ntime: features " << features_s << " s (" << (n ? 1e3 * features_s / n : 0.0) << " ms/image), matching "
+      << matching_s << " s, relative pose + covariance " << relative_pose_s << " s ("
+      << (pairs.empty() ? 0.0 : 1e3 * (matching_s + relative_pose_s) / pairs.size()) << " ms/pair)";
+  for (const std::string& e : errors) out << "\nerror: " << e;
+  return out.str();
+}
+
+}  // namespace rotation_averaging
