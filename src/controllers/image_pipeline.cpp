@@ -1,5 +1,6 @@
 #include "rotation_averaging/controllers/image_pipeline.h"
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <chrono>
 #include <filesystem>
@@ -69,6 +70,68 @@ std::vector<std::string> ListImages(const std::string& directory) {
   return images;
 }
 
+Eigen::Vector2d CameraIntrinsics::Undistort(const Eigen::Vector2d& pixel, const Eigen::Matrix3d& scaled_k) const {
+  if (k1 == 0.0 && k2 == 0.0) return pixel;
+  const Eigen::Vector3d d = scaled_k.inverse() * pixel.homogeneous();
+  const Eigen::Vector2d distorted = d.hnormalized();
+  Eigen::Vector2d x = distorted;
+  for (int it = 0; it < 20; ++it) {  // fixed point: x = x_d / (1 + k1 r^2 + k2 r^4)
+    const double r2 = x.squaredNorm();
+    x = distorted / (1.0 + k1 * r2 + k2 * r2 * r2);
+  }
+  return (scaled_k * x.homogeneous()).hnormalized();
+}
+
+bool ReadCameraIntrinsics(const std::string& path, CameraIntrinsics* intrinsics, std::string* error) {
+  LineReader reader(path);
+  if (!reader.IsOpen()) {
+    *error = "cannot open " + path;
+    return false;
+  }
+  std::string line;
+  while (reader.Next(&line)) {
+    if (IsBlankOrComment(line)) continue;
+    const std::vector<std::string> t = SplitTokens(line);
+    if (t.size() >= 5 && (t[1] == "SIMPLE_PINHOLE" || t[1] == "PINHOLE" || t[1] == "SIMPLE_RADIAL" || t[1] == "RADIAL")) {
+      std::vector<double> p;
+      for (std::size_t i = 4; i < t.size(); ++i) {
+        double v;
+        if (!ParseDouble(t[i], &v)) {
+          *error = reader.Where("'" + t[i] + "' is not a number");
+          return false;
+        }
+        p.push_back(v);
+      }
+      const std::size_t needed = t[1] == "SIMPLE_PINHOLE" ? 3 : t[1] == "PINHOLE" ? 4 : t[1] == "SIMPLE_RADIAL" ? 4 : 5;
+      if (p.size() != needed) {
+        *error = reader.Where(t[1] + " needs " + std::to_string(needed) + " parameters");
+        return false;
+      }
+      Eigen::Matrix3d& k = intrinsics->k;
+      k.setIdentity();
+      if (t[1] == "PINHOLE") {
+        k(0, 0) = p[0];
+        k(1, 1) = p[1];
+        k(0, 2) = p[2];
+        k(1, 2) = p[3];
+      } else {
+        k(0, 0) = k(1, 1) = p[0];
+        k(0, 2) = p[1];
+        k(1, 2) = p[2];
+        if (t[1] == "SIMPLE_RADIAL") intrinsics->k1 = p[3];
+        if (t[1] == "RADIAL") {
+          intrinsics->k1 = p[3];
+          intrinsics->k2 = p[4];
+        }
+      }
+      return true;
+    }
+    break;  // not a COLMAP camera line: try K.txt
+  }
+  intrinsics->k1 = intrinsics->k2 = 0.0;
+  return ReadIntrinsics(path, &intrinsics->k, error);
+}
+
 bool ReadIntrinsics(const std::string& path, Eigen::Matrix3d* k, std::string* error) {
   LineReader reader(path);
   if (!reader.IsOpen()) {
@@ -122,12 +185,18 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
     result.graph.AddView(static_cast<ViewId>(i), i < static_cast<int>(names.size()) ? names[i] : "");
     result.features_per_image.push_back(static_cast<int>(features[i].keypoints_px.size()));
   }
+  // One nearest-neighbour index per image, reused by every pair it is in.
+  const auto index_start = Clock::now();
+  std::vector<std::unique_ptr<FeatureIndex>> indices;
+  for (const ImageFeatures& f : features) indices.push_back(std::make_unique<FeatureIndex>(f));
+  result.matching_s += Seconds(index_start);
   for (const auto& [i, j] : SelectPairs(n, options.pairs)) {
     PairReport report;
     report.image1 = i;
     report.image2 = j;
     const auto start = Clock::now();
-    const std::vector<std::pair<int, int>> matches = MatchFeatures(features[i], features[j], options.matching);
+    const std::vector<std::pair<int, int>> matches =
+        MatchFeatures(features[i], *indices[i], features[j], *indices[j], options.matching);
     result.matching_s += Seconds(start);
     report.matches = static_cast<int>(matches.size());
     std::vector<Eigen::Vector2d> p1, p2;
@@ -156,11 +225,13 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
   return result;
 }
 
-ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& image_paths, const Eigen::Matrix3d& k,
-                                             const ImagePipelineOptions& options) {
+ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& image_paths,
+                                             const CameraIntrinsics& intrinsics, const ImagePipelineOptions& options) {
   std::vector<ImageFeatures> features(image_paths.size());
   std::vector<std::string> names;
   std::vector<std::string> errors;
+  const double s = options.features.downsample > 0.0 ? options.features.downsample : 1.0;
+  const Eigen::Matrix3d scaled_k = ScaleIntrinsics(intrinsics.k, s);
   const auto start = Clock::now();
   for (std::size_t i = 0; i < image_paths.size(); ++i) {
     names.push_back(fs::path(image_paths[i]).filename().string());
@@ -170,10 +241,10 @@ ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& ima
       continue;
     }
     features[i] = ExtractFeatures(image, options.features);
+    for (Eigen::Vector2d& p : features[i].keypoints_px) p = intrinsics.Undistort(p, scaled_k);
   }
   const double features_s = Seconds(start);
-  const double s = options.features.downsample > 0.0 ? options.features.downsample : 1.0;
-  ImagePipelineResult result = BuildViewGraphFromFeatures(features, names, ScaleIntrinsics(k, s), options);
+  ImagePipelineResult result = BuildViewGraphFromFeatures(features, names, scaled_k, options);
   result.features_s = features_s;
   result.errors = std::move(errors);
   return result;

@@ -49,6 +49,17 @@ double DefaultScaleFor(EdgeWeighting weighting, CovarianceNormalization normaliz
   return kScaleRadians;
 }
 
+// sigma_hat = sqrt(median |D^T r|^2 / 2.366): the scale of the whitened
+// residuals (1 for calibrated covariances; 2.366 is the median of chi2(3)).
+double WhitenedResidualScale(const ComponentProblem& problem) {
+  std::vector<double> s;
+  s.reserve(problem.edges.size());
+  for (const ComponentEdge& e : problem.edges) s.push_back((e.sqrt_information * problem.Residual(e)).squaredNorm());
+  if (s.empty()) return 1.0;
+  std::nth_element(s.begin(), s.begin() + s.size() / 2, s.end());
+  return std::sqrt(s[s.size() / 2] / 2.366);
+}
+
 // Fraction of edges whose whitened residual at the current (spanning-tree)
 // estimate lies beyond the MAGSAC cut-off k * scale.
 double TreeDisagreement(const ComponentProblem& problem, double scale) {
@@ -123,7 +134,8 @@ std::string RotationAveragingSummary::Report() const {
     const ComponentSummary& c = components[k];
     out << "\n  component " << k << ": " << c.num_views << " views, " << c.num_edges << " edges, " << c.iterations
         << " iterations (" << c.factorizations << " factorisations, " << c.preconditioned_solves
-        << " preconditioned solves), " << c.status;
+        << " preconditioned solves), loss scale " << c.loss_scale << " (residual scale " << c.noise_scale << "), "
+        << c.status;
   }
   if (components.size() > 5) out << "\n  ... " << components.size() - 5 << " more components";
   for (const std::string& w : warnings) out << "\nwarning: " << w;
@@ -153,6 +165,8 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
     InitializeBySpanningTree(&problem);
     cs.gauge_view = problem.view_ids[problem.gauge];
     const std::vector<Eigen::Matrix3d> initial_rotations = problem.rotations;
+    double component_scale = scale;
+    std::unique_ptr<RobustLoss> component_loss = CreateLoss(options.loss, scale);
 
     if (options.solver == SolverType::kL1Irls) {
       SolveComponentL1Irls(options, &problem, &cs);
@@ -187,8 +201,19 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
         }
       }
       solve(*loss);
+      // Self-calibration of the covariance scale (see auto_scale_threshold).
+      if (weighting == EdgeWeighting::kCovariance &&
+          options.covariance_normalization == CovarianceNormalization::kStandardDeviations &&
+          options.auto_scale_threshold > 0.0 && options.loss_scale <= 0.0) {
+        cs.noise_scale = WhitenedResidualScale(problem);
+        if (cs.noise_scale > options.auto_scale_threshold) {
+          component_scale = scale * cs.noise_scale;
+          component_loss = CreateLoss(options.loss, component_scale);
+          solve(*component_loss);
+        }
+      }
       // The reported initial cost is that of the starting point under the final loss.
-      cs.initial_cost = ComponentProblem::CostOf(problem.edges, initial_rotations, *loss);
+      cs.initial_cost = ComponentProblem::CostOf(problem.edges, initial_rotations, *component_loss);
     }
 
     // A solve that produced non-finite numbers keeps the initial orientations.
@@ -198,7 +223,7 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
       problem.rotations = initial_rotations;
       cs.status = "solve failed (non-finite result); kept the initial orientations: " + cs.status;
       cs.converged = false;
-      cs.final_cost = problem.Cost(*loss);
+      cs.final_cost = problem.Cost(*component_loss);
       summary->warnings.push_back(cs.status);
     }
     // Per-edge results under the final loss and the weighting of the options
@@ -210,10 +235,11 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
       er.whitened_squared = (e.sqrt_information * r).squaredNorm();
       er.robust_weight = options.solver == SolverType::kL1Irls
                              ? GemanMcClureLoss(DegToRad(options.l1_irls_sigma_deg)).Weight(er.whitened_squared)
-                             : loss->Weight(er.whitened_squared);
+                             : component_loss->Weight(er.whitened_squared);
       er.solved = true;
       if (er.robust_weight < 0.01) ++summary->num_outlier_edges;
     }
+    cs.loss_scale = options.solver == SolverType::kL1Irls ? DegToRad(options.l1_irls_sigma_deg) : component_scale;
     for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
       (*orientations)[problem.view_ids[v]] = problem.rotations[v];
     }

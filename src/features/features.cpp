@@ -53,37 +53,54 @@ ImageFeatures ExtractFeatures(const cv::Mat& image, const FeatureOptions& option
   return out;
 }
 
-namespace {
+struct FeatureIndex::Impl {
+  FeatureType type;
+  cv::Mat descriptors;
+  std::unique_ptr<cv::flann::Index> kdtree;  // SIFT
+  cv::Ptr<cv::BFMatcher> hamming;           // ORB
+};
 
-// For each row of `query`, the best train index if it passes the ratio test, else -1.
-std::vector<int> RatioMatches(const cv::Ptr<cv::DescriptorMatcher>& matcher, const cv::Mat& query,
-                              const cv::Mat& train, double ratio) {
-  std::vector<std::vector<cv::DMatch>> knn;
-  matcher->knnMatch(query, train, knn, 2);
+FeatureIndex::FeatureIndex(const ImageFeatures& features) : impl_(new Impl) {
+  impl_->type = features.type;
+  impl_->descriptors = features.descriptors;
+  if (features.descriptors.rows < 2) return;
+  if (features.type == FeatureType::kOrb) {
+    impl_->hamming = cv::BFMatcher::create(cv::NORM_HAMMING);
+  } else {
+    impl_->kdtree = std::make_unique<cv::flann::Index>(features.descriptors, cv::flann::KDTreeIndexParams(4));
+  }
+}
+
+FeatureIndex::~FeatureIndex() = default;
+
+std::vector<int> FeatureIndex::RatioMatches(const cv::Mat& query, double ratio) const {
   std::vector<int> best(query.rows, -1);
-  for (const auto& m : knn) {
-    if (m.size() == 2 && m[0].distance < ratio * m[1].distance) best[m[0].queryIdx] = m[0].trainIdx;
-    if (m.size() == 1) best[m[0].queryIdx] = m[0].trainIdx;
+  if (impl_->descriptors.rows < 2 || query.rows == 0) return best;
+  if (impl_->type == FeatureType::kOrb) {
+    std::vector<std::vector<cv::DMatch>> knn;
+    impl_->hamming->knnMatch(query, impl_->descriptors, knn, 2);
+    for (const auto& m : knn) {
+      if (m.size() == 2 && m[0].distance < ratio * m[1].distance) best[m[0].queryIdx] = m[0].trainIdx;
+    }
+    return best;
+  }
+  cv::Mat indices, distances;  // distances are squared L2
+  impl_->kdtree->knnSearch(query, indices, distances, 2, cv::flann::SearchParams(64));
+  for (int i = 0; i < query.rows; ++i) {
+    const float d0 = distances.at<float>(i, 0), d1 = distances.at<float>(i, 1);
+    if (d0 < ratio * ratio * d1) best[i] = indices.at<int>(i, 0);
   }
   return best;
 }
 
-}  // namespace
-
-std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const ImageFeatures& b,
+std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const FeatureIndex& index_a,
+                                               const ImageFeatures& b, const FeatureIndex& index_b,
                                                const MatchOptions& options) {
   std::vector<std::pair<int, int>> matches;
   if (a.descriptors.rows < 2 || b.descriptors.rows < 2 || a.type != b.type) return matches;
-  cv::Ptr<cv::DescriptorMatcher> matcher;
-  if (a.type == FeatureType::kOrb) {
-    matcher = cv::BFMatcher::create(cv::NORM_HAMMING);
-  } else {
-    matcher = cv::makePtr<cv::FlannBasedMatcher>(cv::makePtr<cv::flann::KDTreeIndexParams>(4),
-                                                 cv::makePtr<cv::flann::SearchParams>(64));
-  }
-  const std::vector<int> ab = RatioMatches(matcher, a.descriptors, b.descriptors, options.ratio);
+  const std::vector<int> ab = index_b.RatioMatches(a.descriptors, options.ratio);
   std::vector<int> ba;
-  if (options.mutual) ba = RatioMatches(matcher, b.descriptors, a.descriptors, options.ratio);
+  if (options.mutual) ba = index_a.RatioMatches(b.descriptors, options.ratio);
   for (int i = 0; i < static_cast<int>(ab.size()); ++i) {
     const int j = ab[i];
     if (j < 0) continue;
@@ -91,6 +108,12 @@ std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const Ima
     matches.emplace_back(i, j);
   }
   return matches;
+}
+
+std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const ImageFeatures& b,
+                                               const MatchOptions& options) {
+  const FeatureIndex index_a(a), index_b(b);
+  return MatchFeatures(a, index_a, b, index_b, options);
 }
 
 }  // namespace rotation_averaging

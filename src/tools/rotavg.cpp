@@ -41,7 +41,7 @@ const char* kUsage = R"(usage:
       --gt-format F         auto (default), csv, strecha, colmap, chain
   rotavg eval --estimate orientations.csv --gt PATH [--gt-format F] [--json]
       prints views in ground truth / estimated / common, median and mean error, AUC@2/5/10/20
-  rotavg images --images DIR --intrinsics K.txt [--downsample F] [--features sift|orb] [--max-features N]
+  rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
                [--pairs exhaustive|sequential:N] [--covariance marginal|conditional] [--graph-out graph.txt]
                [--output orientations.csv] [--gt PATH] [--verbose] [all averaging options of solve]
       features, matching, relative poses with rotation covariances, then averaging; prints per-stage
@@ -234,8 +234,8 @@ int Images(int argc, char** argv) {
   if (output.empty() && !args.Has("--gt") && !args.Has("--graph-out")) {
     return Fail("images needs --output, --graph-out or --gt");
   }
-  Eigen::Matrix3d k;
-  if (!ra::ReadIntrinsics(args.Get("--intrinsics"), &k, &error)) return Fail(error);
+  ra::CameraIntrinsics k;
+  if (!ra::ReadCameraIntrinsics(args.Get("--intrinsics"), &k, &error)) return Fail(error);
   const std::vector<std::string> images = ra::ListImages(args.Get("--images"));
   if (images.size() < 2) return Fail("need at least two images in " + args.Get("--images"));
 

@@ -22,6 +22,21 @@ struct PairSelection {
   static bool Parse(const std::string& text, PairSelection* selection);
 };
 
+// Pinhole intrinsics of the full-resolution images plus radial distortion
+// (COLMAP SIMPLE_RADIAL / RADIAL): in normalised coordinates
+// x_distorted = x (1 + k1 r^2 + k2 r^4). Keypoints are undistorted before the
+// relative pose.
+struct CameraIntrinsics {
+  Eigen::Matrix3d k = Eigen::Matrix3d::Identity();
+  double k1 = 0.0, k2 = 0.0;
+  // Undistorts a pixel of an image whose intrinsics are `scaled_k`.
+  Eigen::Vector2d Undistort(const Eigen::Vector2d& pixel, const Eigen::Matrix3d& scaled_k) const;
+};
+
+// Reads intrinsics from a K.txt (3x3, row-major) or a COLMAP cameras.txt
+// (first camera; SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL or RADIAL).
+bool ReadCameraIntrinsics(const std::string& path, CameraIntrinsics* intrinsics, std::string* error);
+
 struct ImagePipelineOptions {
   FeatureOptions features;
   MatchOptions matching;
@@ -56,11 +71,12 @@ bool ReadIntrinsics(const std::string& path, Eigen::Matrix3d* k, std::string* er
 // Runs the front end over images that share the intrinsics `k` (of the
 // full-resolution images). Edge (i, j) stores R_ij = R_i R_j^T and the
 // covariance of its right perturbation (estimators/relative_pose.h).
-ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& image_paths, const Eigen::Matrix3d& k,
-                                             const ImagePipelineOptions& options);
+ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& image_paths,
+                                             const CameraIntrinsics& intrinsics, const ImagePipelineOptions& options);
 
-// Same, from features already extracted (e.g. by the node), with their
-// intrinsics at the resolution the features were detected in.
+// Same, from features already extracted (e.g. by the node); `k` is the
+// pinhole matrix at the resolution the features were detected in, the
+// keypoints are already undistorted.
 ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>& features,
                                                const std::vector<std::string>& names, const Eigen::Matrix3d& k,
                                                const ImagePipelineOptions& options);

@@ -95,6 +95,14 @@ struct RotationAveragingOptions {
   double gnc_initial_scale_factor = 8.0;
   double gnc_scale_step = 2.0;
   int gnc_stage_max_iterations = 3;    // iterations of each intermediate GNC stage
+  // Covariance weighting in standard deviations: if the median whitened
+  // squared residual at the solution says the covariances are optimistic
+  // (estimated scale sigma_hat = sqrt(median / 2.366) above this), re-solve
+  // with the loss scale multiplied by sigma_hat. 2.366 is the median of
+  // chi2(3), so the estimate is robust to up to half the edges being
+  // outliers. Real two-view covariances are optimistic by 3-25x (results/frontend.md).
+  // <= 0 disables.
+  double auto_scale_threshold = 1.5;
   int max_iterations = 100;            // per component (IRLS iterations or Ceres iterations)
   double step_tolerance_rad = 1e-6;    // stop when every update is smaller than this (1e-6 rad = 0.00006 deg)
   double function_tolerance = 1e-10;   // relative cost decrease at which to stop
@@ -116,6 +124,8 @@ struct ComponentSummary {
   ViewId gauge_view = 0;
   int iterations = 0;
   int factorizations = 0;        // numeric Cholesky factorisations (IRLS solver)
+  double loss_scale = 0.0;       // scale used for this component (after auto-scaling)
+  double noise_scale = 1.0;      // sigma_hat: estimated scale of the whitened residuals
   int preconditioned_solves = 0; // IRLS steps solved by PCG with an earlier factor
   double initial_cost = 0.0;
   double final_cost = 0.0;

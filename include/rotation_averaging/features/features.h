@@ -3,6 +3,7 @@
 #define ROTATION_AVERAGING_FEATURES_FEATURES_H_
 
 #include <Eigen/Core>
+#include <memory>
 #include <opencv2/core.hpp>
 #include <string>
 #include <utility>
@@ -38,9 +39,27 @@ struct MatchOptions {
   bool mutual = true;          // keep only mutual nearest neighbours
 };
 
-// Index pairs (into a.keypoints_px, b.keypoints_px). SIFT uses a FLANN
-// kd-tree, ORB brute-force Hamming.
+// A nearest-neighbour index over one image's descriptors, built once and
+// reused for every pair the image is in (FLANN kd-trees for SIFT, brute-force
+// Hamming for ORB).
+class FeatureIndex {
+ public:
+  explicit FeatureIndex(const ImageFeatures& features);
+  ~FeatureIndex();
+  // For each query row, the nearest neighbour in this index if it passes the
+  // ratio test, else -1.
+  std::vector<int> RatioMatches(const cv::Mat& query, double ratio) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Index pairs (into a.keypoints_px, b.keypoints_px).
 std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const ImageFeatures& b,
+                                               const MatchOptions& options = MatchOptions());
+std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const FeatureIndex& index_a,
+                                               const ImageFeatures& b, const FeatureIndex& index_b,
                                                const MatchOptions& options = MatchOptions());
 
 // Intrinsics of an image resized by `downsample` (pixel centres preserved).

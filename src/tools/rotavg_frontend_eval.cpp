@@ -1,0 +1,261 @@
+// rotavg_frontend_eval: the two-view front end on real images with ground
+// truth (Strecha scenes, lund_door): calibration of the rotation covariances,
+// rotation-averaging accuracy per loss and weighting, and speed.
+//
+//   rotavg_frontend_eval --data DIR [--scales 1,0.25] [--output results/frontend.md] [--quick]
+#include <algorithm>
+#include <cmath>
+#include <ctime>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <iostream>
+#include <numeric>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "rotation_averaging/controllers/image_pipeline.h"
+#include "rotation_averaging/estimators/rotation_averaging.h"
+#include "rotation_averaging/eval/rotation_evaluation.h"
+#include "rotation_averaging/geometry/so3.h"
+#include "rotation_averaging/io/orientation_io.h"
+#include "rotation_averaging/io/text_lines.h"
+
+namespace ra = rotation_averaging;
+namespace fs = std::filesystem;
+
+namespace {
+
+struct Scene {
+  std::string name, images, intrinsics, ground_truth;
+  double colmap_median_deg;  // COLMAP 3.8 incremental SfM + BA, full resolution (issue #3); < 0 if none
+};
+
+std::string Fixed(double v, int digits) {
+  std::ostringstream s;
+  s << std::fixed << std::setprecision(digits) << v;
+  return s.str();
+}
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return NAN;
+  std::sort(v.begin(), v.end());
+  return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+}
+
+double Mean(const std::vector<double>& v) {
+  return v.empty() ? NAN : std::accumulate(v.begin(), v.end(), 0.0) / v.size();
+}
+
+std::vector<double> Ranks(const std::vector<double>& v) {
+  std::vector<int> order(v.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::sort(order.begin(), order.end(), [&](int a, int b) { return v[a] < v[b]; });
+  std::vector<double> rank(v.size());
+  for (std::size_t k = 0; k < order.size(); ++k) rank[order[k]] = static_cast<double>(k);
+  return rank;
+}
+
+// Spearman rank correlation.
+double Spearman(const std::vector<double>& a, const std::vector<double>& b) {
+  if (a.size() < 3) return NAN;
+  const std::vector<double> ra_ = Ranks(a), rb = Ranks(b);
+  const double ma = Mean(ra_), mb = Mean(rb);
+  double sab = 0, saa = 0, sbb = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    sab += (ra_[i] - ma) * (rb[i] - mb);
+    saa += (ra_[i] - ma) * (ra_[i] - ma);
+    sbb += (rb[i] - mb) * (rb[i] - mb);
+  }
+  return sab / std::sqrt(saa * sbb);
+}
+
+// A copy of the front end's graph whose edges carry another covariance.
+ra::ViewGraph WithCovariance(const ra::ImagePipelineResult& front, int which /*0 marginal, 1 conditional, 2 paper*/) {
+  ra::ViewGraph g;
+  for (const ra::View& v : front.graph.Views()) g.AddView(v.id, v.name);
+  for (const ra::PairReport& p : front.pairs) {
+    if (!p.pose.success) continue;
+    ra::RelativeRotation e = ra::EdgeFromPair(p);
+    e.covariance = which == 0 ? p.pose.covariance_marginal
+                   : which == 1 ? p.pose.covariance_conditional
+                                : p.pose.covariance_paper;
+    g.AddEdge(e);
+  }
+  return g;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string data_dir = "../shared/data", output = "results/frontend.md", scales_text = "1,0.25";
+  bool quick = false;
+  for (int k = 1; k < argc; ++k) {
+    const std::string a = argv[k];
+    if (a == "--data" && k + 1 < argc) data_dir = argv[++k];
+    else if (a == "--output" && k + 1 < argc) output = argv[++k];
+    else if (a == "--scales" && k + 1 < argc) scales_text = argv[++k];
+    else if (a == "--quick") quick = true;
+    else {
+      std::cerr << "usage: rotavg_frontend_eval [--data DIR] [--scales 1,0.25] [--output FILE] [--quick]\n";
+      return 2;
+    }
+  }
+  std::string command = "rotavg_frontend_eval";
+  for (int k = 1; k < argc; ++k) command += std::string(" ") + argv[k];
+  std::vector<double> scales;
+  for (const std::string& t : ra::SplitTokens(scales_text, true)) {
+    double s;
+    if (!ra::ParseDouble(t, &s) || !(s > 0.0 && s <= 1.0)) {
+      std::cerr << "bad scale '" << t << "'\n";
+      return 2;
+    }
+    scales.push_back(s);
+  }
+  if (quick) scales = {0.25};
+
+  std::vector<Scene> scenes;
+  for (const auto& [name, target] : std::vector<std::pair<std::string, double>>{
+           {"fountain-P11", 0.035}, {"entry-P10", 0.026}, {"castle-P19", 0.071}}) {
+    const std::string dir = data_dir + "/strecha/" + name;
+    scenes.push_back({name, dir + "/images", dir + "/images/K.txt", dir, target});
+  }
+  scenes.push_back({"lund_door", data_dir + "/lund_door/images", data_dir + "/lund_door/colmap_ground_truth/cameras.txt",
+                    data_dir + "/lund_door/colmap_ground_truth", -1.0});
+  if (quick) scenes.resize(2);
+
+  std::ostringstream calib, accuracy, speed;
+  calib << "| scene | scale | pairs ok / tried | NEES mean (marginal) | NEES median (marginal) | NEES mean (conditional) "
+           "| NEES median (conditional) | Spearman (marginal) | Spearman (conditional) | median sigma (px) |\n"
+        << "|---|---|---|---|---|---|---|---|---|---|\n";
+  const std::vector<double> thresholds = {0.1, 0.5, 1.0, 2.0, 5.0};
+  accuracy << "| scene | scale | method | median (deg) | AUC@0.1 | AUC@0.5 | AUC@1 | AUC@2 | AUC@5 |\n"
+           << "|---|---|---|---|---|---|---|---|---|\n";
+  speed << "| scene | scale | image size | features / image | features (ms/image) | matching (ms/pair) | relative pose + "
+           "covariance (ms/pair) |\n|---|---|---|---|---|---|---|\n";
+
+  for (const Scene& scene : scenes) {
+    if (!fs::exists(scene.images)) {
+      std::cerr << "skipping " << scene.name << ": " << scene.images << " absent\n";
+      continue;
+    }
+    ra::CameraIntrinsics intrinsics;
+    std::string error;
+    if (!ra::ReadCameraIntrinsics(scene.intrinsics, &intrinsics, &error)) {
+      std::cerr << error << "\n";
+      return 1;
+    }
+    ra::NamedOrientations gt;
+    const ra::ReadReport gr = ra::ReadGroundTruth(scene.ground_truth, ra::GroundTruthFormat::kAuto, &gt);
+    if (!gr.ok()) {
+      std::cerr << gr.error << "\n";
+      return 1;
+    }
+    const std::vector<std::string> images = ra::ListImages(scene.images);
+    for (double scale : scales) {
+      ra::ImagePipelineOptions options;
+      options.features.downsample = scale;
+      std::cerr << scene.name << " at scale " << scale << " ..." << std::flush;
+      const ra::ImagePipelineResult front = ra::BuildViewGraphFromImages(images, intrinsics, options);
+      std::cerr << " done (" << front.features_s + front.matching_s + front.relative_pose_s << " s)\n";
+
+      // Calibration: eta = Log(R_ij_true^T R_ij_est) for every successful pair.
+      std::vector<double> nees_m, nees_c, err, std_m, std_c, sigmas;
+      int ok = 0;
+      for (const ra::PairReport& p : front.pairs) {
+        if (!p.pose.success) continue;
+        ++ok;
+        const std::string& a = front.graph.FindView(p.image1)->name;
+        const std::string& b = front.graph.FindView(p.image2)->name;
+        if (!gt.count(a) || !gt.count(b)) continue;
+        const Eigen::Matrix3d truth = gt.at(a) * gt.at(b).transpose();
+        const Eigen::Vector3d eta = ra::LogSO3(truth.transpose() * p.pose.rotation.transpose());
+        nees_m.push_back(eta.dot(p.pose.covariance_marginal.ldlt().solve(eta)));
+        nees_c.push_back(eta.dot(p.pose.covariance_conditional.ldlt().solve(eta)));
+        err.push_back(eta.norm());
+        std_m.push_back(std::sqrt(p.pose.covariance_marginal.trace()));
+        std_c.push_back(std::sqrt(p.pose.covariance_conditional.trace()));
+        sigmas.push_back(p.pose.sigma_px);
+      }
+      calib << "| " << scene.name << " | " << scale << " | " << ok << " / " << front.pairs.size() << " | "
+            << Fixed(Mean(nees_m), 2) << " | " << Fixed(Median(nees_m), 2) << " | " << Fixed(Mean(nees_c), 2) << " | "
+            << Fixed(Median(nees_c), 2) << " | " << Fixed(Spearman(std_m, err), 2) << " | "
+            << Fixed(Spearman(std_c, err), 2) << " | " << Fixed(Median(sigmas), 3) << " |\n";
+
+      // Accuracy of rotation averaging.
+      struct Method {
+        std::string label;
+        ra::RotationAveragingOptions options;
+        int covariance;  // graph variant
+      };
+      std::vector<Method> methods;
+      for (ra::LossType loss : {ra::LossType::kSquared, ra::LossType::kSoftL1, ra::LossType::kMagsac}) {
+        for (ra::EdgeWeighting w : {ra::EdgeWeighting::kNone, ra::EdgeWeighting::kInliers, ra::EdgeWeighting::kCovariance}) {
+          ra::RotationAveragingOptions o;
+          o.loss = loss;
+          o.weighting = w;
+          methods.push_back({std::string(ra::LossTypeName(loss)) + " + " + ra::EdgeWeightingName(w), o, 0});
+        }
+      }
+      {
+        ra::RotationAveragingOptions o;
+        methods.push_back({"magsac + covariance (conditional)", o, 1});
+        o.covariance_normalization = ra::CovarianceNormalization::kPaper;
+        o.gnc_initial_scale_factor = 1.0;
+        o.l1_initialization = false;
+        methods.push_back({"paper: magsac + unscaled conditional covariance x1e8, sigma_max 0.02, tree start", o, 2});
+        ra::RotationAveragingOptions l1;
+        l1.solver = ra::SolverType::kL1Irls;
+        l1.weighting = ra::EdgeWeighting::kNone;
+        methods.push_back({"L1-IRLS baseline", l1, 0});
+      }
+      const ra::ViewGraph graphs[3] = {WithCovariance(front, 0), WithCovariance(front, 1), WithCovariance(front, 2)};
+      for (const Method& m : methods) {
+        ra::Orientations out;
+        ra::RotationAveragingSummary summary;
+        ra::SolveRotationAveraging(graphs[m.covariance], m.options, &out, &summary);
+        const ra::EvaluationResult e =
+            ra::EvaluateOrientations(ra::NameOrientations(graphs[m.covariance], out), gt, thresholds);
+        accuracy << "| " << scene.name << " | " << scale << " | " << m.label << " | " << Fixed(e.median_error_deg, 4);
+        for (const auto& [t, a] : e.auc) accuracy << " | " << Fixed(100.0 * a, 1);
+        accuracy << " |\n";
+      }
+      if (scene.colmap_median_deg > 0 && scale == 1.0) {
+        accuracy << "| " << scene.name << " | 1 | COLMAP 3.8 incremental SfM + BA (reference from issue #3) | "
+                 << scene.colmap_median_deg << " | | | | | |\n";
+      }
+      double mean_features = 0;
+      for (int f : front.features_per_image) mean_features += f;
+      const int w = static_cast<int>(std::lround(scale * (scene.name == "lund_door" ? 1296 : 3072)));
+      const int h = static_cast<int>(std::lround(scale * (scene.name == "lund_door" ? 1936 : 2048)));
+      speed << "| " << scene.name << " | " << scale << " | " << w << "x" << h << " | "
+            << Fixed(mean_features / std::max<std::size_t>(1, images.size()), 0) << " | "
+            << Fixed(1e3 * front.features_s / std::max<std::size_t>(1, images.size()), 0) << " | "
+            << Fixed(1e3 * front.matching_s / std::max<std::size_t>(1, front.pairs.size()), 1) << " | "
+            << Fixed(1e3 * front.relative_pose_s / std::max<std::size_t>(1, front.pairs.size()), 1) << " |\n";
+    }
+  }
+
+  std::ostringstream md;
+  const std::time_t now = std::time(nullptr);
+  md << "# Two-view front end on real images\n\nReproduce with: `" << command
+     << "` (built by `scripts/benchmark_frontend.sh`). Generated " << std::put_time(std::gmtime(&now), "%Y-%m-%d %H:%M UTC")
+     << ". SIFT (8000 features), ratio 0.8 + mutual check, USAC MAGSAC++ (3 px), Sampson refinement with inlier "
+        "re-selection, exhaustive pairs. Scale 0.25 = images downsampled to a quarter of the width.\n\n"
+     << "## Calibration of the rotation covariances\n\nFor every pair with a relative pose, eta = Log(R_ij_true^T "
+        "R_ij_est) against the ground-truth cameras and NEES = eta^T C^-1 eta: calibrated covariances give chi-square "
+        "with 3 degrees of freedom, mean 3 and median 2.37. Spearman: rank correlation between the predicted standard "
+        "deviation sqrt(tr C) and the actual error |eta|. Both covariances are scaled by the pixel noise variance "
+        "estimated from the inlier residuals.\n\n"
+     << calib.str() << "\n## Rotation averaging accuracy (no bundle adjustment)\n\n" << accuracy.str()
+     << "\n## Speed (single-threaded)\n\n" << speed.str();
+  std::cout << md.str();
+  if (!output.empty()) {
+    std::error_code ec;
+    if (fs::path(output).has_parent_path()) fs::create_directories(fs::path(output).parent_path(), ec);
+    std::ofstream(output) << md.str();
+    std::cerr << "wrote " << output << "\n";
+  }
+  return 0;
+}
