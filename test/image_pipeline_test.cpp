@@ -1,0 +1,102 @@
+#include "rotation_averaging/controllers/image_pipeline.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <filesystem>
+#include <fstream>
+
+#include "rotation_averaging/estimators/rotation_averaging.h"
+#include "rotation_averaging/eval/rotation_evaluation.h"
+#include "rotation_averaging/io/orientation_io.h"
+
+namespace rotation_averaging {
+namespace {
+
+namespace fs = std::filesystem;
+
+TEST(CameraIntrinsics, UndistortInvertsRadialDistortion) {
+  CameraIntrinsics c;
+  c.k << 1000, 0, 640, 0, 1000, 480, 0, 0, 1;
+  c.k1 = -0.2;
+  c.k2 = 0.05;
+  for (const Eigen::Vector2d x : {Eigen::Vector2d(0.3, -0.2), Eigen::Vector2d(-0.5, 0.4), Eigen::Vector2d(0, 0)}) {
+    const double r2 = x.squaredNorm();
+    const Eigen::Vector2d distorted = x * (1 + c.k1 * r2 + c.k2 * r2 * r2);
+    const Eigen::Vector2d pixel = (c.k * distorted.homogeneous()).hnormalized();
+    const Eigen::Vector2d expected = (c.k * x.homogeneous()).hnormalized();
+    EXPECT_LT((c.Undistort(pixel, c.k) - expected).norm(), 1e-6);
+  }
+}
+
+TEST(CameraIntrinsics, ReadsColmapCamerasAndKMatrices) {
+  const fs::path dir = fs::temp_directory_path() / ("rotavg_cam_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  std::ofstream(dir / "cameras.txt") << "# comment\n1 SIMPLE_RADIAL 1296 1936 2435.38 648 968 -0.0336422\n";
+  std::ofstream(dir / "K.txt") << "2759.48 0 1520.69\n0 2764.16 1006.81\n0 0 1\n";
+  std::ofstream(dir / "bad.txt") << "1 2 3\n";
+  CameraIntrinsics c;
+  std::string error;
+  ASSERT_TRUE(ReadCameraIntrinsics((dir / "cameras.txt").string(), &c, &error)) << error;
+  EXPECT_DOUBLE_EQ(c.k(0, 0), 2435.38);
+  EXPECT_DOUBLE_EQ(c.k(1, 2), 968.0);
+  EXPECT_DOUBLE_EQ(c.k1, -0.0336422);
+  ASSERT_TRUE(ReadCameraIntrinsics((dir / "K.txt").string(), &c, &error)) << error;
+  EXPECT_DOUBLE_EQ(c.k(1, 1), 2764.16);
+  EXPECT_EQ(c.k1, 0.0);
+  EXPECT_FALSE(ReadCameraIntrinsics((dir / "bad.txt").string(), &c, &error));
+  EXPECT_NE(error.find("9 numbers"), std::string::npos);
+  fs::remove_all(dir);
+}
+
+TEST(PairSelection, ParsesModes) {
+  PairSelection p;
+  EXPECT_TRUE(PairSelection::Parse("sequential:3", &p));
+  EXPECT_EQ(p.mode, PairSelection::Mode::kSequential);
+  EXPECT_EQ(p.window, 3);
+  EXPECT_TRUE(PairSelection::Parse("exhaustive", &p));
+  EXPECT_FALSE(PairSelection::Parse("sequential:0", &p));
+  EXPECT_FALSE(PairSelection::Parse("random", &p));
+}
+
+// Four Strecha fountain-P11 images at 1/8 resolution (384x256): every pair
+// gets a relative pose with a covariance, and averaging matches the LIDAR
+// ground truth to a few hundredths of a degree.
+TEST(ImagePipeline, FountainImagesGiveAccurateRotations) {
+  const char* env = std::getenv("ROTAVG_DATA_DIR");
+  const std::string dir = std::string(env ? env : ROTAVG_DATA_DIR) + "/strecha/fountain-P11";
+  if (!fs::exists(dir)) GTEST_SKIP() << "shared data absent: " << dir;
+  std::vector<std::string> images = ListImages(dir + "/images");
+  ASSERT_GE(images.size(), 4u);
+  images.resize(4);
+  CameraIntrinsics k;
+  std::string error;
+  ASSERT_TRUE(ReadCameraIntrinsics(dir + "/images/K.txt", &k, &error)) << error;
+  ImagePipelineOptions options;
+  options.features.downsample = 0.125;
+  const ImagePipelineResult front = BuildViewGraphFromImages(images, k, options);
+  ASSERT_EQ(front.pairs.size(), 6u);
+  EXPECT_EQ(front.graph.NumEdges(), 6u) << front.Report();
+  for (const RelativeRotation& e : front.graph.Edges()) {
+    EXPECT_TRUE(e.has_covariance);
+    EXPECT_GT(e.num_inliers, 20);
+    EXPECT_LT(std::sqrt(e.covariance.trace()), 0.01);  // rad: well-constrained pairs
+  }
+  Orientations out;
+  RotationAveragingSummary summary;
+  ASSERT_TRUE(SolveRotationAveraging(front.graph, RotationAveragingOptions(), &out, &summary));
+  NamedOrientations gt_all, gt;
+  ASSERT_TRUE(ReadGroundTruth(dir, GroundTruthFormat::kStrecha, &gt_all).ok());
+  for (const View& v : front.graph.Views()) gt[v.name] = gt_all.at(v.name);
+  const EvaluationResult e = EvaluateOrientations(NameOrientations(front.graph, out), gt);
+  EXPECT_EQ(e.views_common, 4u);
+  EXPECT_LT(e.median_error_deg, 0.1);
+  // ORB, the fast option, also finds the adjacent pairs.
+  options.features.type = FeatureType::kOrb;
+  options.features.downsample = 0.25;
+  const ImagePipelineResult orb = BuildViewGraphFromImages(images, k, options);
+  EXPECT_GE(orb.graph.NumEdges(), 3u) << orb.Report();
+}
+
+}  // namespace
+}  // namespace rotation_averaging
