@@ -2,7 +2,10 @@
 // truth (Strecha scenes, lund_door): calibration of the rotation covariances,
 // rotation-averaging accuracy per loss and weighting, and speed.
 //
-//   rotavg_frontend_eval --data DIR [--scales 1,0.25] [--output results/frontend.md] [--quick]
+//   rotavg_frontend_eval --data DIR [--scales 1,0.25,w640] [--output results/frontend.md] [--quick]
+//
+// A scale is a downsampling factor (0.25 = a quarter of the width) or wN for
+// images resized to N pixels wide.
 #include <algorithm>
 #include <cmath>
 #include <ctime>
@@ -89,7 +92,7 @@ ra::ViewGraph WithCovariance(const ra::ImagePipelineResult& front, int which /*0
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string data_dir = "../shared/data", output = "results/frontend.md", scales_text = "1,0.25";
+  std::string data_dir = "../shared/data", output = "results/frontend.md", scales_text = "1,0.25,w640";
   bool quick = false;
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
@@ -104,16 +107,17 @@ int main(int argc, char** argv) {
   }
   std::string command = "rotavg_frontend_eval";
   for (int k = 1; k < argc; ++k) command += std::string(" ") + argv[k];
-  std::vector<double> scales;
+  std::vector<std::string> scales;  // "0.25" or "w640"
   for (const std::string& t : ra::SplitTokens(scales_text, true)) {
     double s;
-    if (!ra::ParseDouble(t, &s) || !(s > 0.0 && s <= 1.0)) {
+    const bool width = !t.empty() && t[0] == 'w';
+    if (!ra::ParseDouble(width ? t.substr(1) : t, &s) || !(s > 0.0) || (!width && s > 1.0)) {
       std::cerr << "bad scale '" << t << "'\n";
       return 2;
     }
-    scales.push_back(s);
+    scales.push_back(t);
   }
-  if (quick) scales = {0.25};
+  if (quick) scales = {"0.25"};
 
   std::vector<Scene> scenes;
   for (const auto& [name, target] : std::vector<std::pair<std::string, double>>{
@@ -153,7 +157,16 @@ int main(int argc, char** argv) {
       return 1;
     }
     const std::vector<std::string> images = ra::ListImages(scene.images);
-    for (double scale : scales) {
+    const int full_width = scene.name == "lund_door" ? 1296 : 3072;
+    const int full_height = scene.name == "lund_door" ? 1936 : 2048;
+    for (const std::string& scale_text : scales) {
+      double scale = 1.0;
+      if (scale_text[0] == 'w') {
+        ra::ParseDouble(scale_text.substr(1), &scale);
+        scale = std::min(1.0, scale / full_width);
+      } else {
+        ra::ParseDouble(scale_text, &scale);
+      }
       ra::ImagePipelineOptions options;
       options.features.downsample = scale;
       std::cerr << scene.name << " at scale " << scale << " ..." << std::flush;
@@ -178,7 +191,7 @@ int main(int argc, char** argv) {
         std_c.push_back(std::sqrt(p.pose.covariance_conditional.trace()));
         sigmas.push_back(p.pose.sigma_px);
       }
-      calib << "| " << scene.name << " | " << scale << " | " << ok << " / " << front.pairs.size() << " | "
+      calib << "| " << scene.name << " | " << scale_text << " | " << ok << " / " << front.pairs.size() << " | "
             << Fixed(Mean(nees_m), 2) << " | " << Fixed(Median(nees_m), 2) << " | " << Fixed(Mean(nees_c), 2) << " | "
             << Fixed(Median(nees_c), 2) << " | " << Fixed(Spearman(std_m, err), 2) << " | "
             << Fixed(Spearman(std_c, err), 2) << " | " << Fixed(Median(sigmas), 3) << " |\n";
@@ -217,19 +230,19 @@ int main(int argc, char** argv) {
         ra::SolveRotationAveraging(graphs[m.covariance], m.options, &out, &summary);
         const ra::EvaluationResult e =
             ra::EvaluateOrientations(ra::NameOrientations(graphs[m.covariance], out), gt, thresholds);
-        accuracy << "| " << scene.name << " | " << scale << " | " << m.label << " | " << Fixed(e.median_error_deg, 4);
+        accuracy << "| " << scene.name << " | " << scale_text << " | " << m.label << " | " << Fixed(e.median_error_deg, 4);
         for (const auto& [t, a] : e.auc) accuracy << " | " << Fixed(100.0 * a, 1);
         accuracy << " |\n";
       }
-      if (scene.colmap_median_deg > 0 && scale == 1.0) {
+      if (scene.colmap_median_deg > 0 && scale_text == "1") {
         accuracy << "| " << scene.name << " | 1 | COLMAP 3.8 incremental SfM + BA (reference from issue #3) | "
                  << scene.colmap_median_deg << " | | | | | |\n";
       }
       double mean_features = 0;
       for (int f : front.features_per_image) mean_features += f;
-      const int w = static_cast<int>(std::lround(scale * (scene.name == "lund_door" ? 1296 : 3072)));
-      const int h = static_cast<int>(std::lround(scale * (scene.name == "lund_door" ? 1936 : 2048)));
-      speed << "| " << scene.name << " | " << scale << " | " << w << "x" << h << " | "
+      const int w = static_cast<int>(std::lround(scale * full_width));
+      const int h = static_cast<int>(std::lround(scale * full_height));
+      speed << "| " << scene.name << " | " << scale_text << " | " << w << "x" << h << " | "
             << Fixed(mean_features / std::max<std::size_t>(1, images.size()), 0) << " | "
             << Fixed(1e3 * front.features_s / std::max<std::size_t>(1, images.size()), 0) << " | "
             << Fixed(1e3 * front.matching_s / std::max<std::size_t>(1, front.pairs.size()), 1) << " | "
@@ -242,7 +255,7 @@ int main(int argc, char** argv) {
   md << "# Two-view front end on real images\n\nReproduce with: `" << command
      << "` (built by `scripts/benchmark_frontend.sh`). Generated " << std::put_time(std::gmtime(&now), "%Y-%m-%d %H:%M UTC")
      << ". SIFT (8000 features), ratio 0.8 + mutual check, USAC MAGSAC++ (3 px), Sampson refinement with inlier "
-        "re-selection, exhaustive pairs. Scale 0.25 = images downsampled to a quarter of the width.\n\n"
+        "re-selection, exhaustive pairs. Scale 0.25 = images downsampled to a quarter of the width; w640 = resized to 640 pixels wide.\n\n"
      << "## Calibration of the rotation covariances\n\nFor every pair with a relative pose, eta = Log(R_ij_true^T "
         "R_ij_est) against the ground-truth cameras and NEES = eta^T C^-1 eta: calibrated covariances give chi-square "
         "with 3 degrees of freedom, mean 3 and median 2.37. Spearman: rank correlation between the predicted standard "
