@@ -99,81 +99,94 @@ ReadReport ReadOneDsfm(const std::string& egs_path, const std::string& cc_path, 
   return report;
 }
 
-ReadReport ReadG2o(const std::string& path, ViewGraph* graph) {
+namespace {
+
+// What distinguishes g2o from TORO pose graphs: record names, the pose part
+// of an edge (3 translation numbers then the rotation) and how the rotation
+// block of its information maps to our right perturbation.
+struct PoseGraphDialect {
+  const char* format;
+  const char* vertex_tag;
+  std::size_t vertex_tokens;
+  const char* edge_tag;
+  const char* edge_usage;
+  int pose_numbers;  // translation + rotation numbers before the 21 of the information
+  // Rotation from the pose numbers; empty string on success, else why not.
+  std::string (*rotation)(const double* pose, Eigen::Matrix3d* r);
+  // J such that our covariance is J C J^T, C the marginal covariance of the
+  // dialect's rotation parameters.
+  Eigen::Matrix3d (*jacobian)(const double* pose);
+  const char* ignored_tag;  // records skipped without a word ("" for none)
+};
+
+std::string G2oRotation(const double* v, Eigen::Matrix3d* r) {
+  if (Eigen::Vector4d(v[3], v[4], v[5], v[6]).norm() < 1e-12) return "zero quaternion";
+  *r = QuaternionToRotation(v[6], v[3], v[4], v[5]);
+  return "";
+}
+// g2o's rotation error is the quaternion's vector part, half the angle-axis error.
+Eigen::Matrix3d G2oJacobian(const double*) { return 2.0 * Eigen::Matrix3d::Identity(); }
+
+std::string ToroRotation(const double* v, Eigen::Matrix3d* r) {
+  *r = RotationFromRollPitchYaw(v[3], v[4], v[5]);
+  return "";
+}
+Eigen::Matrix3d ToroJacobian(const double* v) { return RollPitchYawToRightTangentJacobian(v[3], v[4]); }
+
+const PoseGraphDialect kG2o = {"g2o", "VERTEX_SE3:QUAT", 9, "EDGE_SE3:QUAT",
+                               "expected 'EDGE_SE3:QUAT i j x y z qx qy qz qw I(21)'", 7, &G2oRotation, &G2oJacobian,
+                               "FIX"};
+const PoseGraphDialect kToro = {"TORO", "VERTEX3", 8, "EDGE3", "expected 'EDGE3 i j x y z roll pitch yaw I(21)'", 6,
+                                &ToroRotation, &ToroJacobian, ""};
+
+ReadReport ReadPoseGraph(const std::string& path, const PoseGraphDialect& dialect, ViewGraph* graph) {
   ReadReport report;
   LineReader reader(path);
   if (!reader.IsOpen()) return {"cannot open " + path};
   std::string line;
+  const std::size_t numbers = dialect.pose_numbers + 21;
   while (reader.Next(&line)) {
     if (IsBlankOrComment(line)) continue;
     const std::vector<std::string> tokens = SplitTokens(line);
     const std::string& tag = tokens[0];
-    if (tag == "VERTEX_SE3:QUAT") {
+    if (tag == dialect.vertex_tag) {
       ViewId id;
-      if (tokens.size() != 9 || !ParseUint64(tokens[1], &id)) return {reader.Where("malformed VERTEX_SE3:QUAT")};
-      graph->AddView(id);
-    } else if (tag == "EDGE_SE3:QUAT") {
-      RelativeRotation edge;
-      double v[28];  // x y z qx qy qz qw I(21)
-      if (tokens.size() != 31 || !ParseIds(tokens, 1, &edge.view1, &edge.view2) || !ParseDoubles(tokens, 3, 28, v)) {
-        return {reader.Where("expected 'EDGE_SE3:QUAT i j x y z qx qy qz qw I(21)'")};
+      if (tokens.size() != dialect.vertex_tokens || !ParseUint64(tokens[1], &id)) {
+        return {reader.Where(std::string("malformed ") + dialect.vertex_tag)};
       }
-      if (Eigen::Vector4d(v[3], v[4], v[5], v[6]).norm() < 1e-12) return {reader.Where("zero quaternion")};
-      edge.rotation = QuaternionToRotation(v[6], v[3], v[4], v[5]);
-      Eigen::Matrix3d cov_q;
-      if (MarginalRotationCovariance(FromUpperTriangle(v + 7), &cov_q)) {
+      graph->AddView(id);
+    } else if (tag == dialect.edge_tag) {
+      RelativeRotation edge;
+      double v[28];
+      if (tokens.size() != 3 + numbers || !ParseIds(tokens, 1, &edge.view1, &edge.view2) ||
+          !ParseDoubles(tokens, 3, numbers, v)) {
+        return {reader.Where(dialect.edge_usage)};
+      }
+      const std::string why = dialect.rotation(v, &edge.rotation);
+      if (!why.empty()) return {reader.Where(why)};
+      Eigen::Matrix3d covariance;
+      if (MarginalRotationCovariance(FromUpperTriangle(v + dialect.pose_numbers), &covariance)) {
+        const Eigen::Matrix3d j = dialect.jacobian(v);
         edge.has_covariance = true;
-        edge.covariance = 4.0 * cov_q;  // quaternion vector part -> angle-axis
+        edge.covariance = j * covariance * j.transpose();
       } else {
         report.warnings.push_back(reader.Where("information matrix not invertible: edge kept without covariance"));
       }
       AddEdgeOrWarn(reader, edge, graph, &report);
-    } else if (tag == "FIX") {
-      continue;
-    } else {
-      return {reader.Where("unsupported g2o record '" + tag + "' (only VERTEX_SE3:QUAT and EDGE_SE3:QUAT)")};
+    } else if (tag != dialect.ignored_tag) {
+      return {reader.Where("unsupported " + std::string(dialect.format) + " record '" + tag + "' (only " +
+                           dialect.vertex_tag + " and " + dialect.edge_tag + ")")};
     }
   }
   report.lines = reader.LineNumber();
   return report;
 }
 
-ReadReport ReadToro(const std::string& path, ViewGraph* graph) {
-  ReadReport report;
-  LineReader reader(path);
-  if (!reader.IsOpen()) return {"cannot open " + path};
-  std::string line;
-  while (reader.Next(&line)) {
-    if (IsBlankOrComment(line)) continue;
-    const std::vector<std::string> tokens = SplitTokens(line);
-    const std::string& tag = tokens[0];
-    if (tag == "VERTEX3") {
-      ViewId id;
-      if (tokens.size() != 8 || !ParseUint64(tokens[1], &id)) return {reader.Where("malformed VERTEX3")};
-      graph->AddView(id);
-    } else if (tag == "EDGE3") {
-      RelativeRotation edge;
-      double v[27];  // x y z roll pitch yaw I(21)
-      if (tokens.size() != 30 || !ParseIds(tokens, 1, &edge.view1, &edge.view2) || !ParseDoubles(tokens, 3, 27, v)) {
-        return {reader.Where("expected 'EDGE3 i j x y z roll pitch yaw I(21)'")};
-      }
-      edge.rotation = RotationFromRollPitchYaw(v[3], v[4], v[5]);
-      Eigen::Matrix3d cov_rpy;
-      if (MarginalRotationCovariance(FromUpperTriangle(v + 6), &cov_rpy)) {
-        const Eigen::Matrix3d j = RollPitchYawToRightTangentJacobian(v[3], v[4]);
-        edge.has_covariance = true;
-        edge.covariance = j * cov_rpy * j.transpose();
-      } else {
-        report.warnings.push_back(reader.Where("information matrix not invertible: edge kept without covariance"));
-      }
-      AddEdgeOrWarn(reader, edge, graph, &report);
-    } else {
-      return {reader.Where("unsupported TORO record '" + tag + "' (only VERTEX3 and EDGE3)")};
-    }
-  }
-  report.lines = reader.LineNumber();
-  return report;
-}
+}  // namespace
+
+ReadReport ReadG2o(const std::string& path, ViewGraph* graph) { return ReadPoseGraph(path, kG2o, graph); }
+
+ReadReport ReadToro(const std::string& path, ViewGraph* graph) { return ReadPoseGraph(path, kToro, graph); }
 
 ReadReport ReadIRotAvg(const std::string& path, ViewGraph* graph) {
   ReadReport report;
@@ -270,23 +283,16 @@ ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph) {
 }
 
 bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::string* error) {
-  const std::string temporary = path + ".tmp";
-  {
-    std::ofstream out(temporary);
-    if (!out) {
-      if (error) *error = "cannot write " + temporary;
-      return false;
-    }
+  return WriteFileAtomically(path, [&graph](std::ostream& out) -> std::string {
     out << "# rotation_averaging view graph v1\n"
         << "# VIEW id name | EDGE id1 id2 source qw qx qy qz num_inliers (c00 c01 c02 c11 c12 c22 | -)\n"
-        << "# R_12 = R_1 R_2^T (world-to-camera R); covariance of a right perturbation, rad^2\n";
-    out << std::setprecision(17);
+        << "# R_12 = R_1 R_2^T (world-to-camera R); covariance of a right perturbation, rad^2\n"
+        << std::setprecision(17);
     std::vector<View> views = graph.Views();
     std::sort(views.begin(), views.end(), [](const View& a, const View& b) { return a.id < b.id; });
     for (const View& v : views) {
       if (v.name.empty() || v.name.find_first_of(" \t\r\n") != std::string::npos) {
-        if (error) *error = "view name '" + v.name + "' is empty or contains whitespace";
-        return false;
+        return "view name '" + v.name + "' is empty or contains whitespace";
       }
       out << "VIEW " << v.id << ' ' << v.name << '\n';
     }
@@ -302,18 +308,8 @@ bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::stri
       }
       out << '\n';
     }
-    if (!out.flush()) {
-      if (error) *error = "write to " + temporary + " failed";
-      return false;
-    }
-  }
-  std::error_code ec;
-  fs::rename(temporary, path, ec);
-  if (ec) {
-    if (error) *error = "cannot rename " + temporary + ": " + ec.message();
-    return false;
-  }
-  return true;
+    return "";
+  }, error);
 }
 
 const char* GraphFormatName(GraphFormat format) {

@@ -52,35 +52,15 @@ ReadReport ReadOrientationsCsv(const std::string& path, NamedOrientations* orien
 }
 
 bool WriteOrientationsCsv(const std::string& path, const NamedOrientations& orientations, std::string* error) {
-  // Write to a temporary file and rename, so readers never see half a file.
-  const std::string temporary = path + ".tmp";
-  {
-    std::ofstream out(temporary);
-    if (!out) {
-      if (error) *error = "cannot write " + temporary;
-      return false;
-    }
+  return WriteFileAtomically(path, [&orientations](std::ostream& out) -> std::string {
     out << "name,qw,qx,qy,qz\n" << std::setprecision(17);
     for (const auto& [name, r] : orientations) {
-      if (name.find_first_of(",\n\r") != std::string::npos) {
-        if (error) *error = "view name '" + name + "' contains a comma or newline";
-        return false;
-      }
+      if (name.find_first_of(",\n\r") != std::string::npos) return "view name '" + name + "' contains a comma or newline";
       const Eigen::Vector4d q = RotationToQuaternion(r);
       out << name << ',' << q[0] << ',' << q[1] << ',' << q[2] << ',' << q[3] << '\n';
     }
-    if (!out.flush()) {
-      if (error) *error = "write to " + temporary + " failed";
-      return false;
-    }
-  }
-  std::error_code ec;
-  fs::rename(temporary, path, ec);
-  if (ec) {
-    if (error) *error = "cannot rename " + temporary + " to " + path + ": " + ec.message();
-    return false;
-  }
-  return true;
+    return "";
+  }, error);
 }
 
 NamedOrientations NameOrientations(const ViewGraph& graph, const Orientations& orientations) {

@@ -1,6 +1,8 @@
 #include "rotation_averaging/io/text_lines.h"
 
 #include <cerrno>
+#include <cstdio>
+#include <filesystem>
 #include <cstdlib>
 #include <limits>
 
@@ -64,6 +66,33 @@ bool LineReader::Next(std::string* line) {
 
 std::string LineReader::Where(const std::string& message) const {
   return path_ + ":" + std::to_string(line_number_) + ": " + message;
+}
+
+bool WriteFileAtomically(const std::string& path, const std::function<std::string(std::ostream&)>& write,
+                         std::string* error) {
+  const std::string temporary = path + ".tmp";
+  {
+    std::ofstream out(temporary);
+    if (!out) {
+      if (error) *error = "cannot write " + temporary;
+      return false;
+    }
+    const std::string why = write(out);
+    if (!why.empty() || !out.flush()) {
+      out.close();
+      std::remove(temporary.c_str());
+      if (error) *error = why.empty() ? "write to " + temporary + " failed" : why;
+      return false;
+    }
+  }
+  std::error_code ec;
+  std::filesystem::rename(temporary, path, ec);
+  if (ec) {
+    std::remove(temporary.c_str());
+    if (error) *error = "cannot rename " + temporary + " to " + path + ": " + ec.message();
+    return false;
+  }
+  return true;
 }
 
 bool IsBlankOrComment(const std::string& line) {

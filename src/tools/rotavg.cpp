@@ -145,6 +145,18 @@ int Evaluate(const ra::NamedOrientations& estimate, const std::string& gt_path, 
   return 0;
 }
 
+// --output: write the orientations; --gt: score them. Returns an exit code.
+int WriteAndScore(const Args& args, const ra::NamedOrientations& named) {
+  const std::string output = args.Get("--output");
+  std::string error;
+  if (!output.empty()) {
+    if (!ra::WriteOrientationsCsv(output, named, &error)) return Fail(error);
+    std::cout << "wrote " << named.size() << " orientations to " << output << std::endl;
+  }
+  if (args.Has("--gt")) return Evaluate(named, args.Get("--gt"), args.Get("--gt-format", "auto"), args.Has("--json"));
+  return 0;
+}
+
 int Solve(int argc, char** argv) {
   Args args;
   std::string error;
@@ -178,16 +190,8 @@ int Solve(int argc, char** argv) {
             << ", loss: " << ra::LossTypeName(options.loss) << ", weighting: " << ra::EdgeWeightingName(options.weighting)
             << "\nread time: " << std::setprecision(4) << read_s << " s\n"
             << summary.Report() << std::endl;
-  const ra::NamedOrientations named = ra::NameOrientations(graph, orientations);
-  if (!output.empty()) {
-    if (!ra::WriteOrientationsCsv(output, named, &error)) return Fail(error);
-    std::cout << "wrote " << named.size() << " orientations to " << output << std::endl;
-  }
-  if (args.Has("--gt")) {
-    const int rc = Evaluate(named, args.Get("--gt"), args.Get("--gt-format", "auto"), args.Has("--json"));
-    if (rc != 0) return rc;
-  }
-  return ok ? 0 : 1;
+  const int rc = WriteAndScore(args, ra::NameOrientations(graph, orientations));
+  return rc != 0 ? rc : (ok ? 0 : 1);
 }
 
 int EvalCommand(int argc, char** argv) {
@@ -262,16 +266,8 @@ int Images(int argc, char** argv) {
   ra::RotationAveragingSummary summary;
   const bool ok = ra::SolveRotationAveraging(front.graph, options, &orientations, &summary);
   std::cout << "averaging: " << summary.Report() << std::endl;
-  const ra::NamedOrientations named = ra::NameOrientations(front.graph, orientations);
-  if (!output.empty()) {
-    if (!ra::WriteOrientationsCsv(output, named, &error)) return Fail(error);
-    std::cout << "wrote " << named.size() << " orientations to " << output << std::endl;
-  }
-  if (args.Has("--gt")) {
-    const int rc = Evaluate(named, args.Get("--gt"), args.Get("--gt-format", "auto"), args.Has("--json"));
-    if (rc != 0) return rc;
-  }
-  return ok ? 0 : 1;
+  const int rc = WriteAndScore(args, ra::NameOrientations(front.graph, orientations));
+  return rc != 0 ? rc : (ok ? 0 : 1);
 }
 
 int Demo(int argc, char** argv) {

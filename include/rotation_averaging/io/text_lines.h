@@ -5,6 +5,8 @@
 
 #include <cstdint>
 #include <fstream>
+#include <functional>
+#include <ostream>
 #include <string>
 #include <vector>
 
@@ -35,6 +37,12 @@ class LineReader {
 
 // True for empty lines and lines starting with '#'.
 bool IsBlankOrComment(const std::string& line);
+
+// Writes `path` atomically: `write` fills a temporary file beside it, which is
+// renamed over `path` only when everything was written, so a reader never
+// sees half a file. `write` returns an empty string or why it gave up.
+bool WriteFileAtomically(const std::string& path, const std::function<std::string(std::ostream&)>& write,
+                         std::string* error);
 
 }  // namespace rotation_averaging
 
