@@ -57,6 +57,17 @@ TEST(PairSelection, ParsesModes) {
   EXPECT_TRUE(PairSelection::Parse("exhaustive", &p));
   EXPECT_FALSE(PairSelection::Parse("sequential:0", &p));
   EXPECT_FALSE(PairSelection::Parse("random", &p));
+  const fs::path list = fs::temp_directory_path() / ("rotavg_pairs_" + std::to_string(::getpid()) + ".txt");
+  std::ofstream(list) << "# pairs\na.jpg b.jpg\nb.jpg c.jpg\n";
+  ASSERT_TRUE(PairSelection::Parse("list:" + list.string(), &p));
+  EXPECT_EQ(p.mode, PairSelection::Mode::kList);
+  ASSERT_EQ(p.named_pairs.size(), 2u);
+  EXPECT_EQ(p.named_pairs[1].second, "c.jpg");
+  std::ofstream(list) << "a.jpg\n";
+  std::string error;
+  EXPECT_FALSE(PairSelection::Parse("list:" + list.string(), &p, &error));
+  EXPECT_NE(error.find(":1:"), std::string::npos);
+  fs::remove(list);
 }
 
 // Four Strecha fountain-P11 images at 1/8 resolution (384x256): every pair

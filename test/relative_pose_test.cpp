@@ -101,6 +101,26 @@ TEST(RelativePose, MarginalCovariancePredictsTheSpreadOfEstimates) {
   EXPECT_NEAR(empirical.trace() / predicted.trace(), 1.0, 0.35);
 }
 
+TEST(RelativePose, NearPlanarScenesAreReportedAndOptionallyRejected) {
+  std::mt19937 rng(11);
+  Scene s = MakeScene(0.8, rng);
+  for (Eigen::Vector3d& p : s.points) p.z() = 5.0 + 0.1 * p.x();  // a (slanted) plane
+  std::vector<Eigen::Vector2d> p1, p2;
+  Observe(s, 0.3, 0.0, rng, &p1, &p2);
+  const RelativePoseResult kept = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+  EXPECT_GE(kept.homography_inlier_ratio, 0.95);
+  RelativePoseOptions strict;
+  strict.max_homography_inlier_ratio = 0.8;
+  const RelativePoseResult rejected = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k, strict);
+  EXPECT_FALSE(rejected.success);
+  EXPECT_EQ(rejected.failure, TwoViewFailure::kNearPlanar);
+  // A general scene is not flagged.
+  std::mt19937 rng2(12);
+  const Scene general = MakeScene(0.8, rng2);
+  Observe(general, 0.3, 0.0, rng2, &p1, &p2);
+  EXPECT_LT(EstimateRelativePoseWithCovariance(p1, p2, general.k, general.k).homography_inlier_ratio, 0.5);
+}
+
 TEST(RelativePose, DegenerateInputsFailWithAReason) {
   std::mt19937 rng(3);
   Scene s = MakeScene(0.8, rng);

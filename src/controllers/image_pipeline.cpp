@@ -18,7 +18,8 @@ using Clock = std::chrono::steady_clock;
 
 double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
 
-std::vector<std::pair<int, int>> SelectPairs(int n, const PairSelection& selection) {
+std::vector<std::pair<int, int>> SelectPairs(int n, const PairSelection& selection,
+                                             const std::vector<std::string>& names, std::vector<std::string>* errors) {
   std::vector<std::pair<int, int>> pairs;
   switch (selection.mode) {
     case PairSelection::Mode::kExhaustive:
@@ -29,18 +30,50 @@ std::vector<std::pair<int, int>> SelectPairs(int n, const PairSelection& selecti
       for (int i = 0; i < n; ++i)
         for (int j = i + 1; j < n && j <= i + selection.window; ++j) pairs.emplace_back(i, j);
       break;
-    case PairSelection::Mode::kList:
+    case PairSelection::Mode::kList: {
       for (const auto& [i, j] : selection.pairs) {
         if (i >= 0 && j >= 0 && i < n && j < n && i != j) pairs.emplace_back(std::min(i, j), std::max(i, j));
       }
+      for (const auto& [a, b] : selection.named_pairs) {
+        const auto ia = std::find(names.begin(), names.end(), a), ib = std::find(names.begin(), names.end(), b);
+        if (ia == names.end() || ib == names.end() || ia == ib) {
+          errors->push_back("pair list: '" + a + " " + b + "' does not name two different images");
+          continue;
+        }
+        const int i = static_cast<int>(ia - names.begin()), j = static_cast<int>(ib - names.begin());
+        pairs.emplace_back(std::min(i, j), std::max(i, j));
+      }
+      std::sort(pairs.begin(), pairs.end());
+      pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
       break;
+    }
   }
   return pairs;
 }
 
 }  // namespace
 
-bool PairSelection::Parse(const std::string& text, PairSelection* selection) {
+bool PairSelection::Parse(const std::string& text, PairSelection* selection, std::string* error) {
+  if (text.rfind("list:", 0) == 0) {
+    LineReader reader(text.substr(5));
+    if (!reader.IsOpen()) {
+      if (error) *error = "cannot open pair list " + text.substr(5);
+      return false;
+    }
+    std::string line;
+    selection->named_pairs.clear();
+    while (reader.Next(&line)) {
+      if (IsBlankOrComment(line)) continue;
+      const std::vector<std::string> t = SplitTokens(line);
+      if (t.size() != 2) {
+        if (error) *error = reader.Where("expected 'image1 image2'");
+        return false;
+      }
+      selection->named_pairs.emplace_back(t[0], t[1]);
+    }
+    selection->mode = Mode::kList;
+    return true;
+  }
   if (text == "exhaustive") {
     selection->mode = Mode::kExhaustive;
     return true;
@@ -190,7 +223,7 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
   std::vector<std::unique_ptr<FeatureIndex>> indices;
   for (const ImageFeatures& f : features) indices.push_back(std::make_unique<FeatureIndex>(f));
   result.matching_s += Seconds(index_start);
-  for (const auto& [i, j] : SelectPairs(n, options.pairs)) {
+  for (const auto& [i, j] : SelectPairs(n, options.pairs, names, &result.errors)) {
     PairReport report;
     report.image1 = i;
     report.image2 = j;
@@ -211,6 +244,7 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
     result.relative_pose_s += Seconds(pose_start);
     report.milliseconds = 1e3 * Seconds(start);
     if (report.pose.success) {
+      if (report.pose.homography_inlier_ratio >= options.relative_pose.near_planar_report_ratio) ++result.near_planar_pairs;
       std::string why;
       if (result.graph.AddEdge(EdgeFromPair(report), &why) == AddEdgeResult::kRejected) {
         report.pose.success = false;
@@ -260,6 +294,7 @@ std::string ImagePipelineResult::Report() const {
   out << std::fixed << std::setprecision(1) << "images: " << n << ", features per image: "
       << (n ? mean_features / n : 0.0) << "\npairs: " << pairs.size() << " tried, " << ok << " with a relative pose";
   for (const auto& [reason, count] : failures) out << "\n  rejected (" << reason << "): " << count;
+  if (near_planar_pairs) out << "\n  kept, near-planar (homography explains >= 95% of the inliers): " << near_planar_pairs;
   out << "\ntime: features " << features_s << " s (" << (n ? 1e3 * features_s / n : 0.0) << " ms/image), matching "
       << matching_s << " s, relative pose + covariance " << relative_pose_s << " s ("
       << (pairs.empty() ? 0.0 : 1e3 * (matching_s + relative_pose_s) / pairs.size()) << " ms/pair)";

@@ -103,6 +103,7 @@ const char* TwoViewFailureName(TwoViewFailure failure) {
     case TwoViewFailure::kEssentialFailed: return "essential_failed";
     case TwoViewFailure::kTooFewInliers: return "too_few_inliers";
     case TwoViewFailure::kPureRotation: return "pure_rotation";
+    case TwoViewFailure::kNearPlanar: return "near_planar";
     case TwoViewFailure::kRefinementFailed: return "refinement_failed";
     case TwoViewFailure::kSingularInformation: return "singular_information";
   }
@@ -157,6 +158,31 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
   }
   rotation = ProjectToSO3(rotation);
   t.normalize();
+
+  // Planarity: how many of the inliers a homography explains as well.
+  double homography_ratio = 0.0;
+  {
+    cv::Mat h1(static_cast<int>(inliers.size()), 2, CV_64F), h2(h1.rows, 2, CV_64F);
+    for (int r = 0; r < h1.rows; ++r) {
+      n1.row(inliers[r]).copyTo(h1.row(r));
+      n2.row(inliers[r]).copyTo(h2.row(r));
+    }
+    cv::Mat h_mask;
+    try {
+      const cv::Mat h = cv::findHomography(h1, h2, cv::USAC_MAGSAC, options.ransac_threshold_px / focal, h_mask,
+                                           options.ransac_max_iterations, options.ransac_confidence);
+      if (!h.empty()) homography_ratio = static_cast<double>(cv::countNonZero(h_mask)) / h1.rows;
+    } catch (const cv::Exception&) {
+      homography_ratio = 0.0;
+    }
+  }
+
+  if (homography_ratio > options.max_homography_inlier_ratio) {
+    RelativePoseResult r = Fail(TwoViewFailure::kNearPlanar, "a homography explains " +
+                                                                 std::to_string(100.0 * homography_ratio) + "% of the inliers");
+    r.homography_inlier_ratio = homography_ratio;
+    return r;
+  }
 
   // 2. Parallax: the angle between rotated bearings; ~0 for a pure rotation.
   std::vector<double> parallax;
@@ -282,6 +308,7 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
   result.inliers = std::move(inliers);
   result.sigma_px = std::sqrt(sigma2);
   result.median_parallax_deg = median_parallax_deg;
+  result.homography_inlier_ratio = homography_ratio;
   result.refine_iterations = refine_iterations;
   result.covariance_paper = jtj.topLeftCorner<3, 3>().inverse();
   result.covariance_conditional = sigma2 * result.covariance_paper;

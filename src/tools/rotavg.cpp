@@ -42,7 +42,7 @@ const char* kUsage = R"(usage:
   rotavg eval --estimate orientations.csv --gt PATH [--gt-format F] [--json]
       prints views in ground truth / estimated / common, median and mean error, AUC@2/5/10/20
   rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
-               [--pairs exhaustive|sequential:N] [--covariance marginal|conditional] [--graph-out graph.txt]
+               [--pairs exhaustive|sequential:N|list:FILE] [--covariance marginal|conditional] [--graph-out graph.txt]
                [--output orientations.csv] [--gt PATH] [--verbose] [all averaging options of solve]
       features, matching, relative poses with rotation covariances, then averaging; prints per-stage
       timings and per-pair statistics; --graph-out writes the view graph for `rotavg solve`
@@ -226,8 +226,8 @@ int Images(int argc, char** argv) {
   }
   pipeline.features.max_features = std::atoi(args.Get("--max-features", "8000").c_str());
   if (pipeline.features.max_features < 10) return Fail("--max-features must be >= 10");
-  if (!ra::PairSelection::Parse(args.Get("--pairs", "exhaustive"), &pipeline.pairs)) {
-    return Fail("--pairs must be exhaustive or sequential:N");
+  if (!ra::PairSelection::Parse(args.Get("--pairs", "exhaustive"), &pipeline.pairs, &error)) {
+    return Fail(error.empty() ? "--pairs must be exhaustive, sequential:N or list:FILE" : error);
   }
   if (!ra::ParseRotationCovarianceModel(args.Get("--covariance", "marginal"), &pipeline.relative_pose.covariance_model)) {
     return Fail("--covariance must be marginal or conditional");
@@ -246,14 +246,14 @@ int Images(int argc, char** argv) {
   const ra::ImagePipelineResult front = ra::BuildViewGraphFromImages(images, k, pipeline);
   std::cout << front.Report() << "\n";
   const bool verbose = args.Has("--verbose");
-  std::cout << "per pair (image1 image2: matches, inliers, sigma px, parallax deg, ms, result):\n";
+  std::cout << "per pair (image1 image2: matches, inliers, sigma px, parallax deg, homography inlier share, ms, result):\n";
   int shown = 0;
   for (const ra::PairReport& p : front.pairs) {
     if (!verbose && shown >= 20) break;
     ++shown;
     std::cout << "  " << front.graph.FindView(p.image1)->name << " " << front.graph.FindView(p.image2)->name << ": "
               << p.matches << ", " << p.pose.inliers.size() << ", " << std::setprecision(3) << p.pose.sigma_px << ", "
-              << p.pose.median_parallax_deg << ", " << p.milliseconds << ", "
+              << p.pose.median_parallax_deg << ", " << p.pose.homography_inlier_ratio << ", " << p.milliseconds << ", "
               << (p.pose.success ? "ok" : std::string(ra::TwoViewFailureName(p.pose.failure)) + " (" + p.pose.message + ")")
               << "\n";
   }

@@ -18,8 +18,10 @@ struct PairSelection {
   enum class Mode { kExhaustive, kSequential, kList } mode = Mode::kExhaustive;
   int window = 5;                                // kSequential: each image with the next `window`
   std::vector<std::pair<int, int>> pairs;        // kList: image indices
-  // "exhaustive" or "sequential:N".
-  static bool Parse(const std::string& text, PairSelection* selection);
+  std::vector<std::pair<std::string, std::string>> named_pairs;  // kList: image file names
+  // "exhaustive", "sequential:N" or "list:FILE" (FILE: one "name1 name2" per
+  // line, image file names without folder). False (with `error`) if invalid.
+  static bool Parse(const std::string& text, PairSelection* selection, std::string* error = nullptr);
 };
 
 // Pinhole intrinsics of the full-resolution images plus radial distortion
@@ -57,6 +59,7 @@ struct ImagePipelineResult {
   std::vector<int> features_per_image;
   double features_s = 0.0, matching_s = 0.0, relative_pose_s = 0.0;
   std::map<std::string, int> failures;  // reason -> count
+  int near_planar_pairs = 0;            // kept pairs a homography explains (see RelativePoseOptions)
   std::vector<std::string> errors;      // images that could not be read
   std::string Report() const;
 };
