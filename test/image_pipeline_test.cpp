@@ -102,6 +102,14 @@ TEST(ImagePipeline, FountainImagesGiveAccurateRotations) {
   const EvaluationResult e = EvaluateOrientations(NameOrientations(front.graph, out), gt);
   EXPECT_EQ(e.views_common, 4u);
   EXPECT_LT(e.median_error_deg, 0.1);
+  // Deterministic: the same images give bit-identical relative poses.
+  const ImagePipelineResult again = BuildViewGraphFromImages(images, k, options);
+  ASSERT_EQ(again.pairs.size(), front.pairs.size());
+  for (std::size_t p = 0; p < front.pairs.size(); ++p) {
+    EXPECT_EQ(again.pairs[p].matches, front.pairs[p].matches);
+    EXPECT_EQ((again.pairs[p].pose.rotation - front.pairs[p].pose.rotation).norm(), 0.0);
+    EXPECT_EQ((again.pairs[p].pose.covariance - front.pairs[p].pose.covariance).norm(), 0.0);
+  }
   // ORB, the fast option, also finds the adjacent pairs.
   options.features.type = FeatureType::kOrb;
   options.features.downsample = 0.25;

@@ -1,6 +1,7 @@
 #include "rotation_averaging/features/features.h"
 
 #include <algorithm>
+#include <cstdlib>
 #include <opencv2/features2d.hpp>
 #include <opencv2/flann.hpp>
 #include <opencv2/imgproc.hpp>
@@ -53,6 +54,10 @@ ImageFeatures ExtractFeatures(const cv::Mat& image, const FeatureOptions& option
   return out;
 }
 
+namespace {
+constexpr unsigned kFlannSeed = 20230618;
+}  // namespace
+
 struct FeatureIndex::Impl {
   FeatureType type;
   cv::Mat descriptors;
@@ -67,6 +72,10 @@ FeatureIndex::FeatureIndex(const ImageFeatures& features) : impl_(new Impl) {
   if (features.type == FeatureType::kOrb) {
     impl_->hamming = cv::BFMatcher::create(cv::NORM_HAMMING);
   } else {
+    // FLANN's randomised kd-trees draw from std::rand and cv::theRNG(): fixed
+    // seeds make the index, and so the matches, the same run after run.
+    std::srand(kFlannSeed);
+    cv::setRNGSeed(static_cast<int>(kFlannSeed));
     impl_->kdtree = std::make_unique<cv::flann::Index>(features.descriptors, cv::flann::KDTreeIndexParams(4));
   }
 }
