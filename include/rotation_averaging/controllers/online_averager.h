@@ -1,0 +1,144 @@
+// Online rotation averaging for a live mapping stack, free of ROS: keyframes
+// identified by (camera frame id, capture stamp) come in with relative
+// rotations between them; a worker thread periodically re-solves the graph
+// (warm-started from the last solution) on a snapshot, so producers never
+// wait for a solve. The ROS node and the bag replay tool wrap this class.
+#ifndef ROTATION_AVERAGING_CONTROLLERS_ONLINE_AVERAGER_H_
+#define ROTATION_AVERAGING_CONTROLLERS_ONLINE_AVERAGER_H_
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "rotation_averaging/estimators/rotation_averaging.h"
+#include "rotation_averaging/scene/view_graph.h"
+
+namespace rotation_averaging {
+
+// A keyframe: the camera that took it and the capture stamp, nanoseconds.
+struct KeyframeKey {
+  std::string frame_id;
+  std::int64_t stamp_ns = 0;
+  bool operator<(const KeyframeKey& o) const {
+    return frame_id != o.frame_id ? frame_id < o.frame_id : stamp_ns < o.stamp_ns;
+  }
+};
+
+// One relative rotation between two keyframes, in the conventions of
+// geometry/so3.h: rotation = R_1 R_2^T, covariance (rad^2) of a right
+// perturbation, in keyframe 2's camera frame.
+struct KeyframeRelativeRotation {
+  KeyframeKey keyframe1, keyframe2;
+  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
+  bool has_covariance = false;
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();
+  int num_inliers = 0;
+  EdgeSource source = EdgeSource::kOther;
+};
+
+struct OnlineAveragerOptions {
+  RotationAveragingOptions averaging;
+  double solve_period_s = 1.0;          // periodic re-solve; <= 0: only on request
+  bool solve_early_on_loop_closure = true;  // a new loop closure wakes the solver at once
+  std::size_t max_queue = 10000;        // pending measurements; beyond, new ones are dropped and counted
+  std::size_t max_views = 1000000;      // caps: new keyframes / edges beyond them are dropped and counted
+  std::size_t max_edges = 10000000;
+};
+
+// Counters for diagnostics; all monotonic.
+struct OnlineAveragerStats {
+  std::uint64_t received = 0;           // measurements offered
+  std::uint64_t accepted = 0;           // added to the graph (or replaced an edge)
+  std::uint64_t rejected_invalid = 0;   // failed validation (NaN, not a rotation, bad covariance, self-loop)
+  std::uint64_t dropped_queue_full = 0;
+  std::uint64_t dropped_cap = 0;        // view or edge cap reached
+  std::uint64_t solves = 0;
+  std::uint64_t failed_solves = 0;
+  std::uint64_t overruns = 0;           // solves that took longer than the period
+  double last_solve_s = 0.0;
+  std::size_t views = 0, edges = 0, components = 0, outlier_edges = 0;
+};
+
+// The latest solution: world-to-camera orientation per keyframe.
+struct OnlineSolution {
+  std::uint64_t sequence = 0;  // increases with every successful solve
+  std::map<KeyframeKey, Eigen::Matrix3d> orientations;
+  std::map<KeyframeKey, int> component;  // index of the connected component, largest first
+  RotationAveragingSummary summary;
+};
+
+class OnlineAverager {
+ public:
+  explicit OnlineAverager(const OnlineAveragerOptions& options);
+  ~OnlineAverager();  // stops the worker
+  OnlineAverager(const OnlineAverager&) = delete;
+  OnlineAverager& operator=(const OnlineAverager&) = delete;
+
+  // Validates and enqueues; never blocks on a solve. Returns false (with
+  // `error`) if the measurement was rejected or dropped; the reason is counted.
+  bool AddRelativeRotation(const KeyframeRelativeRotation& measurement, std::string* error = nullptr);
+
+  // Starts the worker thread (periodic solves). Without it, call SolveNow().
+  void Start();
+  void Stop();
+  // Applies pending measurements and solves in the calling thread; returns
+  // whether the solve succeeded. Thread-safe with the worker.
+  bool SolveNow();
+  // Asks the worker for a solve as soon as possible.
+  void RequestSolve();
+  // Clears graph, queue and solution (counters are kept).
+  void Reset();
+  void SetAveragingOptions(const RotationAveragingOptions& options);  // used from the next solve
+
+  std::shared_ptr<const OnlineSolution> Solution() const;
+  OnlineAveragerStats Stats() const;
+  // Called by the worker after every successful solve (from its thread).
+  void SetSolutionCallback(std::function<void(std::shared_ptr<const OnlineSolution>)> callback);
+
+  // Graph persistence in the package's graph file format (io/graph_io.h);
+  // view names encode the keyframe as "<frame_id>@<stamp_ns>".
+  bool SaveGraph(const std::string& path, std::string* error) const;
+  bool LoadGraph(const std::string& path, std::string* error);  // replaces the graph, then solves
+  static std::string KeyframeName(const KeyframeKey& key);
+  static bool ParseKeyframeName(const std::string& name, KeyframeKey* key);
+
+ private:
+  void WorkerLoop();
+  std::size_t DrainQueue();  // applies queued measurements to the graph; needs graph_mutex_
+  bool SolveLocked();        // needs solve_mutex_
+
+  OnlineAveragerOptions options_;
+  const ViewGraph validator_;  // validates measurements without taking the graph lock
+  mutable std::mutex queue_mutex_;
+  std::deque<KeyframeRelativeRotation> queue_;
+  mutable std::mutex graph_mutex_;  // graph_, keyframe ids, last orientations
+  ViewGraph graph_;
+  std::map<KeyframeKey, ViewId> ids_;
+  std::vector<KeyframeKey> keys_;  // by ViewId
+  Orientations warm_start_;
+  std::uint64_t generation_ = 0;  // bumped by Reset and LoadGraph: a solve started before is discarded
+  std::mutex solve_mutex_;  // one solve at a time
+  mutable std::mutex solution_mutex_;
+  std::shared_ptr<const OnlineSolution> solution_;
+  std::function<void(std::shared_ptr<const OnlineSolution>)> callback_;
+  mutable std::mutex stats_mutex_;
+  OnlineAveragerStats stats_;
+  std::mutex wake_mutex_;
+  std::condition_variable wake_;
+  bool wake_requested_ = false;
+  std::atomic<bool> running_{false};
+  std::thread worker_;
+};
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_CONTROLLERS_ONLINE_AVERAGER_H_

@@ -1,0 +1,207 @@
+#include "rotation_averaging/controllers/online_averager.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <limits>
+#include <random>
+#include <thread>
+
+#include "rotation_averaging/eval/rotation_evaluation.h"
+#include "rotation_averaging/geometry/so3.h"
+
+namespace rotation_averaging {
+namespace {
+
+// A two-camera rig driving in a loop: keyframes every 0.1 s, sequential
+// edges per camera, rig edges between the cameras of one capture, loop
+// closures between the last and first captures, and some outlier edges.
+struct RigData {
+  std::map<KeyframeKey, Eigen::Matrix3d> truth;  // world-to-camera
+  std::vector<KeyframeRelativeRotation> measurements;
+};
+
+RigData MakeRig(int captures, double outlier_ratio, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, DegToRad(0.5));
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  RigData d;
+  const Eigen::Matrix3d extrinsic = ExpSO3(Eigen::Vector3d(0, kPi / 2, 0));  // camera 2 looks sideways
+  std::vector<std::array<KeyframeKey, 2>> keys;
+  for (int c = 0; c < captures; ++c) {
+    const double yaw = 2.0 * kPi * c / captures;  // one full turn: returns to the start
+    const Eigen::Matrix3d body = ExpSO3(Eigen::Vector3d(0.05 * std::sin(3 * yaw), 0, yaw)).transpose();
+    const std::int64_t stamp = 1'000'000'000LL + c * 100'000'000LL;
+    keys.push_back({KeyframeKey{"cam_front", stamp}, KeyframeKey{"cam_side", stamp}});
+    d.truth[keys.back()[0]] = body;
+    d.truth[keys.back()[1]] = extrinsic * body;
+  }
+  const Eigen::Matrix3d cov = Eigen::Matrix3d::Identity() * std::pow(DegToRad(0.5), 2);
+  auto add = [&](const KeyframeKey& a, const KeyframeKey& b, EdgeSource source) {
+    KeyframeRelativeRotation m;
+    m.keyframe1 = a;
+    m.keyframe2 = b;
+    m.source = source;
+    m.has_covariance = true;
+    m.covariance = cov;
+    m.num_inliers = 100;
+    const Eigen::Matrix3d true_rel = d.truth[a] * d.truth[b].transpose();
+    if (unit(rng) < outlier_ratio) {
+      m.rotation = ExpSO3(Eigen::Vector3d(unit(rng) * 2 - 1, unit(rng) * 2 - 1, unit(rng) * 2 - 1) * 2.0);
+    } else {
+      m.rotation = true_rel * ExpSO3(Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
+    }
+    d.measurements.push_back(m);
+  };
+  for (int c = 0; c < captures; ++c) {
+    add(keys[c][0], keys[c][1], EdgeSource::kRig);
+    for (int k = 1; k <= 2 && c + k < captures; ++k) {
+      add(keys[c][0], keys[c + k][0], EdgeSource::kSequential);
+      add(keys[c][1], keys[c + k][1], EdgeSource::kSequential);
+    }
+  }
+  for (int c = captures - 3; c < captures; ++c) {
+    for (int f = 0; f < 3; ++f) add(keys[c][0], keys[f][0], EdgeSource::kLoopClosure);
+  }
+  return d;
+}
+
+double MedianErrorDeg(const OnlineSolution& s, const RigData& d) {
+  NamedOrientations est, gt;
+  for (const auto& [k, r] : s.orientations) est[OnlineAverager::KeyframeName(k)] = r;
+  for (const auto& [k, r] : d.truth) gt[OnlineAverager::KeyframeName(k)] = r;
+  const EvaluationResult e = EvaluateOrientations(est, gt);
+  EXPECT_EQ(e.views_common, d.truth.size());
+  return e.median_error_deg;
+}
+
+TEST(OnlineAverager, SolvesARigWithLoopClosuresAndOutliers) {
+  const RigData d = MakeRig(60, 0.1, 1);
+  OnlineAverager averager(OnlineAveragerOptions{});
+  for (const auto& m : d.measurements) averager.AddRelativeRotation(m);
+  ASSERT_TRUE(averager.SolveNow());
+  const auto solution = averager.Solution();
+  EXPECT_EQ(solution->sequence, 1u);
+  EXPECT_EQ(solution->orientations.size(), 120u);
+  // 0.5 deg edge noise along a mostly sequential rig: drift of about a degree
+  // between the loop closures.
+  const double magsac_error = MedianErrorDeg(*solution, d);
+  EXPECT_LT(magsac_error, 1.0);
+  // The squared loss on the same data is pulled by the 10% outliers.
+  OnlineAveragerOptions squared;
+  squared.averaging.loss = LossType::kSquared;
+  OnlineAverager baseline(squared);
+  for (const auto& m : d.measurements) baseline.AddRelativeRotation(m);
+  ASSERT_TRUE(baseline.SolveNow());
+  EXPECT_GT(MedianErrorDeg(*baseline.Solution(), d), 3.0 * magsac_error);
+  const OnlineAveragerStats stats = averager.Stats();
+  EXPECT_EQ(stats.accepted, d.measurements.size());
+  EXPECT_EQ(stats.views, 120u);
+  EXPECT_GT(stats.outlier_edges, 0u);
+}
+
+TEST(OnlineAverager, RejectsAndCountsBadInput) {
+  OnlineAverager averager(OnlineAveragerOptions{});
+  KeyframeRelativeRotation m;
+  m.keyframe1 = {"cam", 1};
+  m.keyframe2 = {"cam", 2};
+  std::string why;
+  KeyframeRelativeRotation nan = m;
+  nan.rotation(1, 1) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(averager.AddRelativeRotation(nan, &why));
+  KeyframeRelativeRotation self = m;
+  self.keyframe2 = self.keyframe1;
+  EXPECT_FALSE(averager.AddRelativeRotation(self, &why));
+  EXPECT_NE(why.find("itself"), std::string::npos);
+  KeyframeRelativeRotation bad_cov = m;
+  bad_cov.has_covariance = true;
+  bad_cov.covariance = -Eigen::Matrix3d::Identity();
+  EXPECT_FALSE(averager.AddRelativeRotation(bad_cov, &why));
+  KeyframeRelativeRotation no_frame = m;
+  no_frame.keyframe1.frame_id.clear();
+  EXPECT_FALSE(averager.AddRelativeRotation(no_frame, &why));
+  KeyframeRelativeRotation scaled = m;
+  scaled.rotation *= 2.0;
+  EXPECT_FALSE(averager.AddRelativeRotation(scaled, &why));
+  EXPECT_TRUE(averager.AddRelativeRotation(m, &why));
+  const OnlineAveragerStats stats = averager.Stats();
+  EXPECT_EQ(stats.received, 6u);
+  EXPECT_EQ(stats.rejected_invalid, 5u);
+  ASSERT_TRUE(averager.SolveNow());
+  EXPECT_EQ(averager.Stats().edges, 1u);
+}
+
+TEST(OnlineAverager, BoundedQueueDropsAndCounts) {
+  OnlineAveragerOptions options;
+  options.max_queue = 5;
+  OnlineAverager averager(options);
+  const RigData d = MakeRig(10, 0.0, 2);
+  int accepted = 0;
+  for (int k = 0; k < 10; ++k) accepted += averager.AddRelativeRotation(d.measurements[k]);
+  EXPECT_EQ(accepted, 5);
+  EXPECT_EQ(averager.Stats().dropped_queue_full, 5u);
+  averager.SolveNow();  // drains the queue: room again
+  EXPECT_TRUE(averager.AddRelativeRotation(d.measurements[10]));
+}
+
+TEST(OnlineAverager, WorkerSolvesPeriodicallyAndWarmStarts) {
+  OnlineAveragerOptions options;
+  options.solve_period_s = 0.05;
+  OnlineAverager averager(options);
+  std::atomic<int> callbacks{0};
+  averager.SetSolutionCallback([&](std::shared_ptr<const OnlineSolution>) { ++callbacks; });
+  averager.Start();
+  const RigData d = MakeRig(40, 0.0, 3);
+  const std::size_t half = d.measurements.size() / 2;
+  for (std::size_t k = 0; k < half; ++k) averager.AddRelativeRotation(d.measurements[k]);
+  auto wait_for = [&](std::uint64_t sequence) {
+    for (int i = 0; i < 200 && averager.Solution()->sequence < sequence; ++i) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    return averager.Solution()->sequence >= sequence;
+  };
+  ASSERT_TRUE(wait_for(1));
+  const std::uint64_t first = averager.Solution()->sequence;
+  for (std::size_t k = half; k < d.measurements.size(); ++k) averager.AddRelativeRotation(d.measurements[k]);
+  ASSERT_TRUE(wait_for(first + 1));
+  averager.Stop();
+  EXPECT_GE(callbacks.load(), 2);
+  EXPECT_EQ(averager.Solution()->orientations.size(), 80u);
+  EXPECT_LT(MedianErrorDeg(*averager.Solution(), d), 1.0);
+  // Nothing new: the worker does not re-solve for nothing.
+  const std::uint64_t solves = averager.Stats().solves;
+  averager.Start();
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  averager.Stop();
+  EXPECT_EQ(averager.Stats().solves, solves);
+}
+
+TEST(OnlineAverager, SaveLoadAndReset) {
+  const RigData d = MakeRig(30, 0.05, 4);
+  OnlineAverager a(OnlineAveragerOptions{});
+  for (const auto& m : d.measurements) a.AddRelativeRotation(m);
+  ASSERT_TRUE(a.SolveNow());
+  const std::string path =
+      (std::filesystem::temp_directory_path() / ("rotavg_online_" + std::to_string(::getpid()) + ".txt")).string();
+  std::string error;
+  ASSERT_TRUE(a.SaveGraph(path, &error)) << error;
+  OnlineAverager b(OnlineAveragerOptions{});
+  ASSERT_TRUE(b.LoadGraph(path, &error)) << error;
+  EXPECT_EQ(b.Stats().edges, a.Stats().edges);
+  EXPECT_EQ(b.Solution()->orientations.size(), a.Solution()->orientations.size());
+  EXPECT_LT(MedianErrorDeg(*b.Solution(), d), 1.0);
+  b.Reset();
+  EXPECT_TRUE(b.Solution()->orientations.empty());
+  EXPECT_EQ(b.Stats().views, 0u);
+  EXPECT_FALSE(b.SolveNow());  // nothing to solve
+  std::filesystem::remove(path);
+  KeyframeKey key;
+  EXPECT_TRUE(OnlineAverager::ParseKeyframeName("cam_left@123456789", &key));
+  EXPECT_EQ(key.frame_id, "cam_left");
+  EXPECT_EQ(key.stamp_ns, 123456789);
+  EXPECT_FALSE(OnlineAverager::ParseKeyframeName("no_stamp", &key));
+  EXPECT_FALSE(OnlineAverager::ParseKeyframeName("cam@12x", &key));
+}
+
+}  // namespace
+}  // namespace rotation_averaging
