@@ -11,6 +11,7 @@ PACKAGES=(
   catkin ros-message-generation ros-base-dev
   libtf2-ros-dev libtf2-eigen-dev librosbag-dev librostest-dev python3-rostest
   libcv-bridge-dev libimage-transport-dev
+  libstd-srvs-dev libdiagnostic-updater-dev libtf2-geometry-msgs-dev
   libceres-dev libeigen3-dev libsuitesparse-dev libopencv-dev libgtest-dev
 )
 missing=()

@@ -93,7 +93,7 @@ TEST(ImagePipeline, FountainImagesGiveAccurateRotations) {
     EXPECT_GT(e.num_inliers, 20);
     EXPECT_LT(std::sqrt(e.covariance.trace()), 0.01);  // rad: well-constrained pairs
   }
-  Orientations out;
+  ViewOrientations out;
   RotationAveragingSummary summary;
   ASSERT_TRUE(SolveRotationAveraging(front.graph, RotationAveragingOptions(), &out, &summary));
   NamedOrientations gt_all, gt;

@@ -98,7 +98,7 @@ TEST(RealData, Sphere2500MedianErrorWithinTarget) {
   for (SolverType solver : {SolverType::kIrls, SolverType::kCeres}) {
     RotationAveragingOptions o;
     o.solver = solver;
-    Orientations out;
+    ViewOrientations out;
     RotationAveragingSummary summary;
     ASSERT_TRUE(SolveRotationAveraging(g, o, &out, &summary));
     const EvaluationResult e = EvaluateOrientations(NameOrientations(g, out), gt);
@@ -113,7 +113,7 @@ TEST(RealData, EveryRealGraphSolvesToFiniteOrientations) {
     REQUIRE_DATA(f);
     ViewGraph g;
     ASSERT_TRUE(ReadViewGraph(DataPath(f), GraphFormat::kAuto, &g).ok()) << f;
-    Orientations out;
+    ViewOrientations out;
     RotationAveragingSummary summary;
     ASSERT_TRUE(SolveRotationAveraging(g, RotationAveragingOptions(), &out, &summary)) << f;
     EXPECT_GT(out.size(), 0.9 * g.NumViews()) << f;

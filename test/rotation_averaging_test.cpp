@@ -13,7 +13,7 @@ namespace {
 struct Outcome {
   EvaluationResult eval;
   RotationAveragingSummary summary;
-  Orientations orientations;
+  ViewOrientations orientations;
 };
 
 Outcome SolveAndScore(const SyntheticGraph& sg, const RotationAveragingOptions& options) {
@@ -96,12 +96,12 @@ TEST(RotationAveraging, WarmStartKeepsTheFrameAndConvergesAtOnce) {
   go.outlier_ratio = 0.1;
   const SyntheticGraph sg = MakeSyntheticGraph(go);
   RotationAveragingOptions o;
-  Orientations solution;
+  ViewOrientations solution;
   RotationAveragingSummary first, second;
   ASSERT_TRUE(SolveRotationAveraging(sg.graph, o, &solution, &first));
   // Rotate the whole solution: a warm start must stay in that frame.
   const Eigen::Matrix3d g = ExpSO3(Eigen::Vector3d(0.3, 0.2, 0.1));
-  Orientations warm = solution;
+  ViewOrientations warm = solution;
   for (auto& [id, r] : warm) r = r * g;
   ASSERT_TRUE(SolveRotationAveraging(sg.graph, o, &warm, &second));
   EXPECT_LE(second.components[0].iterations, 2);
@@ -115,7 +115,7 @@ TEST(RotationAveraging, ComponentsAreSolvedSeparatelyAndIsolatedViewsLeftOut) {
   ViewGraph graph = a.graph;
   // Second component: views 100..104, chained exactly, plus an isolated view.
   for (ViewId v = 100; v <= 105; ++v) graph.AddView(v);
-  Orientations gt = a.ground_truth;
+  ViewOrientations gt = a.ground_truth;
   for (ViewId v = 100; v <= 104; ++v) gt[v] = ExpSO3(Eigen::Vector3d(0.2 * v, 0.1, -0.3));
   for (ViewId v = 100; v < 104; ++v) {
     RelativeRotation e;
@@ -124,7 +124,7 @@ TEST(RotationAveraging, ComponentsAreSolvedSeparatelyAndIsolatedViewsLeftOut) {
     e.rotation = gt[v] * gt[v + 1].transpose();
     graph.AddEdge(e);
   }
-  Orientations out;
+  ViewOrientations out;
   RotationAveragingSummary summary;
   ASSERT_TRUE(SolveRotationAveraging(graph, RotationAveragingOptions(), &out, &summary));
   EXPECT_EQ(summary.components.size(), 2u);
@@ -182,7 +182,7 @@ TEST(RotationAveraging, NumericallyHostileGraphsEndFiniteWithAStatus) {
   for (SolverType solver : {SolverType::kIrls, SolverType::kCeres, SolverType::kL1Irls}) {
     for (LossType loss : AllLossTypes()) {
       RotationAveragingOptions o = With(loss, EdgeWeighting::kCovariance, solver);
-      Orientations out;
+      ViewOrientations out;
       RotationAveragingSummary summary;
       EXPECT_TRUE(SolveRotationAveraging(graph, o, &out, &summary));
       EXPECT_EQ(out.size(), 6u);
@@ -197,7 +197,7 @@ TEST(RotationAveraging, CovarianceWeightingWithoutCovariancesFallsBackWithAWarni
   go.num_views = 20;
   go.with_covariance = false;
   const SyntheticGraph sg = MakeSyntheticGraph(go);
-  Orientations out;
+  ViewOrientations out;
   RotationAveragingSummary summary;
   ASSERT_TRUE(SolveRotationAveraging(sg.graph, RotationAveragingOptions(), &out, &summary));
   ASSERT_FALSE(summary.warnings.empty());

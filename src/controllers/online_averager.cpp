@@ -137,7 +137,7 @@ std::size_t OnlineAverager::DrainQueue() {
 
 bool OnlineAverager::SolveLocked() {
   ViewGraph snapshot;
-  Orientations orientations;
+  ViewOrientations orientations;
   std::vector<KeyframeKey> keys;
   RotationAveragingOptions averaging;
   std::uint64_t generation = 0;

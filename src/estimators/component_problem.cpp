@@ -47,7 +47,7 @@ double ComponentProblem::CostOf(const std::vector<ComponentEdge>& edges, const s
 double ComponentProblem::Cost(const RobustLoss& loss) const { return CostOf(edges, rotations, loss); }
 
 std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, const RotationAveragingOptions& options,
-                                                     const Orientations& initial, std::vector<std::string>* warnings,
+                                                     const ViewOrientations& initial, std::vector<std::string>* warnings,
                                                      EdgeWeighting* effective_weighting) {
   const std::vector<RelativeRotation>& graph_edges = graph.Edges();
 

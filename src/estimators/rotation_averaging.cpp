@@ -143,7 +143,7 @@ std::string RotationAveragingSummary::Report() const {
 }
 
 bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptions& options,
-                            Orientations* orientations, RotationAveragingSummary* summary) {
+                            ViewOrientations* orientations, RotationAveragingSummary* summary) {
   const auto start = std::chrono::steady_clock::now();
   *summary = RotationAveragingSummary();
   EdgeWeighting weighting = options.weighting;

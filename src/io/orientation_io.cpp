@@ -63,7 +63,7 @@ bool WriteOrientationsCsv(const std::string& path, const NamedOrientations& orie
   }, error);
 }
 
-NamedOrientations NameOrientations(const ViewGraph& graph, const Orientations& orientations) {
+NamedOrientations NameOrientations(const ViewGraph& graph, const ViewOrientations& orientations) {
   NamedOrientations named;
   for (const auto& [id, r] : orientations) {
     const View* view = graph.FindView(id);
@@ -145,7 +145,7 @@ ReadReport ReadChainedGroundTruth(const std::string& graph_path, GraphFormat for
   options.max_iterations = 0;
   options.gnc_initial_scale_factor = 1.0;
   options.weighting = EdgeWeighting::kNone;
-  Orientations solved;
+  ViewOrientations solved;
   RotationAveragingSummary summary;
   SolveRotationAveraging(graph, options, &solved, &summary);
   // Express in the frame of the lowest id of each component.

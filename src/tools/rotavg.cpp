@@ -180,7 +180,7 @@ int Solve(int argc, char** argv) {
   for (std::size_t k = 0; k < report.warnings.size() && k < 10; ++k) std::cerr << "warning: " << report.warnings[k] << "\n";
   if (report.warnings.size() > 10) std::cerr << "warning: ... " << report.warnings.size() - 10 << " more\n";
 
-  ra::Orientations orientations;
+  ra::ViewOrientations orientations;
   ra::RotationAveragingSummary summary;
   const bool ok = ra::SolveRotationAveraging(graph, options, &orientations, &summary);
   std::cout << "input: " << args.positional[0] << " (" << ra::GraphFormatName(ra::DetectGraphFormat(args.positional[0]))
@@ -262,7 +262,7 @@ int Images(int argc, char** argv) {
     if (!ra::WriteRotavgGraph(args.Get("--graph-out"), front.graph, &error)) return Fail(error);
     std::cout << "wrote the view graph to " << args.Get("--graph-out") << "\n";
   }
-  ra::Orientations orientations;
+  ra::ViewOrientations orientations;
   ra::RotationAveragingSummary summary;
   const bool ok = ra::SolveRotationAveraging(front.graph, options, &orientations, &summary);
   std::cout << "averaging: " << summary.Report() << std::endl;
@@ -304,7 +304,7 @@ int Demo(int argc, char** argv) {
             << "AUC@2" << std::setw(10) << "AUC@5" << std::setw(10) << "AUC@10" << std::setw(10) << "AUC@20"
             << std::setw(12) << "solve s" << "\n";
   for (const Method& m : methods) {
-    ra::Orientations orientations;
+    ra::ViewOrientations orientations;
     ra::RotationAveragingSummary summary;
     ra::SolveRotationAveraging(sg.graph, m.options, &orientations, &summary);
     const ra::EvaluationResult e = ra::EvaluateOrientations(ra::NameOrientations(sg.graph, orientations),

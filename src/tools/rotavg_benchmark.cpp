@@ -68,7 +68,7 @@ double Median(std::vector<double> v) {
 int RunSingle(const std::string& path, int config_index) {
   ra::ViewGraph graph;
   if (!ra::ReadViewGraph(path, ra::GraphFormat::kAuto, &graph).ok()) return 1;
-  ra::Orientations orientations;
+  ra::ViewOrientations orientations;
   ra::RotationAveragingSummary summary;
   ra::SolveRotationAveraging(graph, Configs()[config_index].options, &orientations, &summary);
   return 0;
@@ -152,7 +152,7 @@ int main(int argc, char** argv) {
         std::vector<double> times;
         ra::RotationAveragingSummary summary;
         for (int r = 0; r < repeats; ++r) {
-          ra::Orientations orientations;
+          ra::ViewOrientations orientations;
           ra::SolveRotationAveraging(graph, configs[c].options, &orientations, &summary);
           times.push_back(summary.solve_time_s);
         }
@@ -191,7 +191,7 @@ int main(int argc, char** argv) {
       squared_cov.loss = ra::LossType::kSquared;
       accuracy.push_back({"irls squared+cov", squared_cov});
       for (const Config& c : accuracy) {
-        ra::Orientations orientations;
+        ra::ViewOrientations orientations;
         ra::RotationAveragingSummary summary;
         ra::SolveRotationAveraging(graph, c.options, &orientations, &summary);
         const ra::EvaluationResult e = ra::EvaluateOrientations(ra::NameOrientations(graph, orientations), gt);
@@ -264,7 +264,7 @@ int main(int argc, char** argv) {
         o.weighting = row.weighting;
         o.gnc_initial_scale_factor = row.robust_start ? 8.0 : 1.0;
         o.l1_initialization = row.robust_start;
-        ra::Orientations orientations;
+        ra::ViewOrientations orientations;
         ra::RotationAveragingSummary summary;
         ra::SolveRotationAveraging(sg.graph, o, &orientations, &summary);
         const ra::EvaluationResult e = ra::EvaluateOrientations(ra::NameOrientations(sg.graph, orientations),

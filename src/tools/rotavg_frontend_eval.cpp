@@ -225,7 +225,7 @@ int main(int argc, char** argv) {
       }
       const ra::ViewGraph graphs[3] = {WithCovariance(front, 0), WithCovariance(front, 1), WithCovariance(front, 2)};
       for (const Method& m : methods) {
-        ra::Orientations out;
+        ra::ViewOrientations out;
         ra::RotationAveragingSummary summary;
         ra::SolveRotationAveraging(graphs[m.covariance], m.options, &out, &summary);
         const ra::EvaluationResult e =

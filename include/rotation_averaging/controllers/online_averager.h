@@ -124,7 +124,7 @@ class OnlineAverager {
   ViewGraph graph_;
   std::map<KeyframeKey, ViewId> ids_;
   std::vector<KeyframeKey> keys_;  // by ViewId
-  Orientations warm_start_;
+  ViewOrientations warm_start_;
   std::uint64_t generation_ = 0;  // bumped by Reset and LoadGraph: a solve started before is discarded
   std::mutex solve_mutex_;  // one solve at a time
   mutable std::mutex solution_mutex_;

@@ -45,7 +45,7 @@ struct ComponentProblem {
 // but missing on every edge, which falls back to no weighting) are appended
 // to `warnings`; `effective_weighting` receives the weighting actually used.
 std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, const RotationAveragingOptions& options,
-                                                     const Orientations& initial, std::vector<std::string>* warnings,
+                                                     const ViewOrientations& initial, std::vector<std::string>* warnings,
                                                      EdgeWeighting* effective_weighting = nullptr);
 
 // Chooses the gauge (the view with the largest total tree weight, preferring

@@ -22,7 +22,7 @@
 
 namespace rotation_averaging {
 
-using Orientations = std::unordered_map<ViewId, Eigen::Matrix3d>;
+using ViewOrientations = std::unordered_map<ViewId, Eigen::Matrix3d>;
 
 // How each edge's information W_ij = D_ij D_ij^T is formed.
 //  kNone:       W = I. Residuals in radians.
@@ -159,7 +159,7 @@ struct RotationAveragingSummary {
 // Never throws on bad numbers: a component whose solve fails keeps its input
 // (or spanning-tree) orientations and says so in its status.
 bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptions& options,
-                            Orientations* orientations, RotationAveragingSummary* summary);
+                            ViewOrientations* orientations, RotationAveragingSummary* summary);
 
 }  // namespace rotation_averaging
 

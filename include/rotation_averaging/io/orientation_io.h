@@ -11,7 +11,7 @@
 
 namespace rotation_averaging {
 
-// Orientations CSV: one line per view "name,qw,qx,qy,qz", world-to-camera,
+// ViewOrientations CSV: one line per view "name,qw,qx,qy,qz", world-to-camera,
 // unit quaternion. A first line "name,qw,qx,qy,qz" and lines starting with
 // '#' are skipped. Quaternions whose norm is off by more than 1e-3 are errors.
 ReadReport ReadOrientationsCsv(const std::string& path, NamedOrientations* orientations);
@@ -19,7 +19,7 @@ ReadReport ReadOrientationsCsv(const std::string& path, NamedOrientations* orien
 // not contain commas or newlines.
 bool WriteOrientationsCsv(const std::string& path, const NamedOrientations& orientations, std::string* error);
 // Names solved orientations with the graph's view names.
-NamedOrientations NameOrientations(const ViewGraph& graph, const Orientations& orientations);
+NamedOrientations NameOrientations(const ViewGraph& graph, const ViewOrientations& orientations);
 
 // Strecha folder: <dir>/gt_cameras/<image>.camera, lines 5-7 the
 // camera-to-world R (world-to-camera is R^T); views named by image file name.

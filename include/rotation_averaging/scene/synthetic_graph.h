@@ -28,7 +28,7 @@ struct SyntheticGraphOptions {
 
 struct SyntheticGraph {
   ViewGraph graph;
-  Orientations ground_truth;           // world-to-camera, keyed by view id
+  ViewOrientations ground_truth;           // world-to-camera, keyed by view id
   std::vector<bool> edge_is_outlier;   // in the order of graph.Edges()
 };
 

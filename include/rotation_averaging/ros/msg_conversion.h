@@ -1,0 +1,30 @@
+// The one conversion per message type between ROS messages and the core
+// library (the only place that knows both). See msg/*.msg for conventions.
+#ifndef ROTATION_AVERAGING_ROS_MSG_CONVERSION_H_
+#define ROTATION_AVERAGING_ROS_MSG_CONVERSION_H_
+
+#include <ros/time.h>
+
+#include <string>
+
+#include "rotation_averaging/KeyframeOrientation.h"
+#include "rotation_averaging/RelativePose.h"
+#include "rotation_averaging/controllers/online_averager.h"
+
+namespace rotation_averaging {
+
+std::int64_t ToNanoseconds(const ros::Time& t);
+ros::Time FromNanoseconds(std::int64_t ns);
+
+// Fails (with `error`) on an empty frame id, a non-finite or non-unit
+// quaternion (|q| off by more than 1e-3), a non-finite or asymmetric
+// covariance, or an unknown source. An all-zero covariance means "unknown".
+bool FromMsg(const RelativePose& msg, KeyframeRelativeRotation* out, std::string* error);
+RelativePose ToMsg(const KeyframeRelativeRotation& in);
+
+// world-to-camera R -> camera-to-world quaternion in the message.
+KeyframeOrientation ToMsg(const KeyframeKey& key, const Eigen::Matrix3d& world_to_camera, int component);
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_ROS_MSG_CONVERSION_H_

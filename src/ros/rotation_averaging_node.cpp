@@ -1,0 +1,268 @@
+// rotation_averaging_node: live covariance-weighted robust rotation averaging.
+//
+// Subscribes to relative poses (single and array), keeps the view graph in an
+// OnlineAverager (ROS-free), re-solves it in a worker thread every
+// ~solve_period seconds, and publishes the keyframe orientations over tf2 and
+// as a latched Orientations topic. Callbacks only convert, validate and
+// enqueue. See config/rotation_averaging.yaml for every parameter.
+#include <diagnostic_updater/diagnostic_updater.h>
+#include <ros/ros.h>
+#include <std_srvs/Trigger.h>
+#include <tf2_ros/static_transform_broadcaster.h>
+#include <tf2_ros/transform_broadcaster.h>
+
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+
+#include "rotation_averaging/LoadGraph.h"
+#include "rotation_averaging/Orientations.h"
+#include "rotation_averaging/RelativePose.h"
+#include "rotation_averaging/RelativePoseArray.h"
+#include "rotation_averaging/SaveGraph.h"
+#include "rotation_averaging/controllers/online_averager.h"
+#include "rotation_averaging/geometry/so3.h"
+#include "rotation_averaging/ros/msg_conversion.h"
+
+namespace rotation_averaging {
+namespace {
+
+std::string Replace(std::string text, const std::string& key, const std::string& value) {
+  for (std::size_t at = text.find(key); at != std::string::npos; at = text.find(key, at + value.size())) {
+    text.replace(at, key.size(), value);
+  }
+  return text;
+}
+
+class RotationAveragingNode {
+ public:
+  explicit RotationAveragingNode(ros::NodeHandle& nh, ros::NodeHandle& pnh) : pnh_(pnh) {
+    fixed_frame_ = pnh.param<std::string>("fixed_frame", "map");
+    tf_mode_ = pnh.param<std::string>("tf_mode", "all_keyframes");
+    if (tf_mode_ != "all_keyframes" && tf_mode_ != "latest_per_camera" && tf_mode_ != "none") {
+      ROS_WARN("tf_mode '%s' unknown: using all_keyframes", tf_mode_.c_str());
+      tf_mode_ = "all_keyframes";
+    }
+    keyframe_frame_format_ = pnh.param<std::string>("keyframe_frame_format", "{frame_id}_kf_{stamp_ns}");
+    latest_frame_format_ = pnh.param<std::string>("latest_frame_format", "{frame_id}_averaged");
+    save_on_shutdown_ = pnh.param<std::string>("save_on_shutdown", "");
+
+    OnlineAveragerOptions options;
+    options.solve_period_s = pnh.param("solve_period", 1.0);
+    options.solve_early_on_loop_closure = pnh.param("solve_early_on_loop_closure", true);
+    options.max_queue = static_cast<std::size_t>(std::max(1, pnh.param("max_queue", 10000)));
+    options.max_views = static_cast<std::size_t>(std::max(2, pnh.param("max_views", 1000000)));
+    options.max_edges = static_cast<std::size_t>(std::max(1, pnh.param("max_edges", 10000000)));
+    options.averaging = AveragingOptionsFromParams();
+    averager_ = std::make_unique<OnlineAverager>(options);
+
+    orientations_pub_ = pnh.advertise<Orientations>("orientations", 1, /*latch=*/true);
+    single_sub_ = nh.subscribe("relative_pose", 1000, &RotationAveragingNode::OnRelativePose, this);
+    array_sub_ = nh.subscribe("relative_poses", 100, &RotationAveragingNode::OnRelativePoseArray, this);
+    solve_srv_ = pnh.advertiseService("solve", &RotationAveragingNode::OnSolve, this);
+    reset_srv_ = pnh.advertiseService("reset", &RotationAveragingNode::OnReset, this);
+    save_srv_ = pnh.advertiseService("save_graph", &RotationAveragingNode::OnSave, this);
+    load_srv_ = pnh.advertiseService("load_graph", &RotationAveragingNode::OnLoad, this);
+
+    diagnostics_.setHardwareID("rotation_averaging");
+    diagnostics_.add("rotation averaging", this, &RotationAveragingNode::Diagnose);
+    diagnostics_timer_ = pnh.createTimer(ros::Duration(1.0), [this](const ros::TimerEvent&) { diagnostics_.update(); });
+
+    averager_->SetSolutionCallback([this](std::shared_ptr<const OnlineSolution> s) { Publish(*s); });
+    const std::string load = pnh.param<std::string>("load_graph", "");
+    if (!load.empty()) {
+      std::string error;
+      if (averager_->LoadGraph(load, &error)) {
+        ROS_INFO("loaded the view graph from %s", load.c_str());
+      } else {
+        ROS_ERROR("could not load %s: %s; starting empty", load.c_str(), error.c_str());
+      }
+    }
+    averager_->Start();
+    ROS_INFO("rotation_averaging_node: fixed frame '%s', tf mode %s, solve every %.2f s, loss %s, weighting %s",
+             fixed_frame_.c_str(), tf_mode_.c_str(), options.solve_period_s, LossTypeName(options.averaging.loss),
+             EdgeWeightingName(options.averaging.weighting));
+  }
+
+  ~RotationAveragingNode() {
+    averager_->Stop();
+    if (!save_on_shutdown_.empty()) {
+      std::string error;
+      if (!averager_->SaveGraph(save_on_shutdown_, &error)) ROS_ERROR("saving on shutdown failed: %s", error.c_str());
+    }
+  }
+
+ private:
+  RotationAveragingOptions AveragingOptionsFromParams() {
+    RotationAveragingOptions o;
+    const std::string loss = pnh_.param<std::string>("loss", "magsac");
+    if (!ParseLossType(loss, &o.loss)) ROS_WARN("loss '%s' unknown: using magsac", loss.c_str());
+    const std::string weighting = pnh_.param<std::string>("weighting", "covariance");
+    if (!ParseEdgeWeighting(weighting, &o.weighting)) ROS_WARN("weighting '%s' unknown: using covariance", weighting.c_str());
+    const std::string solver = pnh_.param<std::string>("solver", "irls");
+    if (!ParseSolverType(solver, &o.solver)) ROS_WARN("solver '%s' unknown: using irls", solver.c_str());
+    o.loss_scale = pnh_.param("sigma_max", 0.0);
+    o.max_iterations = pnh_.param("max_iterations", 100);
+    return o;
+  }
+
+  void Accept(const RelativePose& msg) {
+    KeyframeRelativeRotation m;
+    std::string error;
+    if (!FromMsg(msg, &m, &error) || !averager_->AddRelativeRotation(m, &error)) {
+      {
+        std::lock_guard<std::mutex> lock(mutex_);
+        ++rejected_messages_;
+      }
+      ROS_WARN_THROTTLE(5.0, "relative pose %s@%.9f -> %s@%.9f dropped: %s", msg.frame_id_1.c_str(), msg.stamp_1.toSec(),
+                        msg.frame_id_2.c_str(), msg.stamp_2.toSec(), error.c_str());
+    }
+  }
+
+  void OnRelativePose(const RelativePose::ConstPtr& msg) { Accept(*msg); }
+  void OnRelativePoseArray(const RelativePoseArray::ConstPtr& msg) {
+    for (const RelativePose& p : msg->poses) Accept(p);
+  }
+
+  bool OnSolve(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+    res.success = averager_->SolveNow();
+    const OnlineAveragerStats s = averager_->Stats();
+    res.message = res.success ? "solved " + std::to_string(s.views) + " keyframes, " + std::to_string(s.edges) +
+                                    " edges in " + std::to_string(s.last_solve_s) + " s"
+                              : "nothing solved (empty graph or failed solve; the previous solution is kept)";
+    return true;
+  }
+
+  bool OnReset(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+    averager_->Reset();
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      last_latest_stamp_.clear();
+    }
+    res.success = true;
+    res.message = "graph cleared";
+    return true;
+  }
+
+  bool OnSave(SaveGraph::Request& req, SaveGraph::Response& res) {
+    std::string error;
+    res.success = averager_->SaveGraph(req.path, &error);
+    res.message = res.success ? "saved to " + req.path : error;
+    return true;
+  }
+
+  bool OnLoad(LoadGraph::Request& req, LoadGraph::Response& res) {
+    std::string error;
+    res.success = averager_->LoadGraph(req.path, &error);
+    res.message = res.success ? "loaded " + req.path + (error.empty() ? "" : " (" + error + ")") : error;
+    return true;
+  }
+
+  // Called from the averager's worker thread after each successful solve.
+  void Publish(const OnlineSolution& solution) {
+    const ros::Time now = ros::Time::now();
+    Orientations msg;
+    msg.header.stamp = now;
+    msg.header.frame_id = fixed_frame_;
+    msg.solve_sequence = solution.sequence;
+    std::vector<geometry_msgs::TransformStamped> keyframe_tfs;
+    std::map<std::string, std::pair<KeyframeKey, Eigen::Matrix3d>> latest;
+    for (const auto& [key, r] : solution.orientations) {
+      auto c = solution.component.find(key);
+      msg.keyframes.push_back(ToMsg(key, r, c == solution.component.end() ? 0 : c->second));
+      const KeyframeOrientation& k = msg.keyframes.back();
+      if (tf_mode_ == "all_keyframes") {
+        keyframe_tfs.push_back(Transform(FromNanoseconds(key.stamp_ns),
+                                         Replace(Replace(keyframe_frame_format_, "{frame_id}", key.frame_id),
+                                                 "{stamp_ns}", std::to_string(key.stamp_ns)),
+                                         k.orientation));
+      }
+      auto it = latest.find(key.frame_id);
+      if (it == latest.end() || it->second.first.stamp_ns < key.stamp_ns) latest[key.frame_id] = {key, r};
+    }
+    orientations_pub_.publish(msg);
+    if (tf_mode_ == "all_keyframes" && !keyframe_tfs.empty()) static_broadcaster_.sendTransform(keyframe_tfs);
+    if (tf_mode_ == "latest_per_camera") {
+      // Stamped with the publication time (the estimate of the camera's
+      // current orientation); never twice with the same stamp per frame.
+      std::vector<geometry_msgs::TransformStamped> tfs;
+      std::lock_guard<std::mutex> lock(mutex_);
+      for (const auto& [frame_id, kr] : latest) {
+        const std::string child = Replace(latest_frame_format_, "{frame_id}", frame_id);
+        auto last = last_latest_stamp_.find(child);
+        if (last != last_latest_stamp_.end() && now <= last->second) continue;
+        last_latest_stamp_[child] = now;
+        tfs.push_back(Transform(now, child, ToMsg(kr.first, kr.second, 0).orientation));
+      }
+      if (!tfs.empty()) broadcaster_.sendTransform(tfs);
+    }
+  }
+
+  geometry_msgs::TransformStamped Transform(const ros::Time& stamp, const std::string& child,
+                                            const geometry_msgs::Quaternion& camera_to_world) const {
+    geometry_msgs::TransformStamped t;
+    t.header.stamp = stamp;
+    t.header.frame_id = fixed_frame_;
+    t.child_frame_id = child;
+    t.transform.rotation = camera_to_world;
+    return t;
+  }
+
+  void Diagnose(diagnostic_updater::DiagnosticStatusWrapper& status) {
+    const OnlineAveragerStats s = averager_->Stats();
+    std::uint64_t rejected = 0;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      rejected = rejected_messages_;
+    }
+    const double period = pnh_.param("solve_period", 1.0);
+    if (s.failed_solves > 0 && s.solves == s.failed_solves) {
+      status.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "every solve failed");
+    } else if (period > 0 && s.last_solve_s > period) {
+      status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "solve time exceeds the solve period");
+    } else if (s.dropped_queue_full + s.dropped_cap > 0) {
+      status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "input dropped (queue full or caps reached)");
+    } else {
+      status.summary(diagnostic_msgs::DiagnosticStatus::OK, "ok");
+    }
+    status.add("keyframes", s.views);
+    status.add("edges", s.edges);
+    status.add("components", s.components);
+    status.add("outlier edges", s.outlier_edges);
+    status.add("messages received", s.received);
+    status.add("rejected messages", rejected);
+    status.add("dropped (queue full)", s.dropped_queue_full);
+    status.add("dropped (caps)", s.dropped_cap);
+    status.add("solves", s.solves);
+    status.add("failed solves", s.failed_solves);
+    status.add("overruns", s.overruns);
+    status.add("last solve time (s)", s.last_solve_s);
+    status.add("solve period (s)", period);
+  }
+
+  ros::NodeHandle pnh_;
+  std::string fixed_frame_, tf_mode_, keyframe_frame_format_, latest_frame_format_, save_on_shutdown_;
+  std::unique_ptr<OnlineAverager> averager_;
+  ros::Publisher orientations_pub_;
+  ros::Subscriber single_sub_, array_sub_;
+  ros::ServiceServer solve_srv_, reset_srv_, save_srv_, load_srv_;
+  tf2_ros::TransformBroadcaster broadcaster_;
+  tf2_ros::StaticTransformBroadcaster static_broadcaster_;
+  diagnostic_updater::Updater diagnostics_;
+  ros::Timer diagnostics_timer_;
+  std::mutex mutex_;
+  std::uint64_t rejected_messages_ = 0;
+  std::map<std::string, ros::Time> last_latest_stamp_;
+};
+
+}  // namespace
+}  // namespace rotation_averaging
+
+int main(int argc, char** argv) {
+  ros::init(argc, argv, "rotation_averaging_node");
+  ros::NodeHandle nh, pnh("~");
+  rotation_averaging::RotationAveragingNode node(nh, pnh);
+  ros::spin();
+  return 0;
+}

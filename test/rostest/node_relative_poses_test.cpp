@@ -1,0 +1,176 @@
+// rostest: relative poses with covariances for a synthetic two-camera rig
+// (loop closures, 10% outlier edges, and malformed messages) are published to
+// two running nodes; the orientations read back from tf2 must match ground
+// truth within a tolerance the MAGSAC + covariance solve reaches and the
+// squared loss does not. Also: the latched Orientations topic, and the
+// save_graph / reset / load_graph / solve services.
+#include <gtest/gtest.h>
+#include <ros/ros.h>
+#include <std_srvs/Trigger.h>
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/transform_listener.h>
+
+#include <filesystem>
+#include <limits>
+#include <mutex>
+
+#include "../synthetic_rig.h"
+#include "rotation_averaging/LoadGraph.h"
+#include "rotation_averaging/Orientations.h"
+#include "rotation_averaging/RelativePoseArray.h"
+#include "rotation_averaging/SaveGraph.h"
+#include "rotation_averaging/eval/rotation_evaluation.h"
+#include "rotation_averaging/ros/msg_conversion.h"
+
+namespace rotation_averaging {
+namespace {
+
+class NodeTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    for (const char* service : {"/averaging_magsac/solve", "/averaging_squared/solve"}) {
+      ASSERT_TRUE(ros::service::waitForService(service, ros::Duration(30.0))) << service;
+    }
+    pub_ = nh_.advertise<RelativePoseArray>("/test/relative_poses", 10);
+    single_pub_ = nh_.advertise<RelativePose>("/test/relative_pose", 100);
+    const ros::Time deadline = ros::Time::now() + ros::Duration(20.0);
+    while ((pub_.getNumSubscribers() < 2 || single_pub_.getNumSubscribers() < 2) && ros::Time::now() < deadline) {
+      ros::Duration(0.05).sleep();
+    }
+    ASSERT_EQ(pub_.getNumSubscribers(), 2u);
+  }
+
+  // Orientations (world-to-camera) of every keyframe as read from tf.
+  NamedOrientations ReadTf(const std::string& prefix, const RigData& rig) {
+    NamedOrientations out;
+    for (const auto& [key, truth] : rig.truth) {
+      const std::string child = prefix + "/" + key.frame_id + "_kf_" + std::to_string(key.stamp_ns);
+      try {
+        const auto t = buffer_.lookupTransform("map", child, ros::Time(0), ros::Duration(10.0));
+        const auto& q = t.transform.rotation;
+        out[OnlineAverager::KeyframeName(key)] = QuaternionToRotation(q.w, q.x, q.y, q.z).transpose();
+      } catch (const tf2::TransformException& e) {
+        ADD_FAILURE() << "no transform for " << child << ": " << e.what();
+        break;
+      }
+    }
+    return out;
+  }
+
+  static NamedOrientations Truth(const RigData& rig) {
+    NamedOrientations gt;
+    for (const auto& [key, r] : rig.truth) gt[OnlineAverager::KeyframeName(key)] = r;
+    return gt;
+  }
+
+  bool Call(const std::string& service) {
+    std_srvs::Trigger srv;
+    return ros::service::call(service, srv) && srv.response.success;
+  }
+
+  ros::NodeHandle nh_;
+  ros::Publisher pub_, single_pub_;
+  tf2_ros::Buffer buffer_;
+  tf2_ros::TransformListener listener_{buffer_};
+};
+
+TEST_F(NodeTest, OrientationsOnTfMatchGroundTruthAndBeatTheSquaredLoss) {
+  const RigData rig = MakeRig(40, 0.1, 7);
+  RelativePoseArray batch;
+  for (const KeyframeRelativeRotation& m : rig.measurements) batch.poses.push_back(ToMsg(m));
+  pub_.publish(batch);
+  // Malformed input on the single topic: must be dropped, not break anything.
+  RelativePose bad = ToMsg(rig.measurements.front());
+  bad.rotation.w = std::numeric_limits<double>::quiet_NaN();
+  single_pub_.publish(bad);
+  bad = ToMsg(rig.measurements.front());
+  bad.rotation.w *= 3.0;  // non-unit quaternion
+  single_pub_.publish(bad);
+  bad = ToMsg(rig.measurements.front());
+  bad.frame_id_2 = bad.frame_id_1;
+  bad.stamp_2 = bad.stamp_1;  // a keyframe related to itself
+  single_pub_.publish(bad);
+  bad = ToMsg(rig.measurements.front());
+  bad.rotation_covariance = {-1, 0, 0, 0, -1, 0, 0, 0, -1};  // not positive definite
+  single_pub_.publish(bad);
+  ros::Duration(1.0).sleep();  // delivery, then at least one periodic solve
+  ASSERT_TRUE(Call("/averaging_magsac/solve"));
+  ASSERT_TRUE(Call("/averaging_squared/solve"));
+
+  const NamedOrientations gt = Truth(rig);
+  const EvaluationResult magsac = EvaluateOrientations(ReadTf("magsac", rig), gt);
+  const EvaluationResult squared = EvaluateOrientations(ReadTf("squared", rig), gt);
+  EXPECT_EQ(magsac.views_common, rig.truth.size());
+  EXPECT_EQ(squared.views_common, rig.truth.size());
+  EXPECT_LT(magsac.median_error_deg, 1.0);
+  EXPECT_GT(squared.median_error_deg, 3.0 * magsac.median_error_deg);
+}
+
+TEST_F(NodeTest, LatchedOrientationsAndGraphServices) {
+  const RigData rig = MakeRig(20, 0.0, 8);
+  RelativePoseArray batch;
+  for (const KeyframeRelativeRotation& m : rig.measurements) batch.poses.push_back(ToMsg(m));
+  ASSERT_TRUE(Call("/averaging_magsac/reset"));
+  pub_.publish(batch);
+  ros::Duration(0.5).sleep();
+  ASSERT_TRUE(Call("/averaging_magsac/solve"));
+
+  // Callbacks run on the AsyncSpinner's thread.
+  std::mutex mutex;
+  Orientations::ConstPtr latest;
+  auto sub = nh_.subscribe<Orientations>("/averaging_magsac/orientations", 1, [&](const Orientations::ConstPtr& m) {
+    std::lock_guard<std::mutex> lock(mutex);
+    latest = m;
+  });
+  auto current = [&]() {
+    std::lock_guard<std::mutex> lock(mutex);
+    return latest;
+  };
+  auto wait = [&](std::size_t keyframes) {
+    const ros::Time deadline = ros::Time::now() + ros::Duration(10.0);
+    while (ros::Time::now() < deadline && !(current() && current()->keyframes.size() == keyframes)) {
+      ros::Duration(0.02).sleep();
+    }
+    return current() && current()->keyframes.size() == keyframes;
+  };
+  ASSERT_TRUE(wait(rig.truth.size()));
+  EXPECT_EQ(current()->header.frame_id, "map");
+  const std::uint64_t sequence = current()->solve_sequence;
+
+  const std::string path =
+      (std::filesystem::temp_directory_path() / ("rotavg_node_test_" + std::to_string(::getpid()) + ".txt")).string();
+  SaveGraph save;
+  save.request.path = path;
+  ASSERT_TRUE(ros::service::call("/averaging_magsac/save_graph", save));
+  ASSERT_TRUE(save.response.success) << save.response.message;
+  ASSERT_TRUE(Call("/averaging_magsac/reset"));
+  EXPECT_FALSE(Call("/averaging_magsac/solve"));  // empty graph: nothing to solve
+  LoadGraph load;
+  load.request.path = path;
+  ASSERT_TRUE(ros::service::call("/averaging_magsac/load_graph", load));
+  ASSERT_TRUE(load.response.success) << load.response.message;
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    latest.reset();
+  }
+  ASSERT_TRUE(wait(rig.truth.size()));
+  EXPECT_GT(current()->solve_sequence, sequence);
+  load.request.path = path + ".missing";
+  ASSERT_TRUE(ros::service::call("/averaging_magsac/load_graph", load));
+  EXPECT_FALSE(load.response.success);
+  std::filesystem::remove(path);
+}
+
+}  // namespace
+}  // namespace rotation_averaging
+
+int main(int argc, char** argv) {
+  ::testing::InitGoogleTest(&argc, argv);
+  ros::init(argc, argv, "node_relative_poses_test");
+  ros::NodeHandle nh;
+  ros::AsyncSpinner spinner(1);
+  spinner.start();
+  const int result = RUN_ALL_TESTS();
+  ros::shutdown();
+  return result;
+}
