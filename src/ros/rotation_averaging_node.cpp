@@ -5,22 +5,29 @@
 // ~solve_period seconds, and publishes the keyframe orientations over tf2 and
 // as a latched Orientations topic. Callbacks only convert, validate and
 // enqueue. See config/rotation_averaging.yaml for every parameter.
+#include <cv_bridge/cv_bridge.h>
 #include <diagnostic_updater/diagnostic_updater.h>
+#include <image_transport/image_transport.h>
 #include <ros/ros.h>
+#include <sensor_msgs/image_encodings.h>
 #include <std_srvs/Trigger.h>
 #include <tf2_ros/static_transform_broadcaster.h>
 #include <tf2_ros/transform_broadcaster.h>
 
+#include <condition_variable>
+#include <deque>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <string>
+#include <thread>
 
 #include "rotation_averaging/LoadGraph.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePose.h"
 #include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/SaveGraph.h"
+#include "rotation_averaging/controllers/keyframe_frontend.h"
 #include "rotation_averaging/controllers/online_averager.h"
 #include "rotation_averaging/geometry/so3.h"
 #include "rotation_averaging/ros/msg_conversion.h"
@@ -57,6 +64,7 @@ class RotationAveragingNode {
     options.averaging = AveragingOptionsFromParams();
     averager_ = std::make_unique<OnlineAverager>(options);
 
+    SetUpImages(nh);
     orientations_pub_ = pnh.advertise<Orientations>("orientations", 1, /*latch=*/true);
     single_sub_ = nh.subscribe("relative_pose", 1000, &RotationAveragingNode::OnRelativePose, this);
     array_sub_ = nh.subscribe("relative_poses", 100, &RotationAveragingNode::OnRelativePoseArray, this);
@@ -86,6 +94,12 @@ class RotationAveragingNode {
   }
 
   ~RotationAveragingNode() {
+    {
+      std::lock_guard<std::mutex> lock(image_mutex_);
+      images_running_ = false;
+    }
+    image_wake_.notify_all();
+    if (image_worker_.joinable()) image_worker_.join();
     averager_->Stop();
     if (!save_on_shutdown_.empty()) {
       std::string error;
@@ -94,6 +108,99 @@ class RotationAveragingNode {
   }
 
  private:
+  // Keyframe images: every image on the configured topics is a keyframe.
+  void SetUpImages(ros::NodeHandle& nh) {
+    std::vector<std::string> topics;
+    pnh_.param("image_topics", topics, std::vector<std::string>());
+    if (topics.empty()) return;
+    KeyframeFrontendOptions options;
+    options.features.downsample = pnh_.param("image_downsample", 1.0);
+    if (!(options.features.downsample > 0.0 && options.features.downsample <= 1.0)) options.features.downsample = 1.0;
+    options.features.max_features = pnh_.param("max_features", 4000);
+    const std::string features = pnh_.param<std::string>("features", "sift");
+    if (!ParseFeatureType(features, &options.features.type)) ROS_WARN("features '%s' unknown: using sift", features.c_str());
+    options.rig_stamp_tolerance_s = pnh_.param("rig_stamp_tolerance", 0.005);
+    options.max_loop_candidates = pnh_.param("max_loop_candidates", 3);
+    options.min_loop_inliers = pnh_.param("min_loop_inliers", 60);
+    max_image_queue_ = static_cast<std::size_t>(std::max(1, pnh_.param("max_image_queue", 8)));
+    frontend_ = std::make_unique<KeyframeFrontend>(options);
+    image_transport_ = std::make_unique<image_transport::ImageTransport>(nh);
+    const image_transport::TransportHints hints(pnh_.param<std::string>("image_transport", "raw"));
+    for (const std::string& topic : topics) {
+      camera_subs_.push_back(image_transport_->subscribeCamera(topic, 10, &RotationAveragingNode::OnImage, this, hints));
+      ROS_INFO("keyframes from %s (+ camera_info)", topic.c_str());
+    }
+    images_running_ = true;
+    image_worker_ = std::thread(&RotationAveragingNode::ImageWorker, this);
+  }
+
+  void DropImage(const std::string& why, std::uint64_t* counter) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      ++*counter;
+    }
+    ROS_WARN_THROTTLE(5.0, "keyframe image dropped: %s", why.c_str());
+  }
+
+  void OnImage(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info) {
+    const std::string& frame = image->header.frame_id;
+    if (frame.empty()) return DropImage("empty frame_id", &rejected_images_);
+    Eigen::Matrix3d k;
+    for (int i = 0; i < 9; ++i) k(i / 3, i % 3) = info->K[i];
+    if (!k.allFinite() || !(k(0, 0) > 0.0) || !(k(1, 1) > 0.0) || std::abs(k(2, 2) - 1.0) > 1e-9) {
+      return DropImage("camera_info of " + frame + " has no valid K", &rejected_images_);
+    }
+    const std::int64_t stamp = ToNanoseconds(image->header.stamp);
+    if (!StampAdvances(frame, stamp)) {
+      return DropImage("stamp of " + frame + " did not advance (" + std::to_string(image->header.stamp.toSec()) + ")",
+                       &rejected_images_);
+    }
+    cv::Mat grey;
+    try {
+      grey = cv_bridge::toCvShare(image, sensor_msgs::image_encodings::MONO8)->image.clone();
+    } catch (const std::exception& e) {
+      return DropImage("image from " + frame + " does not decode: " + e.what(), &rejected_images_);
+    }
+    if (grey.empty()) return DropImage("empty image from " + frame, &rejected_images_);
+    bool queued = false;
+    {
+      std::lock_guard<std::mutex> lock(image_mutex_);
+      if (image_queue_.size() < max_image_queue_) {
+        image_queue_.push_back(PendingImage{KeyframeKey{frame, stamp}, grey, k});
+        queued = true;
+      }
+    }
+    if (!queued) return DropImage("image queue full (" + std::to_string(max_image_queue_) + ")", &dropped_images_);
+    image_wake_.notify_one();
+  }
+
+  bool StampAdvances(const std::string& frame, std::int64_t stamp) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto last = last_image_stamp_.find(frame);
+    if (last != last_image_stamp_.end() && stamp <= last->second) return false;
+    last_image_stamp_[frame] = stamp;
+    return true;
+  }
+
+  void ImageWorker() {
+    while (true) {
+      PendingImage next;
+      {
+        std::unique_lock<std::mutex> lock(image_mutex_);
+        image_wake_.wait(lock, [this] { return !images_running_ || !image_queue_.empty(); });
+        if (!images_running_) return;
+        next = std::move(image_queue_.front());
+        image_queue_.pop_front();
+      }
+      for (const KeyframeRelativeRotation& e : frontend_->AddKeyframe(next.key, next.image, next.k)) {
+        std::string error;
+        if (!averager_->AddRelativeRotation(e, &error)) ROS_WARN_THROTTLE(5.0, "front-end edge dropped: %s", error.c_str());
+      }
+      std::lock_guard<std::mutex> lock(mutex_);
+      ++processed_images_;
+    }
+  }
+
   RotationAveragingOptions AveragingOptionsFromParams() {
     RotationAveragingOptions o;
     const std::string loss = pnh_.param<std::string>("loss", "magsac");
@@ -211,10 +318,13 @@ class RotationAveragingNode {
 
   void Diagnose(diagnostic_updater::DiagnosticStatusWrapper& status) {
     const OnlineAveragerStats s = averager_->Stats();
-    std::uint64_t rejected = 0;
+    std::uint64_t rejected = 0, rejected_images = 0, dropped_images = 0, processed_images = 0;
     {
       std::lock_guard<std::mutex> lock(mutex_);
       rejected = rejected_messages_;
+      rejected_images = rejected_images_;
+      dropped_images = dropped_images_;
+      processed_images = processed_images_;
     }
     const double period = pnh_.param("solve_period", 1.0);
     if (s.failed_solves > 0 && s.solves == s.failed_solves) {
@@ -232,6 +342,9 @@ class RotationAveragingNode {
     status.add("outlier edges", s.outlier_edges);
     status.add("messages received", s.received);
     status.add("rejected messages", rejected);
+    status.add("keyframe images processed", processed_images);
+    status.add("rejected images", rejected_images);
+    status.add("dropped images (queue full)", dropped_images);
     status.add("dropped (queue full)", s.dropped_queue_full);
     status.add("dropped (caps)", s.dropped_cap);
     status.add("solves", s.solves);
@@ -252,7 +365,22 @@ class RotationAveragingNode {
   diagnostic_updater::Updater diagnostics_;
   ros::Timer diagnostics_timer_;
   std::mutex mutex_;
-  std::uint64_t rejected_messages_ = 0;
+  std::uint64_t rejected_messages_ = 0, rejected_images_ = 0, dropped_images_ = 0, processed_images_ = 0;
+  std::map<std::string, std::int64_t> last_image_stamp_;
+  struct PendingImage {
+    KeyframeKey key;
+    cv::Mat image;
+    Eigen::Matrix3d k;
+  };
+  std::unique_ptr<KeyframeFrontend> frontend_;
+  std::unique_ptr<image_transport::ImageTransport> image_transport_;
+  std::vector<image_transport::CameraSubscriber> camera_subs_;
+  std::mutex image_mutex_;
+  std::condition_variable image_wake_;
+  std::deque<PendingImage> image_queue_;
+  std::size_t max_image_queue_ = 8;
+  bool images_running_ = false;
+  std::thread image_worker_;
   std::map<std::string, ros::Time> last_latest_stamp_;
 };
 
