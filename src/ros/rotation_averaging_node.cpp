@@ -7,8 +7,11 @@
 // enqueue. See config/rotation_averaging.yaml for every parameter.
 #include <cv_bridge/cv_bridge.h>
 #include <diagnostic_updater/diagnostic_updater.h>
+#include <image_transport/camera_common.h>
 #include <image_transport/image_transport.h>
 #include <ros/ros.h>
+#include <opencv2/imgcodecs.hpp>
+#include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/image_encodings.h>
 #include <std_srvs/Trigger.h>
 #include <tf2_ros/static_transform_broadcaster.h>
@@ -125,10 +128,25 @@ class RotationAveragingNode {
     max_image_queue_ = static_cast<std::size_t>(std::max(1, pnh_.param("max_image_queue", 8)));
     frontend_ = std::make_unique<KeyframeFrontend>(options);
     image_transport_ = std::make_unique<image_transport::ImageTransport>(nh);
-    const image_transport::TransportHints hints(pnh_.param<std::string>("image_transport", "raw"));
+    // Compressed images are decoded here (Debian ships no compressed
+    // image_transport plugin); camera_info is then taken from its own topic.
+    const bool compressed = pnh_.param<std::string>("image_transport", "raw") == "compressed";
     for (const std::string& topic : topics) {
-      camera_subs_.push_back(image_transport_->subscribeCamera(topic, 10, &RotationAveragingNode::OnImage, this, hints));
-      ROS_INFO("keyframes from %s (+ camera_info)", topic.c_str());
+      if (compressed) {
+        const std::string info_topic = image_transport::getCameraInfoTopic(topic);
+        info_subs_.push_back(nh.subscribe<sensor_msgs::CameraInfo>(
+            info_topic, 10, [this, topic](const sensor_msgs::CameraInfoConstPtr& info) {
+              std::lock_guard<std::mutex> lock(mutex_);
+              camera_infos_[topic] = info;
+            }));
+        compressed_subs_.push_back(nh.subscribe<sensor_msgs::CompressedImage>(
+            topic + "/compressed", 10,
+            [this, topic](const sensor_msgs::CompressedImageConstPtr& m) { OnCompressedImage(topic, m); }));
+        ROS_INFO("keyframes from %s/compressed (+ %s)", topic.c_str(), info_topic.c_str());
+      } else {
+        camera_subs_.push_back(image_transport_->subscribeCamera(topic, 10, &RotationAveragingNode::OnImage, this));
+        ROS_INFO("keyframes from %s (+ camera_info)", topic.c_str());
+      }
     }
     images_running_ = true;
     image_worker_ = std::thread(&RotationAveragingNode::ImageWorker, this);
@@ -143,25 +161,54 @@ class RotationAveragingNode {
   }
 
   void OnImage(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info) {
-    const std::string& frame = image->header.frame_id;
-    if (frame.empty()) return DropImage("empty frame_id", &rejected_images_);
-    Eigen::Matrix3d k;
-    for (int i = 0; i < 9; ++i) k(i / 3, i % 3) = info->K[i];
-    if (!k.allFinite() || !(k(0, 0) > 0.0) || !(k(1, 1) > 0.0) || std::abs(k(2, 2) - 1.0) > 1e-9) {
-      return DropImage("camera_info of " + frame + " has no valid K", &rejected_images_);
-    }
-    const std::int64_t stamp = ToNanoseconds(image->header.stamp);
-    if (!StampAdvances(frame, stamp)) {
-      return DropImage("stamp of " + frame + " did not advance (" + std::to_string(image->header.stamp.toSec()) + ")",
-                       &rejected_images_);
-    }
     cv::Mat grey;
     try {
       grey = cv_bridge::toCvShare(image, sensor_msgs::image_encodings::MONO8)->image.clone();
     } catch (const std::exception& e) {
-      return DropImage("image from " + frame + " does not decode: " + e.what(), &rejected_images_);
+      return DropImage("image from " + image->header.frame_id + " does not decode: " + e.what(), &rejected_images_);
     }
+    EnqueueKeyframe(image->header, grey, *info);
+  }
+
+  void OnCompressedImage(const std::string& topic, const sensor_msgs::CompressedImageConstPtr& image) {
+    sensor_msgs::CameraInfoConstPtr info;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      auto it = camera_infos_.find(topic);
+      if (it != camera_infos_.end()) info = it->second;
+    }
+    if (!info) return DropImage("no camera_info yet for " + topic, &rejected_images_);
+    cv::Mat grey;
+    try {
+      grey = cv::imdecode(image->data, cv::IMREAD_GRAYSCALE);
+    } catch (const cv::Exception& e) {
+      grey.release();
+    }
+    if (grey.empty()) {
+      return DropImage("compressed image from " + image->header.frame_id + " (" + image->format + ") does not decode",
+                       &rejected_images_);
+    }
+    EnqueueKeyframe(image->header, grey, *info);
+  }
+
+  // Validates and queues a decoded keyframe image for the front-end worker.
+  void EnqueueKeyframe(const std_msgs::Header& header, const cv::Mat& grey, const sensor_msgs::CameraInfo& info) {
+    const std::string& frame = header.frame_id;
+    if (frame.empty()) return DropImage("empty frame_id", &rejected_images_);
     if (grey.empty()) return DropImage("empty image from " + frame, &rejected_images_);
+    Eigen::Matrix3d k;
+    for (int i = 0; i < 9; ++i) k(i / 3, i % 3) = info.K[i];
+    if (!k.allFinite() || !(k(0, 0) > 0.0) || !(k(1, 1) > 0.0) || std::abs(k(2, 2) - 1.0) > 1e-9) {
+      return DropImage("camera_info of " + frame + " has no valid K", &rejected_images_);
+    }
+    if (info.width > 0 && (static_cast<int>(info.width) != grey.cols || static_cast<int>(info.height) != grey.rows)) {
+      return DropImage("image of " + frame + " does not match its camera_info size", &rejected_images_);
+    }
+    const std::int64_t stamp = ToNanoseconds(header.stamp);
+    if (!StampAdvances(frame, stamp)) {
+      return DropImage("stamp of " + frame + " did not advance (" + std::to_string(header.stamp.toSec()) + ")",
+                       &rejected_images_);
+    }
     bool queued = false;
     {
       std::lock_guard<std::mutex> lock(image_mutex_);
@@ -375,6 +422,8 @@ class RotationAveragingNode {
   std::unique_ptr<KeyframeFrontend> frontend_;
   std::unique_ptr<image_transport::ImageTransport> image_transport_;
   std::vector<image_transport::CameraSubscriber> camera_subs_;
+  std::vector<ros::Subscriber> compressed_subs_, info_subs_;
+  std::map<std::string, sensor_msgs::CameraInfoConstPtr> camera_infos_;  // by image topic (compressed mode)
   std::mutex image_mutex_;
   std::condition_variable image_wake_;
   std::deque<PendingImage> image_queue_;

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_listener.h>
@@ -43,20 +44,27 @@ TEST(NodeImages, CastleKeyframesCloseTheLoopAndMatchGroundTruth) {
   ros::NodeHandle nh;
   ros::Publisher image_pub = nh.advertise<sensor_msgs::Image>("/test_cam/image_raw", 32);
   ros::Publisher info_pub = nh.advertise<sensor_msgs::CameraInfo>("/test_cam/camera_info", 32);
+  ros::Publisher jpeg_pub = nh.advertise<sensor_msgs::CompressedImage>("/test_cam/image_raw/compressed", 32);
   ASSERT_TRUE(ros::service::waitForService("/averaging_images/save_graph", ros::Duration(30.0)));
   const ros::Time deadline = ros::Time::now() + ros::Duration(20.0);
-  while ((image_pub.getNumSubscribers() == 0 || info_pub.getNumSubscribers() == 0) && ros::Time::now() < deadline) {
+  while ((image_pub.getNumSubscribers() == 0 || info_pub.getNumSubscribers() < 2 || jpeg_pub.getNumSubscribers() == 0) &&
+         ros::Time::now() < deadline) {
     ros::Duration(0.05).sleep();
   }
   ASSERT_GT(image_pub.getNumSubscribers(), 0u);
 
   std::mutex mutex;
-  Orientations::ConstPtr latest;
+  Orientations::ConstPtr latest, latest_compressed;
   ros::Subscriber sub = nh.subscribe<Orientations>("/averaging_images/orientations", 1,
                                                    [&](const Orientations::ConstPtr& m) {
                                                      std::lock_guard<std::mutex> lock(mutex);
                                                      latest = m;
                                                    });
+  ros::Subscriber sub_compressed = nh.subscribe<Orientations>("/averaging_compressed/orientations", 1,
+                                                              [&](const Orientations::ConstPtr& m) {
+                                                                std::lock_guard<std::mutex> lock(mutex);
+                                                                latest_compressed = m;
+                                                              });
   std::map<std::int64_t, std::string> stamp_to_image;
   for (int i = 0; i < 19; ++i) {
     cv::Mat full = cv::imread(images[i], cv::IMREAD_GRAYSCALE), small;
@@ -72,16 +80,29 @@ TEST(NodeImages, CastleKeyframesCloseTheLoopAndMatchGroundTruth) {
     for (int e = 0; e < 9; ++e) info.K[e] = k(e / 3, e % 3);
     info_pub.publish(info);
     image_pub.publish(cv_bridge::CvImage(header, "mono8", small).toImageMsg());
-    ros::Duration(0.3).sleep();
+    sensor_msgs::CompressedImage jpeg;
+    jpeg.header = header;
+    jpeg.format = "jpeg";
+    cv::imencode(".jpg", small, jpeg.data, {cv::IMWRITE_JPEG_QUALITY, 95});
+    if (i == 5) {  // a corrupt image first: must be dropped, nothing else disturbed
+      sensor_msgs::CompressedImage corrupt = jpeg;
+      corrupt.header.stamp = ros::Time(99.0 + i + 0.5);
+      corrupt.data.assign(100, 0x42);
+      jpeg_pub.publish(corrupt);
+    }
+    jpeg_pub.publish(jpeg);
+    ros::Duration(0.4).sleep();
   }
   // Wait until every keyframe is in a solution.
-  auto count = [&]() {
+  auto count = [&](bool compressed) {
     std::lock_guard<std::mutex> lock(mutex);
-    return latest ? latest->keyframes.size() : 0u;
+    const Orientations::ConstPtr& m = compressed ? latest_compressed : latest;
+    return m ? m->keyframes.size() : 0u;
   };
   const ros::Time solved_by = ros::Time::now() + ros::Duration(120.0);
-  while (count() < 19 && ros::Time::now() < solved_by) ros::Duration(0.1).sleep();
-  ASSERT_EQ(count(), 19u);
+  while ((count(false) < 19 || count(true) < 19) && ros::Time::now() < solved_by) ros::Duration(0.1).sleep();
+  ASSERT_EQ(count(false), 19u);
+  ASSERT_EQ(count(true), 19u) << "the compressed-image node did not solve every keyframe";
 
   // The saved graph holds a loop closure between the last and the first images.
   const std::string path = (fs::temp_directory_path() / ("rotavg_images_" + std::to_string(::getpid()) + ".txt")).string();
@@ -107,20 +128,23 @@ TEST(NodeImages, CastleKeyframesCloseTheLoopAndMatchGroundTruth) {
   EXPECT_TRUE(closes) << "no loop closure between the last and the first images";
 
   // Orientations on tf against ground truth.
-  NamedOrientations gt_all, gt, est;
+  NamedOrientations gt_all, gt;
   ASSERT_TRUE(ReadGroundTruth(dir, GroundTruthFormat::kStrecha, &gt_all).ok());
   tf2_ros::Buffer buffer;
   tf2_ros::TransformListener listener(buffer);
-  for (const auto& [stamp, image] : stamp_to_image) {
-    const std::string child = "images/castle_cam_kf_" + std::to_string(stamp);
-    const auto t = buffer.lookupTransform("map", child, ros::Time(0), ros::Duration(10.0));
-    const auto& q = t.transform.rotation;
-    est[image] = QuaternionToRotation(q.w, q.x, q.y, q.z).transpose();
-    gt[image] = gt_all.at(image);
+  for (const std::string prefix : {"images", "compressed"}) {
+    NamedOrientations est;
+    for (const auto& [stamp, image] : stamp_to_image) {
+      const std::string child = prefix + "/castle_cam_kf_" + std::to_string(stamp);
+      const auto t = buffer.lookupTransform("map", child, ros::Time(0), ros::Duration(10.0));
+      const auto& q = t.transform.rotation;
+      est[image] = QuaternionToRotation(q.w, q.x, q.y, q.z).transpose();
+      gt[image] = gt_all.at(image);
+    }
+    const EvaluationResult e = EvaluateOrientations(est, gt);
+    EXPECT_EQ(e.views_common, 19u) << prefix;
+    EXPECT_LT(e.median_error_deg, 1.0) << prefix;
   }
-  const EvaluationResult e = EvaluateOrientations(est, gt);
-  EXPECT_EQ(e.views_common, 19u);
-  EXPECT_LT(e.median_error_deg, 1.0);
 }
 
 }  // namespace
