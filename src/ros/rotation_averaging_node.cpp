@@ -14,7 +14,7 @@
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/image_encodings.h>
 #include <std_srvs/Trigger.h>
-#include <tf2_ros/static_transform_broadcaster.h>
+#include <tf2_msgs/TFMessage.h>
 #include <tf2_ros/transform_broadcaster.h>
 
 #include <condition_variable>
@@ -69,6 +69,10 @@ class RotationAveragingNode {
 
     SetUpImages(nh);
     orientations_pub_ = pnh.advertise<Orientations>("orientations", 1, /*latch=*/true);
+    // Our own latched /tf_static publisher: the whole keyframe set is rebuilt
+    // once per solve (tf2_ros::StaticTransformBroadcaster merges updates by
+    // linear search, quadratic in the number of keyframes).
+    if (tf_mode_ == "all_keyframes") static_tf_pub_ = nh.advertise<tf2_msgs::TFMessage>("/tf_static", 1, true);
     single_sub_ = nh.subscribe("relative_pose", 1000, &RotationAveragingNode::OnRelativePose, this);
     array_sub_ = nh.subscribe("relative_poses", 100, &RotationAveragingNode::OnRelativePoseArray, this);
     solve_srv_ = pnh.advertiseService("solve", &RotationAveragingNode::OnSolve, this);
@@ -336,7 +340,11 @@ class RotationAveragingNode {
       if (it == latest.end() || it->second.first.stamp_ns < key.stamp_ns) latest[key.frame_id] = {key, r};
     }
     orientations_pub_.publish(msg);
-    if (tf_mode_ == "all_keyframes" && !keyframe_tfs.empty()) static_broadcaster_.sendTransform(keyframe_tfs);
+    if (tf_mode_ == "all_keyframes" && !keyframe_tfs.empty()) {
+      tf2_msgs::TFMessage tf_static;
+      tf_static.transforms = std::move(keyframe_tfs);
+      static_tf_pub_.publish(tf_static);
+    }
     if (tf_mode_ == "latest_per_camera") {
       // Stamped with the publication time (the estimate of the camera's
       // current orientation); never twice with the same stamp per frame.
@@ -408,7 +416,7 @@ class RotationAveragingNode {
   ros::Subscriber single_sub_, array_sub_;
   ros::ServiceServer solve_srv_, reset_srv_, save_srv_, load_srv_;
   tf2_ros::TransformBroadcaster broadcaster_;
-  tf2_ros::StaticTransformBroadcaster static_broadcaster_;
+  ros::Publisher static_tf_pub_;
   diagnostic_updater::Updater diagnostics_;
   ros::Timer diagnostics_timer_;
   std::mutex mutex_;
