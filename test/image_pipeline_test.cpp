@@ -1,6 +1,7 @@
 #include "rotation_averaging/controllers/image_pipeline.h"
 
 #include <gtest/gtest.h>
+#include "test_data.h"
 
 #include <Eigen/Geometry>
 #include <filesystem>
@@ -74,8 +75,7 @@ TEST(PairSelection, ParsesModes) {
 // gets a relative pose with a covariance, and averaging matches the LIDAR
 // ground truth to a few hundredths of a degree.
 TEST(ImagePipeline, FountainImagesGiveAccurateRotations) {
-  const char* env = std::getenv("ROTAVG_DATA_DIR");
-  const std::string dir = std::string(env ? env : ROTAVG_DATA_DIR) + "/strecha/fountain-P11";
+  const std::string dir = SharedDataPath("strecha/fountain-P11");
   if (!fs::exists(dir)) GTEST_SKIP() << "shared data absent: " << dir;
   std::vector<std::string> images = ListImages(dir + "/images");
   ASSERT_GE(images.size(), 4u);

@@ -1,6 +1,7 @@
 #include "rotation_averaging/controllers/keyframe_frontend.h"
 
 #include <gtest/gtest.h>
+#include "test_data.h"
 
 #include <filesystem>
 #include <opencv2/imgcodecs.hpp>
@@ -18,8 +19,7 @@ namespace fs = std::filesystem;
 // castle-P19 walks around a courtyard and returns to its start: fed as one
 // camera's keyframes, the last images must close the loop with the first.
 TEST(KeyframeFrontend, CastleClosesTheLoopAndAveragesToGroundTruth) {
-  const char* env = std::getenv("ROTAVG_DATA_DIR");
-  const std::string dir = std::string(env ? env : ROTAVG_DATA_DIR) + "/strecha/castle-P19";
+  const std::string dir = SharedDataPath("strecha/castle-P19");
   if (!fs::exists(dir)) GTEST_SKIP() << "shared data absent: " << dir;
   const std::vector<std::string> images = ListImages(dir + "/images");
   ASSERT_EQ(images.size(), 19u);

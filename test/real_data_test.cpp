@@ -1,6 +1,7 @@
 // Tests on the real third-party data in ../shared/data. Each skips with a
 // message when the data is absent.
 #include <gtest/gtest.h>
+#include "test_data.h"
 
 #include <filesystem>
 #include <random>
@@ -14,10 +15,7 @@
 namespace rotation_averaging {
 namespace {
 
-std::string DataPath(const std::string& relative) {
-  const char* env = std::getenv("ROTAVG_DATA_DIR");
-  return std::string(env ? env : ROTAVG_DATA_DIR) + "/" + relative;
-}
+std::string DataPath(const std::string& relative) { return SharedDataPath(relative); }
 
 #define REQUIRE_DATA(relative)                                                                     \
   if (!std::filesystem::exists(DataPath(relative))) {                                               \

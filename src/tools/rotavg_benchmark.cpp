@@ -29,9 +29,12 @@
 #include "rotation_averaging/io/graph_io.h"
 #include "rotation_averaging/io/orientation_io.h"
 #include "rotation_averaging/scene/synthetic_graph.h"
+#include "report.h"
 
 namespace ra = rotation_averaging;
 namespace fs = std::filesystem;
+using rotation_averaging::Fixed;
+using rotation_averaging::Median;
 
 namespace {
 
@@ -59,10 +62,6 @@ std::vector<Config> Configs() {
   return configs;
 }
 
-double Median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v.empty() ? 0.0 : v[v.size() / 2];
-}
 
 // Child mode: read and solve once, exit. The parent reads our peak RSS.
 int RunSingle(const std::string& path, int config_index) {
@@ -87,11 +86,6 @@ double PeakMemoryMiB(const char* self, const std::string& path, int config_index
   return usage.ru_maxrss / 1024.0;  // ru_maxrss is in KiB on Linux
 }
 
-std::string Fixed(double v, int digits) {
-  std::ostringstream s;
-  s << std::fixed << std::setprecision(digits) << v;
-  return s.str();
-}
 
 }  // namespace
 
@@ -111,8 +105,7 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
-  std::string command = "rotavg_benchmark";
-  for (int k = 1; k < argc; ++k) command += std::string(" ") + argv[k];
+  const std::string command = ra::CommandLine("rotavg_benchmark", argc, argv);
   if (quick) repeats = 1;
 
   std::ostringstream md;
@@ -284,12 +277,6 @@ int main(int argc, char** argv) {
   }
   md << "\nSynthetic rows: median over " << (quick ? 1 : 3) << " seeds.\n";
 
-  std::cout << md.str();
-  if (!output.empty()) {
-    std::error_code ec;
-    if (fs::path(output).has_parent_path()) fs::create_directories(fs::path(output).parent_path(), ec);
-    std::ofstream(output) << md.str();
-    std::cerr << "wrote " << output << "\n";
-  }
+  ra::WriteReport(output, md.str());
   return 0;
 }

@@ -24,9 +24,12 @@
 #include "rotation_averaging/geometry/so3.h"
 #include "rotation_averaging/io/orientation_io.h"
 #include "rotation_averaging/io/text_lines.h"
+#include "report.h"
 
 namespace ra = rotation_averaging;
 namespace fs = std::filesystem;
+using rotation_averaging::Fixed;
+using rotation_averaging::Median;
 
 namespace {
 
@@ -35,17 +38,7 @@ struct Scene {
   double colmap_median_deg;  // COLMAP 3.8 incremental SfM + BA, full resolution (issue #3); < 0 if none
 };
 
-std::string Fixed(double v, int digits) {
-  std::ostringstream s;
-  s << std::fixed << std::setprecision(digits) << v;
-  return s.str();
-}
 
-double Median(std::vector<double> v) {
-  if (v.empty()) return NAN;
-  std::sort(v.begin(), v.end());
-  return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
-}
 
 double Mean(const std::vector<double>& v) {
   return v.empty() ? NAN : std::accumulate(v.begin(), v.end(), 0.0) / v.size();
@@ -105,8 +98,7 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
-  std::string command = "rotavg_frontend_eval";
-  for (int k = 1; k < argc; ++k) command += std::string(" ") + argv[k];
+  const std::string command = ra::CommandLine("rotavg_frontend_eval", argc, argv);
   std::vector<std::string> scales;  // "0.25" or "w640"
   for (const std::string& t : ra::SplitTokens(scales_text, true)) {
     double s;
@@ -263,12 +255,6 @@ int main(int argc, char** argv) {
         "estimated from the inlier residuals.\n\n"
      << calib.str() << "\n## Rotation averaging accuracy (no bundle adjustment)\n\n" << accuracy.str()
      << "\n## Speed (single-threaded)\n\n" << speed.str();
-  std::cout << md.str();
-  if (!output.empty()) {
-    std::error_code ec;
-    if (fs::path(output).has_parent_path()) fs::create_directories(fs::path(output).parent_path(), ec);
-    std::ofstream(output) << md.str();
-    std::cerr << "wrote " << output << "\n";
-  }
+  ra::WriteReport(output, md.str());
   return 0;
 }

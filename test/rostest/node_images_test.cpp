@@ -3,6 +3,7 @@
 // the first images and its orientations on tf must match the ground truth.
 #include <cv_bridge/cv_bridge.h>
 #include <gtest/gtest.h>
+#include "../test_data.h"
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/CompressedImage.h>
@@ -30,8 +31,7 @@ namespace {
 namespace fs = std::filesystem;
 
 TEST(NodeImages, CastleKeyframesCloseTheLoopAndMatchGroundTruth) {
-  const char* env = std::getenv("ROTAVG_DATA_DIR");
-  const std::string dir = std::string(env ? env : ROTAVG_DATA_DIR) + "/strecha/castle-P19";
+  const std::string dir = SharedDataPath("strecha/castle-P19");
   if (!fs::exists(dir)) GTEST_SKIP() << "shared data absent: " << dir;
   const std::vector<std::string> images = ListImages(dir + "/images");
   ASSERT_EQ(images.size(), 19u);
@@ -149,14 +149,3 @@ TEST(NodeImages, CastleKeyframesCloseTheLoopAndMatchGroundTruth) {
 
 }  // namespace
 }  // namespace rotation_averaging
-
-int main(int argc, char** argv) {
-  ::testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "node_images_test");
-  ros::NodeHandle nh;
-  ros::AsyncSpinner spinner(1);
-  spinner.start();
-  const int result = RUN_ALL_TESTS();
-  ros::shutdown();
-  return result;
-}

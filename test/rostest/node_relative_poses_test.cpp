@@ -165,14 +165,3 @@ TEST_F(NodeTest, LatchedOrientationsAndGraphServices) {
 
 }  // namespace
 }  // namespace rotation_averaging
-
-int main(int argc, char** argv) {
-  ::testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "node_relative_poses_test");
-  ros::NodeHandle nh;
-  ros::AsyncSpinner spinner(1);
-  spinner.start();
-  const int result = RUN_ALL_TESTS();
-  ros::shutdown();
-  return result;
-}
