@@ -75,12 +75,13 @@ TEST(KeyframeFrontend, CastleClosesTheLoopAndAveragesToGroundTruth) {
   std::cout << "castle at 1/4 through the keyframe front end: median " << with_loops << " deg with loop closures, "
             << chain << " deg from the sequential chain alone\n";
   // A sparse keyframe graph (18 sequential edges erring 0.05-0.8 deg and a
-  // few loop closures). Measured: 0.75 deg with loop closures against 0.23 deg
-  // for the chain alone: the loop 2-18 (110 inliers) errs 3.1 deg while its
-  // covariance predicts 0.26 deg, and with covariances this optimistic a 12
-  // sigma loop is not rejected. Cycle-consistency checks of loop closures are
-  // the open follow-up; here the result must stay within a degree.
-  EXPECT_LT(with_loops, 1.0);
+  // few loop closures). Measured: 0.28 deg with loop closures, 0.23 deg for
+  // the chain alone. Without the loop consistency check the loop 2-18 (110
+  // inliers, 3.1 deg off while its covariance predicted 0.26 deg) got in and
+  // gave 0.75 deg; the check rejects it because it disagrees with 0-18 and
+  // 1-18 through the chain 0-1-2.
+  EXPECT_GE(frontend.Stats().loops_rejected_inconsistent, 1u);
+  EXPECT_LT(with_loops, 0.5);
   EXPECT_LT(chain, 1.0);
 }
 

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <set>
 
+#include "rotation_averaging/geometry/so3.h"
+
 namespace rotation_averaging {
 namespace {
 
@@ -15,6 +17,10 @@ double Seconds(Clock::time_point since) { return std::chrono::duration<double>(C
 
 struct KeyframeFrontend::Keyframe {
   KeyframeKey key;
+  int camera_position = 0;               // index in by_camera_[key.frame_id]
+  bool has_sequential = false;           // sequential edge from the previous keyframe of its camera
+  Eigen::Matrix3d sequential_rotation;   // R_prev,this
+  Eigen::Matrix3d sequential_covariance;
   ImageFeatures features;
   std::unique_ptr<FeatureIndex> index;
   Eigen::Matrix3d k;  // intrinsics of the (resized) image the features come from
@@ -53,6 +59,59 @@ bool KeyframeFrontend::Relate(const Keyframe& a, const Keyframe& b, EdgeSource s
   return true;
 }
 
+bool KeyframeFrontend::ChainRotation(int a, int b, Eigen::Matrix3d* r_ab) const {
+  const Keyframe& ka = *keyframes_[a];
+  const Keyframe& kb = *keyframes_[b];
+  if (ka.key.frame_id != kb.key.frame_id) return false;
+  const std::vector<int>& chain = by_camera_.at(ka.key.frame_id);
+  Eigen::Matrix3d r = Eigen::Matrix3d::Identity();
+  for (int p = ka.camera_position + 1; p <= kb.camera_position; ++p) {
+    const Keyframe& k = *keyframes_[chain[p]];
+    if (!k.has_sequential) return false;
+    r = r * k.sequential_rotation;  // R_a,p = R_a,p-1 R_p-1,p
+  }
+  *r_ab = r;
+  return true;
+}
+
+void KeyframeFrontend::FilterInconsistentLoops(std::vector<KeyframeRelativeRotation>* loops,
+                                               const std::vector<int>& old_ends) {
+  const int n = static_cast<int>(loops->size());
+  if (n < 2) return;
+  std::vector<int> agree(n, 0), compared(n, 0);
+  for (int i = 0; i < n; ++i) {
+    for (int j = i + 1; j < n; ++j) {
+      // Order the old ends along the chain: a (earlier), c (later).
+      const bool i_first = keyframes_[old_ends[i]]->camera_position <= keyframes_[old_ends[j]]->camera_position;
+      const int a = i_first ? i : j, c = i_first ? j : i;
+      Eigen::Matrix3d r_ac;
+      if (!ChainRotation(old_ends[a], old_ends[c], &r_ac)) continue;
+      const Eigen::Matrix3d predicted = r_ac * (*loops)[c].rotation;  // R_ab = R_ac R_cb
+      const double angle = AngularDistanceRad(predicted, (*loops)[a].rotation);
+      const double spread = std::sqrt(((*loops)[a].covariance + (*loops)[c].covariance).trace());
+      const bool ok = angle <= DegToRad(options_.loop_consistency_deg) + 3.0 * spread;
+      ++compared[i];
+      ++compared[j];
+      if (ok) {
+        ++agree[i];
+        ++agree[j];
+      }
+    }
+  }
+  std::vector<bool> keep(n, true);
+  if (n == 2) {
+    if (compared[0] > 0 && agree[0] == 0) keep[(*loops)[0].num_inliers >= (*loops)[1].num_inliers ? 1 : 0] = false;
+  } else {
+    for (int i = 0; i < n; ++i) keep[i] = compared[i] == 0 || 2 * agree[i] >= compared[i];
+  }
+  std::vector<KeyframeRelativeRotation> kept;
+  for (int i = 0; i < n; ++i) {
+    if (keep[i]) kept.push_back((*loops)[i]);
+    else ++stats_.loops_rejected_inconsistent;
+  }
+  loops->swap(kept);
+}
+
 std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
                                                                     const Eigen::Matrix3d& k) {
   std::vector<KeyframeRelativeRotation> edges;
@@ -74,11 +133,15 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   std::set<int> related;
   // Sequential: the previous keyframe of this camera.
   const std::vector<int>& same = by_camera_[key.frame_id];
+  kf->camera_position = static_cast<int>(same.size());
   if (!same.empty()) {
     KeyframeRelativeRotation e;
     if (Relate(*keyframes_[same.back()], *kf, EdgeSource::kSequential, &e)) {
       edges.push_back(e);
       ++stats_.sequential_edges;
+      kf->has_sequential = true;
+      kf->sequential_rotation = e.rotation;
+      kf->sequential_covariance = e.covariance;
     }
     related.insert(same.back());
   }
@@ -125,6 +188,8 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     }
     std::sort(votes.rbegin(), votes.rend());
     stats_.retrieval_s += Seconds(retrieval_start);
+    std::vector<KeyframeRelativeRotation> loops;
+    std::vector<int> old_ends;
     for (int c = 0; c < options_.max_loop_candidates && c < static_cast<int>(votes.size()); ++c) {
       ++stats_.loop_candidates_tried;
       KeyframeRelativeRotation e;
@@ -134,9 +199,14 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
           ++stats_.failures["loop_too_few_inliers"];
           continue;
         }
-        edges.push_back(e);
-        ++stats_.loop_closure_edges;
+        loops.push_back(e);
+        old_ends.push_back(votes[c].second);
       }
+    }
+    FilterInconsistentLoops(&loops, old_ends);
+    for (const KeyframeRelativeRotation& e : loops) {
+      edges.push_back(e);
+      ++stats_.loop_closure_edges;
     }
   }
   keyframes_.push_back(std::move(kf));

@@ -37,12 +37,20 @@ struct KeyframeFrontendOptions {
   // inliers. On castle-P19 (1/4 scale) the loop pairs with <= 42 inliers
   // erred 1.4-46 deg and those with >= 63 mostly 0.25-0.5 deg.
   int min_loop_inliers = 60;
+  // Loop closures found for one keyframe check each other through the chain
+  // of sequential edges between their old ends: R_a1b ~ R_a1a2 R_a2b. Two
+  // loops agree when that prediction is within this angle (plus three
+  // predicted standard deviations). With three or more, the loops that agree
+  // with fewer than half of the others are dropped; of two that disagree,
+  // the one with more inliers is kept.
+  double loop_consistency_deg = 1.0;
 };
 
 struct KeyframeFrontendStats {
   std::uint64_t keyframes = 0;
   std::uint64_t sequential_edges = 0, rig_edges = 0, loop_closure_edges = 0;
   std::uint64_t loop_candidates_tried = 0;
+  std::uint64_t loops_rejected_inconsistent = 0;
   std::uint64_t failed_pairs = 0;
   std::map<std::string, std::uint64_t> failures;  // two-view failure reason -> count
   double features_s = 0.0, retrieval_s = 0.0, pairs_s = 0.0;
@@ -63,6 +71,10 @@ class KeyframeFrontend {
 
  private:
   struct Keyframe;
+  // R_ab composed along the sequential edges of one camera (a before b);
+  // false if the chain between them is broken.
+  bool ChainRotation(int a, int b, Eigen::Matrix3d* r_ab) const;
+  void FilterInconsistentLoops(std::vector<KeyframeRelativeRotation>* loops, const std::vector<int>& old_ends);
   bool Relate(const Keyframe& a, const Keyframe& b, EdgeSource source, KeyframeRelativeRotation* out);
 
   KeyframeFrontendOptions options_;
