@@ -12,6 +12,7 @@ PACKAGES=(
   libtf2-ros-dev libtf2-eigen-dev librosbag-dev librostest-dev python3-rostest
   libcv-bridge-dev libimage-transport-dev
   libstd-srvs-dev libdiagnostic-updater-dev libtf2-geometry-msgs-dev
+  libdynamic-reconfigure-config-init-mutex-dev python3-dynamic-reconfigure
   libceres-dev libeigen3-dev libsuitesparse-dev libopencv-dev libgtest-dev
 )
 missing=()

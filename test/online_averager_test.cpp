@@ -124,6 +124,26 @@ TEST(OnlineAverager, WorkerSolvesPeriodicallyAndWarmStarts) {
   EXPECT_EQ(averager.Stats().solves, solves);
 }
 
+TEST(OnlineAverager, ChangingOptionsSolvesColdButKeepsTheFrame) {
+  const RigData d = MakeRig(30, 0.1, 6);
+  OnlineAverager a(OnlineAveragerOptions{});
+  for (const auto& m : d.measurements) a.AddRelativeRotation(m);
+  ASSERT_TRUE(a.SolveNow());
+  const auto first = a.Solution();
+  RotationAveragingOptions squared;
+  squared.loss = LossType::kSquared;
+  a.SetAveragingOptions(squared);
+  ASSERT_TRUE(a.SolveNow());
+  a.SetAveragingOptions(RotationAveragingOptions());
+  ASSERT_TRUE(a.SolveNow());
+  const auto back = a.Solution();
+  // Back to MAGSAC from a cold start: the same solution, in the same frame
+  // (no global rotation between them).
+  double worst = 0.0;
+  for (const auto& [key, r] : first->orientations) worst = std::max(worst, AngularDistanceRad(r, back->orientations.at(key)));
+  EXPECT_LT(RadToDeg(worst), 0.05);
+}
+
 TEST(OnlineAverager, SaveLoadAndReset) {
   const RigData d = MakeRig(30, 0.05, 4);
   OnlineAverager a(OnlineAveragerOptions{});

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 
+#include "rotation_averaging/eval/rotation_evaluation.h"
 #include "rotation_averaging/io/graph_io.h"
 #include "rotation_averaging/io/text_lines.h"
 
@@ -10,7 +11,14 @@ namespace rotation_averaging {
 using Clock = std::chrono::steady_clock;
 
 OnlineAverager::OnlineAverager(const OnlineAveragerOptions& options)
-    : options_(options), solution_(std::make_shared<OnlineSolution>()) {}
+    : options_(options), solution_(std::make_shared<OnlineSolution>()) {
+  solve_period_s_ = options.solve_period_s;
+}
+
+void OnlineAverager::SetSolvePeriod(double seconds) {
+  solve_period_s_ = seconds;
+  RequestSolve();  // wake the worker so the new period applies now
+}
 
 OnlineAverager::~OnlineAverager() { Stop(); }
 
@@ -153,7 +161,25 @@ bool OnlineAverager::SolveLocked() {
   if (snapshot.NumEdges() == 0) return false;
   const auto start = Clock::now();
   auto solution = std::make_shared<OnlineSolution>();
+  const bool cold = orientations.empty();
   const bool ok = SolveRotationAveraging(snapshot, averaging, &orientations, &solution->summary);
+  if (ok && cold) {
+    // A cold solve has its own gauge: rotate it onto the previous solution
+    // (one robust global rotation) so published frames do not jump.
+    const std::shared_ptr<const OnlineSolution> previous = Solution();
+    std::vector<Eigen::Matrix3d> before, after;
+    for (const auto& [id, r] : orientations) {
+      if (id >= keys.size()) continue;
+      auto it = previous->orientations.find(keys[id]);
+      if (it == previous->orientations.end()) continue;
+      before.push_back(it->second);
+      after.push_back(r);
+    }
+    if (!before.empty()) {
+      const Eigen::Matrix3d g = AlignRotations(before, after);  // after ~ before * g
+      for (auto& [id, r] : orientations) r = r * g.transpose();
+    }
+  }
   const double seconds = std::chrono::duration<double>(Clock::now() - start).count();
   {
     std::lock_guard<std::mutex> lock(stats_mutex_);
@@ -211,10 +237,12 @@ void OnlineAverager::Stop() {
 }
 
 void OnlineAverager::WorkerLoop() {
-  const bool periodic = options_.solve_period_s > 0.0;
-  const auto period = std::chrono::duration_cast<Clock::duration>(
-      std::chrono::duration<double>(periodic ? options_.solve_period_s : 3600.0));
-  auto next = Clock::now() + period;
+  auto period_now = [this] {
+    const double seconds = solve_period_s_.load();
+    return std::make_pair(seconds > 0.0, std::chrono::duration_cast<Clock::duration>(
+                                             std::chrono::duration<double>(seconds > 0.0 ? seconds : 3600.0)));
+  };
+  auto next = Clock::now() + period_now().second;
   while (running_) {
     {
       std::unique_lock<std::mutex> lock(wake_mutex_);
@@ -228,7 +256,8 @@ void OnlineAverager::WorkerLoop() {
       std::lock_guard<std::mutex> lock(queue_mutex_);
       pending = !queue_.empty();
     }
-    if (pending || Solution()->sequence == 0) SolveNow();
+    if (force_solve_.exchange(false) || pending || Solution()->sequence == 0) SolveNow();
+    const auto [periodic, period] = period_now();
     next = start + period;
     if (periodic && Clock::now() > next) {
       // Overran the period: report it and start the next period now rather
@@ -265,8 +294,16 @@ void OnlineAverager::Reset() {
 }
 
 void OnlineAverager::SetAveragingOptions(const RotationAveragingOptions& options) {
-  std::lock_guard<std::mutex> lock(graph_mutex_);
-  options_.averaging = options;
+  {
+    std::lock_guard<std::mutex> lock(graph_mutex_);
+    options_.averaging = options;
+    // Start the next solve cold (spanning tree + robust start): a warm start
+    // from a solution of another loss can sit in that loss's basin (measured:
+    // MAGSAC warm-started from a squared-loss solution stayed 5x off).
+    warm_start_.clear();
+  }
+  force_solve_ = true;
+  RequestSolve();
 }
 
 std::shared_ptr<const OnlineSolution> OnlineAverager::Solution() const {

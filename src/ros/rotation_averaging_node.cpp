@@ -7,6 +7,7 @@
 // enqueue. See config/rotation_averaging.yaml for every parameter.
 #include <cv_bridge/cv_bridge.h>
 #include <diagnostic_updater/diagnostic_updater.h>
+#include <dynamic_reconfigure/server.h>
 #include <image_transport/camera_common.h>
 #include <image_transport/image_transport.h>
 #include <ros/ros.h>
@@ -26,6 +27,7 @@
 #include <thread>
 
 #include "rotation_averaging/LoadGraph.h"
+#include "rotation_averaging/RotationAveragingConfig.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePose.h"
 #include "rotation_averaging/RelativePoseArray.h"
@@ -65,6 +67,7 @@ class RotationAveragingNode {
     options.max_views = static_cast<std::size_t>(std::max(2, pnh.param("max_views", 1000000)));
     options.max_edges = static_cast<std::size_t>(std::max(1, pnh.param("max_edges", 10000000)));
     options.averaging = AveragingOptionsFromParams();
+    current_averaging_ = options.averaging;
     averager_ = std::make_unique<OnlineAverager>(options);
 
     SetUpImages(nh);
@@ -94,6 +97,16 @@ class RotationAveragingNode {
         ROS_ERROR("could not load %s: %s; starting empty", load.c_str(), error.c_str());
       }
     }
+    // dynamic_reconfigure starts from the values loaded above.
+    reconfigure_ = std::make_unique<dynamic_reconfigure::Server<RotationAveragingConfig>>(reconfigure_mutex_, pnh_);
+    RotationAveragingConfig initial;
+    initial.loss = LossTypeName(options.averaging.loss);
+    initial.weighting = EdgeWeightingName(options.averaging.weighting);
+    initial.solver = SolverTypeName(options.averaging.solver);
+    initial.sigma_max = options.averaging.loss_scale;
+    initial.solve_period = options.solve_period_s;
+    reconfigure_->updateConfig(initial);
+    reconfigure_->setCallback([this](RotationAveragingConfig& config, uint32_t) { OnReconfigure(config); });
     averager_->Start();
     ROS_INFO("rotation_averaging_node: fixed frame '%s', tf mode %s, solve every %.2f s, loss %s, weighting %s",
              fixed_frame_.c_str(), tf_mode_.c_str(), options.solve_period_s, LossTypeName(options.averaging.loss),
@@ -250,6 +263,31 @@ class RotationAveragingNode {
       std::lock_guard<std::mutex> lock(mutex_);
       ++processed_images_;
     }
+  }
+
+  // Applied at the next solve (which runs at once). Unknown names are
+  // refused and the field is reset to the value in use.
+  void OnReconfigure(RotationAveragingConfig& config) {
+    RotationAveragingOptions o = current_averaging_;
+    if (!ParseLossType(config.loss, &o.loss)) {
+      ROS_WARN("reconfigure: loss '%s' unknown, kept %s", config.loss.c_str(), LossTypeName(o.loss));
+      config.loss = LossTypeName(o.loss);
+    }
+    if (!ParseEdgeWeighting(config.weighting, &o.weighting)) {
+      ROS_WARN("reconfigure: weighting '%s' unknown, kept %s", config.weighting.c_str(), EdgeWeightingName(o.weighting));
+      config.weighting = EdgeWeightingName(o.weighting);
+    }
+    if (!ParseSolverType(config.solver, &o.solver)) {
+      ROS_WARN("reconfigure: solver '%s' unknown, kept %s", config.solver.c_str(), SolverTypeName(o.solver));
+      config.solver = SolverTypeName(o.solver);
+    }
+    o.loss_scale = config.sigma_max;
+    current_averaging_ = o;
+    averager_->SetAveragingOptions(o);
+    averager_->SetSolvePeriod(config.solve_period);
+    pnh_.setParam("solve_period", config.solve_period);
+    ROS_INFO("reconfigured: loss %s, weighting %s, solver %s, sigma_max %g, solve period %g s", config.loss.c_str(),
+             config.weighting.c_str(), config.solver.c_str(), config.sigma_max, config.solve_period);
   }
 
   RotationAveragingOptions AveragingOptionsFromParams() {
@@ -412,6 +450,9 @@ class RotationAveragingNode {
   ros::NodeHandle pnh_;
   std::string fixed_frame_, tf_mode_, keyframe_frame_format_, latest_frame_format_, save_on_shutdown_;
   std::unique_ptr<OnlineAverager> averager_;
+  RotationAveragingOptions current_averaging_;
+  boost::recursive_mutex reconfigure_mutex_;
+  std::unique_ptr<dynamic_reconfigure::Server<RotationAveragingConfig>> reconfigure_;
   ros::Publisher orientations_pub_;
   ros::Subscriber single_sub_, array_sub_;
   ros::ServiceServer solve_srv_, reset_srv_, save_srv_, load_srv_;

@@ -15,6 +15,8 @@
 #include <mutex>
 
 #include "../synthetic_rig.h"
+#include <dynamic_reconfigure/Reconfigure.h>
+
 #include "rotation_averaging/LoadGraph.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePoseArray.h"
@@ -161,6 +163,41 @@ TEST_F(NodeTest, LatchedOrientationsAndGraphServices) {
   ASSERT_TRUE(ros::service::call("/averaging_magsac/load_graph", load));
   EXPECT_FALSE(load.response.success);
   std::filesystem::remove(path);
+}
+
+TEST_F(NodeTest, DynamicReconfigureChangesTheLossAtTheNextSolve) {
+  const RigData rig = MakeRig(40, 0.1, 9);
+  RelativePoseArray batch;
+  for (const KeyframeRelativeRotation& m : rig.measurements) batch.poses.push_back(ToMsg(m));
+  ASSERT_TRUE(Call("/averaging_magsac/reset"));
+  pub_.publish(batch);
+  ros::Duration(0.5).sleep();
+  ASSERT_TRUE(Call("/averaging_magsac/solve"));
+  const NamedOrientations gt = Truth(rig);
+  const double magsac = EvaluateOrientations(ReadTf("magsac", rig), gt).median_error_deg;
+
+  auto set_loss = [](const std::string& loss) {
+    dynamic_reconfigure::Reconfigure srv;
+    dynamic_reconfigure::StrParameter p;
+    p.name = "loss";
+    p.value = loss;
+    srv.request.config.strs.push_back(p);
+    return ros::service::call("/averaging_magsac/set_parameters", srv) &&
+           !srv.response.config.strs.empty();
+  };
+  // The worker re-solves at once after a reconfiguration; tf then changes.
+  auto error_after = [&](const std::string& loss) {
+    EXPECT_TRUE(set_loss(loss));
+    ros::Duration(1.0).sleep();
+    return EvaluateOrientations(ReadTf("magsac", rig), gt).median_error_deg;
+  };
+  const double squared = error_after("squared");
+  EXPECT_GT(squared, 3.0 * magsac) << "the squared loss did not take effect";
+  const double back = error_after("magsac");
+  EXPECT_LT(back, 1.5 * magsac + 0.05);
+  // An unknown loss is refused and the node keeps working.
+  EXPECT_TRUE(set_loss("no_such_loss"));
+  EXPECT_TRUE(Call("/averaging_magsac/solve"));
 }
 
 }  // namespace

@@ -97,7 +97,10 @@ class OnlineAverager {
   void RequestSolve();
   // Clears graph, queue and solution (counters are kept).
   void Reset();
-  void SetAveragingOptions(const RotationAveragingOptions& options);  // used from the next solve
+  // Used from the next solve, which the worker runs at once even without new
+  // input, starting cold (not warm-started from the previous solution).
+  void SetAveragingOptions(const RotationAveragingOptions& options);
+  void SetSolvePeriod(double seconds);  // <= 0: only on request; takes effect at the next wake-up
 
   std::shared_ptr<const OnlineSolution> Solution() const;
   OnlineAveragerStats Stats() const;
@@ -136,6 +139,8 @@ class OnlineAverager {
   std::condition_variable wake_;
   bool wake_requested_ = false;
   std::atomic<bool> running_{false};
+  std::atomic<double> solve_period_s_{1.0};
+  std::atomic<bool> force_solve_{false};  // options changed: solve at the next wake-up even without new input
   std::thread worker_;
 };
 
