@@ -152,7 +152,6 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
   const double scale =
       options.loss_scale > 0.0 ? options.loss_scale : DefaultScaleFor(weighting, options.covariance_normalization);
   summary->loss_scale = scale;
-  const std::unique_ptr<RobustLoss> loss = CreateLoss(options.loss, scale);
 
   std::size_t solved_views = 0;
   summary->edges.assign(graph.NumEdges(), EdgeResult());
@@ -200,7 +199,7 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
           solve_with(stage_options, *CreateLoss(options.loss, s));
         }
       }
-      solve(*loss);
+      solve(*component_loss);
       // Self-calibration of the covariance scale (see auto_scale_threshold).
       if (weighting == EdgeWeighting::kCovariance &&
           options.covariance_normalization == CovarianceNormalization::kStandardDeviations &&
