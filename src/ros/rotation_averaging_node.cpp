@@ -285,7 +285,6 @@ class RotationAveragingNode {
     current_averaging_ = o;
     averager_->SetAveragingOptions(o);
     averager_->SetSolvePeriod(config.solve_period);
-    pnh_.setParam("solve_period", config.solve_period);
     ROS_INFO("reconfigured: loss %s, weighting %s, solver %s, sigma_max %g, solve period %g s", config.loss.c_str(),
              config.weighting.c_str(), config.solver.c_str(), config.sigma_max, config.solve_period);
   }
@@ -419,7 +418,7 @@ class RotationAveragingNode {
       dropped_images = dropped_images_;
       processed_images = processed_images_;
     }
-    const double period = pnh_.param("solve_period", 1.0);
+    const double period = averager_->SolvePeriod();
     if (s.failed_solves > 0 && s.solves == s.failed_solves) {
       status.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "every solve failed");
     } else if (period > 0 && s.last_solve_s > period) {

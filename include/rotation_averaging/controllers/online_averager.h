@@ -101,6 +101,7 @@ class OnlineAverager {
   // input, starting cold (not warm-started from the previous solution).
   void SetAveragingOptions(const RotationAveragingOptions& options);
   void SetSolvePeriod(double seconds);  // <= 0: only on request; takes effect at the next wake-up
+  double SolvePeriod() const { return solve_period_s_.load(); }
 
   std::shared_ptr<const OnlineSolution> Solution() const;
   OnlineAveragerStats Stats() const;
