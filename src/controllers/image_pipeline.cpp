@@ -201,9 +201,9 @@ RelativeRotation EdgeFromPair(const PairReport& pair) {
   RelativeRotation edge;
   edge.view1 = static_cast<ViewId>(pair.image1);
   edge.view2 = static_cast<ViewId>(pair.image2);
-  edge.rotation = pair.pose.rotation.transpose();  // R_ij = R_ji^T
+  edge.rotation = pair.pose.EdgeRotation();
   edge.has_covariance = true;
-  edge.covariance = pair.pose.covariance;  // left perturbation of R_ji = right perturbation of R_ij
+  edge.covariance = pair.pose.covariance;
   edge.num_inliers = static_cast<int>(pair.pose.inliers.size());
   edge.source = pair.image2 == pair.image1 + 1 ? EdgeSource::kSequential : EdgeSource::kOther;
   return edge;

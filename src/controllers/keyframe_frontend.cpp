@@ -47,11 +47,10 @@ bool KeyframeFrontend::Relate(const Keyframe& a, const Keyframe& b, EdgeSource s
     ++stats_.failures[TwoViewFailureName(pose.failure)];
     return false;
   }
-  // The pose maps a's camera to b's: R_ba. The edge (a, b) stores R_ab = R_ba^T
-  // and the covariance of its right perturbation (estimators/relative_pose.h).
+  // The pose maps a's camera to b's; the edge is (a, b).
   out->keyframe1 = a.key;
   out->keyframe2 = b.key;
-  out->rotation = pose.rotation.transpose();
+  out->rotation = pose.EdgeRotation();
   out->has_covariance = true;
   out->covariance = pose.covariance;
   out->num_inliers = static_cast<int>(pose.inliers.size());

@@ -179,7 +179,7 @@ int main(int argc, char** argv) {
         const std::string& b = front.graph.FindView(p.image2)->name;
         if (!gt.count(a) || !gt.count(b)) continue;
         const Eigen::Matrix3d truth = gt.at(a) * gt.at(b).transpose();
-        const Eigen::Vector3d eta = ra::LogSO3(truth.transpose() * p.pose.rotation.transpose());
+        const Eigen::Vector3d eta = ra::LogSO3(truth.transpose() * p.pose.EdgeRotation());
         nees_m.push_back(eta.dot(p.pose.covariance_marginal.ldlt().solve(eta)));
         nees_c.push_back(eta.dot(p.pose.covariance_conditional.ldlt().solve(eta)));
         err.push_back(eta.norm());

@@ -81,6 +81,10 @@ struct RelativePoseResult {
   double homography_inlier_ratio = 0.0;
   std::vector<int> inliers;           // indices into the input correspondences
   int refine_iterations = 0;
+
+  // The view-graph edge (1, 2) this pose measures: R_12 = R_21^T. `covariance`
+  // is already that of the edge's right perturbation (see above).
+  Eigen::Matrix3d EdgeRotation() const { return rotation.transpose(); }
 };
 
 // points1/points2: corresponding pixel coordinates (same length) in images
