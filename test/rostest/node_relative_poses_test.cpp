@@ -65,6 +65,16 @@ class NodeTest : public ::testing::Test {
     return gt;
   }
 
+  // Resets the MAGSAC node, sends it the rig's relative poses and solves.
+  bool ReplaceMagsacGraph(const RigData& rig) {
+    RelativePoseArray batch;
+    for (const KeyframeRelativeRotation& m : rig.measurements) batch.poses.push_back(ToMsg(m));
+    if (!Call("/averaging_magsac/reset")) return false;
+    pub_.publish(batch);
+    ros::Duration(0.5).sleep();
+    return Call("/averaging_magsac/solve");
+  }
+
   bool Call(const std::string& service) {
     std_srvs::Trigger srv;
     return ros::service::call(service, srv) && srv.response.success;
@@ -110,12 +120,7 @@ TEST_F(NodeTest, OrientationsOnTfMatchGroundTruthAndBeatTheSquaredLoss) {
 
 TEST_F(NodeTest, LatchedOrientationsAndGraphServices) {
   const RigData rig = MakeRig(20, 0.0, 8);
-  RelativePoseArray batch;
-  for (const KeyframeRelativeRotation& m : rig.measurements) batch.poses.push_back(ToMsg(m));
-  ASSERT_TRUE(Call("/averaging_magsac/reset"));
-  pub_.publish(batch);
-  ros::Duration(0.5).sleep();
-  ASSERT_TRUE(Call("/averaging_magsac/solve"));
+  ASSERT_TRUE(ReplaceMagsacGraph(rig));
 
   // Callbacks run on the AsyncSpinner's thread.
   std::mutex mutex;
@@ -167,12 +172,7 @@ TEST_F(NodeTest, LatchedOrientationsAndGraphServices) {
 
 TEST_F(NodeTest, DynamicReconfigureChangesTheLossAtTheNextSolve) {
   const RigData rig = MakeRig(40, 0.1, 9);
-  RelativePoseArray batch;
-  for (const KeyframeRelativeRotation& m : rig.measurements) batch.poses.push_back(ToMsg(m));
-  ASSERT_TRUE(Call("/averaging_magsac/reset"));
-  pub_.publish(batch);
-  ros::Duration(0.5).sleep();
-  ASSERT_TRUE(Call("/averaging_magsac/solve"));
+  ASSERT_TRUE(ReplaceMagsacGraph(rig));
   const NamedOrientations gt = Truth(rig);
   const double magsac = EvaluateOrientations(ReadTf("magsac", rig), gt).median_error_deg;
 
