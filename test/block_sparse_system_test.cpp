@@ -98,7 +98,7 @@ TEST(BlockSparseSystem, NonFiniteInputIsRejected) {
   system.SetZero();
   system.AddBlock(0, 0, Eigen::Matrix3d::Identity());
   system.AddBlock(1, 1, Eigen::Matrix3d::Identity());
-  system.Rhs()[2] = std::nan("");
+  system.Rhs()(2, 0) = std::nan("");
   Eigen::VectorXd x;
   EXPECT_FALSE(system.Solve(0.0, 3, &x));
 }

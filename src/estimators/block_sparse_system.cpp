@@ -8,8 +8,40 @@
 #ifdef ROTAVG_HAVE_CHOLMOD
 #include <Eigen/CholmodSupport>
 #endif
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 
 namespace rotation_averaging {
+namespace {
+
+// CHOLMOD is built with OpenMP and opens parallel regions inside its
+// supernodal factorisation. On this 2-core machine waking those threads cost
+// ~20% of the solve (cubicle 0.16 -> 0.12-0.15 s, sphere2500 0.08 -> 0.06 s
+// measured with one thread); our solver is single-threaded by design, so the
+// calling thread's OpenMP settings are changed around CHOLMOD calls and
+// restored afterwards (they are per thread: nothing else changes).
+class SingleThreadedOpenMp {
+ public:
+#ifdef _OPENMP
+  // CHOLMOD asks for its teams with an explicit num_threads clause, which
+  // only dynamic adjustment may shrink.
+  SingleThreadedOpenMp() : previous_threads_(omp_get_max_threads()), previous_dynamic_(omp_get_dynamic()) {
+    omp_set_num_threads(1);
+    omp_set_dynamic(1);
+  }
+  ~SingleThreadedOpenMp() {
+    omp_set_num_threads(previous_threads_);
+    omp_set_dynamic(previous_dynamic_);
+  }
+
+ private:
+  int previous_threads_;
+  int previous_dynamic_;
+#endif
+};
+
+}  // namespace
 
 struct BlockSparseSystem::Index {
   // rows_of_column[c]: sorted block rows r >= c stored in block column c.
@@ -26,15 +58,20 @@ struct BlockSparseSystem::Factorization {
   bool has_factor = false;      // a numeric factor of an earlier matrix exists
   bool refactor_next = false;   // the last PCG solve struggled: refresh the factor
 
-  Eigen::VectorXd ApplyInverse(const Eigen::VectorXd& b) {
+  template <typename Matrix>
+  Matrix ApplyInverse(const Matrix& b) {
 #ifdef ROTAVG_HAVE_CHOLMOD
-    if (use_cholmod) return cholmod.solve(b);
+    if (use_cholmod) {
+      SingleThreadedOpenMp single;
+      return cholmod.solve(b);
+    }
 #endif
     return simplicial.solve(b);
   }
   bool Factorize(const Eigen::SparseMatrix<double>& m) {
 #ifdef ROTAVG_HAVE_CHOLMOD
     if (use_cholmod) {
+      SingleThreadedOpenMp single;
       if (!analyzed) cholmod.analyzePattern(m);
       analyzed = true;
       cholmod.factorize(m);
@@ -48,8 +85,10 @@ struct BlockSparseSystem::Factorization {
   }
 };
 
-BlockSparseSystem::BlockSparseSystem(int num_blocks, const std::vector<std::pair<int, int>>& pairs)
-    : num_blocks_(num_blocks), index_(new Index), factorization_(new Factorization) {
+BlockSparseSystem::BlockSparseSystem(int num_blocks, const std::vector<std::pair<int, int>>& pairs, int block_dim,
+                                     int num_rhs)
+    : num_blocks_(num_blocks), block_dim_(block_dim == 1 ? 1 : 3), index_(new Index), factorization_(new Factorization) {
+  const int d = block_dim_;
   index_->rows_of_column.resize(num_blocks);
   for (int c = 0; c < num_blocks; ++c) index_->rows_of_column[c].push_back(c);
   for (const auto& p : pairs) {
@@ -60,10 +99,10 @@ BlockSparseSystem::BlockSparseSystem(int num_blocks, const std::vector<std::pair
   for (auto& rows : index_->rows_of_column) {
     std::sort(rows.begin(), rows.end());
     rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
-    nnz += 9 * rows.size();
+    nnz += static_cast<std::size_t>(d * d) * rows.size();
   }
   // Build the compressed column storage directly.
-  const int n = 3 * num_blocks;
+  const int n = d * num_blocks;
   matrix_.resize(n, n);
   matrix_.resizeNonZeros(static_cast<Eigen::Index>(nnz));
   int* outer = matrix_.outerIndexPtr();
@@ -71,25 +110,27 @@ BlockSparseSystem::BlockSparseSystem(int num_blocks, const std::vector<std::pair
   int pos = 0;
   for (int c = 0; c < num_blocks; ++c) {
     const std::vector<int>& rows = index_->rows_of_column[c];
-    for (int b = 0; b < 3; ++b) {
-      outer[3 * c + b] = pos;
+    for (int b = 0; b < d; ++b) {
+      outer[d * c + b] = pos;
       for (int r : rows) {
-        for (int a = 0; a < 3; ++a) inner[pos++] = 3 * r + a;
+        for (int a = 0; a < d; ++a) inner[pos++] = d * r + a;
       }
     }
   }
   outer[n] = pos;
   diagonal_positions_.resize(n);
   for (int c = 0; c < num_blocks; ++c) {
-    for (int b = 0; b < 3; ++b) diagonal_positions_[3 * c + b] = outer[3 * c + b] + b;  // row c is first
+    for (int b = 0; b < d; ++b) diagonal_positions_[d * c + b] = outer[d * c + b] + b;  // row c is first
   }
-  rhs_ = Eigen::VectorXd::Zero(n);
+  rhs_ = Eigen::MatrixXd::Zero(n, std::max(1, num_rhs));
   SetZero();
 #ifdef ROTAVG_HAVE_CHOLMOD
-  // Supernodal CHOLMOD pays off once blocks of the factor are large.
-  // Supernodal CHOLMOD measured faster than Eigen's simplicial LLT on the
-  // shared data overall (much faster on dense 1DSfM graphs).
-  factorization_->use_cholmod = true;
+  // 3x3 blocks: supernodal CHOLMOD measured faster than Eigen's simplicial
+  // LLT on the shared pose graphs (sphere2500 0.09 vs 0.11 s, cubicle 0.16 vs
+  // 0.20 s). Scalar Laplacians: simplicial is faster (torus3D 0.039 vs
+  // 0.049 s, iRotAvg 0.007 vs 0.012 s, Madrid even): their factors are too
+  // thin for dense supernodes to pay for CHOLMOD's BLAS and thread overhead.
+  factorization_->use_cholmod = block_dim_ == 3;
 #endif
 }
 
@@ -100,9 +141,14 @@ void BlockSparseSystem::SetZero() {
   rhs_.setZero();
 }
 
-void BlockSparseSystem::AddBlock(int row, int col, const Eigen::Matrix3d& m) {
+int BlockSparseSystem::Locate(int row, int col) const {
   const std::vector<int>& rows = index_->rows_of_column[col];
-  const int p = static_cast<int>(std::lower_bound(rows.begin(), rows.end(), row) - rows.begin());
+  return static_cast<int>(std::lower_bound(rows.begin(), rows.end(), row) - rows.begin());
+}
+
+void BlockSparseSystem::AddBlock(int row, int col, const Eigen::Matrix3d& m) { AddBlockAt(col, Locate(row, col), m); }
+
+void BlockSparseSystem::AddBlockAt(int col, int p, const Eigen::Matrix3d& m) {
   double* values = matrix_.valuePtr();
   const int* outer = matrix_.outerIndexPtr();
   for (int b = 0; b < 3; ++b) {
@@ -114,9 +160,16 @@ void BlockSparseSystem::AddBlock(int row, int col, const Eigen::Matrix3d& m) {
 }
 
 bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::VectorXd* x, double* lambda_used) {
-  const int n = 3 * num_blocks_;
+  Eigen::MatrixXd solution;
+  const bool ok = Solve(relative_lambda, max_retries, &solution, lambda_used);
+  *x = ok && solution.cols() > 0 ? Eigen::VectorXd(solution.col(0)) : Eigen::VectorXd(solution.rows());
+  return ok;
+}
+
+bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::MatrixXd* x, double* lambda_used) {
+  const int n = block_dim_ * num_blocks_;
   if (n == 0) {
-    x->resize(0);
+    x->resize(0, rhs_.cols());
     return true;
   }
   double* values = matrix_.valuePtr();
@@ -137,33 +190,41 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ve
   // iteration to the next, so a few cheap iterations replace a factorisation.
   if (f.has_factor && !f.refactor_next && reuse_factorization_) {
     const auto h = matrix_.selfadjointView<Eigen::Lower>();
-    Eigen::VectorXd& xs = *x;
-    xs = f.ApplyInverse(rhs_);
-    Eigen::VectorXd r = rhs_ - h * xs;
-    const double initial_residual2 = r.squaredNorm();
-    Eigen::VectorXd z = f.ApplyInverse(r);
-    Eigen::VectorXd p = z;
-    double rz = r.dot(z);
-    const double target = 1e-10 * rhs_.squaredNorm();
-    bool converged = r.squaredNorm() <= target;
-    for (int it = 0; it < kMaxPcgIterations && !converged && std::isfinite(rz) && rz > 0.0; ++it) {
-      const Eigen::VectorXd hp = h * p;
-      const double alpha = rz / p.dot(hp);
-      if (!std::isfinite(alpha) || alpha <= 0.0) break;
-      xs += alpha * p;
-      r -= alpha * hp;
-      ++last_pcg_iterations_;
-      converged = r.squaredNorm() <= target;
-      if (converged) break;
-      // A stale factor shows at once: if three iterations have not reduced
-      // the residual tenfold, refactorising is cheaper than going on.
-      if (last_pcg_iterations_ == 3 && r.squaredNorm() > 1e-2 * initial_residual2) break;
-      z = f.ApplyInverse(r);
-      const double rz_new = r.dot(z);
-      p = z + (rz_new / rz) * p;
-      rz = rz_new;
+    x->resize(n, rhs_.cols());
+    bool all_converged = true;
+    for (Eigen::Index column = 0; column < rhs_.cols() && all_converged; ++column) {
+      const Eigen::VectorXd b = rhs_.col(column);
+      Eigen::VectorXd xs = f.ApplyInverse(b);
+      Eigen::VectorXd r = b - h * xs;
+      const double initial_residual2 = r.squaredNorm();
+      Eigen::VectorXd z = f.ApplyInverse(r);
+      Eigen::VectorXd p = z;
+      double rz = r.dot(z);
+      const double target = 1e-10 * b.squaredNorm();
+      bool converged = r.squaredNorm() <= target;
+      int iterations = 0;
+      for (int it = 0; it < kMaxPcgIterations && !converged && std::isfinite(rz) && rz > 0.0; ++it) {
+        const Eigen::VectorXd hp = h * p;
+        const double alpha = rz / p.dot(hp);
+        if (!std::isfinite(alpha) || alpha <= 0.0) break;
+        xs += alpha * p;
+        r -= alpha * hp;
+        ++iterations;
+        converged = r.squaredNorm() <= target;
+        if (converged) break;
+        // A stale factor shows at once: if three iterations have not reduced
+        // the residual tenfold, refactorising is cheaper than going on.
+        if (iterations == 3 && r.squaredNorm() > 1e-2 * initial_residual2) break;
+        z = f.ApplyInverse(r);
+        const double rz_new = r.dot(z);
+        p = z + (rz_new / rz) * p;
+        rz = rz_new;
+      }
+      last_pcg_iterations_ = std::max(last_pcg_iterations_, iterations);
+      all_converged = converged && xs.allFinite();
+      x->col(column) = xs;
     }
-    if (converged && xs.allFinite()) {
+    if (all_converged) {
       ++num_pcg_solves_;
       f.refactor_next = last_pcg_iterations_ > kRefactorAfterPcgIterations;
       for (int k = 0; k < n; ++k) values[diagonal_positions_[k]] -= applied;

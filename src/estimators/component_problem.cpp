@@ -28,9 +28,6 @@ Eigen::Matrix3d InformationFromCovariance(const Eigen::Matrix3d& covariance, dou
 
 }  // namespace
 
-Eigen::Vector3d ComponentProblem::ResidualOf(const ComponentEdge& e, const std::vector<Eigen::Matrix3d>& rotations) {
-  return LogSO3(e.measured.transpose() * rotations[e.i] * rotations[e.j].transpose());
-}
 
 double ComponentProblem::CostOf(const std::vector<ComponentEdge>& edges, const std::vector<Eigen::Matrix3d>& rotations,
                                 const RobustLoss& loss) {

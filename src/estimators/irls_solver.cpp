@@ -12,6 +12,21 @@
 // to full covariance weights and the exact Jacobian. A step that raises the
 // robust cost is halved (up to 4 times); a factorisation that fails is
 // retried with Levenberg regularisation.
+//
+// Isotropic information (W_ij = s_ij I on every edge: no weighting, inlier,
+// trace or Frobenius weights, isotropic covariances) takes a cheaper path.
+// With right updates R_i <- R_i Exp(x_i) the linearisation is
+//
+//   r_ij(x) ~ r_ij + Jr^-1(r_ij) R_j (x_i - x_j),
+//
+// and with Jr^-1 replaced by I the normal equations become a scalar weighted
+// graph Laplacian L (weights w_ij = rho' s_ij) with three right-hand sides,
+// one per coordinate: L has a ninth of the nonzeros of the block system and
+// its factorisation ~27x fewer flops. The fixed points are unchanged, not
+// approximated: for W = s I the exact gradient term
+// (Jr^-1 R_j)^T W r = s R_j^T Jr^-T(r) r equals s R_j^T r, because
+// Jr^-T(r) r = r. Only the curvature is approximated, which the step halving
+// guards.
 #include <algorithm>
 #include <cmath>
 
@@ -20,6 +35,20 @@
 #include "rotation_averaging/geometry/so3.h"
 
 namespace rotation_averaging {
+namespace {
+
+// W = s I up to rounding, for every edge.
+bool AllIsotropic(const std::vector<ComponentEdge>& edges) {
+  for (const ComponentEdge& e : edges) {
+    const double s = e.information.trace() / 3.0;
+    if (!(s > 0.0) || ((e.information - s * Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-9 * s)) {
+      return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace
 
 IrlsWorkspace::IrlsWorkspace() = default;
 IrlsWorkspace::~IrlsWorkspace() = default;
@@ -39,26 +68,47 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
     for (const ComponentEdge& e : problem->edges) {
       if (ws.var[e.i] >= 0 && ws.var[e.j] >= 0) pairs.emplace_back(ws.var[e.i], ws.var[e.j]);
     }
-    ws.system = std::make_unique<BlockSparseSystem>(free_blocks, pairs);
+    ws.isotropic = AllIsotropic(problem->edges);
+    ws.system = ws.isotropic ? std::make_unique<BlockSparseSystem>(free_blocks, pairs, 1, 3)
+                             : std::make_unique<BlockSparseSystem>(free_blocks, pairs);
+    // Slot of each edge's off-diagonal block in its column (-1: touches the gauge).
+    ws.offdiagonal_slot.assign(problem->edges.size(), -1);
+    for (std::size_t k = 0; k < problem->edges.size(); ++k) {
+      const int a = ws.var[problem->edges[k].i], b = ws.var[problem->edges[k].j];
+      if (a >= 0 && b >= 0 && a != b) ws.offdiagonal_slot[k] = ws.system->Locate(std::max(a, b), std::min(a, b));
+    }
   }
+  const std::vector<int>& slot = ws.offdiagonal_slot;
+  const bool isotropic = ws.isotropic;
   const std::vector<int>& var = ws.var;
   BlockSparseSystem& system = *ws.system;
   const int num_free = system.NumBlocks();
 
   const std::size_t m = problem->edges.size();
   std::vector<Eigen::Vector3d> residuals(m);
-  auto evaluate = [&](const std::vector<Eigen::Matrix3d>& rotations, std::vector<Eigen::Vector3d>* res) {
+  auto cost_of = [&](const std::vector<Eigen::Vector3d>& res) {
     double cost = 0.0, rho[3];
     for (std::size_t k = 0; k < m; ++k) {
-      const ComponentEdge& e = problem->edges[k];
-      (*res)[k] = ComponentProblem::ResidualOf(e, rotations);
-      loss.Evaluate((e.sqrt_information * (*res)[k]).squaredNorm(), rho);
+      loss.Evaluate((problem->edges[k].sqrt_information * res[k]).squaredNorm(), rho);
       cost += 0.5 * rho[0];
     }
     return cost;
   };
+  auto evaluate = [&](const std::vector<Eigen::Matrix3d>& rotations, std::vector<Eigen::Vector3d>* res) {
+    for (std::size_t k = 0; k < m; ++k) (*res)[k] = ComponentProblem::ResidualOf(problem->edges[k], rotations);
+    return cost_of(*res);
+  };
 
-  double cost = evaluate(problem->rotations, &residuals);
+  // The residuals a previous solve on this workspace ended with (GNC stages,
+  // the final and auto-scaled solves) are reused when the rotations are
+  // still the same: they do not depend on the loss.
+  double cost = 0.0;
+  if (ws.residuals.size() == m && ws.residual_rotations == problem->rotations) {
+    residuals = ws.residuals;
+    cost = cost_of(residuals);
+  } else {
+    cost = evaluate(problem->rotations, &residuals);
+  }
   summary->initial_cost = cost;
   summary->converged = false;
   summary->status = "maximum iterations reached";
@@ -70,13 +120,35 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
 
   std::vector<Eigen::Matrix3d> candidate(n);
   std::vector<Eigen::Vector3d> candidate_residuals(m);
-  Eigen::VectorXd delta;
+  std::vector<Eigen::Matrix3d> extrapolation(n);
+  std::vector<Eigen::Vector3d> extrapolation_residuals(m);
+  Eigen::VectorXd previous_update;
+  Eigen::MatrixXd delta;
   int iteration = 0;
   for (; iteration < options.max_iterations; ++iteration) {
     system.SetZero();
-    Eigen::VectorXd& rhs = system.Rhs();
+    Eigen::MatrixXd& rhs = system.Rhs();
     double rho[3];
-    for (std::size_t k = 0; k < m; ++k) {
+    for (std::size_t k = 0; isotropic && k < m; ++k) {
+      const ComponentEdge& e = problem->edges[k];
+      const double s = e.information(0, 0);
+      loss.Evaluate(s * residuals[k].squaredNorm(), rho);
+      if (rho[1] <= 0.0) continue;
+      const double w = rho[1] * s;
+      // e_ij = R_j^T r_ij: the residual in the frame of the right updates.
+      const Eigen::RowVector3d w_e = w * (problem->rotations[e.j].transpose() * residuals[k]).transpose();
+      const int vi = var[e.i], vj = var[e.j];
+      if (vi >= 0) {
+        system.AddScalarAt(vi, 0, w);
+        rhs.row(vi) -= w_e;
+      }
+      if (vj >= 0) {
+        system.AddScalarAt(vj, 0, w);
+        rhs.row(vj) += w_e;
+      }
+      if (slot[k] >= 0) system.AddScalarAt(std::min(vi, vj), slot[k], -w);
+    }
+    for (std::size_t k = 0; !isotropic && k < m; ++k) {
       const ComponentEdge& e = problem->edges[k];
       const Eigen::Vector3d& r = residuals[k];
       loss.Evaluate((e.sqrt_information * r).squaredNorm(), rho);
@@ -90,13 +162,16 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
       const Eigen::Vector3d w_r = weighted * r;
       if (vi >= 0) {
         const Eigen::Matrix3d a_i_t_w = a_i.transpose() * weighted;
-        system.AddBlock(vi, vi, a_i_t_w * a_i);
-        rhs.segment<3>(3 * vi) -= a_i.transpose() * w_r;
-        if (vj >= 0) system.AddSymmetric(vi, vj, -a_i_t_w * jinv);
+        system.AddBlockAt(vi, 0, a_i_t_w * a_i);
+        rhs.col(0).segment<3>(3 * vi) -= a_i.transpose() * w_r;
+        if (slot[k] >= 0) {
+          const Eigen::Matrix3d off = -a_i_t_w * jinv;  // block (vi, vj)
+          if (vi > vj) system.AddBlockAt(vj, slot[k], off); else system.AddBlockAt(vi, slot[k], off.transpose());
+        }
       }
       if (vj >= 0) {
-        system.AddBlock(vj, vj, jinv.transpose() * w_jinv);
-        rhs.segment<3>(3 * vj) += jinv.transpose() * w_r;
+        system.AddBlockAt(vj, 0, jinv.transpose() * w_jinv);
+        rhs.col(0).segment<3>(3 * vj) += jinv.transpose() * w_r;
       }
     }
     if (!system.Solve(1e-12, 6, &delta)) {
@@ -104,13 +179,21 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
       break;
     }
     // Apply the step, halving it while the robust cost goes up.
+    auto apply = [&](double scale, const std::vector<Eigen::Matrix3d>& from, std::vector<Eigen::Matrix3d>* to) {
+      for (int v = 0; v < n; ++v) {
+        if (var[v] < 0) {
+          (*to)[v] = from[v];
+        } else if (isotropic) {
+          (*to)[v] = from[v] * ExpSO3(scale * delta.row(var[v]).transpose());
+        } else {
+          (*to)[v] = ExpSO3(scale * delta.col(0).segment<3>(3 * var[v])) * from[v];
+        }
+      }
+    };
     double step = 1.0, new_cost = cost;
     bool accepted = false;
     for (int attempt = 0; attempt < 5; ++attempt, step *= 0.5) {
-      for (int v = 0; v < n; ++v) {
-        candidate[v] = var[v] < 0 ? problem->rotations[v]
-                                  : ExpSO3(step * delta.segment<3>(3 * var[v])) * problem->rotations[v];
-      }
+      apply(step, problem->rotations, &candidate);
       new_cost = evaluate(candidate, &candidate_residuals);
       if (std::isfinite(new_cost) && new_cost <= cost * (1.0 + 1e-12) + 1e-300) {
         accepted = true;
@@ -122,7 +205,39 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
       summary->status = "converged: no step decreases the cost";
       break;
     }
-    const double max_step = num_free > 0 ? step * delta.reshaped(3, num_free).colwise().norm().maxCoeff() : 0.0;
+    // IRLS converges linearly; with redescending losses a view whose inliers
+    // sit near the cut-off crawls (Madrid: one view moving 0.03 deg per
+    // iteration at a ratio of 0.85 for 15 iterations, still 0.15 deg from
+    // the minimum when the cost test stopped). When two consecutive full
+    // steps point the same way and shrink geometrically, the rest of the
+    // geometric series is tried in one jump and kept only if it lowers the
+    // cost (one extra evaluation).
+    double extrapolated = 0.0;
+    if (options.irls_extrapolation) {
+      const Eigen::Map<const Eigen::VectorXd> flat(delta.data(), delta.size());
+      if (previous_update.size() == flat.size() && step == 1.0) {
+        const double norm = flat.norm(), previous_norm = previous_update.norm();
+        const double cosine = flat.dot(previous_update) / std::max(norm * previous_norm, 1e-300);
+        const double ratio = norm / std::max(previous_norm, 1e-300);
+        if (cosine > 0.95 && ratio > 0.3 && ratio < 0.99) {
+          const double factor = std::min(ratio / (1.0 - ratio), 10.0);
+          apply(factor, candidate, &extrapolation);
+          const double extrapolated_cost = evaluate(extrapolation, &extrapolation_residuals);
+          if (std::isfinite(extrapolated_cost) && extrapolated_cost < new_cost) {
+            candidate.swap(extrapolation);
+            candidate_residuals.swap(extrapolation_residuals);
+            new_cost = extrapolated_cost;
+            extrapolated = factor;
+            ++summary->extrapolations;
+          }
+        }
+      }
+      if (extrapolated > 0.0) previous_update.resize(0); else previous_update = step * flat;
+    }
+    const double max_step =
+        num_free == 0 ? 0.0
+                      : (step + extrapolated) * (isotropic ? delta.rowwise().norm().maxCoeff()
+                                          : delta.col(0).reshaped(3, num_free).colwise().norm().maxCoeff());
     const double decrease = cost - new_cost;
     problem->rotations.swap(candidate);
     residuals.swap(candidate_residuals);
@@ -146,6 +261,8 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   summary->factorizations = system.NumFactorizations();
   summary->preconditioned_solves = system.NumPreconditionedSolves();
   summary->final_cost = evaluate(problem->rotations, &residuals);
+  ws.residuals = residuals;
+  ws.residual_rotations = problem->rotations;
 }
 
 }  // namespace rotation_averaging

@@ -77,8 +77,11 @@ MagsacLoss::MagsacLoss(double sigma_max)
 
 void MagsacLoss::Evaluate(double s, double rho[3]) const {
   if (s <= cutoff_s_) {
-    const double e = std::exp(-s / two_sigma2_);
-    rho[0] = -two_sigma2_ * std::expm1(-s / two_sigma2_);
+    // One transcendental call: expm1 keeps rho accurate for small s, and
+    // e = 1 + expm1 is exact enough for the weight (absolute error 1e-16).
+    const double em1 = std::expm1(-s / two_sigma2_);
+    const double e = 1.0 + em1;
+    rho[0] = -two_sigma2_ * em1;
     rho[1] = e;
     rho[2] = -e / two_sigma2_;
   } else {

@@ -27,7 +27,8 @@ Eigen::Matrix3d ExpSO3(const Eigen::Vector3d& omega) {
   return Eigen::Matrix3d::Identity() + a * w + b * w * w;
 }
 
-Eigen::Vector3d LogSO3(const Eigen::Matrix3d& rotation) {
+Eigen::Vector3d LogSO3ViaQuaternion(const Eigen::Matrix3d& rotation) {
+  // Near pi the skew part vanishes: go through the quaternion.
   Eigen::Quaterniond q(rotation);
   q.normalize();
   if (q.w() < 0.0) q.coeffs() = -q.coeffs();

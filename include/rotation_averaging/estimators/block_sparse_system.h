@@ -1,4 +1,5 @@
-// Symmetric block-sparse normal equations H x = b with 3x3 blocks, one block
+// Symmetric block-sparse normal equations H X = B with 3x3 blocks (or 1x1:
+// a scalar, Laplacian-like system with several right-hand sides), one block
 // row per free view. The sparsity pattern is fixed at construction, so the
 // symbolic factorisation (fill-reducing ordering, elimination tree) is done
 // once and reused by every numeric factorisation. Only the lower block
@@ -16,22 +17,33 @@ namespace rotation_averaging {
 
 class BlockSparseSystem {
  public:
-  // `num_blocks` free variables of dimension 3; `pairs` lists the (unordered)
-  // block pairs that are coupled (duplicates and self-pairs are fine).
-  BlockSparseSystem(int num_blocks, const std::vector<std::pair<int, int>>& pairs);
+  // `num_blocks` free variables of dimension `block_dim` (3 or 1); `pairs`
+  // lists the (unordered) block pairs that are coupled (duplicates and
+  // self-pairs are fine); the right-hand side has `num_rhs` columns.
+  BlockSparseSystem(int num_blocks, const std::vector<std::pair<int, int>>& pairs, int block_dim = 3,
+                    int num_rhs = 1);
   ~BlockSparseSystem();
 
   int NumBlocks() const { return num_blocks_; }
+  int BlockDim() const { return block_dim_; }
   void SetZero();
   // H(row block, col block) += m, for row >= col (lower triangle); the
-  // diagonal block takes the full 3x3.
+  // diagonal block takes the full 3x3. block_dim 3 only.
   void AddBlock(int row, int col, const Eigen::Matrix3d& m);
+  // H(row, col) += v for row >= col. block_dim 1 only.
+  void AddScalar(int row, int col, double v) { AddScalarAt(col, Locate(row, col), v); }
+  // The same with the block's slot in its column precomputed by Locate(row,
+  // col) (the diagonal block is slot 0): the assembly loops of a solver with
+  // a fixed edge list look each block up once, not once per iteration.
+  int Locate(int row, int col) const;
+  void AddScalarAt(int col, int slot, double v) { matrix_.valuePtr()[matrix_.outerIndexPtr()[col] + slot] += v; }
+  void AddBlockAt(int col, int slot, const Eigen::Matrix3d& m);
   // H(a, b) += m and H(b, a) += m^T for any a != b, or H(a, a) += m.
   void AddSymmetric(int a, int b, const Eigen::Matrix3d& m) {
     if (a >= b) AddBlock(a, b, m); else AddBlock(b, a, m.transpose());
   }
-  Eigen::VectorXd& Rhs() { return rhs_; }
-  // Solves (H + lambda I) x = rhs. On a failed factorisation, retries with
+  Eigen::MatrixXd& Rhs() { return rhs_; }
+  // Solves (H + lambda I) X = rhs. On a failed factorisation, retries with
   // increasing lambda (relative to the mean diagonal) up to max_retries times.
   // Returns false if every attempt failed; `lambda_used` reports the last.
   //
@@ -39,6 +51,8 @@ class BlockSparseSystem {
   // first solved by conjugate gradients preconditioned with that factor
   // (relative residual 1e-5); only if that fails to converge in
   // kMaxPcgIterations is the matrix factorised again.
+  bool Solve(double relative_lambda, int max_retries, Eigen::MatrixXd* x, double* lambda_used = nullptr);
+  // Single right-hand side.
   bool Solve(double relative_lambda, int max_retries, Eigen::VectorXd* x, double* lambda_used = nullptr);
   void SetReuseFactorization(bool reuse) { reuse_factorization_ = reuse; }
   int NumFactorizations() const { return num_factorizations_; }
@@ -51,10 +65,11 @@ class BlockSparseSystem {
  private:
   struct Index;
   int num_blocks_;
+  int block_dim_;
   Eigen::SparseMatrix<double> matrix_;
   std::vector<int> diagonal_positions_;  // value index of each scalar diagonal entry
   std::unique_ptr<Index> index_;
-  Eigen::VectorXd rhs_;
+  Eigen::MatrixXd rhs_;
   bool reuse_factorization_ = true;
   int num_factorizations_ = 0;
   int num_pcg_solves_ = 0;

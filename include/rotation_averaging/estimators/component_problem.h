@@ -10,6 +10,7 @@
 
 #include "rotation_averaging/estimators/robust_loss.h"
 #include "rotation_averaging/estimators/rotation_averaging.h"
+#include "rotation_averaging/geometry/so3.h"
 
 namespace rotation_averaging {
 
@@ -33,7 +34,9 @@ struct ComponentProblem {
   Eigen::Vector3d Residual(const ComponentEdge& e) const {
     return ResidualOf(e, rotations);
   }
-  static Eigen::Vector3d ResidualOf(const ComponentEdge& e, const std::vector<Eigen::Matrix3d>& rotations);
+  static Eigen::Vector3d ResidualOf(const ComponentEdge& e, const std::vector<Eigen::Matrix3d>& rotations) {
+    return LogSO3(e.measured.transpose() * rotations[e.i] * rotations[e.j].transpose());
+  }
   // 0.5 * sum rho(|D^T r|^2).
   double Cost(const RobustLoss& loss) const;
   static double CostOf(const std::vector<ComponentEdge>& edges, const std::vector<Eigen::Matrix3d>& rotations,
@@ -63,6 +66,11 @@ struct IrlsWorkspace {
   ~IrlsWorkspace();
   std::unique_ptr<BlockSparseSystem> system;
   std::vector<int> var;  // local view -> free block (-1 for the gauge)
+  bool isotropic = false;  // every edge has W = s I: scalar Laplacian system
+  std::vector<int> offdiagonal_slot;  // per edge: BlockSparseSystem::Locate of its off-diagonal block
+  // Residuals at the end of the last solve and the rotations they belong to.
+  std::vector<Eigen::Vector3d> residuals;
+  std::vector<Eigen::Matrix3d> residual_rotations;
 };
 
 // Solvers; each updates problem->rotations and fills the summary. The IRLS

@@ -20,6 +20,7 @@
 #define ROTATION_AVERAGING_GEOMETRY_SO3_H_
 
 #include <Eigen/Core>
+#include <cmath>
 #include <Eigen/Geometry>
 
 namespace rotation_averaging {
@@ -30,9 +31,24 @@ Eigen::Matrix3d Hat(const Eigen::Vector3d& v);
 // Exp(omega) by Rodrigues' formula, with a Taylor expansion near zero.
 Eigen::Matrix3d ExpSO3(const Eigen::Vector3d& omega_rad);
 
-// Log(R): rotation vector with angle in [0, pi]. Stable near 0 and near pi
-// (computed through the quaternion, whose vector part does not vanish at pi).
-Eigen::Vector3d LogSO3(const Eigen::Matrix3d& rotation);
+// Log(R) through the quaternion, whose vector part does not vanish at pi.
+Eigen::Vector3d LogSO3ViaQuaternion(const Eigen::Matrix3d& rotation);
+
+// Log(R): rotation vector with angle in [0, pi]. Stable near 0 and near pi.
+// Inline: it is the inner loop of every solver. Below 120 degrees the skew
+// part is v = sin(theta) axis and the trace gives cos(theta), so
+// theta = atan2(|v|, cos theta); beyond, through the quaternion.
+inline Eigen::Vector3d LogSO3(const Eigen::Matrix3d& rotation) {
+  const double c = 0.5 * (rotation.trace() - 1.0);
+  if (c <= -0.5) return LogSO3ViaQuaternion(rotation);
+  const Eigen::Vector3d v(0.5 * (rotation(2, 1) - rotation(1, 2)), 0.5 * (rotation(0, 2) - rotation(2, 0)),
+                          0.5 * (rotation(1, 0) - rotation(0, 1)));
+  const double s2 = v.squaredNorm();
+  // theta / sin(theta) = 1 + theta^2 / 6 + O(theta^4).
+  if (s2 < 1e-16) return (1.0 + s2 / 6.0) * v;
+  const double s = std::sqrt(s2);
+  return (std::atan2(s, c) / s) * v;
+}
 
 // Inverse of the right Jacobian of SO(3): Log(Exp(phi) Exp(d)) ~ phi + Jr^-1(phi) d.
 Eigen::Matrix3d RightJacobianInverseSO3(const Eigen::Vector3d& phi_rad);
