@@ -1,6 +1,8 @@
 #include "rotation_averaging/estimators/rotation_averaging.h"
 
+#include <Eigen/Eigenvalues>
 #include <chrono>
+#include <limits>
 #include <algorithm>
 #include <cmath>
 #include <iomanip>
@@ -72,6 +74,34 @@ double TreeDisagreement(const ComponentProblem& problem, double scale) {
   return static_cast<double>(beyond) / problem.edges.size();
 }
 
+// lambda_max / lambda_min of an information matrix (inf if singular).
+double Anisotropy(const Eigen::Matrix3d& information) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+  eig.computeDirect(information, Eigen::EigenvaluesOnly);
+  const Eigen::Vector3d l = eig.eigenvalues();  // ascending
+  return l(0) > 0.0 ? l(2) / l(0) : std::numeric_limits<double>::infinity();
+}
+
+// Solves a copy of the problem whose edges carry isotropic information
+// s(W) I (a scalar-Laplacian IRLS solve, cheap) and takes its rotations as
+// the new start when the solve ends finite. Returns its iterations.
+template <typename IsotropicScale>
+int SolveSurrogate(const RotationAveragingOptions& options, const RobustLoss& loss, IsotropicScale scale_of,
+                   ComponentProblem* problem) {
+  ComponentProblem surrogate = *problem;
+  for (ComponentEdge& e : surrogate.edges) {
+    const double s = scale_of(e.information);
+    e.information = s * Eigen::Matrix3d::Identity();
+    e.sqrt_information = std::sqrt(s) * Eigen::Matrix3d::Identity();
+  }
+  ComponentSummary summary;
+  SolveComponentIrls(options, loss, &surrogate, &summary);
+  bool finite = std::isfinite(summary.final_cost);
+  for (const Eigen::Matrix3d& r : surrogate.rotations) finite = finite && r.allFinite();
+  if (finite) problem->rotations = surrogate.rotations;
+  return summary.iterations;
+}
+
 }  // namespace
 
 const char* EdgeWeightingName(EdgeWeighting w) {
@@ -134,7 +164,7 @@ std::string RotationAveragingSummary::Report() const {
     const ComponentSummary& c = components[k];
     out << "\n  component " << k << ": " << c.num_views << " views, " << c.num_edges << " edges, " << c.iterations
         << " iterations (" << c.factorizations << " factorisations, " << c.preconditioned_solves
-        << " preconditioned solves), loss scale " << c.loss_scale << " (residual scale " << c.noise_scale << "), "
+        << " preconditioned solves, " << c.extrapolations << " extrapolations), loss scale " << c.loss_scale << " (residual scale " << c.noise_scale << "), "
         << c.status;
   }
   if (components.size() > 5) out << "\n  ... " << components.size() - 5 << " more components";
@@ -184,9 +214,22 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
       const bool needs_robust_start =
           !all_warm && TreeDisagreement(problem, scale) > options.l1_initialization_min_disagreement;
       if (options.l1_initialization && needs_robust_start) {
-        std::string l1_status;
-        cs.iterations += RefineByL1(options.l1_init_max_iterations, options.l1_init_admm_iterations, &problem, &l1_status);
-        if (!l1_status.empty()) summary->warnings.push_back(l1_status);
+        // Unweighted, so the start does not depend on the covariances and
+        // always takes the scalar-Laplacian path of the IRLS solver.
+        RotationAveragingOptions l1_options = options;
+        l1_options.max_iterations = options.l1_init_max_iterations;
+        l1_options.function_tolerance = options.l1_init_function_tolerance;
+        cs.iterations += SolveSurrogate(l1_options, SoftL1Loss(options.l1_init_smoothing_rad),
+                                        [](const Eigen::Matrix3d&) { return 1.0; }, &problem);
+      } else if (!all_warm && !needs_robust_start && options.isotropic_presolve_max_anisotropy > 1.0) {
+        double max_anisotropy = 1.0;
+        for (const ComponentEdge& e : problem.edges) max_anisotropy = std::max(max_anisotropy, Anisotropy(e.information));
+        if (max_anisotropy > 1.0 + 1e-9 && max_anisotropy <= options.isotropic_presolve_max_anisotropy) {
+          RotationAveragingOptions iso_options = options;
+          iso_options.function_tolerance = options.isotropic_presolve_function_tolerance;
+          cs.iterations += SolveSurrogate(iso_options, *component_loss,
+                                          [](const Eigen::Matrix3d& w) { return w.trace() / 3.0; }, &problem);
+        }
       }
       // Graduated non-convexity for redescending losses started from a tree.
       if (IsRedescending(options.loss) && needs_robust_start && options.gnc_initial_scale_factor > 1.0 &&

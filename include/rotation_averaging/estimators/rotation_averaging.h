@@ -76,18 +76,36 @@ struct RotationAveragingOptions {
   // filled in along the spanning tree). The gauge view keeps its given value,
   // so a warm-started solution stays in the frame of the previous one.
   bool warm_start = true;
-  // Refine a spanning-tree start by the Chatterjee-Govindu L1 stage before
-  // the robust solve (not used when every view is warm-started). The paper
-  // starts the robust loss directly from the tree, which a single outlier in
-  // the tree can defeat.
+  // Refine a spanning-tree start by an L1 fit before the robust solve (not
+  // used when every view is warm-started). The paper starts the robust loss
+  // directly from the tree, which a single outlier in the tree can defeat.
+  // The L1 fit minimises sum |r_ij| (unweighted, rotation-invariant norm) by
+  // IRLS with a smoothed L1 loss (Soft L1 at l1_init_smoothing_rad) on the
+  // scalar-Laplacian system: measured on the synthetic benchmark it leaves
+  // fewer views off than Chatterjee-Govindu's coordinate-wise L1 by ADMM
+  // (35% outliers: 72 vs 362 views off without weights, 40 vs 107 with
+  // covariances) at a fraction of the time (Madrid: 13 iterations, ~60 ms,
+  // against 275 ADMM iterations, ~230 ms). The ADMM stage stays in the
+  // paper's L1-IRLS baseline.
   bool l1_initialization = true;
   // The L1 start and GNC run only when more than this fraction of edges
   // disagree with the spanning tree beyond the MAGSAC cut-off (k * loss
   // scale). Clean SLAM pose graphs have none (measured on the shared data) and
   // skip both; a tree that contains an outlier makes many edges disagree.
   double l1_initialization_min_disagreement = 0.02;
-  int l1_init_max_iterations = 5;        // outer relinearisations of the L1 start
-  int l1_init_admm_iterations = 200;     // ADMM iterations per relinearisation
+  int l1_init_max_iterations = 20;       // IRLS iterations of the L1 start
+  double l1_init_smoothing_rad = 0.01;   // Soft L1 scale: quadratic below ~0.6 deg
+  double l1_init_function_tolerance = 1e-4;  // a start needs no more
+  // A start that needs no robust start (clean pose graphs) but carries
+  // anisotropic information is first solved with each W replaced by
+  // (trace W / 3) I: a scalar-Laplacian IRLS solve, a fraction of the cost of
+  // the 3x3 block system, which lands close enough that the exact solve then
+  // needs one factorisation instead of four (sphere2500: 0.051 -> 0.035 s,
+  // same minimum to 1e-5 deg). Only when every edge's lambda_max/lambda_min
+  // is at most this: on cubicle (ratios up to 1.6e5) the isotropic optimum is
+  // too far off and the pre-solve cost more than it saved. <= 1 disables it.
+  double isotropic_presolve_max_anisotropy = 10.0;
+  double isotropic_presolve_function_tolerance = 1e-4;
   // Graduated non-convexity for redescending losses (MAGSAC, Tukey,
   // Geman-McClure): start at gnc_initial_scale_factor times the loss scale
   // and divide it by gnc_scale_step until it reaches the loss scale. Protects
@@ -107,6 +125,10 @@ struct RotationAveragingOptions {
   double step_tolerance_rad = 1e-6;    // stop when every update is smaller than this (1e-6 rad = 0.00006 deg)
   double function_tolerance = 1e-8;    // relative cost decrease at which to stop (1e-10 changed Madrid by < 0.0001 deg)
   int num_threads = 1;                 // Ceres threads; the IRLS solver is single-threaded
+  // IRLS: jump along a geometrically shrinking step sequence (kept only when
+  // it lowers the cost). Madrid: 48 -> 37 iterations, and 4x closer to the
+  // fully converged minimum.
+  bool irls_extrapolation = true;
   // L1-IRLS baseline (Theia's RobustRotationEstimator defaults).
   int l1_max_iterations = 5;              // outer L1 relinearisations
   int l1_admm_max_iterations = 200;       // ADMM iterations per L1 step (stops earlier when x moves < 1e-5 rad)
@@ -127,6 +149,7 @@ struct ComponentSummary {
   double loss_scale = 0.0;       // scale used for this component (after auto-scaling)
   double noise_scale = 1.0;      // sigma_hat: estimated scale of the whitened residuals
   int preconditioned_solves = 0; // IRLS steps solved by PCG with an earlier factor
+  int extrapolations = 0;        // IRLS extrapolation jumps taken
   double initial_cost = 0.0;
   double final_cost = 0.0;
   bool converged = false;
