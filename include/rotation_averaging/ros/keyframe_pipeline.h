@@ -1,0 +1,137 @@
+// What the live node and the bag replay tool share: reading the parameters,
+// turning messages into validated keyframes and relative rotations, running
+// the keyframe front end into the averager, and building the output messages.
+// The node adds subscriptions, threads and publishers around it; the replay
+// tool adds a bag reader and a bag-time solve schedule. Neither re-implements
+// anything here.
+#ifndef ROTATION_AVERAGING_ROS_KEYFRAME_PIPELINE_H_
+#define ROTATION_AVERAGING_ROS_KEYFRAME_PIPELINE_H_
+
+#include <geometry_msgs/TransformStamped.h>
+#include <ros/time.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/CompressedImage.h>
+#include <sensor_msgs/Image.h>
+#include <tf2_msgs/TFMessage.h>
+
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "rotation_averaging/Orientations.h"
+#include "rotation_averaging/RelativePose.h"
+#include "rotation_averaging/controllers/keyframe_frontend.h"
+#include "rotation_averaging/controllers/online_averager.h"
+
+namespace rotation_averaging {
+
+// Where parameters come from: the node's private namespace on the parameter
+// server, or a YAML file for the replay tool. Each getter returns false when
+// the parameter is absent (the caller keeps its default).
+class ParameterSource {
+ public:
+  virtual ~ParameterSource() = default;
+  virtual bool Get(const std::string& name, std::string* value) const = 0;
+  virtual bool Get(const std::string& name, double* value) const = 0;
+  virtual bool Get(const std::string& name, int* value) const = 0;
+  virtual bool Get(const std::string& name, bool* value) const = 0;
+  virtual bool Get(const std::string& name, std::vector<std::string>* value) const = 0;
+};
+
+// Every parameter of config/rotation_averaging.yaml, with its default.
+struct PipelineConfig {
+  std::string fixed_frame = "map";
+  std::string tf_mode = "all_keyframes";  // all_keyframes, latest_per_camera, none
+  std::string keyframe_frame_format = "{frame_id}_kf_{stamp_ns}";
+  std::string latest_frame_format = "{frame_id}_averaged";
+  OnlineAveragerOptions averager;
+  std::vector<std::string> image_topics;
+  std::string image_transport = "raw";  // raw or compressed
+  KeyframeFrontendOptions frontend;
+  std::size_t max_image_queue = 8;
+  std::string load_graph, save_on_shutdown;
+};
+
+// Reads every parameter; unknown enum values fall back to the default with a
+// warning appended to `warnings`.
+PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std::string>* warnings);
+
+// A decoded, validated keyframe image waiting for the front end.
+struct PendingKeyframe {
+  KeyframeKey key;
+  cv::Mat image;  // 8-bit grey
+  Eigen::Matrix3d k = Eigen::Matrix3d::Identity();
+};
+
+// Counters of the inputs the pipeline turned away (the averager counts its own).
+struct PipelineStats {
+  std::uint64_t rejected_messages = 0;  // relative poses that failed conversion or validation
+  std::uint64_t rejected_images = 0;    // do not decode, bad camera_info, stamp not advancing, ...
+  std::uint64_t processed_images = 0;   // keyframes through the front end
+  std::uint64_t edges_from_images = 0;  // relative rotations the front end produced
+};
+
+class KeyframePipeline {
+ public:
+  explicit KeyframePipeline(const PipelineConfig& config);
+  ~KeyframePipeline();
+
+  const PipelineConfig& Config() const { return config_; }
+  OnlineAverager& Averager() { return *averager_; }
+  bool HasFrontend() const { return frontend_ != nullptr; }
+  const KeyframeFrontend* Frontend() const { return frontend_.get(); }
+
+  // Converts, validates and enqueues one relative pose. On failure the
+  // message is counted as rejected and `error` says why.
+  bool AcceptRelativePose(const RelativePose& msg, std::string* error);
+
+  // Decode and validate a keyframe image (frame id, K, size, a stamp that
+  // advances per camera). On failure the image is counted as rejected.
+  bool DecodeImage(const sensor_msgs::Image& image, const sensor_msgs::CameraInfo& info, PendingKeyframe* out,
+                   std::string* error);
+  bool DecodeCompressedImage(const sensor_msgs::CompressedImage& image, const sensor_msgs::CameraInfo& info,
+                             PendingKeyframe* out, std::string* error);
+
+  // Runs the front end on one keyframe and enqueues its edges. Not
+  // thread-safe with itself (one front-end thread). Returns the edges added;
+  // `loop_closure` (optional) tells whether one of them closes a loop.
+  std::size_t ProcessKeyframe(const PendingKeyframe& keyframe, bool* loop_closure = nullptr,
+                              std::vector<std::string>* warnings = nullptr);
+
+  // Output messages for a solution.
+  Orientations OrientationsMsg(const OnlineSolution& solution, const ros::Time& stamp) const;
+  // all_keyframes: one transform per keyframe, stamped with its capture time.
+  tf2_msgs::TFMessage KeyframeTransforms(const OnlineSolution& solution) const;
+  // latest_per_camera: the newest keyframe of each camera, stamped `now`;
+  // a frame whose last transform had a stamp >= now is left out.
+  std::vector<geometry_msgs::TransformStamped> LatestTransforms(const OnlineSolution& solution, const ros::Time& now);
+  void ForgetLatestStamps();  // after a reset
+
+  PipelineStats Stats() const;
+
+ private:
+  bool Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
+                const sensor_msgs::CameraInfo& info, PendingKeyframe* out, std::string* error);
+  bool Reject(std::uint64_t* counter, const std::string& why, std::string* error);
+  geometry_msgs::TransformStamped Transform(const ros::Time& stamp, const std::string& child,
+                                            const geometry_msgs::Quaternion& camera_to_world) const;
+
+  PipelineConfig config_;
+  std::unique_ptr<OnlineAverager> averager_;
+  std::unique_ptr<KeyframeFrontend> frontend_;
+  mutable std::mutex mutex_;  // stats_, last_image_stamp_, last_latest_stamp_
+  PipelineStats stats_;
+  std::map<std::string, std::int64_t> last_image_stamp_;
+  std::map<std::string, ros::Time> last_latest_stamp_;
+};
+
+// "{frame_id}" and "{stamp_ns}" in a frame name pattern.
+std::string KeyframeFrameName(const std::string& format, const KeyframeKey& key);
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_ROS_KEYFRAME_PIPELINE_H_

@@ -1,0 +1,257 @@
+#include "rotation_averaging/ros/keyframe_pipeline.h"
+
+#include <cv_bridge/cv_bridge.h>
+#include <sensor_msgs/image_encodings.h>
+
+#include <algorithm>
+#include <cmath>
+#include <opencv2/imgcodecs.hpp>
+
+#include "rotation_averaging/ros/msg_conversion.h"
+
+namespace rotation_averaging {
+namespace {
+
+std::string Replace(std::string text, const std::string& key, const std::string& value) {
+  for (std::size_t at = text.find(key); at != std::string::npos; at = text.find(key, at + value.size())) {
+    text.replace(at, key.size(), value);
+  }
+  return text;
+}
+
+template <typename T>
+T Param(const ParameterSource& params, const std::string& name, T fallback) {
+  T value = fallback;
+  return params.Get(name, &value) ? value : fallback;
+}
+
+std::size_t PositiveSize(const ParameterSource& params, const std::string& name, int fallback, int minimum) {
+  return static_cast<std::size_t>(std::max(minimum, Param(params, name, fallback)));
+}
+
+}  // namespace
+
+std::string KeyframeFrameName(const std::string& format, const KeyframeKey& key) {
+  return Replace(Replace(format, "{frame_id}", key.frame_id), "{stamp_ns}", std::to_string(key.stamp_ns));
+}
+
+PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std::string>* warnings) {
+  PipelineConfig c;
+  auto warn = [warnings](const std::string& w) {
+    if (warnings) warnings->push_back(w);
+  };
+  c.fixed_frame = Param(params, "fixed_frame", c.fixed_frame);
+  c.tf_mode = Param(params, "tf_mode", c.tf_mode);
+  if (c.tf_mode != "all_keyframes" && c.tf_mode != "latest_per_camera" && c.tf_mode != "none") {
+    warn("tf_mode '" + c.tf_mode + "' unknown: using all_keyframes");
+    c.tf_mode = "all_keyframes";
+  }
+  c.keyframe_frame_format = Param(params, "keyframe_frame_format", c.keyframe_frame_format);
+  c.latest_frame_format = Param(params, "latest_frame_format", c.latest_frame_format);
+  c.load_graph = Param(params, "load_graph", c.load_graph);
+  c.save_on_shutdown = Param(params, "save_on_shutdown", c.save_on_shutdown);
+
+  OnlineAveragerOptions& a = c.averager;
+  a.solve_period_s = Param(params, "solve_period", a.solve_period_s);
+  a.solve_early_on_loop_closure = Param(params, "solve_early_on_loop_closure", a.solve_early_on_loop_closure);
+  a.max_queue = PositiveSize(params, "max_queue", 10000, 1);
+  a.max_views = PositiveSize(params, "max_views", 1000000, 2);
+  a.max_edges = PositiveSize(params, "max_edges", 10000000, 1);
+  RotationAveragingOptions& o = a.averaging;
+  const std::string loss = Param<std::string>(params, "loss", "magsac");
+  if (!ParseLossType(loss, &o.loss)) warn("loss '" + loss + "' unknown: using magsac");
+  const std::string weighting = Param<std::string>(params, "weighting", "covariance");
+  if (!ParseEdgeWeighting(weighting, &o.weighting)) warn("weighting '" + weighting + "' unknown: using covariance");
+  const std::string solver = Param<std::string>(params, "solver", "irls");
+  if (!ParseSolverType(solver, &o.solver)) warn("solver '" + solver + "' unknown: using irls");
+  o.loss_scale = Param(params, "sigma_max", 0.0);
+  o.max_iterations = Param(params, "max_iterations", o.max_iterations);
+
+  c.image_topics = Param(params, "image_topics", c.image_topics);
+  c.image_transport = Param(params, "image_transport", c.image_transport);
+  if (c.image_transport != "raw" && c.image_transport != "compressed") {
+    warn("image_transport '" + c.image_transport + "' unknown: using raw");
+    c.image_transport = "raw";
+  }
+  KeyframeFrontendOptions& f = c.frontend;
+  f.features.downsample = Param(params, "image_downsample", 1.0);
+  if (!(f.features.downsample > 0.0 && f.features.downsample <= 1.0)) {
+    warn("image_downsample must be in (0, 1]: using 1");
+    f.features.downsample = 1.0;
+  }
+  f.features.max_features = Param(params, "max_features", f.features.max_features);
+  const std::string features = Param<std::string>(params, "features", "sift");
+  if (!ParseFeatureType(features, &f.features.type)) warn("features '" + features + "' unknown: using sift");
+  f.rig_stamp_tolerance_s = Param(params, "rig_stamp_tolerance", f.rig_stamp_tolerance_s);
+  f.max_loop_candidates = Param(params, "max_loop_candidates", f.max_loop_candidates);
+  f.min_loop_inliers = Param(params, "min_loop_inliers", f.min_loop_inliers);
+  c.max_image_queue = PositiveSize(params, "max_image_queue", 8, 1);
+  return c;
+}
+
+KeyframePipeline::KeyframePipeline(const PipelineConfig& config)
+    : config_(config), averager_(std::make_unique<OnlineAverager>(config.averager)) {
+  if (!config_.image_topics.empty()) frontend_ = std::make_unique<KeyframeFrontend>(config_.frontend);
+}
+
+KeyframePipeline::~KeyframePipeline() = default;
+
+bool KeyframePipeline::Reject(std::uint64_t* counter, const std::string& why, std::string* error) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++*counter;
+  }
+  if (error) *error = why;
+  return false;
+}
+
+bool KeyframePipeline::AcceptRelativePose(const RelativePose& msg, std::string* error) {
+  KeyframeRelativeRotation m;
+  std::string why;
+  if (FromMsg(msg, &m, &why) && averager_->AddRelativeRotation(m, &why)) return true;
+  return Reject(&stats_.rejected_messages, why, error);
+}
+
+bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
+                                const sensor_msgs::CameraInfo& info, PendingKeyframe* out, std::string* error) {
+  if (frame.empty()) return Reject(&stats_.rejected_images, "image with an empty frame_id", error);
+  if (grey.empty()) return Reject(&stats_.rejected_images, "empty image from " + frame, error);
+  Eigen::Matrix3d k;
+  for (int i = 0; i < 9; ++i) k(i / 3, i % 3) = info.K[i];
+  if (!k.allFinite() || !(k(0, 0) > 0.0) || !(k(1, 1) > 0.0) || std::abs(k(2, 2) - 1.0) > 1e-9) {
+    return Reject(&stats_.rejected_images, "camera_info of " + frame + " has no valid K", error);
+  }
+  if (info.width > 0 && (static_cast<int>(info.width) != grey.cols || static_cast<int>(info.height) != grey.rows)) {
+    return Reject(&stats_.rejected_images, "image of " + frame + " does not match its camera_info size", error);
+  }
+  const std::int64_t ns = ToNanoseconds(stamp);
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    auto last = last_image_stamp_.find(frame);
+    if (last != last_image_stamp_.end() && ns <= last->second) {
+      ++stats_.rejected_images;
+      if (error) *error = "stamp of " + frame + " did not advance (" + std::to_string(stamp.toSec()) + ")";
+      return false;
+    }
+    last_image_stamp_[frame] = ns;
+  }
+  out->key = KeyframeKey{frame, ns};
+  out->image = grey;
+  out->k = k;
+  return true;
+}
+
+bool KeyframePipeline::DecodeImage(const sensor_msgs::Image& image, const sensor_msgs::CameraInfo& info,
+                                   PendingKeyframe* out, std::string* error) {
+  cv::Mat grey;
+  try {
+    // toCvCopy: the keyframe outlives the message.
+    grey = cv_bridge::toCvCopy(image, sensor_msgs::image_encodings::MONO8)->image;
+  } catch (const std::exception& e) {
+    return Reject(&stats_.rejected_images,
+                  "image from " + image.header.frame_id + " does not decode (" + image.encoding + "): " + e.what(),
+                  error);
+  }
+  return Validate(image.header.frame_id, image.header.stamp, grey, info, out, error);
+}
+
+bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage& image,
+                                             const sensor_msgs::CameraInfo& info, PendingKeyframe* out,
+                                             std::string* error) {
+  cv::Mat grey;
+  try {
+    grey = cv::imdecode(image.data, cv::IMREAD_GRAYSCALE);
+  } catch (const cv::Exception&) {
+    grey.release();
+  }
+  if (grey.empty()) {
+    return Reject(&stats_.rejected_images,
+                  "compressed image from " + image.header.frame_id + " (" + image.format + ") does not decode", error);
+  }
+  return Validate(image.header.frame_id, image.header.stamp, grey, info, out, error);
+}
+
+std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, bool* loop_closure,
+                                              std::vector<std::string>* warnings) {
+  if (loop_closure) *loop_closure = false;
+  if (!frontend_) return 0;
+  std::size_t added = 0;
+  for (const KeyframeRelativeRotation& e : frontend_->AddKeyframe(keyframe.key, keyframe.image, keyframe.k)) {
+    std::string error;
+    if (averager_->AddRelativeRotation(e, &error)) {
+      ++added;
+      if (loop_closure && e.source == EdgeSource::kLoopClosure) *loop_closure = true;
+    } else if (warnings) {
+      warnings->push_back("front-end edge dropped: " + error);
+    }
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  ++stats_.processed_images;
+  stats_.edges_from_images += added;
+  return added;
+}
+
+Orientations KeyframePipeline::OrientationsMsg(const OnlineSolution& solution, const ros::Time& stamp) const {
+  Orientations msg;
+  msg.header.stamp = stamp;
+  msg.header.frame_id = config_.fixed_frame;
+  msg.solve_sequence = solution.sequence;
+  msg.keyframes.reserve(solution.orientations.size());
+  for (const auto& [key, r] : solution.orientations) {
+    auto c = solution.component.find(key);
+    msg.keyframes.push_back(ToMsg(key, r, c == solution.component.end() ? 0 : c->second));
+  }
+  return msg;
+}
+
+geometry_msgs::TransformStamped KeyframePipeline::Transform(const ros::Time& stamp, const std::string& child,
+                                                            const geometry_msgs::Quaternion& camera_to_world) const {
+  geometry_msgs::TransformStamped t;
+  t.header.stamp = stamp;
+  t.header.frame_id = config_.fixed_frame;
+  t.child_frame_id = child;
+  t.transform.rotation = camera_to_world;
+  return t;
+}
+
+tf2_msgs::TFMessage KeyframePipeline::KeyframeTransforms(const OnlineSolution& solution) const {
+  tf2_msgs::TFMessage msg;
+  msg.transforms.reserve(solution.orientations.size());
+  for (const auto& [key, r] : solution.orientations) {
+    msg.transforms.push_back(Transform(FromNanoseconds(key.stamp_ns),
+                                       KeyframeFrameName(config_.keyframe_frame_format, key),
+                                       ToMsg(key, r, 0).orientation));
+  }
+  return msg;
+}
+
+std::vector<geometry_msgs::TransformStamped> KeyframePipeline::LatestTransforms(const OnlineSolution& solution,
+                                                                                 const ros::Time& now) {
+  std::map<std::string, std::pair<KeyframeKey, Eigen::Matrix3d>> latest;
+  for (const auto& [key, r] : solution.orientations) {
+    auto it = latest.find(key.frame_id);
+    if (it == latest.end() || it->second.first.stamp_ns < key.stamp_ns) latest[key.frame_id] = {key, r};
+  }
+  std::vector<geometry_msgs::TransformStamped> tfs;
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& [frame_id, kr] : latest) {
+    const std::string child = KeyframeFrameName(config_.latest_frame_format, kr.first);
+    auto last = last_latest_stamp_.find(child);
+    if (last != last_latest_stamp_.end() && now <= last->second) continue;
+    last_latest_stamp_[child] = now;
+    tfs.push_back(Transform(now, child, ToMsg(kr.first, kr.second, 0).orientation));
+  }
+  return tfs;
+}
+
+void KeyframePipeline::ForgetLatestStamps() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  last_latest_stamp_.clear();
+}
+
+PipelineStats KeyframePipeline::Stats() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return stats_;
+}
+
+}  // namespace rotation_averaging
