@@ -152,7 +152,10 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
       const Keyframe& other = *keyframes_[*it];
       if (std::llabs(other.key.stamp_ns - key.stamp_ns) <= tolerance_ns) {
         KeyframeRelativeRotation e;
-        if (Relate(other, *kf, EdgeSource::kRig, &e)) {
+        // Two cameras with known extrinsics need no image edge.
+        const bool calibrated = rig_calibrated_.count(camera) && rig_calibrated_.count(key.frame_id);
+        if (calibrated) ++stats_.rig_pairs_skipped;
+        if (!calibrated && Relate(other, *kf, EdgeSource::kRig, &e)) {
           edges.push_back(e);
           ++stats_.rig_edges;
         }

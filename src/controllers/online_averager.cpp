@@ -127,6 +127,7 @@ std::size_t OnlineAverager::DrainQueue() {
     edge.covariance = m.covariance;
     edge.num_inliers = m.num_inliers;
     edge.source = m.source;
+    edge.channel = m.channel;
     if (graph_.AddEdge(edge) == AddEdgeResult::kRejected) {
       ++rejected;
     } else {
@@ -309,6 +310,13 @@ void OnlineAverager::SetAveragingOptions(const RotationAveragingOptions& options
 std::shared_ptr<const OnlineSolution> OnlineAverager::Solution() const {
   std::lock_guard<std::mutex> lock(solution_mutex_);
   return solution_;
+}
+
+std::map<EdgeSource, std::size_t> OnlineAverager::EdgesBySource() const {
+  std::map<EdgeSource, std::size_t> counts;
+  std::lock_guard<std::mutex> lock(graph_mutex_);
+  for (const RelativeRotation& e : graph_.Edges()) ++counts[e.source];
+  return counts;
 }
 
 OnlineAveragerStats OnlineAverager::Stats() const {

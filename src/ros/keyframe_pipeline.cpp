@@ -7,6 +7,7 @@
 #include <cmath>
 #include <opencv2/imgcodecs.hpp>
 
+#include "rotation_averaging/geometry/so3.h"
 #include "rotation_averaging/ros/msg_conversion.h"
 
 namespace rotation_averaging {
@@ -83,14 +84,18 @@ PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std
   const std::string features = Param<std::string>(params, "features", "sift");
   if (!ParseFeatureType(features, &f.features.type)) warn("features '" + features + "' unknown: using sift");
   f.rig_stamp_tolerance_s = Param(params, "rig_stamp_tolerance", f.rig_stamp_tolerance_s);
+  c.rig.stamp_tolerance_s = f.rig_stamp_tolerance_s;
+  c.rig.enabled = Param(params, "use_rig_extrinsics", c.rig.enabled);
+  c.rig.rig_frame = Param(params, "rig_frame", c.rig.rig_frame);
   f.max_loop_candidates = Param(params, "max_loop_candidates", f.max_loop_candidates);
   f.min_loop_inliers = Param(params, "min_loop_inliers", f.min_loop_inliers);
+  f.retrieval_sample = Param(params, "retrieval_sample", f.retrieval_sample);
   c.max_image_queue = PositiveSize(params, "max_image_queue", 8, 1);
   return c;
 }
 
 KeyframePipeline::KeyframePipeline(const PipelineConfig& config)
-    : config_(config), averager_(std::make_unique<OnlineAverager>(config.averager)) {
+    : config_(config), averager_(std::make_unique<OnlineAverager>(config.averager)), rig_(config.rig) {
   if (!config_.image_topics.empty()) frontend_ = std::make_unique<KeyframeFrontend>(config_.frontend);
 }
 
@@ -105,11 +110,38 @@ bool KeyframePipeline::Reject(std::uint64_t* counter, const std::string& why, st
   return false;
 }
 
+// Into the averager through the rig model (one variable per rig capture).
+bool KeyframePipeline::AddMeasurement(const KeyframeRelativeRotation& m, std::string* error) {
+  // Self-references are errors even when both ends are rig cameras.
+  if (m.keyframe1.frame_id == m.keyframe2.frame_id && m.keyframe1.stamp_ns == m.keyframe2.stamp_ns) {
+    if (error) *error = "a keyframe related to itself";
+    return false;
+  }
+  KeyframeRelativeRotation v;
+  if (!m.rotation.allFinite()) return averager_->AddRelativeRotation(m, error);  // rejected there, with the reason
+  if (!rig_.ToVariables(m, &v)) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++stats_.absorbed_by_rig;
+    return true;
+  }
+  return averager_->AddRelativeRotation(v, error);
+}
+
 bool KeyframePipeline::AcceptRelativePose(const RelativePose& msg, std::string* error) {
   KeyframeRelativeRotation m;
   std::string why;
-  if (FromMsg(msg, &m, &why) && averager_->AddRelativeRotation(m, &why)) return true;
+  if (FromMsg(msg, &m, &why) && AddMeasurement(m, &why)) return true;
   return Reject(&stats_.rejected_messages, why, error);
+}
+
+void KeyframePipeline::AcceptStaticTransforms(const tf2_msgs::TFMessage& msg) {
+  for (const geometry_msgs::TransformStamped& t : msg.transforms) {
+    if (t.header.frame_id == config_.fixed_frame) continue;  // our own keyframe frames
+    const auto& q = t.transform.rotation;
+    const double norm = std::sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z);
+    if (!std::isfinite(norm) || std::abs(norm - 1.0) > 1e-3) continue;
+    rig_.AddStaticTransform(t.header.frame_id, t.child_frame_id, QuaternionToRotation(q.w, q.x, q.y, q.z));
+  }
 }
 
 bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
@@ -175,10 +207,11 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
                                               std::vector<std::string>* warnings) {
   if (loop_closure) *loop_closure = false;
   if (!frontend_) return 0;
+  if (rig_.IsRigCamera(keyframe.key.frame_id)) frontend_->SetRigCalibrated(keyframe.key.frame_id);
   std::size_t added = 0;
   for (const KeyframeRelativeRotation& e : frontend_->AddKeyframe(keyframe.key, keyframe.image, keyframe.k)) {
     std::string error;
-    if (averager_->AddRelativeRotation(e, &error)) {
+    if (AddMeasurement(e, &error)) {
       ++added;
       if (loop_closure && e.source == EdgeSource::kLoopClosure) *loop_closure = true;
     } else if (warnings) {
@@ -191,7 +224,8 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   return added;
 }
 
-Orientations KeyframePipeline::OrientationsMsg(const OnlineSolution& solution, const ros::Time& stamp) const {
+Orientations KeyframePipeline::OrientationsMsg(const OnlineSolution& variables, const ros::Time& stamp) const {
+  const OnlineSolution solution = CameraSolution(variables);
   Orientations msg;
   msg.header.stamp = stamp;
   msg.header.frame_id = config_.fixed_frame;
@@ -214,7 +248,8 @@ geometry_msgs::TransformStamped KeyframePipeline::Transform(const ros::Time& sta
   return t;
 }
 
-tf2_msgs::TFMessage KeyframePipeline::KeyframeTransforms(const OnlineSolution& solution) const {
+tf2_msgs::TFMessage KeyframePipeline::KeyframeTransforms(const OnlineSolution& variables) const {
+  const OnlineSolution solution = CameraSolution(variables);
   tf2_msgs::TFMessage msg;
   msg.transforms.reserve(solution.orientations.size());
   for (const auto& [key, r] : solution.orientations) {
@@ -225,8 +260,9 @@ tf2_msgs::TFMessage KeyframePipeline::KeyframeTransforms(const OnlineSolution& s
   return msg;
 }
 
-std::vector<geometry_msgs::TransformStamped> KeyframePipeline::LatestTransforms(const OnlineSolution& solution,
+std::vector<geometry_msgs::TransformStamped> KeyframePipeline::LatestTransforms(const OnlineSolution& variables,
                                                                                  const ros::Time& now) {
+  const OnlineSolution solution = CameraSolution(variables);
   std::map<std::string, std::pair<KeyframeKey, Eigen::Matrix3d>> latest;
   for (const auto& [key, r] : solution.orientations) {
     auto it = latest.find(key.frame_id);

@@ -72,6 +72,9 @@ class RotationAveragingNode {
     if (tf_mode_ == "all_keyframes") static_tf_pub_ = nh.advertise<tf2_msgs::TFMessage>("/tf_static", 1, true);
     single_sub_ = nh.subscribe("relative_pose", 1000, &RotationAveragingNode::OnRelativePose, this);
     array_sub_ = nh.subscribe("relative_poses", 100, &RotationAveragingNode::OnRelativePoseArray, this);
+    // Rig extrinsics (static transforms from the cameras to the rig frame).
+    tf_static_sub_ = nh.subscribe<tf2_msgs::TFMessage>(
+        "/tf_static", 100, [this](const tf2_msgs::TFMessage::ConstPtr& m) { pipeline_->AcceptStaticTransforms(*m); });
     solve_srv_ = pnh.advertiseService("solve", &RotationAveragingNode::OnSolve, this);
     reset_srv_ = pnh.advertiseService("reset", &RotationAveragingNode::OnReset, this);
     save_srv_ = pnh.advertiseService("save_graph", &RotationAveragingNode::OnSave, this);
@@ -270,6 +273,7 @@ class RotationAveragingNode {
 
   bool OnReset(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
     averager_->Reset();
+    pipeline_->ResetRig();
     pipeline_->ForgetLatestStamps();
     res.success = true;
     res.message = "graph cleared";
@@ -332,6 +336,8 @@ class RotationAveragingNode {
     status.add("rejected messages", p.rejected_messages);
     status.add("keyframe images processed", p.processed_images);
     status.add("edges from images", p.edges_from_images);
+    status.add("rig cameras (extrinsics known)", pipeline_->Rig().NumRigCameras());
+    status.add("measurements absorbed by rig extrinsics", p.absorbed_by_rig);
     status.add("rejected images", p.rejected_images + images_without_info);
     status.add("dropped images (queue full)", dropped_images);
     status.add("dropped (queue full)", s.dropped_queue_full);
@@ -351,7 +357,7 @@ class RotationAveragingNode {
   boost::recursive_mutex reconfigure_mutex_;
   std::unique_ptr<dynamic_reconfigure::Server<RotationAveragingConfig>> reconfigure_;
   ros::Publisher orientations_pub_;
-  ros::Subscriber single_sub_, array_sub_;
+  ros::Subscriber single_sub_, array_sub_, tf_static_sub_;
   ros::ServiceServer solve_srv_, reset_srv_, save_srv_, load_srv_;
   tf2_ros::TransformBroadcaster broadcaster_;
   ros::Publisher static_tf_pub_;

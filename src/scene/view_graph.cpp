@@ -146,10 +146,13 @@ AddEdgeResult ViewGraph::AddEdge(const RelativeRotation& input, std::string* err
   }
   if (repaired) ++stats_.repaired_covariance;
   std::vector<std::size_t>& same = edge_index_[KeyOf(edge.view1, edge.view2, edge.source)];
-  if (!same.empty() && duplicates == DuplicatePolicy::kReplace) {
-    edges_[same.back()] = edge;
-    ++stats_.edges_replaced;
-    return AddEdgeResult::kReplaced;
+  if (duplicates == DuplicatePolicy::kReplace) {
+    for (std::size_t k : same) {
+      if (edges_[k].channel != edge.channel) continue;
+      edges_[k] = edge;
+      ++stats_.edges_replaced;
+      return AddEdgeResult::kReplaced;
+    }
   }
   same.push_back(edges_.size());
   edges_.push_back(edge);

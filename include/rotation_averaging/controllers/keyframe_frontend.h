@@ -13,6 +13,7 @@
 #define ROTATION_AVERAGING_CONTROLLERS_KEYFRAME_FRONTEND_H_
 
 #include <map>
+#include <set>
 #include <memory>
 #include <string>
 #include <vector>
@@ -49,6 +50,7 @@ struct KeyframeFrontendOptions {
 struct KeyframeFrontendStats {
   std::uint64_t keyframes = 0;
   std::uint64_t sequential_edges = 0, rig_edges = 0, loop_closure_edges = 0;
+  std::uint64_t rig_pairs_skipped = 0;   // same capture, both cameras with known extrinsics
   std::uint64_t loop_candidates_tried = 0;
   std::uint64_t loops_rejected_inconsistent = 0;
   std::uint64_t failed_pairs = 0;
@@ -67,6 +69,9 @@ class KeyframeFrontend {
   std::vector<KeyframeRelativeRotation> AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
                                                     const Eigen::Matrix3d& k);
   const KeyframeFrontendStats& Stats() const { return stats_; }
+  // A camera whose rotation within the rig is known (extrinsics): pairs of
+  // such cameras in one capture are not matched (the rig model relates them).
+  void SetRigCalibrated(const std::string& camera_frame) { rig_calibrated_.insert(camera_frame); }
   std::size_t NumKeyframes() const { return keyframes_.size(); }
 
  private:
@@ -81,6 +86,7 @@ class KeyframeFrontend {
   std::vector<std::unique_ptr<Keyframe>> keyframes_;
   std::map<std::string, std::vector<int>> by_camera_;  // indices into keyframes_, in arrival order
   KeyframeFrontendStats stats_;
+  std::set<std::string> rig_calibrated_;
 };
 
 }  // namespace rotation_averaging

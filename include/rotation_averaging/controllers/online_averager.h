@@ -43,6 +43,7 @@ struct KeyframeRelativeRotation {
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();
   int num_inliers = 0;
   EdgeSource source = EdgeSource::kOther;
+  std::uint32_t channel = 0;  // see RelativeRotation::channel
 };
 
 struct OnlineAveragerOptions {
@@ -105,6 +106,8 @@ class OnlineAverager {
 
   std::shared_ptr<const OnlineSolution> Solution() const;
   OnlineAveragerStats Stats() const;
+  // Edges in the graph (applied measurements) by source kind.
+  std::map<EdgeSource, std::size_t> EdgesBySource() const;
   // Called by the worker after every successful solve (from its thread).
   void SetSolutionCallback(std::function<void(std::shared_ptr<const OnlineSolution>)> callback);
 

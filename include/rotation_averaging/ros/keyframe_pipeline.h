@@ -26,6 +26,7 @@
 #include "rotation_averaging/RelativePose.h"
 #include "rotation_averaging/controllers/keyframe_frontend.h"
 #include "rotation_averaging/controllers/online_averager.h"
+#include "rotation_averaging/controllers/rig_model.h"
 
 namespace rotation_averaging {
 
@@ -53,6 +54,7 @@ struct PipelineConfig {
   std::string image_transport = "raw";  // raw or compressed
   KeyframeFrontendOptions frontend;
   std::size_t max_image_queue = 8;
+  RigModelOptions rig;  // use_rig_extrinsics, rig_frame, rig_stamp_tolerance
   std::string load_graph, save_on_shutdown;
 };
 
@@ -73,6 +75,7 @@ struct PipelineStats {
   std::uint64_t rejected_images = 0;    // do not decode, bad camera_info, stamp not advancing, ...
   std::uint64_t processed_images = 0;   // keyframes through the front end
   std::uint64_t edges_from_images = 0;  // relative rotations the front end produced
+  std::uint64_t absorbed_by_rig = 0;    // measurements within one rig capture (extrinsics known)
 };
 
 class KeyframePipeline {
@@ -89,6 +92,14 @@ class KeyframePipeline {
   // message is counted as rejected and `error` says why.
   bool AcceptRelativePose(const RelativePose& msg, std::string* error);
 
+  // Static transforms (rig extrinsics); transforms from the fixed frame (our
+  // own keyframe output) are ignored. Cameras are resolved against them when
+  // their first keyframe arrives (controllers/rig_model.h).
+  void AcceptStaticTransforms(const tf2_msgs::TFMessage& msg);
+  const RigModel& Rig() const { return rig_; }
+  // After the averager's Reset().
+  void ResetRig() { rig_.Clear(); }
+
   // Decode and validate a keyframe image (frame id, K, size, a stamp that
   // advances per camera). On failure the image is counted as rejected.
   bool DecodeImage(const sensor_msgs::Image& image, const sensor_msgs::CameraInfo& info, PendingKeyframe* out,
@@ -102,7 +113,12 @@ class KeyframePipeline {
   std::size_t ProcessKeyframe(const PendingKeyframe& keyframe, bool* loop_closure = nullptr,
                               std::vector<std::string>* warnings = nullptr);
 
-  // Output messages for a solution.
+  // The averager solves one variable per rig capture; this expands a
+  // solution into one orientation per camera keyframe. The output messages
+  // below expand their argument themselves.
+  OnlineSolution CameraSolution(const OnlineSolution& solution) const { return rig_.ToCameraKeyframes(solution); }
+
+  // Output messages for a solution (of the averager).
   Orientations OrientationsMsg(const OnlineSolution& solution, const ros::Time& stamp) const;
   // all_keyframes: one transform per keyframe, stamped with its capture time.
   tf2_msgs::TFMessage KeyframeTransforms(const OnlineSolution& solution) const;
@@ -117,12 +133,14 @@ class KeyframePipeline {
   bool Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
                 const sensor_msgs::CameraInfo& info, PendingKeyframe* out, std::string* error);
   bool Reject(std::uint64_t* counter, const std::string& why, std::string* error);
+  bool AddMeasurement(const KeyframeRelativeRotation& m, std::string* error);
   geometry_msgs::TransformStamped Transform(const ros::Time& stamp, const std::string& child,
                                             const geometry_msgs::Quaternion& camera_to_world) const;
 
   PipelineConfig config_;
   std::unique_ptr<OnlineAverager> averager_;
   std::unique_ptr<KeyframeFrontend> frontend_;
+  RigModel rig_;
   mutable std::mutex mutex_;  // stats_, last_image_stamp_, last_latest_stamp_
   PipelineStats stats_;
   std::map<std::string, std::int64_t> last_image_stamp_;

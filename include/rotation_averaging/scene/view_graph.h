@@ -48,6 +48,10 @@ struct RelativeRotation {
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();  // rad^2, right perturbation
   int num_inliers = 0;                                       // 0 if unknown
   EdgeSource source = EdgeSource::kOther;
+  // Tells independent measurements of one pair and source apart (e.g. the
+  // sequential edges of two cameras of a rig, which relate the same two rig
+  // captures): kReplace replaces only an edge of the same channel.
+  std::uint32_t channel = 0;
 
   // The same measurement seen from view2: R_21 = R_12^T, with the covariance
   // moved to view1's frame (C_21 = R_12 C_12 R_12^T).
@@ -94,7 +98,8 @@ class ViewGraph {
   bool RemoveView(ViewId id);
 
   // Validates and adds (or replaces) an edge; both views must exist. On
-  // rejection, `error` (if given) says why.
+  // rejection, `error` (if given) says why. kReplace replaces the edge of the
+  // same pair, source and channel.
   AddEdgeResult AddEdge(const RelativeRotation& edge, std::string* error = nullptr,
                         DuplicatePolicy duplicates = DuplicatePolicy::kReplace);
   // Removes the edge(s) of this pair and source (either direction). False if absent.

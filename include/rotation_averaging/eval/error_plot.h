@@ -1,0 +1,26 @@
+// PNG figure of orientation errors, drawn with OpenCV (no plotting library
+// needed): left, the error of each keyframe against its capture time, one
+// colour per series (camera); right, the cumulative distribution of the
+// errors (fraction of keyframes with error below x), per series and for all.
+#ifndef ROTATION_AVERAGING_EVAL_ERROR_PLOT_H_
+#define ROTATION_AVERAGING_EVAL_ERROR_PLOT_H_
+
+#include <string>
+#include <vector>
+
+namespace rotation_averaging {
+
+struct ErrorSeries {
+  std::string label;
+  std::vector<double> time_s;     // x of the left panel
+  std::vector<double> error_deg;  // same length
+};
+
+// Writes the figure; false (with `error`) if there is nothing to draw or the
+// file cannot be written.
+bool WriteErrorPlot(const std::string& path, const std::string& title, const std::vector<ErrorSeries>& series,
+                    std::string* error);
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_EVAL_ERROR_PLOT_H_

@@ -1,0 +1,72 @@
+// A synthetic multi-camera rig moving through a textured room, rendered by
+// ray casting: the project's own demo and test data with exact ground truth.
+//
+// World frame: z up, the room spans [-half_extent, half_extent]^2 x [0, height]
+// with a textured pillar in the middle and two crates near the walls. The rig
+// (body frame x forward, y left, z up) drives once around a circle about the
+// room's centre, heading along the path with a small pitch and roll wobble,
+// and ends where it started, so a front end can close the loop. Each camera
+// (optical frame: z forward, x right, y down) looks along one rig axis:
+// front, left, back, right.
+#ifndef ROTATION_AVERAGING_SCENE_RIG_SCENE_H_
+#define ROTATION_AVERAGING_SCENE_RIG_SCENE_H_
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+namespace rotation_averaging {
+
+struct RigSceneOptions {
+  int num_captures = 60;          // keyframe captures along the loop
+  double capture_period_s = 1.0;  // time between captures
+  int num_cameras = 2;            // 1-4: front, left, back, right
+  int width = 640, height = 480;  // pixels
+  double focal_px = 420.0;        // pinhole focal length, principal point at the image centre
+  double path_radius_m = 1.8;
+  double camera_height_m = 1.4;
+  double wobble_deg = 4.0;        // amplitude of the pitch and roll wobble
+  double noise_grey = 2.0;        // standard deviation of the image noise, grey levels
+  double half_extent_m = 4.0;     // room half width
+  double room_height_m = 3.0;
+  std::uint64_t seed = 1;         // textures and noise
+};
+
+struct RigCamera {
+  std::string frame_id;                // e.g. "cam_front"
+  Eigen::Matrix3d camera_from_rig;     // rotation taking rig coordinates to camera coordinates
+  Eigen::Vector3d position_in_rig;     // metres
+};
+
+class RigScene {
+ public:
+  explicit RigScene(const RigSceneOptions& options);
+  ~RigScene();
+  RigScene(const RigScene&) = delete;
+  RigScene& operator=(const RigScene&) = delete;
+
+  const RigSceneOptions& Options() const { return options_; }
+  const std::vector<RigCamera>& Cameras() const { return cameras_; }
+  Eigen::Matrix3d Intrinsics() const;
+  double CaptureTime(int capture) const { return capture * options_.capture_period_s; }
+  // World-to-rig rotation and rig position (world frame) at a capture.
+  Eigen::Matrix3d WorldToRig(int capture) const;
+  Eigen::Vector3d RigPosition(int capture) const;
+  // World-to-camera rotation of a camera at a capture (the ground truth).
+  Eigen::Matrix3d WorldToCamera(int capture, int camera) const;
+  // 8-bit grey image of a camera at a capture, with noise (deterministic
+  // for a given seed, capture and camera).
+  cv::Mat Render(int capture, int camera) const;
+
+ private:
+  struct Surface;
+  RigSceneOptions options_;
+  std::vector<RigCamera> cameras_;
+  std::vector<Surface> surfaces_;
+};
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_SCENE_RIG_SCENE_H_
