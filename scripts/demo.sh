@@ -1,19 +1,44 @@
 #!/usr/bin/env bash
-# The README's main command: set up, then solve a built-in synthetic view graph
-# with ground truth and print the scores of each method; if the shared real
-# data is present, also solve sphere2500 and score it against ground truth.
+# The README's main command. Sets everything up, renders the built-in demo bag
+# if it is not there yet (a two-camera rig driving a loop through a textured
+# room, with its extrinsics on /tf_static and ground truth), replays it through
+# the node's pipeline with rotation_averaging_replay, and prints the scores
+# against ground truth and where the plot is.
+#
+#   bash scripts/demo.sh [--captures N] [--fresh]
+#
+# Outputs go to build/demo/ (the bag) and build/demo/replay/ (results).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+CAPTURES=60
+FRESH=0
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --captures) CAPTURES="$2"; shift 2 ;;
+    --fresh) FRESH=1; shift ;;
+    *) echo "usage: bash scripts/demo.sh [--captures N] [--fresh]" >&2; exit 2 ;;
+  esac
+done
+
 bash scripts/setup.sh
-ROTAVG=build/devel/lib/rotation_averaging/rotavg
-echo
-echo "== Built-in synthetic graph =="
-"$ROTAVG" demo
-DATA=../shared/data/pose_graphs
-if [ -f "$DATA/sphere2500.txt" ]; then
+export PATH=/usr/bin:$PATH
+BIN=build/devel/lib/rotation_averaging
+DEMO=build/demo
+mkdir -p "$DEMO"
+BAG="$DEMO/demo_${CAPTURES}.bag"
+if [ "$FRESH" = 1 ] || [ ! -f "$BAG" ]; then
   echo
-  echo "== sphere2500 (real benchmark graph, scored against its noise-free version) =="
-  mkdir -p demo_output
-  "$ROTAVG" solve "$DATA/sphere2500.txt" --gt "$DATA/sphere2500_groundtruth.txt" \
-    --output demo_output/sphere2500_orientations.csv
+  echo "== Rendering the demo bag ($CAPTURES captures x 2 cameras, 640x480) =="
+  "$BIN/rotation_averaging_make_demo_bag" --output "$BAG.tmp" --captures "$CAPTURES" --cameras 2
+  mv "$BAG.tmp" "$BAG"
+else
+  echo
+  echo "== Using the demo bag rendered earlier: $BAG (--fresh renders it again) =="
 fi
+
+echo
+echo "== Replaying it through the node's pipeline (config/demo.yaml) =="
+"$BIN/rotation_averaging_replay" --bag "$BAG" --config config/demo.yaml --gt "$BAG" --output-dir "$DEMO/replay"
+echo
+echo "The plot of the errors per keyframe and their distribution: $DEMO/replay/errors.png"
+echo "Replay your own bags the same way (see README.md, 'Replaying bags')."

@@ -117,7 +117,8 @@ int main(int argc, char** argv) {
     t.transform.rotation = ToQuaternion(c.camera_from_rig.transpose());
     extrinsics.transforms.push_back(t);
   }
-  bag.write("/tf_static", t0, extrinsics);
+  // Before the first image, as a recorder started with the robot would have it.
+  bag.write("/tf_static", t0 - ros::Duration(0.5), extrinsics);
 
   rotation_averaging::Orientations truth;
   truth.header.frame_id = "map";
