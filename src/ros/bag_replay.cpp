@@ -1,6 +1,7 @@
 #include "rotation_averaging/ros/bag_replay.h"
 
 #include <image_transport/camera_common.h>
+#include <ros/serialization.h>
 #include <rosbag/bag.h>
 #include <rosbag/exceptions.h>
 #include <rosbag/view.h>
@@ -190,6 +191,7 @@ std::string ReplayResult::Summary() const {
         << 1e3 * frontend_retrieval_s / keyframe_images << " ms, pair verification "
         << 1e3 * frontend_pairs_s / keyframe_images << " ms\n";
   }
+  if (damaged_messages > 0) out << "damaged messages dropped: " << damaged_messages << "\n";
   if (!rig_cameras.empty()) {
     out << "rig cameras (one orientation per capture): ";
     for (std::size_t k = 0; k < rig_cameras.size(); ++k) out << (k ? ", " : "") << rig_cameras[k];
@@ -262,10 +264,19 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
     try {
       bag->open(path, rosbag::bagmode::Read);
     } catch (const rosbag::BagUnindexedException&) {
-      return fail(path + " is not indexed (truncated, or recording was interrupted): run `rosbag reindex " + path +
+      return fail(path + " is not indexed (recording was interrupted): run `rosbag reindex " + path +
                   "` and replay the reindexed bag");
     } catch (const rosbag::BagException& e) {
-      return fail("cannot open " + path + ": " + e.what());
+      // A file that starts like a bag but cannot be opened lost its end (the
+      // index): reindexing recovers the messages before the cut.
+      std::ifstream in(path, std::ios::binary);
+      char magic[13] = {0};
+      in.read(magic, 12);
+      if (in && std::string(magic) == "#ROSBAG V2.0") {
+        return fail("cannot open " + path + ": " + e.what() + "; the bag looks truncated (its index is missing): run " +
+                    "`rosbag reindex " + path + "` and replay the reindexed bag");
+      }
+      return fail("cannot open " + path + ": " + e.what() + (in ? " (not a ROS bag: no #ROSBAG V2.0 header)" : ""));
     }
     bags.push_back(std::move(bag));
   }
@@ -313,6 +324,7 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
     }
     cameras.emplace(t, std::move(stream));
   }
+  if (all_topics.empty()) return fail("the bags hold no message at all");
   const bool only_tf = present.size() == 1 && present_normalised.count("/tf_static");
   if (present.empty() || only_tf) {
     std::string have;
@@ -420,6 +432,7 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
         next_solve += ros::Duration(period);
       }
       const std::string topic = WithSlash(m.getTopic());
+      try {
       if (topic == pose_topic || topic == poses_topic) {
         bool loop_closure = false;
         if (topic == pose_topic) {
@@ -447,10 +460,16 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
           }
         }
       }
+      } catch (const ros::serialization::StreamOverrunException& e) {
+        // A message whose bytes are damaged: dropped, the rest goes on.
+        ++result.damaged_messages;
+        warn("message on " + m.getTopic() + " at " + std::to_string(time.toSec()) + " does not deserialise (" +
+             e.what() + "): dropped");
+      }
       ++result.messages_read;
       bar.Update(result.messages_read, (time - bag_start).toSec());
     }
-  } catch (const rosbag::BagException& e) {
+  } catch (const ros::Exception& e) {
     result.truncated = true;
     result.warnings.push_back("the bags are damaged after " + std::to_string(result.messages_read) +
                               " messages (bag time " + std::to_string((last_time - bag_start).toSec()) +

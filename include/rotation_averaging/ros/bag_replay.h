@@ -32,6 +32,7 @@ struct ReplayResult {
   std::vector<std::string> warnings;
   bool truncated = false;           // stopped at damage in a bag; results cover what came before
   std::size_t messages_total = 0, messages_read = 0;
+  std::size_t damaged_messages = 0;  // did not deserialise: dropped
   double bag_start_s = 0.0, bag_duration_s = 0.0;
   double wall_s = 0.0, cpu_s = 0.0, peak_rss_mib = 0.0;
   std::size_t keyframes = 0;   // camera keyframes oriented

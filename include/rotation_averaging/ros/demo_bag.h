@@ -1,0 +1,24 @@
+// Writes a rendered rig scene (scene/rig_scene.h) as a bag: per camera
+// /<cam>/image_raw (mono8, or /<cam>/image_raw/compressed PNG) and
+// /<cam>/camera_info at every capture, the extrinsics base_link -> cam_* on
+// /tf_static (half a second before the first capture), and the ground truth
+// as one rotation_averaging/Orientations message on /ground_truth/orientations.
+// Captures start at bag time 1000 s.
+#ifndef ROTATION_AVERAGING_ROS_DEMO_BAG_H_
+#define ROTATION_AVERAGING_ROS_DEMO_BAG_H_
+
+#include <string>
+
+#include "rotation_averaging/eval/rotation_evaluation.h"
+#include "rotation_averaging/scene/rig_scene.h"
+
+namespace rotation_averaging {
+
+// `ground_truth` (optional) receives the world-to-camera orientations keyed
+// by keyframe name (<frame_id>@<stamp_ns>).
+bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compressed, NamedOrientations* ground_truth,
+                      std::string* error, bool progress = false);
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_ROS_DEMO_BAG_H_

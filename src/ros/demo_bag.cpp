@@ -1,0 +1,117 @@
+#include "rotation_averaging/ros/demo_bag.h"
+
+#include <rosbag/bag.h>
+#include <rosbag/exceptions.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/CompressedImage.h>
+#include <sensor_msgs/Image.h>
+#include <tf2_msgs/TFMessage.h>
+
+#include <cstdio>
+#include <opencv2/imgcodecs.hpp>
+
+#include "rotation_averaging/Orientations.h"
+#include "rotation_averaging/geometry/so3.h"
+#include "rotation_averaging/ros/msg_conversion.h"
+
+namespace rotation_averaging {
+namespace {
+
+geometry_msgs::Quaternion ToQuaternion(const Eigen::Matrix3d& r) {
+  const Eigen::Vector4d q = RotationToQuaternion(r);
+  geometry_msgs::Quaternion m;
+  m.w = q[0];
+  m.x = q[1];
+  m.y = q[2];
+  m.z = q[3];
+  return m;
+}
+
+}  // namespace
+
+bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compressed, NamedOrientations* ground_truth,
+                      std::string* error, bool progress) {
+  const RigSceneOptions& options = scene.Options();
+  const Eigen::Matrix3d k = scene.Intrinsics();
+  rosbag::Bag bag;
+  try {
+    bag.open(path, rosbag::bagmode::Write);
+  } catch (const rosbag::BagException& e) {
+    if (error) *error = "cannot write " + path + ": " + e.what();
+    return false;
+  }
+  const ros::Time t0(1000.0);
+
+  // Rig extrinsics: the orientation of each camera's optical frame in base_link.
+  tf2_msgs::TFMessage extrinsics;
+  for (const RigCamera& c : scene.Cameras()) {
+    geometry_msgs::TransformStamped t;
+    t.header.stamp = t0;
+    t.header.frame_id = "base_link";
+    t.child_frame_id = c.frame_id;
+    t.transform.translation.x = c.position_in_rig.x();
+    t.transform.translation.y = c.position_in_rig.y();
+    t.transform.translation.z = c.position_in_rig.z();
+    t.transform.rotation = ToQuaternion(c.camera_from_rig.transpose());
+    extrinsics.transforms.push_back(t);
+  }
+  // Before the first image, as a recorder started with the robot would have it.
+  bag.write("/tf_static", t0 - ros::Duration(0.5), extrinsics);
+
+  Orientations truth;
+  truth.header.frame_id = "map";
+  NamedOrientations truth_csv;
+  try {
+  for (int capture = 0; capture < options.num_captures; ++capture) {
+    const ros::Time stamp = t0 + ros::Duration(scene.CaptureTime(capture));
+    for (std::size_t c = 0; c < scene.Cameras().size(); ++c) {
+      const std::string& frame = scene.Cameras()[c].frame_id;
+      const cv::Mat image = scene.Render(capture, static_cast<int>(c));
+      sensor_msgs::CameraInfo info;
+      info.header.stamp = stamp;
+      info.header.frame_id = frame;
+      info.width = options.width;
+      info.height = options.height;
+      info.distortion_model = "plumb_bob";
+      info.D.assign(5, 0.0);
+      for (int i = 0; i < 9; ++i) info.K[i] = k(i / 3, i % 3);
+      info.R = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+      info.P = {k(0, 0), 0, k(0, 2), 0, 0, k(1, 1), k(1, 2), 0, 0, 0, 1, 0};
+      bag.write("/" + frame + "/camera_info", stamp, info);
+      if (compressed) {
+        sensor_msgs::CompressedImage m;
+        m.header = info.header;
+        m.format = "mono8; png compressed";
+        cv::imencode(".png", image, m.data);
+        bag.write("/" + frame + "/image_raw/compressed", stamp, m);
+      } else {
+        sensor_msgs::Image m;
+        m.header = info.header;
+        m.width = options.width;
+        m.height = options.height;
+        m.encoding = "mono8";
+        m.step = options.width;
+        m.data.assign(image.data, image.data + image.total());
+        bag.write("/" + frame + "/image_raw", stamp, m);
+      }
+      const KeyframeKey key{frame, ToNanoseconds(stamp)};
+      const Eigen::Matrix3d world_to_camera = scene.WorldToCamera(capture, static_cast<int>(c));
+      truth.keyframes.push_back(ToMsg(key, world_to_camera, 0));
+      truth_csv[OnlineAverager::KeyframeName(key)] = world_to_camera;
+    }
+    if (progress) std::fprintf(stderr, "\rrendered capture %d/%d", capture + 1, options.num_captures);
+  }
+  if (progress) std::fprintf(stderr, "\n");
+  const ros::Time end = t0 + ros::Duration(scene.CaptureTime(options.num_captures - 1));
+  truth.header.stamp = end;
+  bag.write("/ground_truth/orientations", end, truth);
+  bag.close();
+  } catch (const rosbag::BagException& e) {
+    if (error) *error = "writing " + path + ": " + e.what();
+    return false;
+  }
+  if (ground_truth) *ground_truth = std::move(truth_csv);
+  return true;
+}
+
+}  // namespace rotation_averaging
