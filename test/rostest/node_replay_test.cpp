@@ -1,0 +1,101 @@
+// rosbag play --clock of a rendered rig bag into the live node gives the same
+// orientations as rotation_averaging_replay on that bag.
+#include <gtest/gtest.h>
+#include <ros/ros.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cstdio>
+#include <cstdlib>
+#include <mutex>
+
+#include "rotation_averaging/Orientations.h"
+#include "rotation_averaging/geometry/so3.h"
+#include "rotation_averaging/io/orientation_io.h"
+#include "rotation_averaging/ros/bag_replay.h"
+#include "rotation_averaging/ros/demo_bag.h"
+#include "rotation_averaging/ros/msg_conversion.h"
+
+namespace rotation_averaging {
+namespace {
+
+TEST(NodeReplay, LiveNodeFedByRosbagPlayMatchesTheReplayTool) {
+  ros::NodeHandle nh;
+  std::string config;
+  ASSERT_TRUE(nh.getParam("/demo_config", config));
+  char pattern[] = "/tmp/rotavg_node_replay_XXXXXX";
+  const std::string dir = mkdtemp(pattern);
+
+  RigSceneOptions scene_options;
+  scene_options.num_captures = 12;
+  scene_options.width = 320;
+  scene_options.height = 240;
+  scene_options.focal_px = 210.0;
+  const RigScene scene(scene_options);
+  const std::string bag = dir + "/rig.bag";
+  std::string error;
+  ASSERT_TRUE(WriteRigSceneBag(scene, bag, false, nullptr, &error)) << error;
+
+  ReplayOptions options;
+  options.bags = {bag};
+  options.config_path = config;
+  options.ground_truth_path = bag;
+  options.output_dir = dir + "/replay";
+  options.progress = false;
+  const ReplayResult replay = ReplayBags(options);
+  ASSERT_TRUE(replay.ok) << replay.error;
+  ASSERT_EQ(replay.keyframes, 24u);
+  ASSERT_LT(replay.scores.median_error_deg, 0.5);
+  NamedOrientations replayed;
+  ASSERT_TRUE(ReadOrientationsCsv(replay.orientations_csv, &replayed).ok());
+
+  std::mutex mutex;
+  Orientations::ConstPtr latest;
+  ros::Subscriber sub = nh.subscribe<Orientations>("/rotation_averaging/orientations", 10,
+                                                   [&](const Orientations::ConstPtr& m) {
+                                                     std::lock_guard<std::mutex> lock(mutex);
+                                                     latest = m;
+                                                   });
+  ASSERT_TRUE(ros::service::waitForService("/rotation_averaging/solve", ros::Duration(30.0)));
+  const std::string play = "PATH=/usr/bin:$PATH rosbag play --clock --quiet --delay=1 " + bag + " > /dev/null 2>&1";
+  ASSERT_EQ(std::system(play.c_str()), 0) << play;
+
+  // The node has the last images queued or in its front end: wait until a
+  // solution holds every keyframe and no new solve came for three seconds.
+  NamedOrientations live;
+  std::uint64_t last_sequence = 0;
+  ros::WallTime settled_since = ros::WallTime::now();
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(90.0);
+  while (ros::WallTime::now() < deadline) {
+    ros::WallDuration(0.2).sleep();
+    std::lock_guard<std::mutex> lock(mutex);
+    if (!latest || latest->keyframes.size() < replay.keyframes) continue;
+    if (latest->solve_sequence != last_sequence) {
+      last_sequence = latest->solve_sequence;
+      settled_since = ros::WallTime::now();
+      continue;
+    }
+    if ((ros::WallTime::now() - settled_since).toSec() > 3.0) break;
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    ASSERT_TRUE(latest) << "no orientations from the node";
+    for (const KeyframeOrientation& k : latest->keyframes) {
+      live[OnlineAverager::KeyframeName({k.frame_id, ToNanoseconds(k.stamp)})] =
+          QuaternionToRotation(k.orientation.w, k.orientation.x, k.orientation.y, k.orientation.z).transpose();
+    }
+  }
+  ASSERT_EQ(live.size(), replayed.size());
+  const EvaluationResult between = EvaluateOrientations(live, replayed);
+  EXPECT_EQ(between.views_common, replayed.size());
+  double worst = 0.0;
+  for (const auto& [name, e] : between.errors_deg) worst = std::max(worst, e);
+  // Same graph, solved at slightly different moments (warm starts differ):
+  // the same minimum to well below the accuracy of the front end.
+  EXPECT_LT(worst, 0.05) << "median " << between.median_error_deg;
+  std::printf("live node vs replay tool over %zu keyframes: median %.6f deg, max %.6f deg\n", between.views_common,
+              between.median_error_deg, worst);
+}
+
+}  // namespace
+}  // namespace rotation_averaging
