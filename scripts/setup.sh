@@ -14,7 +14,7 @@ PACKAGES=(
   libstd-srvs-dev libdiagnostic-updater-dev libtf2-geometry-msgs-dev
   libdynamic-reconfigure-config-init-mutex-dev python3-dynamic-reconfigure
   libceres-dev libeigen3-dev libsuitesparse-dev libopencv-dev libgtest-dev
-  libyaml-cpp-dev python3-rosbag
+  libyaml-cpp-dev python3-rosbag libvisualization-msgs-dev
   libopenblas0-serial  # BLAS for CHOLMOD's supernodal solves (see CMakeLists.txt)
 )
 missing=()

@@ -1,5 +1,7 @@
 #include "rotation_averaging/controllers/online_averager.h"
 
+#include "rotation_averaging/geometry/so3.h"
+
 #include <algorithm>
 
 #include "rotation_averaging/eval/rotation_evaluation.h"
@@ -202,6 +204,14 @@ bool OnlineAverager::SolveLocked() {
     for (ViewId id : components[c]) solution->component[keys[id]] = static_cast<int>(c);
   }
   for (const auto& [id, r] : orientations) solution->orientations[keys[id]] = r;
+  const std::vector<RelativeRotation>& graph_edges = snapshot.Edges();
+  solution->edges.reserve(graph_edges.size());
+  for (std::size_t k = 0; k < graph_edges.size() && k < solution->summary.edges.size(); ++k) {
+    const EdgeResult& result = solution->summary.edges[k];
+    if (!result.solved || graph_edges[k].view1 >= keys.size() || graph_edges[k].view2 >= keys.size()) continue;
+    solution->edges.push_back(SolvedEdge{keys[graph_edges[k].view1], keys[graph_edges[k].view2],
+                                         graph_edges[k].source, RadToDeg(result.residual_rad), result.robust_weight});
+  }
   std::function<void(std::shared_ptr<const OnlineSolution>)> callback;
   {
     std::lock_guard<std::mutex> lock(solution_mutex_);

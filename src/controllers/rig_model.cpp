@@ -68,6 +68,7 @@ KeyframeKey RigModel::VariableLocked(const KeyframeKey& keyframe) {
         return m.frame_id == keyframe.frame_id && m.stamp_ns == keyframe.stamp_ns;
       }) == members.end()) {
     members.push_back(keyframe);
+    variable_of_[keyframe] = variable;
   }
   return variable;
 }
@@ -75,6 +76,12 @@ KeyframeKey RigModel::VariableLocked(const KeyframeKey& keyframe) {
 KeyframeKey RigModel::VariableOf(const KeyframeKey& keyframe) {
   std::lock_guard<std::mutex> lock(mutex_);
   return VariableLocked(keyframe);
+}
+
+KeyframeKey RigModel::VariableOfKnown(const KeyframeKey& keyframe) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto it = variable_of_.find(keyframe);
+  return it == variable_of_.end() ? keyframe : it->second;
 }
 
 bool RigModel::ToVariables(const KeyframeRelativeRotation& in, KeyframeRelativeRotation* out) {
@@ -145,6 +152,7 @@ void RigModel::Clear() {
   std::lock_guard<std::mutex> lock(mutex_);
   capture_stamps_.clear();
   members_.clear();
+  variable_of_.clear();
 }
 
 }  // namespace rotation_averaging

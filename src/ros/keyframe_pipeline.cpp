@@ -91,6 +91,10 @@ PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std
   f.min_loop_inliers = Param(params, "min_loop_inliers", f.min_loop_inliers);
   f.retrieval_sample = Param(params, "retrieval_sample", f.retrieval_sample);
   c.max_image_queue = PositiveSize(params, "max_image_queue", 8, 1);
+  c.markers = Param(params, "markers", c.markers);
+  c.marker_spacing_m = Param(params, "marker_spacing", c.marker_spacing_m);
+  if (!(c.marker_spacing_m > 0.0)) c.marker_spacing_m = 0.5;
+  c.marker_max_keyframes = std::max(1, Param(params, "marker_max_keyframes", c.marker_max_keyframes));
   return c;
 }
 
@@ -258,6 +262,86 @@ tf2_msgs::TFMessage KeyframePipeline::KeyframeTransforms(const OnlineSolution& v
                                        ToMsg(key, r, 0).orientation));
   }
   return msg;
+}
+
+visualization_msgs::MarkerArray KeyframePipeline::Markers(const OnlineSolution& variables, const ros::Time& stamp) const {
+  // Lanes: one per solved frame id (a camera, or a rig frame), keyframes in
+  // time order along x.
+  std::vector<KeyframeKey> drawn;
+  for (const auto& [key, r] : variables.orientations) drawn.push_back(key);
+  std::sort(drawn.begin(), drawn.end(),
+            [](const KeyframeKey& a, const KeyframeKey& b) { return a.stamp_ns < b.stamp_ns || (a.stamp_ns == b.stamp_ns && a < b); });
+  if (drawn.size() > static_cast<std::size_t>(config_.marker_max_keyframes)) {
+    drawn.erase(drawn.begin(), drawn.end() - config_.marker_max_keyframes);
+  }
+  std::map<std::string, int> lane;
+  std::map<std::string, int> next_in_lane;
+  std::map<KeyframeKey, Eigen::Vector3d> position;
+  for (const KeyframeKey& key : drawn) {
+    const int l = lane.emplace(key.frame_id, static_cast<int>(lane.size())).first->second;
+    const int i = next_in_lane[key.frame_id]++;
+    position[key] = Eigen::Vector3d(i * config_.marker_spacing_m, -2.0 * l * config_.marker_spacing_m, 0.0);
+  }
+  auto point = [](const Eigen::Vector3d& p) {
+    geometry_msgs::Point m;
+    m.x = p.x();
+    m.y = p.y();
+    m.z = p.z();
+    return m;
+  };
+  auto base = [&](const std::string& ns, double width) {
+    visualization_msgs::Marker m;
+    m.header.frame_id = config_.fixed_frame;
+    m.header.stamp = stamp;
+    m.ns = ns;
+    m.id = 0;
+    m.type = visualization_msgs::Marker::LINE_LIST;
+    m.action = visualization_msgs::Marker::ADD;
+    m.pose.orientation.w = 1.0;
+    m.scale.x = width;
+    m.color.a = 1.0;
+    return m;
+  };
+  // Frusta of every camera keyframe, at the position of the variable it
+  // belongs to (the cameras of one rig capture share it).
+  visualization_msgs::Marker frusta = base("keyframes", 0.01 * config_.marker_spacing_m);
+  frusta.color.r = 0.2;
+  frusta.color.g = 0.4;
+  frusta.color.b = 1.0;
+  const OnlineSolution cameras = CameraSolution(variables);
+  const double size = 0.35 * config_.marker_spacing_m;
+  const Eigen::Vector3d corners[4] = {{-0.6, -0.45, 1.0}, {0.6, -0.45, 1.0}, {0.6, 0.45, 1.0}, {-0.6, 0.45, 1.0}};
+  for (const auto& [key, r] : cameras.orientations) {
+    auto at = position.find(rig_.VariableOfKnown(key));
+    if (at == position.end()) continue;
+    const Eigen::Vector3d apex = at->second;
+    Eigen::Vector3d c[4];
+    for (int k = 0; k < 4; ++k) c[k] = apex + size * (r.transpose() * corners[k]);  // camera-to-world
+    for (int k = 0; k < 4; ++k) {
+      frusta.points.push_back(point(apex));
+      frusta.points.push_back(point(c[k]));
+      frusta.points.push_back(point(c[k]));
+      frusta.points.push_back(point(c[(k + 1) % 4]));
+    }
+  }
+  visualization_msgs::Marker edges = base("edges", 0.005 * config_.marker_spacing_m);
+  for (const SolvedEdge& e : variables.edges) {
+    auto a = position.find(e.keyframe1), b = position.find(e.keyframe2);
+    if (a == position.end() || b == position.end()) continue;
+    std_msgs::ColorRGBA colour;
+    colour.r = static_cast<float>(1.0 - std::clamp(e.robust_weight, 0.0, 1.0));
+    colour.g = static_cast<float>(std::clamp(e.robust_weight, 0.0, 1.0));
+    colour.b = 0.0f;
+    colour.a = 1.0f;
+    edges.points.push_back(point(a->second));
+    edges.points.push_back(point(b->second));
+    edges.colors.push_back(colour);
+    edges.colors.push_back(colour);
+  }
+  visualization_msgs::MarkerArray out;
+  out.markers.push_back(frusta);
+  out.markers.push_back(edges);
+  return out;
 }
 
 std::vector<geometry_msgs::TransformStamped> KeyframePipeline::LatestTransforms(const OnlineSolution& variables,

@@ -20,6 +20,8 @@ bool FromMsg(const RelativePose& msg, KeyframeRelativeRotation* out, std::string
     return false;
   };
   if (msg.frame_id_1.empty() || msg.frame_id_2.empty()) return fail("empty camera frame id");
+  // A zero stamp is an uninitialised header, not a capture time.
+  if (msg.stamp_1.isZero() || msg.stamp_2.isZero()) return fail("keyframe stamp is zero (uninitialised header?)");
   const auto& q = msg.rotation;
   const double norm = std::sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z);
   if (!std::isfinite(norm)) return fail("rotation quaternion is not finite");

@@ -66,6 +66,7 @@ class RotationAveragingNode {
 
     SetUpImages(nh);
     orientations_pub_ = pnh.advertise<Orientations>("orientations", 1, /*latch=*/true);
+    if (config.markers) markers_pub_ = pnh.advertise<visualization_msgs::MarkerArray>("markers", 1, /*latch=*/true);
     // Our own latched /tf_static publisher: the whole keyframe set is rebuilt
     // once per solve (tf2_ros::StaticTransformBroadcaster merges updates by
     // linear search, quadratic in the number of keyframes).
@@ -298,6 +299,7 @@ class RotationAveragingNode {
   void Publish(const OnlineSolution& solution) {
     const ros::Time now = ros::Time::now();
     orientations_pub_.publish(pipeline_->OrientationsMsg(solution, now));
+    if (markers_pub_ && markers_pub_.getNumSubscribers() > 0) markers_pub_.publish(pipeline_->Markers(solution, now));
     if (tf_mode_ == "all_keyframes" && !solution.orientations.empty()) {
       static_tf_pub_.publish(pipeline_->KeyframeTransforms(solution));
     }
@@ -356,7 +358,7 @@ class RotationAveragingNode {
   RotationAveragingOptions current_averaging_;
   boost::recursive_mutex reconfigure_mutex_;
   std::unique_ptr<dynamic_reconfigure::Server<RotationAveragingConfig>> reconfigure_;
-  ros::Publisher orientations_pub_;
+  ros::Publisher orientations_pub_, markers_pub_;
   ros::Subscriber single_sub_, array_sub_, tf_static_sub_;
   ros::ServiceServer solve_srv_, reset_srv_, save_srv_, load_srv_;
   tf2_ros::TransformBroadcaster broadcaster_;

@@ -15,7 +15,10 @@
 #include <mutex>
 
 #include "../synthetic_rig.h"
+#include <diagnostic_msgs/DiagnosticArray.h>
 #include <dynamic_reconfigure/Reconfigure.h>
+
+#include <map>
 
 #include "rotation_averaging/LoadGraph.h"
 #include "rotation_averaging/Orientations.h"
@@ -116,6 +119,46 @@ TEST_F(NodeTest, OrientationsOnTfMatchGroundTruthAndBeatTheSquaredLoss) {
   EXPECT_EQ(squared.views_common, rig.truth.size());
   EXPECT_LT(magsac.median_error_deg, 1.0);
   EXPECT_GT(squared.median_error_deg, 3.0 * magsac.median_error_deg);
+}
+
+// Every kind of malformed relative pose is dropped and counted in the
+// node's diagnostics, and the node keeps answering.
+TEST_F(NodeTest, BadInputIsRejectedAndCountedInDiagnostics) {
+  std::mutex mutex;
+  std::map<std::string, std::string> values;  // the MAGSAC node's last diagnostic values
+  auto sub = nh_.subscribe<diagnostic_msgs::DiagnosticArray>(
+      "/diagnostics", 10, [&](const diagnostic_msgs::DiagnosticArray::ConstPtr& m) {
+        for (const auto& status : m->status) {
+          if (status.name.find("averaging_magsac") == std::string::npos) continue;
+          std::lock_guard<std::mutex> lock(mutex);
+          for (const auto& kv : status.values) values[kv.key] = kv.value;
+        }
+      });
+  auto rejected = [&]() -> long {
+    std::lock_guard<std::mutex> lock(mutex);
+    auto it = values.find("rejected messages");
+    return it == values.end() ? -1 : std::stol(it->second);
+  };
+  const ros::Time deadline = ros::Time::now() + ros::Duration(10.0);
+  while (rejected() < 0 && ros::Time::now() < deadline) ros::Duration(0.05).sleep();
+  const long before = rejected();
+  ASSERT_GE(before, 0) << "no diagnostics from averaging_magsac";
+
+  const RigData rig = MakeRig(10, 0.0, 11);
+  std::vector<RelativePose> bad(6, ToMsg(rig.measurements.front()));
+  bad[0].rotation.w = std::numeric_limits<double>::quiet_NaN();          // NaN quaternion
+  bad[1].rotation.w *= 3.0;                                              // non-unit quaternion
+  bad[2].frame_id_2 = bad[2].frame_id_1;                                 // a keyframe related to itself
+  bad[2].stamp_2 = bad[2].stamp_1;
+  bad[3].rotation_covariance = {-1, 0, 0, 0, -1, 0, 0, 0, -1};          // not positive definite
+  bad[4].stamp_2 = ros::Time(0);                                         // uninitialised stamp
+  bad[5].frame_id_1 = "";                                                // no camera
+  for (const RelativePose& m : bad) single_pub_.publish(m);
+  const ros::Time until = ros::Time::now() + ros::Duration(10.0);
+  while (rejected() < before + 6 && ros::Time::now() < until) ros::Duration(0.05).sleep();
+  EXPECT_EQ(rejected(), before + 6);
+  // Still answering, and a good batch still solves.
+  EXPECT_TRUE(ReplaceMagsacGraph(rig));
 }
 
 TEST_F(NodeTest, LatchedOrientationsAndGraphServices) {

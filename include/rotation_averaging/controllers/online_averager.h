@@ -69,11 +69,20 @@ struct OnlineAveragerStats {
   std::size_t views = 0, edges = 0, components = 0, outlier_edges = 0;
 };
 
+// An edge of a solve, with how the robust loss treated it.
+struct SolvedEdge {
+  KeyframeKey keyframe1, keyframe2;
+  EdgeSource source = EdgeSource::kOther;
+  double residual_deg = 0.0;    // |Log(M^T R_1 R_2^T)| at the solution
+  double robust_weight = 0.0;   // rho'(s) in [0, 1]: 0 is a rejected outlier
+};
+
 // The latest solution: world-to-camera orientation per keyframe.
 struct OnlineSolution {
   std::uint64_t sequence = 0;  // increases with every successful solve
   std::map<KeyframeKey, Eigen::Matrix3d> orientations;
   std::map<KeyframeKey, int> component;  // index of the connected component, largest first
+  std::vector<SolvedEdge> edges;         // every edge of the solved graph
   RotationAveragingSummary summary;
 };
 

@@ -50,6 +50,9 @@ class RigModel {
   // The variable a keyframe is solved as: its capture for rig cameras, the
   // keyframe itself otherwise.
   KeyframeKey VariableOf(const KeyframeKey& keyframe);
+  // The variable of a keyframe already seen (no registration): the
+  // keyframe itself if unknown or not on a rig.
+  KeyframeKey VariableOfKnown(const KeyframeKey& keyframe) const;
   // Maps a camera-level measurement to the solved variables. False when it
   // is absorbed (both ends in one capture).
   bool ToVariables(const KeyframeRelativeRotation& in, KeyframeRelativeRotation* out);
@@ -77,6 +80,7 @@ class RigModel {
   std::map<std::string, Camera> cameras_;  // resolved cameras
   std::map<std::string, std::set<std::int64_t>> capture_stamps_;  // rig frame -> capture stamps
   std::map<KeyframeKey, std::vector<KeyframeKey>> members_;        // capture -> camera keyframes in it
+  std::map<KeyframeKey, KeyframeKey> variable_of_;                 // camera keyframe -> capture
   std::size_t absorbed_ = 0;
 };
 

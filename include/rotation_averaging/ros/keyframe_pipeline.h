@@ -13,6 +13,7 @@
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 #include <tf2_msgs/TFMessage.h>
+#include <visualization_msgs/MarkerArray.h>
 
 #include <functional>
 #include <map>
@@ -55,6 +56,11 @@ struct PipelineConfig {
   KeyframeFrontendOptions frontend;
   std::size_t max_image_queue = 8;
   RigModelOptions rig;  // use_rig_extrinsics, rig_frame, rig_stamp_tolerance
+  // rviz markers: orientations carry no positions, so each camera (or rig)
+  // gets a lane along y and its keyframes are laid out along x in time order.
+  bool markers = true;
+  double marker_spacing_m = 0.5;       // between consecutive keyframes of a lane
+  int marker_max_keyframes = 2000;     // only the newest are drawn beyond this
   std::string load_graph, save_on_shutdown;
 };
 
@@ -122,6 +128,10 @@ class KeyframePipeline {
   Orientations OrientationsMsg(const OnlineSolution& solution, const ros::Time& stamp) const;
   // all_keyframes: one transform per keyframe, stamped with its capture time.
   tf2_msgs::TFMessage KeyframeTransforms(const OnlineSolution& solution) const;
+  // rviz: camera frusta by solved orientation (namespace "keyframes") and the
+  // edges coloured by their robust weight (namespace "edges": green = full
+  // weight, red = rejected as an outlier).
+  visualization_msgs::MarkerArray Markers(const OnlineSolution& solution, const ros::Time& stamp) const;
   // latest_per_camera: the newest keyframe of each camera, stamped `now`;
   // a frame whose last transform had a stamp >= now is left out.
   std::vector<geometry_msgs::TransformStamped> LatestTransforms(const OnlineSolution& solution, const ros::Time& now);

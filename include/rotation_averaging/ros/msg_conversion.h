@@ -16,7 +16,7 @@ namespace rotation_averaging {
 std::int64_t ToNanoseconds(const ros::Time& t);
 ros::Time FromNanoseconds(std::int64_t ns);
 
-// Fails (with `error`) on an empty frame id, a non-finite or non-unit
+// Fails (with `error`) on an empty frame id, a zero stamp, a non-finite or non-unit
 // quaternion (|q| off by more than 1e-3), a non-finite or asymmetric
 // covariance, or an unknown source. An all-zero covariance means "unknown".
 bool FromMsg(const RelativePose& msg, KeyframeRelativeRotation* out, std::string* error);
