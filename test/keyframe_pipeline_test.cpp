@@ -170,7 +170,19 @@ TEST(KeyframePipeline, RigExtrinsicsFromStaticTransformsAndMarkers) {
   EXPECT_EQ(red, 1);
   EXPECT_EQ(green, 13);
   // Orientations message and tf carry camera keyframes.
-  EXPECT_EQ(pipeline.OrientationsMsg(*variables, ros::Time(10.0)).keyframes.size(), 16u);
+  const Orientations msg = pipeline.OrientationsMsg(*variables, ros::Time(10.0));
+  EXPECT_EQ(msg.keyframes.size(), 16u);
+  // Posterior covariances for every keyframe; the gauge capture's are zero,
+  // the others positive, growing away from it.
+  int zero = 0, positive = 0;
+  for (const KeyframeOrientation& k : msg.keyframes) {
+    EXPECT_TRUE(k.has_covariance);
+    const double trace = k.covariance[0] + k.covariance[4] + k.covariance[8];
+    if (trace == 0.0) ++zero;
+    if (trace > 0.0) ++positive;
+  }
+  EXPECT_EQ(zero, 2);  // both cameras of the gauge capture
+  EXPECT_EQ(positive, 14);
   EXPECT_EQ(pipeline.KeyframeTransforms(*variables).transforms.size(), 16u);
 }
 

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstdio>
 
 #include "rotation_averaging/eval/rotation_evaluation.h"
 #include "rotation_averaging/geometry/so3.h"
@@ -122,6 +123,71 @@ TEST(RotationAveraging, ScalarLaplacianPathReachesTheExactMinimum) {
       EXPECT_LT(irls.eval.median_error_deg, 2.0);
     }
   }
+}
+
+// Posterior covariances: exact on a tree (no redundancy: the information is
+// trusted), and calibrated on redundant graphs with known noise (mean NEES
+// of the views near 3, the dimension).
+TEST(RotationAveraging, PosteriorCovariancesOnATreeAddUpAlongThePath) {
+  ViewGraph graph;
+  for (ViewId v = 0; v < 4; ++v) graph.AddView(v);
+  const double sigma = DegToRad(1.0);
+  const double variances[3] = {sigma * sigma, 4 * sigma * sigma, 9 * sigma * sigma};
+  for (ViewId v = 0; v < 3; ++v) {
+    RelativeRotation e;
+    e.view1 = v;
+    e.view2 = v + 1;
+    e.rotation = ExpSO3(Eigen::Vector3d(0.1, 0.2 * v, 0.0));
+    e.has_covariance = true;
+    e.covariance = variances[v] * Eigen::Matrix3d::Identity();
+    ASSERT_NE(graph.AddEdge(e), AddEdgeResult::kRejected);
+  }
+  ViewOrientations orientations;
+  RotationAveragingSummary summary;
+  ASSERT_TRUE(SolveRotationAveraging(graph, With(LossType::kSquared, EdgeWeighting::kCovariance), &orientations,
+                                     &summary));
+  ASSERT_EQ(summary.view_covariances.size(), 4u);
+  const ViewId gauge = summary.components[0].gauge_view;
+  for (ViewId v = 0; v < 4; ++v) {
+    double expected = 0.0;  // sum of the edge variances between v and the gauge
+    for (ViewId e = std::min(v, gauge); e < std::max(v, gauge); ++e) expected += variances[e];
+    const Eigen::Matrix3d& c = summary.view_covariances.at(v);
+    EXPECT_NEAR(c.trace() / 3.0, expected, 1e-3 * variances[0]) << "view " << v << ", gauge " << gauge;
+    // Isotropic edge covariances compose to nearly isotropic ones (the
+    // frames rotate by at most a few tenths of a radian here).
+    EXPECT_LT((c - c.trace() / 3.0 * Eigen::Matrix3d::Identity()).norm(), 0.05 * expected + 1e-12);
+  }
+}
+
+TEST(RotationAveraging, PosteriorCovariancesAreCalibrated) {
+  double nees_sum = 0.0;
+  int count = 0;
+  for (std::uint64_t seed = 1; seed <= 20; ++seed) {
+    SyntheticGraphOptions go;
+    go.num_views = 30;
+    go.noise_deg = 1.0;
+    go.noise_spread = 4.0;
+    go.anisotropic = true;
+    go.seed = seed;
+    const SyntheticGraph sg = MakeSyntheticGraph(go);
+    ViewOrientations orientations;
+    RotationAveragingSummary summary;
+    ASSERT_TRUE(SolveRotationAveraging(sg.graph, With(LossType::kSquared, EdgeWeighting::kCovariance), &orientations,
+                                       &summary));
+    const ViewId gauge = summary.components[0].gauge_view;
+    // The estimate in the ground truth's frame, fixed at the gauge view.
+    const Eigen::Matrix3d g = orientations.at(gauge).transpose() * sg.ground_truth.at(gauge);
+    for (const auto& [id, r] : orientations) {
+      if (id == gauge) continue;
+      const Eigen::Vector3d d = LogSO3(r * g * sg.ground_truth.at(id).transpose());  // R = Exp(d) R_true
+      nees_sum += d.dot(summary.view_covariances.at(id).ldlt().solve(d));
+      ++count;
+    }
+  }
+  const double mean_nees = nees_sum / count;
+  std::printf("mean NEES of %d views: %.3f (3 is calibrated)\n", count, mean_nees);
+  EXPECT_GT(mean_nees, 3.0 * 0.75);
+  EXPECT_LT(mean_nees, 3.0 * 1.25);
 }
 
 TEST(RotationAveraging, WarmStartKeepsTheFrameAndConvergesAtOnce) {

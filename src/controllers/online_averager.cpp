@@ -204,6 +204,9 @@ bool OnlineAverager::SolveLocked() {
     for (ViewId id : components[c]) solution->component[keys[id]] = static_cast<int>(c);
   }
   for (const auto& [id, r] : orientations) solution->orientations[keys[id]] = r;
+  for (const auto& [id, c] : solution->summary.view_covariances) {
+    if (id < keys.size()) solution->covariance[keys[id]] = c;
+  }
   const std::vector<RelativeRotation>& graph_edges = snapshot.Edges();
   solution->edges.reserve(graph_edges.size());
   for (std::size_t k = 0; k < graph_edges.size() && k < solution->summary.edges.size(); ++k) {

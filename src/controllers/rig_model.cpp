@@ -112,17 +112,23 @@ OnlineSolution RigModel::ToCameraKeyframes(const OnlineSolution& solution) const
   OnlineSolution out;
   out.sequence = solution.sequence;
   out.summary = solution.summary;
+  out.edges = solution.edges;
   for (const auto& [variable, r] : solution.orientations) {
     auto c = solution.component.find(variable);
+    auto cov = solution.covariance.find(variable);
     auto members = members_.find(variable);
     if (members == members_.end()) {
       out.orientations[variable] = r;
       if (c != solution.component.end()) out.component[variable] = c->second;
+      if (cov != solution.covariance.end()) out.covariance[variable] = cov->second;
       continue;
     }
     for (const KeyframeKey& key : members->second) {
-      out.orientations[key] = cameras_.at(key.frame_id).camera_from_rig * r;
+      // R_c = E_c R_rig: a left perturbation d of the rig is E_c d of the camera.
+      const Eigen::Matrix3d& e = cameras_.at(key.frame_id).camera_from_rig;
+      out.orientations[key] = e * r;
       if (c != solution.component.end()) out.component[key] = c->second;
+      if (cov != solution.covariance.end()) out.covariance[key] = e * cov->second * e.transpose();
     }
   }
   return out;

@@ -166,6 +166,17 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ve
   return ok;
 }
 
+bool BlockSparseSystem::SolveColumns(const Eigen::MatrixXd& rhs, Eigen::MatrixXd* x) {
+  const bool reuse = reuse_factorization_;
+  reuse_factorization_ = false;  // a fresh factor of this very matrix
+  Eigen::MatrixXd stored = rhs_;
+  rhs_ = rhs;
+  const bool ok = Solve(1e-12, 6, x);
+  rhs_ = std::move(stored);
+  reuse_factorization_ = reuse;
+  return ok;
+}
+
 bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::MatrixXd* x, double* lambda_used) {
   const int n = block_dim_ * num_blocks_;
   if (n == 0) {

@@ -48,6 +48,93 @@ bool AllIsotropic(const std::vector<ComponentEdge>& edges) {
   return true;
 }
 
+
+// The normal-equation pattern of a component, once per workspace.
+void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace) {
+  IrlsWorkspace& ws = *workspace;
+  if (ws.system) return;
+  const int n = static_cast<int>(problem.view_ids.size());
+  ws.var.assign(n, -1);
+  int free_blocks = 0;
+  for (int v = 0; v < n; ++v)
+    if (v != problem.gauge) ws.var[v] = free_blocks++;
+  std::vector<std::pair<int, int>> pairs;
+  pairs.reserve(problem.edges.size());
+  for (const ComponentEdge& e : problem.edges) {
+    if (ws.var[e.i] >= 0 && ws.var[e.j] >= 0) pairs.emplace_back(ws.var[e.i], ws.var[e.j]);
+  }
+  ws.isotropic = AllIsotropic(problem.edges);
+  ws.system = ws.isotropic ? std::make_unique<BlockSparseSystem>(free_blocks, pairs, 1, 3)
+                           : std::make_unique<BlockSparseSystem>(free_blocks, pairs);
+  // Slot of each edge's off-diagonal block in its column (-1: touches the gauge).
+  ws.offdiagonal_slot.assign(problem.edges.size(), -1);
+  for (std::size_t k = 0; k < problem.edges.size(); ++k) {
+    const int a = ws.var[problem.edges[k].i], b = ws.var[problem.edges[k].j];
+    if (a >= 0 && b >= 0 && a != b) ws.offdiagonal_slot[k] = ws.system->Locate(std::max(a, b), std::min(a, b));
+  }
+}
+
+// The IRLS normal equations at `residuals` (of the problem's rotations):
+// scalar Laplacian with three right-hand sides (isotropic information, right
+// updates) or 3x3 blocks (left updates), see the comment at the top.
+void Assemble(const ComponentProblem& component, const RobustLoss& loss, const std::vector<Eigen::Vector3d>& residuals,
+              IrlsWorkspace* workspace) {
+  const ComponentProblem* problem = &component;
+  const std::vector<int>& var = workspace->var;
+  const std::vector<int>& slot = workspace->offdiagonal_slot;
+  const bool isotropic = workspace->isotropic;
+  BlockSparseSystem& system = *workspace->system;
+  const std::size_t m = component.edges.size();
+  system.SetZero();
+  Eigen::MatrixXd& rhs = system.Rhs();
+  double rho[3];
+  for (std::size_t k = 0; isotropic && k < m; ++k) {
+    const ComponentEdge& e = problem->edges[k];
+    const double s = e.information(0, 0);
+    loss.Evaluate(s * residuals[k].squaredNorm(), rho);
+    if (rho[1] <= 0.0) continue;
+    const double w = rho[1] * s;
+    // e_ij = R_j^T r_ij: the residual in the frame of the right updates.
+    const Eigen::RowVector3d w_e = w * (problem->rotations[e.j].transpose() * residuals[k]).transpose();
+    const int vi = var[e.i], vj = var[e.j];
+    if (vi >= 0) {
+      system.AddScalarAt(vi, 0, w);
+      rhs.row(vi) -= w_e;
+    }
+    if (vj >= 0) {
+      system.AddScalarAt(vj, 0, w);
+      rhs.row(vj) += w_e;
+    }
+    if (slot[k] >= 0) system.AddScalarAt(std::min(vi, vj), slot[k], -w);
+  }
+  for (std::size_t k = 0; !isotropic && k < m; ++k) {
+    const ComponentEdge& e = problem->edges[k];
+    const Eigen::Vector3d& r = residuals[k];
+    loss.Evaluate((e.sqrt_information * r).squaredNorm(), rho);
+    if (rho[1] <= 0.0) continue;
+    const Eigen::Matrix3d weighted = rho[1] * e.information;
+    const Eigen::Matrix3d jinv = RightJacobianInverseSO3(r);
+    const int vi = var[e.i], vj = var[e.j];
+    // A_i = Jinv Rc^T, A_j = -Jinv.
+    const Eigen::Matrix3d a_i = jinv * (problem->rotations[e.j] * problem->rotations[e.i].transpose());
+    const Eigen::Matrix3d w_jinv = weighted * jinv;
+    const Eigen::Vector3d w_r = weighted * r;
+    if (vi >= 0) {
+      const Eigen::Matrix3d a_i_t_w = a_i.transpose() * weighted;
+      system.AddBlockAt(vi, 0, a_i_t_w * a_i);
+      rhs.col(0).segment<3>(3 * vi) -= a_i.transpose() * w_r;
+      if (slot[k] >= 0) {
+        const Eigen::Matrix3d off = -a_i_t_w * jinv;  // block (vi, vj)
+        if (vi > vj) system.AddBlockAt(vj, slot[k], off); else system.AddBlockAt(vi, slot[k], off.transpose());
+      }
+    }
+    if (vj >= 0) {
+      system.AddBlockAt(vj, 0, jinv.transpose() * w_jinv);
+      rhs.col(0).segment<3>(3 * vj) += jinv.transpose() * w_r;
+    }
+  }
+}
+
 }  // namespace
 
 IrlsWorkspace::IrlsWorkspace() = default;
@@ -58,27 +145,7 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   const int n = static_cast<int>(problem->view_ids.size());
   IrlsWorkspace local;
   IrlsWorkspace& ws = workspace ? *workspace : local;
-  if (!ws.system) {
-    ws.var.assign(n, -1);
-    int free_blocks = 0;
-    for (int v = 0; v < n; ++v)
-      if (v != problem->gauge) ws.var[v] = free_blocks++;
-    std::vector<std::pair<int, int>> pairs;
-    pairs.reserve(problem->edges.size());
-    for (const ComponentEdge& e : problem->edges) {
-      if (ws.var[e.i] >= 0 && ws.var[e.j] >= 0) pairs.emplace_back(ws.var[e.i], ws.var[e.j]);
-    }
-    ws.isotropic = AllIsotropic(problem->edges);
-    ws.system = ws.isotropic ? std::make_unique<BlockSparseSystem>(free_blocks, pairs, 1, 3)
-                             : std::make_unique<BlockSparseSystem>(free_blocks, pairs);
-    // Slot of each edge's off-diagonal block in its column (-1: touches the gauge).
-    ws.offdiagonal_slot.assign(problem->edges.size(), -1);
-    for (std::size_t k = 0; k < problem->edges.size(); ++k) {
-      const int a = ws.var[problem->edges[k].i], b = ws.var[problem->edges[k].j];
-      if (a >= 0 && b >= 0 && a != b) ws.offdiagonal_slot[k] = ws.system->Locate(std::max(a, b), std::min(a, b));
-    }
-  }
-  const std::vector<int>& slot = ws.offdiagonal_slot;
+  PrepareWorkspace(*problem, &ws);
   const bool isotropic = ws.isotropic;
   const std::vector<int>& var = ws.var;
   BlockSparseSystem& system = *ws.system;
@@ -126,54 +193,7 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   Eigen::MatrixXd delta;
   int iteration = 0;
   for (; iteration < options.max_iterations; ++iteration) {
-    system.SetZero();
-    Eigen::MatrixXd& rhs = system.Rhs();
-    double rho[3];
-    for (std::size_t k = 0; isotropic && k < m; ++k) {
-      const ComponentEdge& e = problem->edges[k];
-      const double s = e.information(0, 0);
-      loss.Evaluate(s * residuals[k].squaredNorm(), rho);
-      if (rho[1] <= 0.0) continue;
-      const double w = rho[1] * s;
-      // e_ij = R_j^T r_ij: the residual in the frame of the right updates.
-      const Eigen::RowVector3d w_e = w * (problem->rotations[e.j].transpose() * residuals[k]).transpose();
-      const int vi = var[e.i], vj = var[e.j];
-      if (vi >= 0) {
-        system.AddScalarAt(vi, 0, w);
-        rhs.row(vi) -= w_e;
-      }
-      if (vj >= 0) {
-        system.AddScalarAt(vj, 0, w);
-        rhs.row(vj) += w_e;
-      }
-      if (slot[k] >= 0) system.AddScalarAt(std::min(vi, vj), slot[k], -w);
-    }
-    for (std::size_t k = 0; !isotropic && k < m; ++k) {
-      const ComponentEdge& e = problem->edges[k];
-      const Eigen::Vector3d& r = residuals[k];
-      loss.Evaluate((e.sqrt_information * r).squaredNorm(), rho);
-      if (rho[1] <= 0.0) continue;
-      const Eigen::Matrix3d weighted = rho[1] * e.information;
-      const Eigen::Matrix3d jinv = RightJacobianInverseSO3(r);
-      const int vi = var[e.i], vj = var[e.j];
-      // A_i = Jinv Rc^T, A_j = -Jinv.
-      const Eigen::Matrix3d a_i = jinv * (problem->rotations[e.j] * problem->rotations[e.i].transpose());
-      const Eigen::Matrix3d w_jinv = weighted * jinv;
-      const Eigen::Vector3d w_r = weighted * r;
-      if (vi >= 0) {
-        const Eigen::Matrix3d a_i_t_w = a_i.transpose() * weighted;
-        system.AddBlockAt(vi, 0, a_i_t_w * a_i);
-        rhs.col(0).segment<3>(3 * vi) -= a_i.transpose() * w_r;
-        if (slot[k] >= 0) {
-          const Eigen::Matrix3d off = -a_i_t_w * jinv;  // block (vi, vj)
-          if (vi > vj) system.AddBlockAt(vj, slot[k], off); else system.AddBlockAt(vi, slot[k], off.transpose());
-        }
-      }
-      if (vj >= 0) {
-        system.AddBlockAt(vj, 0, jinv.transpose() * w_jinv);
-        rhs.col(0).segment<3>(3 * vj) += jinv.transpose() * w_r;
-      }
-    }
+    Assemble(*problem, loss, residuals, &ws);
     if (!system.Solve(1e-12, 6, &delta)) {
       summary->status = "linear solve failed even with regularisation";
       break;
@@ -263,6 +283,61 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   summary->final_cost = evaluate(problem->rotations, &residuals);
   ws.residuals = residuals;
   ws.residual_rotations = problem->rotations;
+}
+
+}  // namespace rotation_averaging
+
+namespace rotation_averaging {
+
+bool ComputeViewCovariances(const ComponentProblem& problem, const RobustLoss& loss,
+                            std::vector<Eigen::Matrix3d>* covariances, double* scale_used) {
+  const int n = static_cast<int>(problem.view_ids.size());
+  covariances->assign(n, Eigen::Matrix3d::Zero());
+  IrlsWorkspace ws;
+  PrepareWorkspace(problem, &ws);
+  const std::size_t m = problem.edges.size();
+  std::vector<Eigen::Vector3d> residuals(m);
+  double weighted_sum = 0.0, weight_sum = 0.0, rho[3];
+  for (std::size_t k = 0; k < m; ++k) {
+    residuals[k] = problem.Residual(problem.edges[k]);
+    const double s = (problem.edges[k].sqrt_information * residuals[k]).squaredNorm();
+    loss.Evaluate(s, rho);
+    weighted_sum += rho[1] * s;
+    weight_sum += rho[1];
+  }
+  const double redundancy = 3.0 * weight_sum - 3.0 * (n - 1);
+  const double scale = redundancy >= 10.0 ? weighted_sum / redundancy : 1.0;
+  if (scale_used) *scale_used = scale;
+  Assemble(problem, loss, residuals, &ws);
+  BlockSparseSystem& system = *ws.system;
+  const int d = system.BlockDim();
+  const int num_free = system.NumBlocks();
+  if (num_free == 0) return true;
+  // Unit right-hand sides in chunks (bounded memory), one per free scalar.
+  const int rows = d * num_free;
+  constexpr int kChunk = 192;  // a multiple of 3: no 3x3 block is split between chunks
+  static_assert(kChunk % 3 == 0, "chunks hold whole blocks");
+  for (int first = 0; first < rows; first += kChunk) {
+    const int cols = std::min(kChunk, rows - first);
+    Eigen::MatrixXd rhs = Eigen::MatrixXd::Zero(rows, cols);
+    for (int c = 0; c < cols; ++c) rhs(first + c, c) = 1.0;
+    Eigen::MatrixXd x;
+    if (!system.SolveColumns(rhs, &x) || !x.allFinite()) return false;
+    for (int v = 0; v < n; ++v) {
+      const int b = ws.var[v];
+      if (b < 0) continue;
+      if (d == 1) {
+        if (b < first || b >= first + cols) continue;
+        // Scalar Laplacian, right updates x = R^T d: C_d = R (c I) R^T = c I.
+        (*covariances)[v] = scale * x(b, b - first) * Eigen::Matrix3d::Identity();
+      } else {
+        if (3 * b < first || 3 * b >= first + cols) continue;
+        (*covariances)[v] = scale * x.block<3, 3>(3 * b, 3 * b - first);
+      }
+    }
+  }
+  for (Eigen::Matrix3d& c : *covariances) c = 0.5 * (c + c.transpose());
+  return true;
 }
 
 }  // namespace rotation_averaging

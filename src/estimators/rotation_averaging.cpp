@@ -268,6 +268,15 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
       cs.final_cost = problem.Cost(*component_loss);
       summary->warnings.push_back(cs.status);
     }
+    if (finite && options.solver != SolverType::kL1Irls && options.posterior_covariance_max_views > 0 &&
+        static_cast<int>(problem.view_ids.size()) <= options.posterior_covariance_max_views) {
+      std::vector<Eigen::Matrix3d> covariances;
+      if (ComputeViewCovariances(problem, *component_loss, &covariances)) {
+        for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
+          summary->view_covariances[problem.view_ids[v]] = covariances[v];
+        }
+      }
+    }
     // Per-edge results under the final loss and the weighting of the options
     // (the L1-IRLS baseline reports its own unweighted residuals).
     for (const ComponentEdge& e : problem.edges) {

@@ -67,6 +67,7 @@ PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std
   if (!ParseSolverType(solver, &o.solver)) warn("solver '" + solver + "' unknown: using irls");
   o.loss_scale = Param(params, "sigma_max", 0.0);
   o.max_iterations = Param(params, "max_iterations", o.max_iterations);
+  o.posterior_covariance_max_views = Param(params, "covariance_max_keyframes", o.posterior_covariance_max_views);
 
   c.image_topics = Param(params, "image_topics", c.image_topics);
   c.image_transport = Param(params, "image_transport", c.image_transport);
@@ -237,7 +238,9 @@ Orientations KeyframePipeline::OrientationsMsg(const OnlineSolution& variables, 
   msg.keyframes.reserve(solution.orientations.size());
   for (const auto& [key, r] : solution.orientations) {
     auto c = solution.component.find(key);
-    msg.keyframes.push_back(ToMsg(key, r, c == solution.component.end() ? 0 : c->second));
+    auto cov = solution.covariance.find(key);
+    msg.keyframes.push_back(ToMsg(key, r, c == solution.component.end() ? 0 : c->second,
+                                  cov == solution.covariance.end() ? nullptr : &cov->second));
   }
   return msg;
 }

@@ -59,7 +59,8 @@ RelativePose ToMsg(const KeyframeRelativeRotation& in) {
   return msg;
 }
 
-KeyframeOrientation ToMsg(const KeyframeKey& key, const Eigen::Matrix3d& world_to_camera, int component) {
+KeyframeOrientation ToMsg(const KeyframeKey& key, const Eigen::Matrix3d& world_to_camera, int component,
+                          const Eigen::Matrix3d* covariance) {
   KeyframeOrientation msg;
   msg.frame_id = key.frame_id;
   msg.stamp = FromNanoseconds(key.stamp_ns);
@@ -69,7 +70,8 @@ KeyframeOrientation ToMsg(const KeyframeKey& key, const Eigen::Matrix3d& world_t
   msg.orientation.y = q[2];
   msg.orientation.z = q[3];
   msg.component = static_cast<std::uint32_t>(std::max(component, 0));
-  msg.has_covariance = false;
+  msg.has_covariance = covariance != nullptr && covariance->allFinite();
+  for (int k = 0; k < 9; ++k) msg.covariance[k] = msg.has_covariance ? (*covariance)(k / 3, k % 3) : 0.0;
   return msg;
 }
 

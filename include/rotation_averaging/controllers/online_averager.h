@@ -83,6 +83,11 @@ struct OnlineSolution {
   std::map<KeyframeKey, Eigen::Matrix3d> orientations;
   std::map<KeyframeKey, int> component;  // index of the connected component, largest first
   std::vector<SolvedEdge> edges;         // every edge of the solved graph
+  // Posterior covariance (rad^2) where computed (components of at most
+  // RotationAveragingOptions::posterior_covariance_max_views): left
+  // perturbation of the world-to-camera rotation, R = Exp(d) R_hat, relative
+  // to the component's gauge keyframe.
+  std::map<KeyframeKey, Eigen::Matrix3d> covariance;
   RotationAveragingSummary summary;
 };
 

@@ -52,6 +52,9 @@ class BlockSparseSystem {
   // (relative residual 1e-5); only if that fails to converge in
   // kMaxPcgIterations is the matrix factorised again.
   bool Solve(double relative_lambda, int max_retries, Eigen::MatrixXd* x, double* lambda_used = nullptr);
+  // Factorises the current matrix afresh (with the same regularisation
+  // retries) and solves for the columns of `rhs` (not the stored one).
+  bool SolveColumns(const Eigen::MatrixXd& rhs, Eigen::MatrixXd* x);
   // Single right-hand side.
   bool Solve(double relative_lambda, int max_retries, Eigen::VectorXd* x, double* lambda_used = nullptr);
   void SetReuseFactorization(bool reuse) { reuse_factorization_ = reuse; }

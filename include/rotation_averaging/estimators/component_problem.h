@@ -77,6 +77,15 @@ struct IrlsWorkspace {
 // solver reuses `workspace` when given (same problem and gauge).
 void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
                         ComponentSummary* summary, IrlsWorkspace* workspace = nullptr);
+// Posterior covariance of every view at the problem's rotations: the
+// diagonal 3x3 blocks of the inverse of the IRLS normal matrix (robust
+// weights times information), times the residual variance factor
+// sigma^2 = sum w s / (3 sum w - 3 (n - 1)) when that redundancy is at least
+// 10 (else 1: the information is trusted as given). Perturbation: left, of
+// the world-to-camera rotation, R = Exp(d) R_hat, d in rad; relative to the
+// gauge view, whose covariance is zero. `scale_used` receives sigma^2.
+bool ComputeViewCovariances(const ComponentProblem& problem, const RobustLoss& loss, std::vector<Eigen::Matrix3d>* covariances,
+                            double* scale_used = nullptr);
 void SolveComponentCeres(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
                          ComponentSummary* summary);
 // Chatterjee-Govindu L1 refinement (ADMM, world-frame linearisation); returns

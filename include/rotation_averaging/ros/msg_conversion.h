@@ -22,8 +22,11 @@ ros::Time FromNanoseconds(std::int64_t ns);
 bool FromMsg(const RelativePose& msg, KeyframeRelativeRotation* out, std::string* error);
 RelativePose ToMsg(const KeyframeRelativeRotation& in);
 
-// world-to-camera R -> camera-to-world quaternion in the message.
-KeyframeOrientation ToMsg(const KeyframeKey& key, const Eigen::Matrix3d& world_to_camera, int component);
+// world-to-camera R -> camera-to-world quaternion in the message; with a
+// covariance (left perturbation of R, see OnlineSolution::covariance), the
+// message's has_covariance and covariance are set.
+KeyframeOrientation ToMsg(const KeyframeKey& key, const Eigen::Matrix3d& world_to_camera, int component,
+                          const Eigen::Matrix3d* covariance = nullptr);
 
 }  // namespace rotation_averaging
 
