@@ -73,6 +73,20 @@ TEST(BlockSparseSystem, ReusedFactorAsPreconditionerGivesTheNewSolution) {
   EXPECT_EQ(system.NumPreconditionedSolves(), 1);
 }
 
+TEST(BlockSparseSystem, InverseDiagonalBlocksMatchADenseInverse) {
+  const RandomSystem s = MakeSystem(30, 3);
+  BlockSparseSystem system(30, s.pairs);
+  Fill(s, &system);
+  std::vector<Eigen::Matrix3d> blocks;
+  ASSERT_TRUE(system.InverseDiagonalBlocks(&blocks));
+  const Eigen::MatrixXd inverse = s.dense.inverse();
+  for (int b = 0; b < 30; ++b) {
+    EXPECT_LT((blocks[b] - inverse.block<3, 3>(3 * b, 3 * b)).norm(), 1e-9 * inverse.norm()) << "block " << b;
+  }
+  // Beyond the work budget it declines instead of taking long.
+  EXPECT_FALSE(system.InverseDiagonalBlocks(&blocks, 1.0));
+}
+
 TEST(BlockSparseSystem, SingularSystemIsRegularisedNotFatal) {
   // Block 1 has no information at all (a view whose edges all have weight 0).
   BlockSparseSystem system(3, {{0, 1}, {1, 2}});

@@ -144,8 +144,9 @@ TEST(RotationAveraging, PosteriorCovariancesOnATreeAddUpAlongThePath) {
   }
   ViewOrientations orientations;
   RotationAveragingSummary summary;
-  ASSERT_TRUE(SolveRotationAveraging(graph, With(LossType::kSquared, EdgeWeighting::kCovariance), &orientations,
-                                     &summary));
+  RotationAveragingOptions options = With(LossType::kSquared, EdgeWeighting::kCovariance);
+  options.posterior_covariance_max_views = 100;
+  ASSERT_TRUE(SolveRotationAveraging(graph, options, &orientations, &summary));
   ASSERT_EQ(summary.view_covariances.size(), 4u);
   const ViewId gauge = summary.components[0].gauge_view;
   for (ViewId v = 0; v < 4; ++v) {
@@ -172,8 +173,9 @@ TEST(RotationAveraging, PosteriorCovariancesAreCalibrated) {
     const SyntheticGraph sg = MakeSyntheticGraph(go);
     ViewOrientations orientations;
     RotationAveragingSummary summary;
-    ASSERT_TRUE(SolveRotationAveraging(sg.graph, With(LossType::kSquared, EdgeWeighting::kCovariance), &orientations,
-                                       &summary));
+    RotationAveragingOptions options = With(LossType::kSquared, EdgeWeighting::kCovariance);
+    options.posterior_covariance_max_views = 100;
+    ASSERT_TRUE(SolveRotationAveraging(sg.graph, options, &orientations, &summary));
     const ViewId gauge = summary.components[0].gauge_view;
     // The estimate in the ground truth's frame, fixed at the gauge view.
     const Eigen::Matrix3d g = orientations.at(gauge).transpose() * sg.ground_truth.at(gauge);

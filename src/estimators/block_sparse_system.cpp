@@ -166,15 +166,91 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ve
   return ok;
 }
 
-bool BlockSparseSystem::SolveColumns(const Eigen::MatrixXd& rhs, Eigen::MatrixXd* x) {
-  const bool reuse = reuse_factorization_;
-  reuse_factorization_ = false;  // a fresh factor of this very matrix
-  Eigen::MatrixXd stored = rhs_;
-  rhs_ = rhs;
-  const bool ok = Solve(1e-12, 6, x);
-  rhs_ = std::move(stored);
-  reuse_factorization_ = reuse;
-  return ok;
+bool BlockSparseSystem::InverseDiagonalBlocks(std::vector<Eigen::Matrix3d>* blocks, double max_work) const {
+  const int d = block_dim_;
+  const int n = d * num_blocks_;
+  blocks->assign(num_blocks_, Eigen::Matrix3d::Zero());
+  if (n == 0) return true;
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> ldlt(matrix_);
+  if (ldlt.info() != Eigen::Success) return false;
+  const Eigen::VectorXd diagonal = ldlt.vectorD();
+  if (!(diagonal.minCoeff() > 0.0) || !diagonal.allFinite()) return false;
+  // The strictly lower part of the unit triangular factor, column by column
+  // (rows ascending).
+  const Eigen::SparseMatrix<double>& l = ldlt.matrixL().nestedExpression();
+  std::vector<int> start(n + 1, 0), rows;
+  std::vector<double> values;
+  for (int j = 0; j < n; ++j) {
+    start[j] = static_cast<int>(rows.size());
+    for (Eigen::SparseMatrix<double>::InnerIterator it(l, j); it; ++it) {
+      if (it.row() > j) {
+        rows.push_back(static_cast<int>(it.row()));
+        values.push_back(it.value());
+      }
+    }
+  }
+  start[n] = static_cast<int>(rows.size());
+  double work = 0.0;  // ~ sum over columns of |P(j)|^2: the recurrence's cost
+  for (int j = 0; j < n; ++j) work += static_cast<double>(start[j + 1] - start[j]) * (start[j + 1] - start[j]);
+  if (work > max_work) return false;
+  // Z = (L D L^T)^-1 on the pattern of L (Takahashi, Fagan & Chin 1973):
+  //   Z_ij = -sum_{k in P(j)} L_kj Z_ik  (i in P(j)),
+  //   Z_jj = 1 / D_j - sum_{k in P(j)} L_kj Z_kj,
+  // from the last column to the first. For k in P(j), every i in P(j) above
+  // k is in P(k) (fill paths), so Z_ik (= Z_ki) is found by walking column k
+  // and P(j) together: each pair (i, k) is visited once and feeds both Z_ij
+  // and Z_kj.
+  std::vector<double> z(rows.size(), 0.0), z_diagonal(n, 0.0), accumulated;
+  for (int j = n - 1; j >= 0; --j) {
+    const int b = start[j], e = start[j + 1];
+    accumulated.assign(e - b, 0.0);
+    for (int pk = b; pk < e; ++pk) {
+      const int k = rows[pk];
+      const double l_kj = values[pk];
+      accumulated[pk - b] += l_kj * z_diagonal[k];
+      int q = pk + 1, c = start[k];
+      const int column_end = start[k + 1];
+      while (q < e && c < column_end) {
+        if (rows[c] < rows[q]) {
+          ++c;
+        } else if (rows[c] > rows[q]) {
+          ++q;  // not reached for a filled pattern
+        } else {
+          const double z_ik = z[c];
+          accumulated[q - b] += l_kj * z_ik;
+          accumulated[pk - b] += values[q] * z_ik;
+          ++q;
+          ++c;
+        }
+      }
+    }
+    double sum = 0.0;
+    for (int p = b; p < e; ++p) {
+      z[p] = -accumulated[p - b];
+      sum += values[p] * z[p];
+    }
+    z_diagonal[j] = 1.0 / diagonal[j] - sum;
+  }
+  auto at = [&](int r, int c) {
+    if (r == c) return z_diagonal[r];
+    if (r < c) std::swap(r, c);
+    const auto first = rows.begin() + start[c], last = rows.begin() + start[c + 1];
+    const auto it = std::lower_bound(first, last, r);
+    return it != last && *it == r ? z[it - rows.begin()] : 0.0;
+  };
+  // P A P^-1 = L D L^T, so (A^-1)_ab = Z_{P(a) P(b)}.
+  const Eigen::VectorXi& perm = ldlt.permutationP().indices();
+  for (int blk = 0; blk < num_blocks_; ++blk) {
+    Eigen::Matrix3d& out = (*blocks)[blk];
+    if (d == 1) {
+      out = at(perm[blk], perm[blk]) * Eigen::Matrix3d::Identity();
+      continue;
+    }
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c <= r; ++c) out(r, c) = out(c, r) = at(perm[3 * blk + r], perm[3 * blk + c]);
+    }
+  }
+  return true;
 }
 
 bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::MatrixXd* x, double* lambda_used) {

@@ -309,32 +309,15 @@ bool ComputeViewCovariances(const ComponentProblem& problem, const RobustLoss& l
   const double scale = redundancy >= 10.0 ? weighted_sum / redundancy : 1.0;
   if (scale_used) *scale_used = scale;
   Assemble(problem, loss, residuals, &ws);
-  BlockSparseSystem& system = *ws.system;
-  const int d = system.BlockDim();
-  const int num_free = system.NumBlocks();
-  if (num_free == 0) return true;
-  // Unit right-hand sides in chunks (bounded memory), one per free scalar.
-  const int rows = d * num_free;
-  constexpr int kChunk = 192;  // a multiple of 3: no 3x3 block is split between chunks
-  static_assert(kChunk % 3 == 0, "chunks hold whole blocks");
-  for (int first = 0; first < rows; first += kChunk) {
-    const int cols = std::min(kChunk, rows - first);
-    Eigen::MatrixXd rhs = Eigen::MatrixXd::Zero(rows, cols);
-    for (int c = 0; c < cols; ++c) rhs(first + c, c) = 1.0;
-    Eigen::MatrixXd x;
-    if (!system.SolveColumns(rhs, &x) || !x.allFinite()) return false;
-    for (int v = 0; v < n; ++v) {
-      const int b = ws.var[v];
-      if (b < 0) continue;
-      if (d == 1) {
-        if (b < first || b >= first + cols) continue;
-        // Scalar Laplacian, right updates x = R^T d: C_d = R (c I) R^T = c I.
-        (*covariances)[v] = scale * x(b, b - first) * Eigen::Matrix3d::Identity();
-      } else {
-        if (3 * b < first || 3 * b >= first + cols) continue;
-        (*covariances)[v] = scale * x.block<3, 3>(3 * b, 3 * b - first);
-      }
-    }
+  std::vector<Eigen::Matrix3d> blocks;
+  if (!ws.system->InverseDiagonalBlocks(&blocks)) return false;
+  for (int v = 0; v < n; ++v) {
+    const int b = ws.var[v];
+    if (b < 0) continue;
+    // Scalar Laplacian, right updates x = R^T d: C_d = R (c I) R^T = c I;
+    // blocks: left updates d directly.
+    (*covariances)[v] = scale * blocks[b];
+    if (!(*covariances)[v].allFinite()) return false;
   }
   for (Eigen::Matrix3d& c : *covariances) c = 0.5 * (c + c.transpose());
   return true;

@@ -275,6 +275,10 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
         for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
           summary->view_covariances[problem.view_ids[v]] = covariances[v];
         }
+      } else {
+        summary->warnings.push_back("posterior covariances of a component of " +
+                                    std::to_string(problem.view_ids.size()) +
+                                    " views skipped (normal matrix singular or its factor too dense)");
       }
     }
     // Per-edge results under the final loss and the weighting of the options

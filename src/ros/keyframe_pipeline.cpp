@@ -67,7 +67,7 @@ PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std
   if (!ParseSolverType(solver, &o.solver)) warn("solver '" + solver + "' unknown: using irls");
   o.loss_scale = Param(params, "sigma_max", 0.0);
   o.max_iterations = Param(params, "max_iterations", o.max_iterations);
-  o.posterior_covariance_max_views = Param(params, "covariance_max_keyframes", o.posterior_covariance_max_views);
+  o.posterior_covariance_max_views = Param(params, "covariance_max_keyframes", 20000);
 
   c.image_topics = Param(params, "image_topics", c.image_topics);
   c.image_transport = Param(params, "image_transport", c.image_transport);

@@ -52,9 +52,14 @@ class BlockSparseSystem {
   // (relative residual 1e-5); only if that fails to converge in
   // kMaxPcgIterations is the matrix factorised again.
   bool Solve(double relative_lambda, int max_retries, Eigen::MatrixXd* x, double* lambda_used = nullptr);
-  // Factorises the current matrix afresh (with the same regularisation
-  // retries) and solves for the columns of `rhs` (not the stored one).
-  bool SolveColumns(const Eigen::MatrixXd& rhs, Eigen::MatrixXd* x);
+  // The diagonal blocks (block_dim x block_dim, in the top-left of each 3x3;
+  // scalar systems give c I) of the inverse of the current matrix, by a
+  // sparse LDL^T factorisation and Takahashi's recurrence on its filled
+  // pattern: about the cost of one factorisation, not of n solves. False if
+  // the matrix is not positive definite, or if the factor is so dense that
+  // the recurrence would take more than `max_work` (~ sum of squared column
+  // counts; 3e8 is about a second here).
+  bool InverseDiagonalBlocks(std::vector<Eigen::Matrix3d>* blocks, double max_work = 3e8) const;
   // Single right-hand side.
   bool Solve(double relative_lambda, int max_retries, Eigen::VectorXd* x, double* lambda_used = nullptr);
   void SetReuseFactorization(bool reuse) { reuse_factorization_ = reuse; }
