@@ -26,6 +26,12 @@ if [ -d "$DATA/strecha/castle-P19" ]; then
   printf 'image_topics: ["/camera/image_raw"]\nfeatures: sift\nmax_features: 4000\n' > "$OUT/castle.yaml"
   "$BIN/rotation_averaging_replay" --bag "$OUT/castle.bag" --config "$OUT/castle.yaml" --gt "$OUT/castle.bag" \
     --output-dir "$OUT/castle" --no-progress > "$OUT/castle.txt"
+  # Loop-closure recall of the retrieval against an exhaustive two-view search
+  # of the same images (same resolution and two-view settings).
+  "$BIN/rotavg" images --images "$C/images" --intrinsics "$C/images/K.txt" --downsample 0.25 --pairs exhaustive \
+    --graph-out "$OUT/castle_exhaustive_graph.txt" --output "$OUT/castle_exhaustive.csv" > /dev/null
+  "$BIN/rotavg_loop_recall" --exhaustive "$OUT/castle_exhaustive_graph.txt" --keyframes "$OUT/castle/graph.txt" \
+    --gt "$C" > "$OUT/castle_recall.txt"
 fi
 
 row() {  # name, summary file
@@ -72,6 +78,17 @@ row() {  # name, summary file
     echo
     echo '```'
     cat "$OUT/castle.txt"
+    echo '```'
+    echo
+    echo "### Loop-closure retrieval recall"
+    echo
+    echo "The path returns to its start. Against an exhaustive two-view search of the same 19 images"
+    echo '(`rotavg images --pairs exhaustive --downsample 0.25`, then `rotavg_loop_recall`): pairs more'
+    echo "than 5 images apart that the search verifies with >= 60 inliers and whose rotation is within 2 deg"
+    echo "of ground truth, and how many of them the retrieval (3 candidates per keyframe) found:"
+    echo
+    echo '```'
+    cat "$OUT/castle_recall.txt"
     echo '```'
   else
     echo

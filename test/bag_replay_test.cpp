@@ -88,9 +88,7 @@ class BagReplay : public ::testing::Test {
 TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
   RigSceneOptions scene_options;
   scene_options.num_captures = 16;
-  scene_options.width = 320;
-  scene_options.height = 240;
-  scene_options.focal_px = 210.0;
+  scene_options.WithWidth(320);
   const RigScene scene(scene_options);
   const std::string bag = TempDir() + "/rig.bag";
   NamedOrientations truth;

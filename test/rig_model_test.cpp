@@ -132,9 +132,7 @@ TEST(RigModel, CamerasWithoutExtrinsicsStayKeyframes) {
 TEST(RigScene, GroundTruthMatchesTheRigGeometry) {
   RigSceneOptions o;
   o.num_captures = 24;
-  o.width = 160;
-  o.height = 120;
-  o.focal_px = 105.0;
+  o.WithWidth(160);
   const RigScene scene(o);
   ASSERT_EQ(scene.Cameras().size(), 2u);
   // The loop closes: the last capture is one step before the first.

@@ -29,6 +29,38 @@ geometry_msgs::Quaternion ToQuaternion(const Eigen::Matrix3d& r) {
 
 }  // namespace
 
+void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
+                        const Eigen::Matrix3d& k, bool compressed) {
+  sensor_msgs::CameraInfo info;
+  info.header.stamp = stamp;
+  info.header.frame_id = frame;
+  info.width = grey.cols;
+  info.height = grey.rows;
+  info.distortion_model = "plumb_bob";
+  info.D.assign(5, 0.0);
+  for (int i = 0; i < 9; ++i) info.K[i] = k(i / 3, i % 3);
+  info.R = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  info.P = {k(0, 0), k(0, 1), k(0, 2), 0, 0, k(1, 1), k(1, 2), 0, 0, 0, 1, 0};
+  bag->write("/" + frame + "/camera_info", stamp, info);
+  if (compressed) {
+    sensor_msgs::CompressedImage m;
+    m.header = info.header;
+    m.format = "mono8; png compressed";
+    cv::imencode(".png", grey, m.data);
+    bag->write("/" + frame + "/image_raw/compressed", stamp, m);
+    return;
+  }
+  sensor_msgs::Image m;
+  m.header = info.header;
+  m.width = grey.cols;
+  m.height = grey.rows;
+  m.encoding = "mono8";
+  m.step = grey.cols;
+  const cv::Mat packed = grey.isContinuous() ? grey : grey.clone();
+  m.data.assign(packed.data, packed.data + packed.total());
+  bag->write("/" + frame + "/image_raw", stamp, m);
+}
+
 bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compressed, NamedOrientations* ground_truth,
                       std::string* error, bool progress) {
   const RigSceneOptions& options = scene.Options();
@@ -67,33 +99,7 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
     for (std::size_t c = 0; c < scene.Cameras().size(); ++c) {
       const std::string& frame = scene.Cameras()[c].frame_id;
       const cv::Mat image = scene.Render(capture, static_cast<int>(c));
-      sensor_msgs::CameraInfo info;
-      info.header.stamp = stamp;
-      info.header.frame_id = frame;
-      info.width = options.width;
-      info.height = options.height;
-      info.distortion_model = "plumb_bob";
-      info.D.assign(5, 0.0);
-      for (int i = 0; i < 9; ++i) info.K[i] = k(i / 3, i % 3);
-      info.R = {1, 0, 0, 0, 1, 0, 0, 0, 1};
-      info.P = {k(0, 0), 0, k(0, 2), 0, 0, k(1, 1), k(1, 2), 0, 0, 0, 1, 0};
-      bag.write("/" + frame + "/camera_info", stamp, info);
-      if (compressed) {
-        sensor_msgs::CompressedImage m;
-        m.header = info.header;
-        m.format = "mono8; png compressed";
-        cv::imencode(".png", image, m.data);
-        bag.write("/" + frame + "/image_raw/compressed", stamp, m);
-      } else {
-        sensor_msgs::Image m;
-        m.header = info.header;
-        m.width = options.width;
-        m.height = options.height;
-        m.encoding = "mono8";
-        m.step = options.width;
-        m.data.assign(image.data, image.data + image.total());
-        bag.write("/" + frame + "/image_raw", stamp, m);
-      }
+      WriteKeyframeImage(&bag, frame, stamp, image, k, compressed);
       const KeyframeKey key{frame, ToNanoseconds(stamp)};
       const Eigen::Matrix3d world_to_camera = scene.WorldToCamera(capture, static_cast<int>(c));
       truth.keyframes.push_back(ToMsg(key, world_to_camera, 0));

@@ -28,6 +28,7 @@
 #include "rotation_averaging/controllers/image_pipeline.h"
 #include "rotation_averaging/features/features.h"
 #include "rotation_averaging/io/orientation_io.h"
+#include "rotation_averaging/ros/demo_bag.h"
 #include "rotation_averaging/ros/msg_conversion.h"
 
 namespace ra = rotation_averaging;
@@ -136,34 +137,7 @@ int main(int argc, char** argv) {
       k = ra::ScaleIntrinsics(k, downsample);
     }
     const ros::Time stamp = t0 + ros::Duration(written / rate);
-    sensor_msgs::CameraInfo info;
-    info.header.stamp = stamp;
-    info.header.frame_id = frame_id;
-    info.width = grey.cols;
-    info.height = grey.rows;
-    info.distortion_model = "plumb_bob";
-    info.D.assign(5, 0.0);
-    for (int j = 0; j < 9; ++j) info.K[j] = k(j / 3, j % 3);
-    info.R = {1, 0, 0, 0, 1, 0, 0, 0, 1};
-    info.P = {k(0, 0), k(0, 1), k(0, 2), 0, 0, k(1, 1), k(1, 2), 0, 0, 0, 1, 0};
-    bag.write("/" + frame_id + "/camera_info", stamp, info);
-    if (compressed) {
-      sensor_msgs::CompressedImage m;
-      m.header = info.header;
-      m.format = "mono8; png compressed";
-      cv::imencode(".png", grey, m.data);
-      bag.write("/" + frame_id + "/image_raw/compressed", stamp, m);
-    } else {
-      sensor_msgs::Image m;
-      m.header = info.header;
-      m.width = grey.cols;
-      m.height = grey.rows;
-      m.encoding = "mono8";
-      m.step = grey.cols;
-      const cv::Mat packed = grey.isContinuous() ? grey : grey.clone();
-      m.data.assign(packed.data, packed.data + packed.total());
-      bag.write("/" + frame_id + "/image_raw", stamp, m);
-    }
+    ra::WriteKeyframeImage(&bag, frame_id, stamp, grey, k, compressed);
     ++written;
     auto gt = truth_by_image.find(BaseName(images[i]));
     if (gt != truth_by_image.end()) {

@@ -55,8 +55,7 @@ int main(int argc, char** argv) {
     } else if (a == "--cameras" && number(&v) && v >= 1 && v <= 4) {
       options.num_cameras = static_cast<int>(v);
     } else if (a == "--width" && number(&v) && v >= 64) {
-      options.width = static_cast<int>(v);
-      options.focal_px = 420.0 * options.width / 640.0;
+      options.WithWidth(static_cast<int>(v));  // same field of view, 4:3
     } else if (a == "--height" && number(&v) && v >= 48) {
       options.height = static_cast<int>(v);
     } else if (a == "--noise" && number(&v) && v >= 0) {

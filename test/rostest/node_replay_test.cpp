@@ -28,9 +28,7 @@ TEST(NodeReplay, LiveNodeFedByRosbagPlayMatchesTheReplayTool) {
 
   RigSceneOptions scene_options;
   scene_options.num_captures = 12;
-  scene_options.width = 320;
-  scene_options.height = 240;
-  scene_options.focal_px = 210.0;
+  scene_options.WithWidth(320);
   const RigScene scene(scene_options);
   const std::string bag = dir + "/rig.bag";
   std::string error;

@@ -7,12 +7,21 @@
 #ifndef ROTATION_AVERAGING_ROS_DEMO_BAG_H_
 #define ROTATION_AVERAGING_ROS_DEMO_BAG_H_
 
+#include <rosbag/bag.h>
+
+#include <opencv2/core.hpp>
 #include <string>
 
 #include "rotation_averaging/eval/rotation_evaluation.h"
 #include "rotation_averaging/scene/rig_scene.h"
 
 namespace rotation_averaging {
+
+// One keyframe image of `frame` as the node reads it: /<frame>/camera_info
+// (K, no distortion) and /<frame>/image_raw (mono8) or, compressed,
+// /<frame>/image_raw/compressed (PNG).
+void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
+                        const Eigen::Matrix3d& k, bool compressed);
 
 // `ground_truth` (optional) receives the world-to-camera orientations keyed
 // by keyframe name (<frame_id>@<stamp_ns>).

@@ -32,6 +32,14 @@ struct RigSceneOptions {
   double half_extent_m = 4.0;     // room half width
   double room_height_m = 3.0;
   std::uint64_t seed = 1;         // textures and noise
+
+  // The same field of view at another image width (4:3, focal scaled).
+  RigSceneOptions& WithWidth(int w) {
+    focal_px *= static_cast<double>(w) / width;
+    height = w * 3 / 4;
+    width = w;
+    return *this;
+  }
 };
 
 struct RigCamera {
