@@ -335,6 +335,16 @@ class RotationAveragingNode {
     status.add("components", s.components);
     status.add("outlier edges", s.outlier_edges);
     status.add("messages received", s.received);
+    // Input rates since the previous diagnostics update.
+    const ros::WallTime now = ros::WallTime::now();
+    const double dt = (now - last_rates_time_).toSec();
+    if (dt > 0.0 && last_rates_time_.toSec() > 0.0) {
+      status.add("measurements per second (relative poses + front-end edges)", (s.received - last_received_) / dt);
+      status.add("keyframe images per second", (p.processed_images - last_images_) / dt);
+    }
+    last_rates_time_ = now;
+    last_received_ = s.received;
+    last_images_ = p.processed_images;
     status.add("rejected messages", p.rejected_messages);
     status.add("keyframe images processed", p.processed_images);
     status.add("edges from images", p.edges_from_images);
@@ -367,6 +377,8 @@ class RotationAveragingNode {
   ros::Timer diagnostics_timer_;
   std::mutex mutex_;  // camera_infos_ and the counters below
   std::uint64_t dropped_images_ = 0, images_without_info_ = 0;
+  ros::WallTime last_rates_time_;  // diagnostics: input rates between updates
+  std::uint64_t last_received_ = 0, last_images_ = 0;
   std::unique_ptr<image_transport::ImageTransport> image_transport_;
   std::vector<image_transport::CameraSubscriber> camera_subs_;
   std::vector<ros::Subscriber> compressed_subs_, info_subs_;
