@@ -1,10 +1,18 @@
 #!/usr/bin/env bash
 # Sets up, builds every test and runs them all with ctest (which, unlike
-# `make run_tests`, fails when a test fails).
+# `make run_tests`, fails when a test fails); then the same suite again in an
+# AddressSanitizer + UndefinedBehaviorSanitizer build (scripts/test_sanitizers.sh).
+#   bash scripts/test.sh [--no-sanitizers]
 set -euo pipefail
 cd "$(dirname "$0")/.."
+SANITIZERS=1
+[ "${1:-}" = "--no-sanitizers" ] && SANITIZERS=0
 bash scripts/setup.sh
 export PATH=/usr/bin:$PATH
 cmake --build build --target tests
-cd build
-ctest --output-on-failure
+(cd build && ctest --output-on-failure)
+if [ "$SANITIZERS" = 1 ]; then
+  echo
+  echo "== The test suite again with AddressSanitizer and UndefinedBehaviorSanitizer =="
+  bash scripts/test_sanitizers.sh
+fi
