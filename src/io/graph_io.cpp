@@ -3,6 +3,8 @@
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
 #include <algorithm>
+#include <cstdio>
+#include <sstream>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
@@ -231,12 +233,55 @@ ReadReport ReadIRotAvg(const std::string& path, ViewGraph* graph) {
   return report;
 }
 
+namespace {
+
+constexpr char kGraphHeader[] = "# rotation_averaging view graph v1";
+
+// FNV-1a, 64 bit, over the bytes of the lines before the END record (each
+// with its newline): detects truncation and corruption of saved graphs.
+struct Fnv1a {
+  std::uint64_t h = 0xcbf29ce484222325ULL;
+  void Add(const std::string& line) {
+    for (unsigned char c : line) h = (h ^ c) * 0x100000001b3ULL;
+    h = (h ^ static_cast<unsigned char>('\n')) * 0x100000001b3ULL;
+  }
+};
+
+std::string Hex(std::uint64_t v) {
+  char buffer[17];
+  std::snprintf(buffer, sizeof(buffer), "%016llx", static_cast<unsigned long long>(v));
+  return buffer;
+}
+
+}  // namespace
+
 ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph) {
   ReadReport report;
   LineReader reader(path);
   if (!reader.IsOpen()) return {"cannot open " + path};
   std::string line;
+  Fnv1a sum;
+  std::size_t lines_before_end = 0;
+  bool ours = false, ended = false;
   while (reader.Next(&line)) {
+    if (ended) {
+      if (!IsBlankOrComment(line)) return {reader.Where("records after the END record")};
+      continue;
+    }
+    if (lines_before_end == 0 && line.rfind(kGraphHeader, 0) == 0) ours = true;
+    if (line.rfind("END ", 0) == 0) {
+      const std::vector<std::string> tokens = SplitTokens(line);
+      std::uint64_t count = 0;
+      if (tokens.size() != 3 || !ParseUint64(tokens[1], &count)) return {reader.Where("expected 'END lines checksum'")};
+      if (count != lines_before_end || tokens[2] != Hex(sum.h)) {
+        return {reader.Where("checksum mismatch: the file is corrupted (" + std::to_string(lines_before_end) +
+                             " lines read, " + tokens[1] + " written)")};
+      }
+      ended = true;
+      continue;
+    }
+    sum.Add(line);
+    ++lines_before_end;
     if (IsBlankOrComment(line)) continue;
     const std::vector<std::string> tokens = SplitTokens(line);
     if (tokens[0] == "VIEW") {
@@ -278,13 +323,16 @@ ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph) {
       return {reader.Where("unknown record '" + tokens[0] + "' (VIEW or EDGE)")};
     }
   }
+  // A file we wrote always ends with END: without it, it was cut short.
+  if (ours && !ended) return {path + ": no END record: the file is truncated (a save that was interrupted?)"};
   report.lines = reader.LineNumber();
   return report;
 }
 
 bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::string* error) {
-  return WriteFileAtomically(path, [&graph](std::ostream& out) -> std::string {
-    out << "# rotation_averaging view graph v1\n"
+  return WriteFileAtomically(path, [&graph](std::ostream& file) -> std::string {
+    std::ostringstream out;
+    out << kGraphHeader << "\n"
         << "# VIEW id name | EDGE id1 id2 source qw qx qy qz num_inliers (c00 c01 c02 c11 c12 c22 | -)\n"
         << "# R_12 = R_1 R_2^T (world-to-camera R); covariance of a right perturbation, rad^2\n"
         << std::setprecision(17);
@@ -308,6 +356,13 @@ bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::stri
       }
       out << '\n';
     }
+    // Trailer: the number of lines before it and their checksum.
+    const std::string body = out.str();
+    Fnv1a sum;
+    std::size_t lines = 0;
+    std::istringstream in(body);
+    for (std::string line; std::getline(in, line); ++lines) sum.Add(line);
+    file << body << "END " << lines << ' ' << Hex(sum.h) << '\n';
     return "";
   }, error);
 }

@@ -51,6 +51,8 @@ PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std
   c.latest_frame_format = Param(params, "latest_frame_format", c.latest_frame_format);
   c.load_graph = Param(params, "load_graph", c.load_graph);
   c.save_on_shutdown = Param(params, "save_on_shutdown", c.save_on_shutdown);
+  c.autosave_path = Param(params, "autosave_path", c.autosave_path);
+  c.autosave_period_s = Param(params, "autosave_period", c.autosave_period_s);
 
   OnlineAveragerOptions& a = c.averager;
   a.solve_period_s = Param(params, "solve_period", a.solve_period_s);

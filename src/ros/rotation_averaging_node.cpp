@@ -84,6 +84,17 @@ class RotationAveragingNode {
     diagnostics_.setHardwareID("rotation_averaging");
     diagnostics_.add("rotation averaging", this, &RotationAveragingNode::Diagnose);
     diagnostics_timer_ = pnh.createTimer(ros::Duration(1.0), [this](const ros::TimerEvent&) { diagnostics_.update(); });
+    // Periodic atomic save (write, then rename; checksummed): a node killed
+    // mid-run restarts from the last save with load_graph.
+    if (!config.autosave_path.empty() && config.autosave_period_s > 0.0) {
+      autosave_timer_ = pnh.createWallTimer(ros::WallDuration(config.autosave_period_s), [this](const ros::WallTimerEvent&) {
+        std::string error;
+        if (averager_->Stats().views == 0) return;
+        if (!averager_->SaveGraph(pipeline_->Config().autosave_path, &error)) {
+          ROS_WARN_THROTTLE(60.0, "autosave to %s failed: %s", pipeline_->Config().autosave_path.c_str(), error.c_str());
+        }
+      });
+    }
 
     averager_->SetSolutionCallback([this](std::shared_ptr<const OnlineSolution> s) { Publish(*s); });
     const std::string& load = config.load_graph;
@@ -375,6 +386,7 @@ class RotationAveragingNode {
   ros::Publisher static_tf_pub_;
   diagnostic_updater::Updater diagnostics_;
   ros::Timer diagnostics_timer_;
+  ros::WallTimer autosave_timer_;
   std::mutex mutex_;  // camera_infos_ and the counters below
   std::uint64_t dropped_images_ = 0, images_without_info_ = 0;
   ros::WallTime last_rates_time_;  // diagnostics: input rates between updates

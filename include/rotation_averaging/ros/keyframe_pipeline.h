@@ -62,6 +62,8 @@ struct PipelineConfig {
   double marker_spacing_m = 0.5;       // between consecutive keyframes of a lane
   int marker_max_keyframes = 2000;     // only the newest are drawn beyond this
   std::string load_graph, save_on_shutdown;
+  std::string autosave_path;    // graph saved atomically every autosave_period s ("" = off)
+  double autosave_period_s = 30.0;
 };
 
 // Reads every parameter; unknown enum values fall back to the default with a

@@ -1,0 +1,140 @@
+// No data lost: a node that autosaves its graph is killed with SIGKILL
+// mid-run; restarted with load_graph on the saved file it republishes the
+// same orientations. A corrupted save makes it start empty, not with garbage.
+#include <gtest/gtest.h>
+#include <ros/ros.h>
+#include <signal.h>
+#include <std_srvs/Trigger.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
+
+#include "../synthetic_rig.h"
+#include "rotation_averaging/Orientations.h"
+#include "rotation_averaging/RelativePoseArray.h"
+#include "rotation_averaging/eval/rotation_evaluation.h"
+#include "rotation_averaging/ros/msg_conversion.h"
+
+namespace rotation_averaging {
+namespace {
+
+pid_t StartNode(const std::vector<std::string>& args) {
+  const pid_t pid = fork();
+  if (pid == 0) {
+    std::vector<char*> argv;
+    std::string binary = ROTAVG_NODE_BINARY;
+    argv.push_back(binary.data());
+    std::vector<std::string> copy = args;
+    for (std::string& a : copy) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    freopen("/dev/null", "w", stdout);
+    execv(binary.c_str(), argv.data());
+    _exit(127);
+  }
+  return pid;
+}
+
+class Recovery : public ::testing::Test {
+ protected:
+  void Subscribe() {
+    sub_ = nh_.subscribe<Orientations>("/crash_node/orientations", 10, [this](const Orientations::ConstPtr& m) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      latest_ = m;
+    });
+  }
+  // Waits for a solution with `n` keyframes; returns them by name.
+  bool WaitFor(std::size_t n, NamedOrientations* out, double seconds = 20.0) {
+    const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(seconds);
+    while (ros::WallTime::now() < deadline) {
+      {
+        std::lock_guard<std::mutex> lock(mutex_);
+        if (latest_ && latest_->keyframes.size() == n) {
+          out->clear();
+          for (const KeyframeOrientation& k : latest_->keyframes) {
+            (*out)[OnlineAverager::KeyframeName({k.frame_id, ToNanoseconds(k.stamp)})] =
+                QuaternionToRotation(k.orientation.w, k.orientation.x, k.orientation.y, k.orientation.z).transpose();
+          }
+          return true;
+        }
+      }
+      ros::WallDuration(0.05).sleep();
+    }
+    return false;
+  }
+  void Forget() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    latest_.reset();
+  }
+  ros::NodeHandle nh_;
+  ros::Subscriber sub_;
+  std::mutex mutex_;
+  Orientations::ConstPtr latest_;
+};
+
+TEST_F(Recovery, SigkilledNodeRestartsFromItsAutosave) {
+  const std::string save =
+      (std::filesystem::temp_directory_path() / ("rotavg_autosave_" + std::to_string(getpid()) + ".txt")).string();
+  std::filesystem::remove(save);
+  const std::vector<std::string> common = {"__name:=crash_node", "relative_poses:=/crash_test/relative_poses",
+                                           "_tf_mode:=none", "_solve_period:=0.2"};
+  std::vector<std::string> first = common;
+  first.push_back("_autosave_path:=" + save);
+  first.push_back("_autosave_period:=0.3");
+  const pid_t a = StartNode(first);
+  ASSERT_GT(a, 0);
+  ASSERT_TRUE(ros::service::waitForService("/crash_node/solve", ros::Duration(30.0)));
+  Subscribe();
+  ros::Publisher pub = nh_.advertise<RelativePoseArray>("/crash_test/relative_poses", 10);
+  const ros::WallTime until = ros::WallTime::now() + ros::WallDuration(10.0);
+  while (pub.getNumSubscribers() == 0 && ros::WallTime::now() < until) ros::WallDuration(0.05).sleep();
+  const RigData rig = MakeRig(30, 0.1, 21);
+  RelativePoseArray batch;
+  for (const KeyframeRelativeRotation& m : rig.measurements) batch.poses.push_back(ToMsg(m));
+  pub.publish(batch);
+  NamedOrientations before;
+  ASSERT_TRUE(WaitFor(rig.truth.size(), &before));
+  ros::WallDuration(1.0).sleep();  // at least one autosave after the solve
+  ASSERT_TRUE(std::filesystem::exists(save));
+  kill(a, SIGKILL);
+  int status = 0;
+  waitpid(a, &status, 0);
+  ASSERT_TRUE(WIFSIGNALED(status));
+
+  // Restart from the save: the same orientations come back.
+  Forget();
+  std::vector<std::string> second = common;
+  second.push_back("_load_graph:=" + save);
+  const pid_t b = StartNode(second);
+  NamedOrientations after;
+  ASSERT_TRUE(WaitFor(rig.truth.size(), &after));
+  const EvaluationResult between = EvaluateOrientations(after, before);
+  double worst = 0.0;
+  for (const auto& [name, e] : between.errors_deg) worst = std::max(worst, e);
+  EXPECT_EQ(between.views_common, rig.truth.size());
+  EXPECT_LT(worst, 0.01);
+  kill(b, SIGTERM);
+  waitpid(b, &status, 0);
+
+  // A corrupted save: the node starts empty (nothing to solve) and keeps answering.
+  {
+    std::fstream f(save, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(200);
+    f.write("#####", 5);
+  }
+  Forget();
+  const pid_t c = StartNode(second);
+  ASSERT_TRUE(ros::service::waitForService("/crash_node/solve", ros::Duration(30.0)));
+  std_srvs::Trigger solve;
+  ASSERT_TRUE(ros::service::call("/crash_node/solve", solve));
+  EXPECT_FALSE(solve.response.success) << solve.response.message;
+  kill(c, SIGTERM);
+  waitpid(c, &status, 0);
+  std::filesystem::remove(save);
+}
+
+}  // namespace
+}  // namespace rotation_averaging
