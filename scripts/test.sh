@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Sets up, builds every test and runs them all with ctest (which, unlike
 # `make run_tests`, fails when a test fails); then the same suite again in an
-# AddressSanitizer + UndefinedBehaviorSanitizer build (scripts/test_sanitizers.sh).
+# AddressSanitizer + UndefinedBehaviorSanitizer build (scripts/test_sanitizers.sh)
+# and a 60 s libFuzzer run over the file readers (scripts/fuzz.sh).
 #   bash scripts/test.sh [--no-sanitizers]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -15,4 +16,7 @@ if [ "$SANITIZERS" = 1 ]; then
   echo
   echo "== The test suite again with AddressSanitizer and UndefinedBehaviorSanitizer =="
   bash scripts/test_sanitizers.sh
+  echo
+  echo "== Fuzzing the file readers for 60 s (libFuzzer) =="
+  bash scripts/fuzz.sh 60
 fi

@@ -61,6 +61,14 @@ TEST(GraphIo, MalformedLinesNameFileAndLine) {
   EXPECT_NE(rc.error.find("o.csv:3:"), std::string::npos) << rc.error;
   const std::string irot = dir.Write("ravg.txt", "3 3 1\n1 2 1 0 0 0\n");
   EXPECT_NE(ReadIRotAvg(irot, &g).error.find("announces 3 edges"), std::string::npos);
+  // Found by fuzzing: a header announcing 38 million views ran out of memory.
+  ViewGraph huge;
+  const std::string big = dir.Write("big.txt", "0\r38319948\r6");
+  EXPECT_TRUE(ReadViewGraph(big, GraphFormat::kIRotAvg, &huge).ok());
+  EXPECT_EQ(huge.NumViews(), 0u);
+  ViewGraph outside;
+  EXPECT_NE(ReadIRotAvg(dir.Write("out.txt", "1 2 0\n1 5 1 0 0 0\n"), &outside).error.find("outside 1..2"),
+            std::string::npos);
 }
 
 TEST(GraphIo, G2oCovarianceIsTheMarginalRotationBlockInAngleAxisUnits) {

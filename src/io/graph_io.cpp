@@ -206,7 +206,9 @@ ReadReport ReadIRotAvg(const std::string& path, ViewGraph* graph) {
     break;
   }
   if (m < 0) return {path + ": empty file"};
-  for (int id = 1; id <= n; ++id) graph->AddView(static_cast<ViewId>(id));
+  // Views are created as edges name them (ids 1..n): a header announcing
+  // billions of views costs nothing until edges use them (found by fuzzing:
+  // "0 38319948 6" ran out of memory).
   int edges_read = 0;
   while (edges_read < m && reader.Next(&line)) {
     if (IsBlankOrComment(line)) continue;
@@ -216,6 +218,12 @@ ReadReport ReadIRotAvg(const std::string& path, ViewGraph* graph) {
     if (tokens.size() != 6 || !ParseIds(tokens, 0, &edge.view1, &edge.view2) || !ParseDoubles(tokens, 2, 4, q)) {
       return {reader.Where("expected 'i j qw qx qy qz'")};
     }
+    if (edge.view1 < 1 || edge.view2 < 1 || edge.view1 > static_cast<ViewId>(n) ||
+        edge.view2 > static_cast<ViewId>(n)) {
+      return {reader.Where("view id outside 1.." + std::to_string(n) + " (the header's view count)")};
+    }
+    graph->AddView(edge.view1);
+    graph->AddView(edge.view2);
     ++edges_read;
     const double norm = Eigen::Vector4d(q[0], q[1], q[2], q[3]).norm();
     if (!(std::abs(norm - 1.0) < 1e-3)) {
