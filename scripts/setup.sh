@@ -15,7 +15,7 @@ PACKAGES=(
   libdynamic-reconfigure-config-init-mutex-dev python3-dynamic-reconfigure
   libceres-dev libeigen3-dev libsuitesparse-dev libopencv-dev libgtest-dev
   libyaml-cpp-dev python3-rosbag libvisualization-msgs-dev
-  clang  # libFuzzer targets (scripts/fuzz.sh)
+  clang libclang-rt-14-dev  # libFuzzer targets (scripts/fuzz.sh); the fuzzer runtime is only a Recommends of clang
   libopenblas0-serial  # BLAS for CHOLMOD's supernodal solves (see CMakeLists.txt)
 )
 missing=()
