@@ -155,7 +155,7 @@ TEST(KeyframePipeline, RigExtrinsicsFromStaticTransformsAndMarkers) {
 
   // Markers: a frustum (8 segments) per camera keyframe, an edge per solved
   // edge coloured by weight: the outlier red, the others green.
-  const visualization_msgs::MarkerArray markers = pipeline.Markers(*variables, ros::Time(10.0));
+  const visualization_msgs::MarkerArray markers = pipeline.Markers(*variables, cameras, ros::Time(10.0));
   ASSERT_EQ(markers.markers.size(), 2u);
   EXPECT_EQ(markers.markers[0].ns, "keyframes");
   EXPECT_EQ(markers.markers[0].points.size(), 16u * 16u);
@@ -170,7 +170,7 @@ TEST(KeyframePipeline, RigExtrinsicsFromStaticTransformsAndMarkers) {
   EXPECT_EQ(red, 1);
   EXPECT_EQ(green, 13);
   // Orientations message and tf carry camera keyframes.
-  const Orientations msg = pipeline.OrientationsMsg(*variables, ros::Time(10.0));
+  const Orientations msg = pipeline.OrientationsMsg(cameras, ros::Time(10.0));
   EXPECT_EQ(msg.keyframes.size(), 16u);
   // Posterior covariances for every keyframe; the gauge capture's are zero,
   // the others positive, growing away from it.
@@ -183,7 +183,7 @@ TEST(KeyframePipeline, RigExtrinsicsFromStaticTransformsAndMarkers) {
   }
   EXPECT_EQ(zero, 2);  // both cameras of the gauge capture
   EXPECT_EQ(positive, 14);
-  EXPECT_EQ(pipeline.KeyframeTransforms(*variables).transforms.size(), 16u);
+  EXPECT_EQ(pipeline.KeyframeTransforms(cameras).transforms.size(), 16u);
 }
 
 }  // namespace

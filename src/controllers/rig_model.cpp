@@ -73,11 +73,6 @@ KeyframeKey RigModel::VariableLocked(const KeyframeKey& keyframe) {
   return variable;
 }
 
-KeyframeKey RigModel::VariableOf(const KeyframeKey& keyframe) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return VariableLocked(keyframe);
-}
-
 KeyframeKey RigModel::VariableOfKnown(const KeyframeKey& keyframe) const {
   std::lock_guard<std::mutex> lock(mutex_);
   auto it = variable_of_.find(keyframe);

@@ -380,12 +380,13 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
     if (!averager.SolveNow()) return;
     ++result.solves;
     const std::shared_ptr<const OnlineSolution> solution = averager.Solution();
-    out.write("/rotation_averaging/orientations", when, pipeline.OrientationsMsg(*solution, when));
+    const OnlineSolution cameras = pipeline.CameraSolution(*solution);
+    out.write("/rotation_averaging/orientations", when, pipeline.OrientationsMsg(cameras, when));
     if (config.tf_mode == "all_keyframes") {
-      out.write("/tf_static", when, pipeline.KeyframeTransforms(*solution));
+      out.write("/tf_static", when, pipeline.KeyframeTransforms(cameras));
     } else if (config.tf_mode == "latest_per_camera") {
       tf2_msgs::TFMessage tf;
-      tf.transforms = pipeline.LatestTransforms(*solution, when);
+      tf.transforms = pipeline.LatestTransforms(cameras, when);
       if (!tf.transforms.empty()) out.write("/tf", when, tf);
     }
   };

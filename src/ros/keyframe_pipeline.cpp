@@ -231,8 +231,7 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   return added;
 }
 
-Orientations KeyframePipeline::OrientationsMsg(const OnlineSolution& variables, const ros::Time& stamp) const {
-  const OnlineSolution solution = CameraSolution(variables);
+Orientations KeyframePipeline::OrientationsMsg(const OnlineSolution& solution, const ros::Time& stamp) const {
   Orientations msg;
   msg.header.stamp = stamp;
   msg.header.frame_id = config_.fixed_frame;
@@ -257,8 +256,7 @@ geometry_msgs::TransformStamped KeyframePipeline::Transform(const ros::Time& sta
   return t;
 }
 
-tf2_msgs::TFMessage KeyframePipeline::KeyframeTransforms(const OnlineSolution& variables) const {
-  const OnlineSolution solution = CameraSolution(variables);
+tf2_msgs::TFMessage KeyframePipeline::KeyframeTransforms(const OnlineSolution& solution) const {
   tf2_msgs::TFMessage msg;
   msg.transforms.reserve(solution.orientations.size());
   for (const auto& [key, r] : solution.orientations) {
@@ -269,7 +267,8 @@ tf2_msgs::TFMessage KeyframePipeline::KeyframeTransforms(const OnlineSolution& v
   return msg;
 }
 
-visualization_msgs::MarkerArray KeyframePipeline::Markers(const OnlineSolution& variables, const ros::Time& stamp) const {
+visualization_msgs::MarkerArray KeyframePipeline::Markers(const OnlineSolution& variables, const OnlineSolution& cameras,
+                                                          const ros::Time& stamp) const {
   // Lanes: one per solved frame id (a camera, or a rig frame), keyframes in
   // time order along x.
   std::vector<KeyframeKey> drawn;
@@ -313,7 +312,6 @@ visualization_msgs::MarkerArray KeyframePipeline::Markers(const OnlineSolution& 
   frusta.color.r = 0.2;
   frusta.color.g = 0.4;
   frusta.color.b = 1.0;
-  const OnlineSolution cameras = CameraSolution(variables);
   const double size = 0.35 * config_.marker_spacing_m;
   const Eigen::Vector3d corners[4] = {{-0.6, -0.45, 1.0}, {0.6, -0.45, 1.0}, {0.6, 0.45, 1.0}, {-0.6, 0.45, 1.0}};
   for (const auto& [key, r] : cameras.orientations) {
@@ -349,9 +347,8 @@ visualization_msgs::MarkerArray KeyframePipeline::Markers(const OnlineSolution& 
   return out;
 }
 
-std::vector<geometry_msgs::TransformStamped> KeyframePipeline::LatestTransforms(const OnlineSolution& variables,
+std::vector<geometry_msgs::TransformStamped> KeyframePipeline::LatestTransforms(const OnlineSolution& solution,
                                                                                  const ros::Time& now) {
-  const OnlineSolution solution = CameraSolution(variables);
   std::map<std::string, std::pair<KeyframeKey, Eigen::Matrix3d>> latest;
   for (const auto& [key, r] : solution.orientations) {
     auto it = latest.find(key.frame_id);

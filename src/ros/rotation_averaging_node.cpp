@@ -309,15 +309,18 @@ class RotationAveragingNode {
   // Called from the averager's worker thread after each successful solve.
   void Publish(const OnlineSolution& solution) {
     const ros::Time now = ros::Time::now();
-    orientations_pub_.publish(pipeline_->OrientationsMsg(solution, now));
-    if (markers_pub_ && markers_pub_.getNumSubscribers() > 0) markers_pub_.publish(pipeline_->Markers(solution, now));
+    const OnlineSolution cameras = pipeline_->CameraSolution(solution);  // once per solve
+    orientations_pub_.publish(pipeline_->OrientationsMsg(cameras, now));
+    if (markers_pub_ && markers_pub_.getNumSubscribers() > 0) {
+      markers_pub_.publish(pipeline_->Markers(solution, cameras, now));
+    }
     if (tf_mode_ == "all_keyframes" && !solution.orientations.empty()) {
-      static_tf_pub_.publish(pipeline_->KeyframeTransforms(solution));
+      static_tf_pub_.publish(pipeline_->KeyframeTransforms(cameras));
     }
     if (tf_mode_ == "latest_per_camera") {
       // Stamped with the publication time (the estimate of the camera's
       // current orientation); never twice with the same stamp per frame.
-      const std::vector<geometry_msgs::TransformStamped> tfs = pipeline_->LatestTransforms(solution, now);
+      const std::vector<geometry_msgs::TransformStamped> tfs = pipeline_->LatestTransforms(cameras, now);
       if (!tfs.empty()) broadcaster_.sendTransform(tfs);
     }
   }

@@ -47,9 +47,6 @@ class RigModel {
 
   // Resolves the camera if it is new; true if it belongs to a rig.
   bool IsRigCamera(const std::string& camera_frame);
-  // The variable a keyframe is solved as: its capture for rig cameras, the
-  // keyframe itself otherwise.
-  KeyframeKey VariableOf(const KeyframeKey& keyframe);
   // The variable of a keyframe already seen (no registration): the
   // keyframe itself if unknown or not on a rig.
   KeyframeKey VariableOfKnown(const KeyframeKey& keyframe) const;

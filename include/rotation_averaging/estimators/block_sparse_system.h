@@ -25,17 +25,15 @@ class BlockSparseSystem {
   ~BlockSparseSystem();
 
   int NumBlocks() const { return num_blocks_; }
-  int BlockDim() const { return block_dim_; }
   void SetZero();
   // H(row block, col block) += m, for row >= col (lower triangle); the
   // diagonal block takes the full 3x3. block_dim 3 only.
   void AddBlock(int row, int col, const Eigen::Matrix3d& m);
-  // H(row, col) += v for row >= col. block_dim 1 only.
-  void AddScalar(int row, int col, double v) { AddScalarAt(col, Locate(row, col), v); }
-  // The same with the block's slot in its column precomputed by Locate(row,
-  // col) (the diagonal block is slot 0): the assembly loops of a solver with
-  // a fixed edge list look each block up once, not once per iteration.
+  // Slot of block (row, col), row >= col, in its column (the diagonal block
+  // is slot 0): the assembly loops of a solver with a fixed edge list look
+  // each block up once, not once per iteration, then add with *At.
   int Locate(int row, int col) const;
+  // H(row, col) += v at a slot from Locate. block_dim 1 only.
   void AddScalarAt(int col, int slot, double v) { matrix_.valuePtr()[matrix_.outerIndexPtr()[col] + slot] += v; }
   void AddBlockAt(int col, int slot, const Eigen::Matrix3d& m);
   // H(a, b) += m and H(b, a) += m^T for any a != b, or H(a, a) += m.

@@ -122,21 +122,23 @@ class KeyframePipeline {
                               std::vector<std::string>* warnings = nullptr);
 
   // The averager solves one variable per rig capture; this expands a
-  // solution into one orientation per camera keyframe. The output messages
-  // below expand their argument themselves.
+  // solution into one orientation per camera keyframe. Callers expand once
+  // per solve and pass the result to the output messages below.
   OnlineSolution CameraSolution(const OnlineSolution& solution) const { return rig_.ToCameraKeyframes(solution); }
 
-  // Output messages for a solution (of the averager).
-  Orientations OrientationsMsg(const OnlineSolution& solution, const ros::Time& stamp) const;
+  // Output messages for a solution expanded by CameraSolution.
+  Orientations OrientationsMsg(const OnlineSolution& cameras, const ros::Time& stamp) const;
   // all_keyframes: one transform per keyframe, stamped with its capture time.
-  tf2_msgs::TFMessage KeyframeTransforms(const OnlineSolution& solution) const;
+  tf2_msgs::TFMessage KeyframeTransforms(const OnlineSolution& cameras) const;
   // rviz: camera frusta by solved orientation (namespace "keyframes") and the
   // edges coloured by their robust weight (namespace "edges": green = full
-  // weight, red = rejected as an outlier).
-  visualization_msgs::MarkerArray Markers(const OnlineSolution& solution, const ros::Time& stamp) const;
+  // weight, red = rejected as an outlier). Lanes and edges come from the
+  // averager's `variables`, frusta from their expansion `cameras`.
+  visualization_msgs::MarkerArray Markers(const OnlineSolution& variables, const OnlineSolution& cameras,
+                                          const ros::Time& stamp) const;
   // latest_per_camera: the newest keyframe of each camera, stamped `now`;
   // a frame whose last transform had a stamp >= now is left out.
-  std::vector<geometry_msgs::TransformStamped> LatestTransforms(const OnlineSolution& solution, const ros::Time& now);
+  std::vector<geometry_msgs::TransformStamped> LatestTransforms(const OnlineSolution& cameras, const ros::Time& now);
   void ForgetLatestStamps();  // after a reset
 
   PipelineStats Stats() const;
