@@ -1,32 +1,50 @@
 #!/usr/bin/env bash
-# Builds the libFuzzer target for every file reader (test/fuzz/fuzz_readers.cpp:
-# 1DSfM, g2o, TORO, iRotAvg, the package's graph file, orientations CSV,
-# COLMAP and chained ground truth, format detection) with clang and
-# ASan + UBSan, and runs it for a fixed budget from the seed corpus in
-# test/fuzz/corpus. A crash, leak, timeout or out-of-memory fails the run and
-# leaves the input in build-fuzz/ (turn it into a regression test).
-#   bash scripts/fuzz.sh [seconds]      (default 60; after scripts/setup.sh)
+# libFuzzer targets built with clang, ASan and UBSan into build-fuzz/
+# (cmake -DROTAVG_FUZZ=ON, only the fuzz targets), each run for a fixed budget
+# from its seed corpus:
+#   fuzz_readers   every file reader (1DSfM, g2o, TORO, iRotAvg, the package's
+#                  graph file, orientations CSV, COLMAP and chained ground
+#                  truth, format detection); seeds in test/fuzz/corpus
+#   fuzz_messages  the message-to-graph path: serialised RelativePose(Array),
+#                  CameraInfo, Image, CompressedImage and /tf_static messages
+#                  through the KeyframePipeline, the averager and the output
+#                  messages; seeds in test/fuzz/corpus_messages
+# A crash, leak, broken invariant, timeout or out-of-memory fails the run and
+# leaves the input in build-fuzz/runs/<target>/ (turn it into a regression test).
+# Executions and time per target go to build-fuzz/fuzz_stats.txt.
+#   bash scripts/fuzz.sh [seconds per target]   (default 60; after scripts/setup.sh)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+export PATH=/usr/bin:$PATH
 SECONDS_BUDGET=${1:-60}
-OUT=build-fuzz
-mkdir -p "$OUT/corpus"
-SRC="src/io/graph_io.cpp src/io/orientation_io.cpp src/io/text_lines.cpp src/scene/view_graph.cpp
-     src/geometry/so3.cpp src/eval/rotation_evaluation.cpp src/estimators/rotation_averaging.cpp
-     src/estimators/component_problem.cpp src/estimators/irls_solver.cpp src/estimators/block_sparse_system.cpp
-     src/estimators/robust_loss.cpp src/estimators/l1_irls_solver.cpp src/estimators/ceres_solver.cpp"
-if [ ! -x "$OUT/fuzz_readers" ] || [ -n "$(find src include test/fuzz -newer "$OUT/fuzz_readers" -name '*.[ch]*' | head -1)" ]; then
-  echo "fuzz: building $OUT/fuzz_readers (clang, -fsanitize=fuzzer,address,undefined)"
-  # shellcheck disable=SC2086
-  clang++ -std=c++17 -O1 -g -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined \
-    -I include -I /usr/include/eigen3 test/fuzz/fuzz_readers.cpp $SRC -o "$OUT/fuzz_readers" \
-    /usr/lib/x86_64-linux-gnu/libceres.a -lglog -lgflags -lcholmod -lcxsparse -lspqr -llapack -lblas -lpthread -fopenmp
-fi
-cd "$OUT"
-./fuzz_readers -max_total_time="$SECONDS_BUDGET" -max_len=4096 -timeout=10 -rss_limit_mb=2048 \
-  -print_final_stats=1 corpus ../test/fuzz/corpus 2>&1 | tee fuzz.log | grep -E "^(#[0-9]+ *DONE|stat::number_of_executed_units|stat::peak_rss_mb|SUMMARY|==[0-9]+==ERROR)" || true
-if grep -q "SUMMARY\|ERROR: libFuzzer" fuzz.log; then
-  echo "fuzz: FAILED, input saved in $(pwd) (see fuzz.log)" >&2
-  exit 1
-fi
-echo "fuzz: no crash in ${SECONDS_BUDGET} s"
+OUT=$(pwd)/build-fuzz
+CC=clang CXX=clang++ cmake -S . -B "$OUT" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DROTAVG_FUZZ=ON \
+  -DCATKIN_ENABLE_TESTING=OFF -DPYTHON_EXECUTABLE=/usr/bin/python3 > "$OUT.configure.log" 2>&1 \
+  || { cat "$OUT.configure.log" >&2; exit 1; }
+echo "fuzz: building the fuzz targets (clang, -fsanitize=fuzzer,address,undefined)"
+cmake --build "$OUT" --target fuzz_readers fuzz_messages | grep -vE "^\[[0-9]+/[0-9]+\]" || true
+BIN=$OUT/devel/lib/rotation_averaging
+[ -x "$BIN/fuzz_readers" ] && [ -x "$BIN/fuzz_messages" ] || { echo "fuzz: build failed" >&2; exit 1; }
+: > "$OUT/fuzz_stats.txt"
+status=0
+run() {  # target seed-dir extra-options...
+  local target=$1 seeds=$2
+  shift 2
+  mkdir -p "$OUT/runs/$target/corpus"
+  (cd "$OUT/runs/$target" && "$BIN/$target" -max_total_time="$SECONDS_BUDGET" -timeout=10 -print_final_stats=1 \
+     "$@" corpus "$seeds" > fuzz.log 2>&1) || true
+  local execs rss
+  execs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$OUT/runs/$target/fuzz.log")
+  rss=$(sed -n 's/^stat::peak_rss_mb: *//p' "$OUT/runs/$target/fuzz.log")
+  if grep -q "SUMMARY\|ERROR: libFuzzer\|invariant broken" "$OUT/runs/$target/fuzz.log"; then
+    echo "fuzz: $target FAILED, input saved in $OUT/runs/$target (see fuzz.log):" >&2
+    grep -E "ERROR|SUMMARY|invariant|^    #[0-5] " "$OUT/runs/$target/fuzz.log" | head -20 >&2
+    status=1
+  else
+    echo "fuzz: $target: ${execs:-0} inputs in ${SECONDS_BUDGET} s, peak RSS ${rss:-?} MB, no finding" \
+      | tee -a "$OUT/fuzz_stats.txt"
+  fi
+}
+run fuzz_readers "$(pwd)/test/fuzz/corpus" -max_len=4096 -rss_limit_mb=2048
+run fuzz_messages "$(pwd)/test/fuzz/corpus_messages" -max_len=65536 -rss_limit_mb=3072
+exit $status

@@ -1,5 +1,6 @@
 // The replay tool's library: a rendered rig bag end to end, determinism, and
 // every kind of bad bag (no ROS master needed).
+#include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/ros/bag_replay.h"
 
 #include <gtest/gtest.h>
@@ -231,6 +232,49 @@ TEST_F(BagReplay, DamageInsideABagKeepsWhatCameBefore) {
   } else {
     EXPECT_GT(r.damaged_messages + r.rejected_messages, 0u);
   }
+}
+
+// A damaged length field in a message with an array makes ROS's deserialiser
+// allocate before it checks the bytes (found by fuzz_messages): the replay
+// drops the message as damaged and goes on.
+TEST_F(BagReplay, ArrayLengthAskingForTerabytesIsDropped) {
+#if defined(__SANITIZE_ADDRESS__)
+  GTEST_SKIP() << "under AddressSanitizer operator new aborts instead of throwing bad_alloc; "
+                  "the fuzz_messages target covers this path there";
+#else
+  const std::string good = TempDir() + "/array.bag";
+  WriteRelativePoseBag(good, 20);
+  {
+    rosbag::Bag bag(good, rosbag::bagmode::Append);
+    RelativePoseArray poses;
+    KeyframeRelativeRotation m;
+    m.keyframe1 = {"zzzz_marker_frame", 1000000000LL};
+    m.keyframe2 = {"zzzz_marker_frame", 2000000000LL};
+    poses.poses.push_back(ToMsg(m));
+    bag.write("/relative_poses", ros::Time(1000.5), poses);
+  }
+  std::string bytes = ReadAll(good);
+  // The array's length (uint32) comes just before the first pose's first
+  // string (uint32 length + characters).
+  const std::size_t marker = bytes.find("zzzz_marker_frame");
+  ASSERT_NE(marker, std::string::npos);
+  ASSERT_GE(marker, 8u);
+  const std::size_t count_at = marker - 8;
+  ASSERT_EQ(static_cast<unsigned char>(bytes[count_at]), 1u);
+  bytes[count_at] = '\xF0';
+  bytes[count_at + 1] = '\xFF';
+  bytes[count_at + 2] = '\xFF';
+  bytes[count_at + 3] = '\x7F';
+  const std::string damaged = TempDir() + "/array_damaged.bag";
+  std::ofstream(damaged, std::ios::binary) << bytes;
+  const ReplayResult r = ReplayBags(Options(damaged, "array_damaged"));
+  ASSERT_TRUE(r.ok) << r.error;
+  EXPECT_EQ(r.damaged_messages, 1u);
+  EXPECT_EQ(r.keyframes, 20u);
+  bool warned = false;
+  for (const std::string& w : r.warnings) warned = warned || w.find("does not deserialise") != std::string::npos;
+  EXPECT_TRUE(warned);
+#endif
 }
 
 }  // namespace

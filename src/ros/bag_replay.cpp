@@ -23,8 +23,10 @@
 #include <deque>
 #include <fstream>
 #include <memory>
+#include <new>
 #include <set>
 #include <sstream>
+#include <stdexcept>
 
 #include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/eval/error_plot.h"
@@ -466,6 +468,16 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
         ++result.damaged_messages;
         warn("message on " + m.getTopic() + " at " + std::to_string(time.toSec()) + " does not deserialise (" +
              e.what() + "): dropped");
+      } catch (const std::bad_alloc&) {
+        // A damaged array length: ROS's deserialiser allocates before it
+        // checks the bytes, and asks for more memory than there is.
+        ++result.damaged_messages;
+        warn("message on " + m.getTopic() + " at " + std::to_string(time.toSec()) +
+             " does not deserialise (an array length beyond the memory): dropped");
+      } catch (const std::length_error&) {
+        ++result.damaged_messages;
+        warn("message on " + m.getTopic() + " at " + std::to_string(time.toSec()) +
+             " does not deserialise (an array length beyond what a vector holds): dropped");
       }
       ++result.messages_read;
       bar.Update(result.messages_read, (time - bag_start).toSec());
