@@ -18,9 +18,10 @@ cd "$(dirname "$0")/.."
 export PATH=/usr/bin:$PATH
 SECONDS_BUDGET=${1:-60}
 OUT=$(pwd)/build-fuzz
+mkdir -p "$OUT"
 CC=clang CXX=clang++ cmake -S . -B "$OUT" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DROTAVG_FUZZ=ON \
-  -DCATKIN_ENABLE_TESTING=OFF -DPYTHON_EXECUTABLE=/usr/bin/python3 > "$OUT.configure.log" 2>&1 \
-  || { cat "$OUT.configure.log" >&2; exit 1; }
+  -DCATKIN_ENABLE_TESTING=OFF -DPYTHON_EXECUTABLE=/usr/bin/python3 > "$OUT/configure.log" 2>&1 \
+  || { cat "$OUT/configure.log" >&2; exit 1; }
 echo "fuzz: building the fuzz targets (clang, -fsanitize=fuzzer,address,undefined)"
 cmake --build "$OUT" --target fuzz_readers fuzz_messages | grep -vE "^\[[0-9]+/[0-9]+\]" || true
 BIN=$OUT/devel/lib/rotation_averaging

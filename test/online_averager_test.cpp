@@ -112,6 +112,13 @@ TEST(OnlineAverager, WorkerSolvesPeriodicallyAndWarmStarts) {
   const std::uint64_t first = averager.Solution()->sequence;
   for (std::size_t k = half; k < d.measurements.size(); ++k) averager.AddRelativeRotation(d.measurements[k]);
   ASSERT_TRUE(wait_for(first + 1));
+  // Wait until every measurement has left the queue for the graph; the solve
+  // that took the last ones may still run, and Stop lets it finish. (Stopping
+  // with measurements still queued made the restart below solve them: flaky.)
+  for (int i = 0; i < 200 && averager.Stats().accepted < d.measurements.size(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  ASSERT_EQ(averager.Stats().accepted, d.measurements.size());
   averager.Stop();
   EXPECT_GE(callbacks.load(), 2);
   EXPECT_EQ(averager.Solution()->orientations.size(), 80u);
