@@ -44,7 +44,8 @@ bool OnlineAverager::ParseKeyframeName(const std::string& name, KeyframeKey* key
   return true;
 }
 
-bool OnlineAverager::AddRelativeRotation(const KeyframeRelativeRotation& m, std::string* error) {
+bool OnlineAverager::AddRelativeRotation(const KeyframeRelativeRotation& m, std::string* error, bool* queue_full) {
+  if (queue_full) *queue_full = false;
   auto reject = [&](const std::string& why, std::uint64_t OnlineAveragerStats::*counter) {
     std::lock_guard<std::mutex> lock(stats_mutex_);
     ++(stats_.*counter);
@@ -82,6 +83,7 @@ bool OnlineAverager::AddRelativeRotation(const KeyframeRelativeRotation& m, std:
   {
     std::lock_guard<std::mutex> lock(queue_mutex_);
     if (queue_.size() >= options_.max_queue) {
+      if (queue_full) *queue_full = true;
       return reject("input queue full (" + std::to_string(options_.max_queue) + ")",
                     &OnlineAveragerStats::dropped_queue_full);
     }
@@ -333,8 +335,15 @@ std::map<EdgeSource, std::size_t> OnlineAverager::EdgesBySource() const {
 }
 
 OnlineAveragerStats OnlineAverager::Stats() const {
+  std::size_t queued = 0;
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    queued = queue_.size();
+  }
   std::lock_guard<std::mutex> lock(stats_mutex_);
-  return stats_;
+  OnlineAveragerStats s = stats_;
+  s.queued = queued;
+  return s;
 }
 
 void OnlineAverager::SetSolutionCallback(std::function<void(std::shared_ptr<const OnlineSolution>)> callback) {

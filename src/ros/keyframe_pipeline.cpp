@@ -118,26 +118,32 @@ bool KeyframePipeline::Reject(std::uint64_t* counter, const std::string& why, st
 }
 
 // Into the averager through the rig model (one variable per rig capture).
-bool KeyframePipeline::AddMeasurement(const KeyframeRelativeRotation& m, std::string* error) {
+bool KeyframePipeline::AddMeasurement(const KeyframeRelativeRotation& m, std::string* error, bool* queue_full) {
+  if (queue_full) *queue_full = false;
   // Self-references are errors even when both ends are rig cameras.
   if (m.keyframe1.frame_id == m.keyframe2.frame_id && m.keyframe1.stamp_ns == m.keyframe2.stamp_ns) {
     if (error) *error = "a keyframe related to itself";
     return false;
   }
   KeyframeRelativeRotation v;
-  if (!m.rotation.allFinite()) return averager_->AddRelativeRotation(m, error);  // rejected there, with the reason
+  if (!m.rotation.allFinite()) return averager_->AddRelativeRotation(m, error, queue_full);  // rejected there
   if (!rig_.ToVariables(m, &v)) {
     std::lock_guard<std::mutex> lock(mutex_);
     ++stats_.absorbed_by_rig;
     return true;
   }
-  return averager_->AddRelativeRotation(v, error);
+  return averager_->AddRelativeRotation(v, error, queue_full);
 }
 
 bool KeyframePipeline::AcceptRelativePose(const RelativePose& msg, std::string* error) {
   KeyframeRelativeRotation m;
   std::string why;
-  if (FromMsg(msg, &m, &why) && AddMeasurement(m, &why)) return true;
+  bool queue_full = false;
+  if (FromMsg(msg, &m, &why) && AddMeasurement(m, &why, &queue_full)) return true;
+  if (queue_full) {  // valid, dropped under load: counted by the averager (dropped_queue_full)
+    if (error) *error = why;
+    return false;
+  }
   return Reject(&stats_.rejected_messages, why, error);
 }
 

@@ -16,7 +16,9 @@
 #include <tf2_ros/transform_broadcaster.h>
 
 #include <condition_variable>
+#include <cstdlib>
 #include <deque>
+#include <fstream>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -309,6 +311,7 @@ class RotationAveragingNode {
   // Called from the averager's worker thread after each successful solve.
   void Publish(const OnlineSolution& solution) {
     const ros::Time now = ros::Time::now();
+    WarnAboutCaps();
     const OnlineSolution cameras = pipeline_->CameraSolution(solution);  // once per solve
     orientations_pub_.publish(pipeline_->OrientationsMsg(cameras, now));
     if (markers_pub_ && markers_pub_.getNumSubscribers() > 0) {
@@ -322,6 +325,32 @@ class RotationAveragingNode {
       // current orientation); never twice with the same stamp per frame.
       const std::vector<geometry_msgs::TransformStamped> tfs = pipeline_->LatestTransforms(cameras, now);
       if (!tfs.empty()) broadcaster_.sendTransform(tfs);
+    }
+  }
+
+  // Measurements dropped at the view or edge caps are counted when the worker
+  // applies them to the graph; say so once per burst, with the caps' names.
+  void WarnAboutCaps() {
+    const OnlineAveragerStats s = averager_->Stats();
+    if (s.dropped_cap <= cap_drops_warned_) return;
+    const OnlineAveragerOptions& o = pipeline_->Config().averager;
+    ROS_WARN_THROTTLE(10.0,
+                      "graph caps reached (%zu keyframes, max_views %zu; %zu edges, max_edges %zu): %llu "
+                      "measurements dropped so far; raise the caps or reset the graph",
+                      s.views, o.max_views, s.edges, o.max_edges, static_cast<unsigned long long>(s.dropped_cap));
+    cap_drops_warned_ = s.dropped_cap;
+  }
+
+  // Resident and peak resident memory of this process (MiB), from /proc.
+  static void ReadMemoryMiB(double* resident, double* peak) {
+    *resident = *peak = 0.0;
+    std::ifstream status("/proc/self/status");
+    std::string line;
+    while (std::getline(status, line)) {
+      const bool rss = line.rfind("VmRSS:", 0) == 0, hwm = line.rfind("VmHWM:", 0) == 0;
+      if (!rss && !hwm) continue;
+      const double kib = std::atof(line.c_str() + 6);
+      (rss ? *resident : *peak) = kib / 1024.0;
     }
   }
 
@@ -368,6 +397,11 @@ class RotationAveragingNode {
     status.add("dropped images (queue full)", dropped_images);
     status.add("dropped (queue full)", s.dropped_queue_full);
     status.add("dropped (caps)", s.dropped_cap);
+    status.add("queued measurements", s.queued);
+    double resident = 0.0, peak = 0.0;
+    ReadMemoryMiB(&resident, &peak);
+    status.add("resident memory (MiB)", resident);
+    status.add("peak resident memory (MiB)", peak);
     status.add("solves", s.solves);
     status.add("failed solves", s.failed_solves);
     status.add("overruns", s.overruns);
@@ -402,6 +436,7 @@ class RotationAveragingNode {
   std::condition_variable image_wake_;
   std::deque<PendingKeyframe> image_queue_;
   std::size_t max_image_queue_ = 8;
+  std::uint64_t cap_drops_warned_ = 0;  // worker thread only
   bool images_running_ = false;
   std::thread image_worker_;
 };

@@ -62,6 +62,7 @@ struct OnlineAveragerStats {
   std::uint64_t rejected_invalid = 0;   // failed validation (NaN, not a rotation, bad covariance, self-loop)
   std::uint64_t dropped_queue_full = 0;
   std::uint64_t dropped_cap = 0;        // view or edge cap reached
+  std::size_t queued = 0;               // measurements waiting for the next solve (at most max_queue)
   std::uint64_t solves = 0;
   std::uint64_t failed_solves = 0;
   std::uint64_t overruns = 0;           // solves that took longer than the period
@@ -100,7 +101,10 @@ class OnlineAverager {
 
   // Validates and enqueues; never blocks on a solve. Returns false (with
   // `error`) if the measurement was rejected or dropped; the reason is counted.
-  bool AddRelativeRotation(const KeyframeRelativeRotation& measurement, std::string* error = nullptr);
+  // `queue_full` (optional) tells a valid measurement dropped at the full
+  // queue (counted in dropped_queue_full) from an invalid one.
+  bool AddRelativeRotation(const KeyframeRelativeRotation& measurement, std::string* error = nullptr,
+                           bool* queue_full = nullptr);
 
   // Starts the worker thread (periodic solves). Without it, call SolveNow().
   void Start();

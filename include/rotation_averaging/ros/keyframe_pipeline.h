@@ -147,7 +147,7 @@ class KeyframePipeline {
   bool Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
                 const sensor_msgs::CameraInfo& info, PendingKeyframe* out, std::string* error);
   bool Reject(std::uint64_t* counter, const std::string& why, std::string* error);
-  bool AddMeasurement(const KeyframeRelativeRotation& m, std::string* error);
+  bool AddMeasurement(const KeyframeRelativeRotation& m, std::string* error, bool* queue_full = nullptr);
   geometry_msgs::TransformStamped Transform(const ros::Time& stamp, const std::string& child,
                                             const geometry_msgs::Quaternion& camera_to_world) const;
 
