@@ -48,6 +48,77 @@ TEST(OnlineAverager, SolvesARigWithLoopClosuresAndOutliers) {
   EXPECT_GT(stats.outlier_edges, 0u);
 }
 
+// Numerically hostile input on top of a good graph: a new pair of keyframes
+// joined only by two contradictory edges with covariances 12 orders of
+// magnitude apart, a component whose edges are all outliers, and confident
+// outliers (covariance 1e-300 rad^2 .. 1e300) into the good component. Every
+// solve ends with a status per component and finite orientations, and the
+// good keyframes keep their accuracy.
+TEST(OnlineAverager, NumericalFaultsEndFiniteAndKeepTheGoodKeyframes) {
+  const RigData d = MakeRig(40, 0.0, 9);
+  for (SolverType solver : {SolverType::kIrls, SolverType::kCeres}) {
+    for (LossType loss : {LossType::kMagsac, LossType::kCauchy, LossType::kSquared}) {
+      OnlineAveragerOptions options;
+      options.averaging.loss = loss;
+      options.averaging.solver = solver;
+      OnlineAverager averager(options);
+      for (const auto& m : d.measurements) averager.AddRelativeRotation(m);
+      ASSERT_TRUE(averager.SolveNow());
+      const double before = MedianErrorDeg(*averager.Solution(), d);
+      KeyframeRelativeRotation m;
+      m.has_covariance = true;
+      m.keyframe1 = {"fault", 1};
+      m.keyframe2 = {"fault", 2};
+      m.rotation = ExpSO3(Eigen::Vector3d(0, 0, 1.0));
+      m.covariance = 1e-12 * Eigen::Matrix3d::Identity();
+      m.source = EdgeSource::kSequential;
+      EXPECT_TRUE(averager.AddRelativeRotation(m));
+      m.rotation = ExpSO3(Eigen::Vector3d(0, 0, -2.0));
+      m.covariance = Eigen::Matrix3d::Identity();
+      m.source = EdgeSource::kLoopClosure;
+      EXPECT_TRUE(averager.AddRelativeRotation(m));
+      for (int a = 0; a < 3; ++a) {  // a triangle of random edges
+        m.keyframe1 = {"outliers", a};
+        m.keyframe2 = {"outliers", (a + 1) % 3};
+        m.rotation = ExpSO3(Eigen::Vector3d(2.0 * a - 1.0, -1.0, 0.5 * a));
+        m.covariance = std::pow(10.0, -4.0 * a) * Eigen::Matrix3d::Identity();
+        m.source = EdgeSource::kOther;
+        EXPECT_TRUE(averager.AddRelativeRotation(m));
+      }
+      auto key = d.truth.begin();
+      for (double c : {1e-300, 1e-30, 1e-12, 1e12, 1e300}) {  // confident (and hopeless) outliers
+        const KeyframeKey a = (key++)->first, b = (key++)->first;
+        m.keyframe1 = a;
+        m.keyframe2 = b;
+        m.rotation = d.truth.at(a) * d.truth.at(b).transpose() * ExpSO3(Eigen::Vector3d(1.5, 0.0, 0.0));
+        m.covariance = c * Eigen::Matrix3d::Identity();
+        std::string error;
+        EXPECT_TRUE(averager.AddRelativeRotation(m, &error)) << c << ": " << error;
+      }
+      const std::uint64_t sequence = averager.Solution()->sequence;
+      const bool solved = averager.SolveNow();
+      const auto solution = averager.Solution();
+      const std::string what = std::string(SolverTypeName(solver)) + " " + LossTypeName(loss);
+      if (solved) {
+        EXPECT_EQ(solution->sequence, sequence + 1) << what;
+      } else {  // the previous good solution stays
+        EXPECT_EQ(solution->sequence, sequence) << what;
+        EXPECT_EQ(averager.Stats().failed_solves, 1u) << what;
+      }
+      for (const auto& [k, r] : solution->orientations) EXPECT_TRUE(IsRotationMatrix(r, 1e-9)) << what;
+      for (const auto& c : solution->summary.components) EXPECT_FALSE(c.status.empty()) << what;
+      for (const SolvedEdge& e : solution->edges) {
+        EXPECT_TRUE(std::isfinite(e.residual_deg) && std::isfinite(e.robust_weight)) << what;
+      }
+      // The good keyframes: robust losses ignore the faults; the squared loss
+      // is pulled, but stays finite.
+      const double after = MedianErrorDeg(*solution, d);
+      if (loss != LossType::kSquared) EXPECT_LT(after, std::max(1.0, 2.0 * before)) << what;
+      EXPECT_TRUE(std::isfinite(after)) << what;
+    }
+  }
+}
+
 TEST(OnlineAverager, RejectsAndCountsBadInput) {
   OnlineAverager averager(OnlineAveragerOptions{});
   KeyframeRelativeRotation m;
