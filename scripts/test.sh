@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Sets up, builds every test and runs them all with ctest (which, unlike
-# `make run_tests`, fails when a test fails); then the same suite again in an
+# `make run_tests`, fails when a test fails); the quick results report
+# (scripts/report.sh --quick); then the same suite again in an
 # AddressSanitizer + UndefinedBehaviorSanitizer build (scripts/test_sanitizers.sh)
 # and a 60 s libFuzzer run over the file readers (scripts/fuzz.sh).
 #   bash scripts/test.sh [--no-sanitizers]
@@ -12,6 +13,9 @@ bash scripts/setup.sh
 export PATH=/usr/bin:$PATH
 cmake --build build --target tests
 (cd build && ctest --output-on-failure)
+echo
+echo "== The results report in its quick form (scripts/report.sh --quick), so the report code never rots =="
+bash scripts/report.sh --quick
 if [ "$SANITIZERS" = 1 ]; then
   echo
   echo "== The test suite again with AddressSanitizer and UndefinedBehaviorSanitizer =="

@@ -117,5 +117,52 @@ TEST(BlockSparseSystem, NonFiniteInputIsRejected) {
   EXPECT_FALSE(system.Solve(0.0, 3, &x));
 }
 
+// Scalar systems larger than kScalarCholmodMinBlocks take CHOLMOD (and, past
+// kMetisMinRows, a METIS ordering); the answer must not change with the backend,
+// also when the factor of an earlier matrix preconditions the next solve.
+TEST(BlockSparseSystem, LargeScalarLaplacianSolvesExactly) {
+  const int side = 130;  // 16,900 blocks on a grid: CHOLMOD with METIS
+  const int n = side * side;
+  ASSERT_GT(n, BlockSparseSystem::kScalarCholmodMinBlocks);
+  ASSERT_GT(n, BlockSparseSystem::kMetisMinRows);
+  std::vector<std::pair<int, int>> pairs;
+  for (int r = 0; r < side; ++r) {
+    for (int c = 0; c < side; ++c) {
+      if (c + 1 < side) pairs.emplace_back(r * side + c, r * side + c + 1);
+      if (r + 1 < side) pairs.emplace_back(r * side + c, (r + 1) * side + c);
+    }
+  }
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> weight(0.5, 2.0);
+  std::normal_distribution<double> normal;
+  BlockSparseSystem system(n, pairs, 1);
+  Eigen::SparseMatrix<double> reference(n, n);
+  for (int pass = 0; pass < 2; ++pass) {  // the second pass reuses the first factor as a preconditioner
+    system.SetZero();
+    std::vector<Eigen::Triplet<double>> triplets;
+    for (const auto& [a, b] : pairs) {
+      const double w = weight(rng);
+      system.AddScalarAt(a, system.Locate(a, a), w);
+      system.AddScalarAt(b, system.Locate(b, b), w);
+      system.AddScalarAt(a, system.Locate(b, a), -w);
+      triplets.emplace_back(a, a, w);
+      triplets.emplace_back(b, b, w);
+      triplets.emplace_back(a, b, -w);
+      triplets.emplace_back(b, a, -w);
+    }
+    for (int v = 0; v < n; ++v) {  // anchor: a Laplacian plus a small diagonal
+      system.AddScalarAt(v, system.Locate(v, v), 0.01);
+      triplets.emplace_back(v, v, 0.01);
+    }
+    reference.setFromTriplets(triplets.begin(), triplets.end());
+    for (int v = 0; v < n; ++v) system.Rhs()(v, 0) = normal(rng);
+    const Eigen::VectorXd b = system.Rhs().col(0);
+    Eigen::VectorXd x;
+    ASSERT_TRUE(system.Solve(0.0, 2, &x));
+    EXPECT_LT((reference * x - b).norm(), 1e-6 * b.norm()) << "pass " << pass;
+  }
+  EXPECT_EQ(system.NumFactorizations() + system.NumPreconditionedSolves(), 2);
+}
+
 }  // namespace
 }  // namespace rotation_averaging

@@ -307,5 +307,64 @@ TEST(RotationAveraging, CovarianceWeightingWithoutCovariancesFallsBackWithAWarni
   EXPECT_NEAR(summary.loss_scale, DegToRad(5.0), 1e-12);  // radians default, not standard deviations
 }
 
+// The online case: all but one view warm-started. The new view is placed by
+// the prediction its edges agree on (the edge with the highest tree weight is
+// an outlier here), and no L1 start or GNC runs over the whole graph.
+TEST(RotationAveraging, MostlyWarmStartPlacesNewViewsByConsensus) {
+  SyntheticGraphOptions go;
+  go.num_views = 200;
+  go.noise_deg = 1.0;
+  go.outlier_ratio = 0.1;
+  go.seed = 21;
+  SyntheticGraph sg = MakeSyntheticGraph(go);
+  ViewOrientations solved;
+  RotationAveragingSummary summary;
+  ASSERT_TRUE(SolveRotationAveraging(sg.graph, RotationAveragingOptions{}, &solved, &summary));
+  const int cold_iterations = summary.components[0].iterations;
+  // A new view with four edges to solved views; the most trusted is wrong.
+  const ViewId fresh = 1000;
+  sg.graph.AddView(fresh);
+  const Eigen::Matrix3d truth = ExpSO3(Eigen::Vector3d(0.3, -0.2, 1.0));
+  sg.ground_truth[fresh] = truth;
+  for (int k = 0; k < 4; ++k) {
+    RelativeRotation e;
+    e.view1 = static_cast<ViewId>(10 * k + 3);
+    e.view2 = fresh;
+    e.rotation = sg.ground_truth[e.view1] * truth.transpose() * ExpSO3(Eigen::Vector3d(0.005, -0.004, 0.003));
+    e.num_inliers = 100;
+    e.has_covariance = true;
+    e.covariance = std::pow(DegToRad(1.0), 2) * Eigen::Matrix3d::Identity();
+    if (k == 0) {
+      e.rotation = e.rotation * ExpSO3(Eigen::Vector3d(0.0, 1.2, 0.0));
+      e.covariance *= 0.01;  // confident: the largest tree weight
+      e.num_inliers = 1000;
+    }
+    ASSERT_NE(sg.graph.AddEdge(e), AddEdgeResult::kRejected);
+  }
+  ViewOrientations warm = solved;
+  ASSERT_TRUE(SolveRotationAveraging(sg.graph, RotationAveragingOptions{}, &warm, &summary));
+  EXPECT_LT(summary.components[0].iterations, cold_iterations / 2);
+  const EvaluationResult e = EvaluateOrientations(NameOrientations(sg.graph, warm), NameOrientations(sg.graph, sg.ground_truth));
+  double fresh_error = -1.0;
+  for (const auto& [name, error] : e.errors_deg)
+    if (name == sg.graph.FindView(fresh)->name) fresh_error = error;
+  EXPECT_GE(fresh_error, 0.0);
+  EXPECT_LT(fresh_error, 2.0);
+}
+
+TEST(SyntheticGraph, LocalityKeepsEdgesWithinTheGridWindow) {
+  SyntheticGraphOptions go;
+  go.num_views = 400;  // a 20 x 20 grid
+  go.locality = 2;
+  go.mean_degree = 8.0;
+  const SyntheticGraph sg = MakeSyntheticGraph(go);
+  EXPECT_EQ(sg.graph.NumEdges(), 1600u);
+  for (const RelativeRotation& e : sg.graph.Edges()) {
+    if (e.view2 == e.view1 + 1) continue;  // the sequential chain
+    EXPECT_LE(std::abs(static_cast<int>(e.view1 / 20) - static_cast<int>(e.view2 / 20)), 2);
+    EXPECT_LE(std::abs(static_cast<int>(e.view1 % 20) - static_cast<int>(e.view2 % 20)), 2);
+  }
+}
+
 }  // namespace
 }  // namespace rotation_averaging

@@ -4,6 +4,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <queue>
 #include <unordered_map>
 
@@ -184,6 +185,7 @@ void InitializeBySpanningTree(ComponentProblem* problem) {
   problem->gauge = gauge;
 
   // Prim's algorithm grown from every warm-started view at once (or the gauge).
+  // Warm views are all marked first, so only edges leaving them are queued.
   std::vector<bool> done(n, false);
   using Item = std::pair<double, int>;  // (tree weight, edge index)
   std::priority_queue<Item> queue;
@@ -194,7 +196,12 @@ void InitializeBySpanningTree(ComponentProblem* problem) {
       if (!done[e.i == v ? e.j : e.i]) queue.push({e.tree_weight, k});
     }
   };
+  auto predict = [&](const ComponentEdge& e, int v) -> Eigen::Matrix3d {  // v's rotation from the other end
+    return v == e.j ? Eigen::Matrix3d(e.measured.transpose() * problem->rotations[e.i])
+                    : Eigen::Matrix3d(e.measured * problem->rotations[e.j]);
+  };
   if (any_initial) {
+    for (int v = 0; v < n; ++v) done[v] = problem->has_initial[v];
     for (int v = 0; v < n; ++v)
       if (problem->has_initial[v]) visit(v);
   } else {
@@ -205,13 +212,31 @@ void InitializeBySpanningTree(ComponentProblem* problem) {
     const ComponentEdge& e = problem->edges[queue.top().second];
     queue.pop();
     if (done[e.i] && done[e.j]) continue;
-    if (done[e.i]) {
-      problem->rotations[e.j] = e.measured.transpose() * problem->rotations[e.i];
-      visit(e.j);
-    } else {
-      problem->rotations[e.i] = e.measured * problem->rotations[e.j];
-      visit(e.i);
+    const int v = done[e.i] ? e.j : e.i;
+    problem->rotations[v] = predict(e, v);
+    if (any_initial) {
+      // A view grown from warm neighbours: of the predictions of its edges to
+      // views already placed, take the one the others agree with best (an
+      // outlier edge does not decide where a new keyframe starts when it has
+      // two or more good ones).
+      std::vector<Eigen::Matrix3d> candidates;
+      for (int k : incident[v]) {
+        const ComponentEdge& f = problem->edges[k];
+        if (done[f.i == v ? f.j : f.i]) candidates.push_back(predict(f, v));
+      }
+      if (candidates.size() >= 3) {
+        double best = std::numeric_limits<double>::infinity();
+        for (const Eigen::Matrix3d& c : candidates) {
+          double spread = 0.0;
+          for (const Eigen::Matrix3d& d : candidates) spread += std::min(AngularDistanceRad(c, d), 0.1);
+          if (spread < best) {
+            best = spread;
+            problem->rotations[v] = c;
+          }
+        }
+      }
     }
+    visit(v);
   }
 }
 

@@ -189,8 +189,12 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
     ComponentSummary cs;
     cs.num_views = problem.view_ids.size();
     cs.num_edges = problem.edges.size();
-    bool all_warm = true;
-    for (bool h : problem.has_initial) all_warm = all_warm && h;
+    std::size_t warm = 0;
+    for (bool h : problem.has_initial) warm += h;
+    // "all warm" also when only a few views are new (see warm_start_min_fraction).
+    const bool all_warm = warm == problem.has_initial.size() ||
+                          (warm > 0 && static_cast<double>(warm) >=
+                                           options.warm_start_min_fraction * static_cast<double>(problem.has_initial.size()));
     InitializeBySpanningTree(&problem);
     cs.gauge_view = problem.view_ids[problem.gauge];
     const std::vector<Eigen::Matrix3d> initial_rotations = problem.rotations;

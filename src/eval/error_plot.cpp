@@ -64,19 +64,33 @@ void DrawAxes(cv::Mat* canvas, const Panel& p, const std::string& x_label, const
               cv::LINE_AA);
 }
 
-void DrawCdf(cv::Mat* canvas, const Panel& p, std::vector<double> errors, const cv::Scalar& colour, int thickness) {
+void DrawCdf(cv::Mat* canvas, const Panel& p, std::vector<double> errors, const cv::Scalar& colour, int thickness,
+             std::size_t total = 0) {
   if (errors.empty()) return;
   std::sort(errors.begin(), errors.end());
+  const double n = static_cast<double>(std::max(total, errors.size()));
   cv::Point previous = p.Map(0.0, 0.0);
   for (std::size_t k = 0; k < errors.size(); ++k) {
-    const double fraction = static_cast<double>(k + 1) / errors.size();
-    const cv::Point step = p.Map(errors[k], static_cast<double>(k) / errors.size());
+    const double fraction = static_cast<double>(k + 1) / n;
+    const cv::Point step = p.Map(errors[k], static_cast<double>(k) / n);
     const cv::Point up = p.Map(errors[k], fraction);
     cv::line(*canvas, previous, step, colour, thickness, cv::LINE_AA);
     cv::line(*canvas, step, up, colour, thickness, cv::LINE_AA);
     previous = up;
   }
-  cv::line(*canvas, previous, p.Map(p.x_max, 1.0), colour, thickness, cv::LINE_AA);
+  cv::line(*canvas, previous, p.Map(p.x_max, errors.size() / n), colour, thickness, cv::LINE_AA);
+}
+
+bool Write(const std::string& path, const cv::Mat& canvas, std::string* error) {
+  bool written = false;
+  try {
+    written = cv::imwrite(path, canvas);
+  } catch (const cv::Exception& e) {
+    if (error) *error = e.what();
+    return false;
+  }
+  if (!written && error) *error = "cannot write " + path;
+  return written;
 }
 
 }  // namespace
@@ -138,15 +152,44 @@ bool WriteErrorPlot(const std::string& path, const std::string& title, const std
     cv::putText(canvas, "all keyframes", cv::Point(cdf.area.x + cdf.area.width - 130, cdf.area.y + cdf.area.height - 12),
                 cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
   }
-  bool written = false;
-  try {
-    written = cv::imwrite(path, canvas);
-  } catch (const cv::Exception& e) {
-    if (error) *error = e.what();
+  return Write(path, canvas, error);
+}
+
+bool WriteCdfPlot(const std::string& path, const std::string& title, const std::vector<CdfSeries>& series,
+                  std::size_t num_views, double x_max_deg, std::string* error) {
+  std::vector<double> p90;
+  for (const CdfSeries& s : series) {
+    std::vector<double> e;
+    for (double v : s.error_deg)
+      if (std::isfinite(v)) e.push_back(v);
+    if (e.empty()) continue;
+    std::sort(e.begin(), e.end());
+    p90.push_back(e[std::min(e.size() - 1, static_cast<std::size_t>(0.9 * e.size()))]);
+  }
+  if (p90.empty()) {
+    if (error) *error = "no finite errors to plot";
     return false;
   }
-  if (!written && error) *error = "cannot write " + path;
-  return written;
+  // Default x range: the median method's 90th percentile, so that the curves
+  // separate where they differ.
+  std::sort(p90.begin(), p90.end());
+  const double x_max = x_max_deg > 0.0 ? x_max_deg : NiceCeiling(1.5 * p90[p90.size() / 2]);
+  const int width = kMarginLeft + kPanelWidth + 60, height = kMarginTop + kPanelHeight + kMarginBottom + 40;
+  cv::Mat canvas(height, width, CV_8UC3, cv::Scalar(255, 255, 255));
+  cv::putText(canvas, title, cv::Point(20, 28), cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  Panel cdf{cv::Rect(kMarginLeft, kMarginTop + 30, kPanelWidth, kPanelHeight), x_max, 1.0};
+  DrawAxes(&canvas, cdf, "rotation error threshold (deg)", "fraction of views below", "");
+  int legend_y = cdf.area.y + cdf.area.height - 12 - 18 * static_cast<int>(series.size() - 1);
+  for (std::size_t k = 0; k < series.size(); ++k) {
+    std::vector<double> errors;
+    for (double v : series[k].error_deg)
+      if (std::isfinite(v)) errors.push_back(v);
+    DrawCdf(&canvas, cdf, errors, Colour(k), 2, num_views);
+    cv::putText(canvas, series[k].label, cv::Point(cdf.area.x + cdf.area.width / 2 - 20, legend_y),
+                cv::FONT_HERSHEY_SIMPLEX, 0.42, Colour(k), 1, cv::LINE_AA);
+    legend_y += 18;
+  }
+  return Write(path, canvas, error);
 }
 
 }  // namespace rotation_averaging

@@ -1,5 +1,6 @@
 #include "rotation_averaging/scene/synthetic_graph.h"
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <set>
@@ -34,9 +35,22 @@ SyntheticGraph MakeSyntheticGraph(const SyntheticGraphOptions& options) {
     for (int v = 0; v + 1 < n && pairs.size() < target_edges; ++v) pairs.insert({v, v + 1});
   }
   std::uniform_int_distribution<int> pick(0, std::max(0, n - 1));
-  const std::size_t max_pairs = static_cast<std::size_t>(n) * (n - 1) / 2;
+  const int side = std::max(1, static_cast<int>(std::ceil(std::sqrt(static_cast<double>(n)))));
+  const int window = options.locality > 0 ? std::min(options.locality, side) : 0;
+  std::uniform_int_distribution<int> offset(-window, window);
+  const std::size_t max_pairs =
+      window > 0 ? static_cast<std::size_t>(n) * static_cast<std::size_t>((2 * window + 1) * (2 * window + 1) - 1) / 2
+                 : static_cast<std::size_t>(n) * (n - 1) / 2;
   while (pairs.size() < std::min(target_edges, max_pairs)) {
-    int a = pick(rng), b = pick(rng);
+    int a = pick(rng), b;
+    if (window > 0) {
+      const int row = a / side + offset(rng), col = a % side + offset(rng);
+      if (row < 0 || col < 0 || col >= side) continue;
+      b = row * side + col;
+      if (b >= n) continue;
+    } else {
+      b = pick(rng);
+    }
     if (a == b) continue;
     pairs.insert({std::min(a, b), std::max(a, b)});
   }

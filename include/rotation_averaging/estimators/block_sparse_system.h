@@ -65,6 +65,8 @@ class BlockSparseSystem {
   int NumPreconditionedSolves() const { return num_pcg_solves_; }
   int LastPcgIterations() const { return last_pcg_iterations_; }
 
+  static constexpr int kScalarCholmodMinBlocks = 5000;  // scalar systems larger than this use CHOLMOD
+  static constexpr int kMetisMinRows = 15000;            // CHOLMOD orders systems larger than this with METIS
   static constexpr int kMaxPcgIterations = 8;
   static constexpr int kRefactorAfterPcgIterations = 4;
 

@@ -21,6 +21,17 @@ struct ErrorSeries {
 bool WriteErrorPlot(const std::string& path, const std::string& title, const std::vector<ErrorSeries>& series,
                     std::string* error);
 
+// One panel, like the paper's figure: for each method, the fraction of views
+// whose error is below x (the recall curve whose area gives the AUC). Views a
+// method did not estimate count as failures: `num_views` is the total (0 =
+// the size of each series). x runs to `x_max_deg` (0 = chosen from the data).
+struct CdfSeries {
+  std::string label;
+  std::vector<double> error_deg;
+};
+bool WriteCdfPlot(const std::string& path, const std::string& title, const std::vector<CdfSeries>& series,
+                  std::size_t num_views, double x_max_deg, std::string* error);
+
 }  // namespace rotation_averaging
 
 #endif  // ROTATION_AVERAGING_EVAL_ERROR_PLOT_H_

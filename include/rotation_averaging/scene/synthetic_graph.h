@@ -23,6 +23,12 @@ struct SyntheticGraphOptions {
   // Outliers carry a covariance like an inlier's (a front end does not know it
   // is wrong).
   bool sequential_chain = true;    // edges (k, k+1) first, which keeps the graph connected
+  // 0: the other edges join views drawn uniformly from the whole graph (an
+  // expander: its Cholesky factor is nearly dense, fine up to a few thousand
+  // views). > 0: views sit row by row on a square grid, as the cameras of a
+  // city-scale capture do, and each other edge joins a view to one drawn from
+  // the (2 locality + 1)^2 window around it (for the scale benchmark).
+  int locality = 0;
   std::uint64_t seed = 1;
 };
 

@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# One command for the whole results report (issue #6): regenerates every
+# results/*.md file and the plots in results/plots/, each file naming the
+# command that produced it:
+#   core_benchmark.md  solvers on the real graphs (time, iterations, cost,
+#                      memory, GLOMAP reference), sphere2500 accuracy,
+#                      synthetic robustness and the synthetic loss x weighting table
+#   scale.md           1,000 to 1,000,000 synthetic views (time, memory, growth
+#                      exponent) and the online re-solve of a 10,000-keyframe graph
+#   frontend.md        the two-view front end on the Strecha scenes and lund_door
+#   loss_table.md      (full resolution and downsampled by 4): covariance
+#   plots/cdf_*.png    calibration, the loss x weighting table, CDF plots, speed
+#   node_benchmark.md  the running node: latency and message rate
+#   replay.md          bag replay of the demo and castle-P19
+# results/README.md is the written summary of these files.
+#
+#   bash scripts/report.sh            about 30 minutes on 2 cores (1,000,000 views alone: ~10)
+#   bash scripts/report.sh --quick    under 3 minutes; small sizes, written to build/report_quick/
+#                                     (CI runs it so the report code never rots)
+# Real data comes from ../shared/data (ROTAVG_DATA_DIR to override); parts that
+# need it say so and are skipped when it is absent.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+QUICK=0
+[ "${1:-}" = "--quick" ] && QUICK=1
+bash scripts/setup.sh > /dev/null
+export PATH=/usr/bin:$PATH
+BIN=build/devel/lib/rotation_averaging
+DATA=${ROTAVG_DATA_DIR:-../shared/data}
+start=$(date +%s)
+step() { echo "== $1 ($(( $(date +%s) - start )) s so far)"; }
+if [ "$QUICK" = 1 ]; then
+  OUT=build/report_quick
+  mkdir -p "$OUT"
+  step "core solvers (quick)"
+  "$BIN/rotavg_benchmark" --data "$DATA" --quick --output "$OUT/core_benchmark.md" > /dev/null
+  step "scale and online re-solve (quick)"
+  "$BIN/rotavg_scale_benchmark" --quick --output "$OUT/scale.md" > /dev/null
+  step "front end and loss x weighting table (quick)"
+  "$BIN/rotavg_frontend_eval" --data "$DATA" --quick --output "$OUT/frontend.md" --plots "$OUT/plots" > /dev/null
+  # The report must have its sections and plots, or the code has rotted.
+  for section in "## Real graphs" "## Loss x weighting (synthetic)" "## Scale" "## Online re-solve"; do
+    grep -qF "$section" "$OUT"/core_benchmark.md "$OUT"/scale.md || { echo "report: '$section' missing" >&2; exit 1; }
+  done
+  if [ -d "$DATA/strecha" ]; then
+    grep -q "median error (deg) per loss and weighting" "$OUT/frontend.md" || { echo "report: loss table missing" >&2; exit 1; }
+    ls "$OUT"/plots/cdf_*.png > /dev/null || { echo "report: no CDF plot" >&2; exit 1; }
+  fi
+  step "done: quick report in $OUT"
+  exit 0
+fi
+step "core solvers"
+"$BIN/rotavg_benchmark" --data "$DATA" --output results/core_benchmark.md > /dev/null
+step "scale and online re-solve"
+"$BIN/rotavg_scale_benchmark" --output results/scale.md > /dev/null
+step "front end and loss x weighting table"
+"$BIN/rotavg_frontend_eval" --data "$DATA" --scales 1,0.25 --output results/frontend.md --plots results/plots > /dev/null
+step "node"
+bash scripts/benchmark_node.sh > /dev/null
+step "bag replay"
+bash scripts/benchmark_replay.sh > /dev/null
+step "done: results/*.md and results/plots/ regenerated; summary in results/README.md"
