@@ -163,6 +163,30 @@ TEST(OnlineAverager, BoundedQueueDropsAndCounts) {
   EXPECT_TRUE(averager.AddRelativeRotation(d.measurements[10]));
 }
 
+TEST(OnlineAverager, ViewAndEdgeCapsDropAndCount) {
+  const RigData d = MakeRig(30, 0.0, 4);
+  OnlineAveragerOptions options;
+  options.max_views = 12;
+  OnlineAverager by_views(options);
+  for (const auto& m : d.measurements) by_views.AddRelativeRotation(m);
+  ASSERT_TRUE(by_views.SolveNow());
+  OnlineAveragerStats s = by_views.Stats();
+  EXPECT_EQ(s.views, 12u);
+  EXPECT_GT(s.dropped_cap, 0u);
+  EXPECT_EQ(s.accepted + s.dropped_cap, d.measurements.size());
+  EXPECT_EQ(by_views.Solution()->orientations.size(), 12u);
+  for (const auto& [k, r] : by_views.Solution()->orientations) EXPECT_TRUE(IsRotationMatrix(r, 1e-9));
+
+  options.max_views = 1000000;
+  options.max_edges = 20;
+  OnlineAverager by_edges(options);
+  for (const auto& m : d.measurements) by_edges.AddRelativeRotation(m);
+  ASSERT_TRUE(by_edges.SolveNow());
+  s = by_edges.Stats();
+  EXPECT_EQ(s.edges, 20u);
+  EXPECT_EQ(s.dropped_cap, d.measurements.size() - 20u);
+}
+
 TEST(OnlineAverager, WorkerSolvesPeriodicallyAndWarmStarts) {
   OnlineAveragerOptions options;
   options.solve_period_s = 0.05;
