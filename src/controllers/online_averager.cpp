@@ -149,20 +149,21 @@ std::size_t OnlineAverager::DrainQueue() {
 }
 
 bool OnlineAverager::SolveLocked() {
-  ViewGraph snapshot;
   ViewOrientations orientations;
-  std::vector<KeyframeKey> keys;
   RotationAveragingOptions averaging;
   std::uint64_t generation = 0;
   {
     std::lock_guard<std::mutex> lock(graph_mutex_);
     DrainQueue();
     generation = generation_;
-    snapshot = graph_;
     orientations = warm_start_;
-    keys = keys_;
     averaging = options_.averaging;
   }
+  // graph_ and keys_ change only under solve_mutex_, which this thread holds
+  // (DrainQueue above, Reset, LoadGraph): read them in place rather than copy
+  // them (a copy of a 10,000-keyframe graph was a sizeable part of a re-solve).
+  const ViewGraph& snapshot = graph_;
+  const std::vector<KeyframeKey>& keys = keys_;
   if (snapshot.NumEdges() == 0) return false;
   const auto start = Clock::now();
   auto solution = std::make_shared<OnlineSolution>();

@@ -145,7 +145,10 @@ class OnlineAverager {
   const ViewGraph validator_;  // validates measurements without taking the graph lock
   mutable std::mutex queue_mutex_;
   std::deque<KeyframeRelativeRotation> queue_;
-  mutable std::mutex graph_mutex_;  // graph_, keyframe ids, last orientations
+  // graph_mutex_ guards graph_, ids_, keys_ and warm_start_; graph_ and keys_
+  // are only modified with solve_mutex_ held too, so the solving thread reads
+  // them without graph_mutex_.
+  mutable std::mutex graph_mutex_;
   ViewGraph graph_;
   std::map<KeyframeKey, ViewId> ids_;
   std::vector<KeyframeKey> keys_;  // by ViewId
