@@ -12,7 +12,23 @@
 #include <string>
 #include <vector>
 
+#include "rotation_averaging/estimators/rotation_averaging.h"
+
 namespace rotation_averaging {
+
+// The paper's loss x weighting comparison, in the paper's order.
+inline const std::vector<LossType>& PaperTableLosses() {
+  static const std::vector<LossType> losses = {LossType::kSquared, LossType::kHuber,  LossType::kCauchy,
+                                               LossType::kGemanMcClure, LossType::kTukey, LossType::kLHalf,
+                                               LossType::kSoftL1, LossType::kMagsac};
+  return losses;
+}
+inline const std::vector<EdgeWeighting>& PaperTableWeightings() {
+  static const std::vector<EdgeWeighting> weightings = {EdgeWeighting::kNone, EdgeWeighting::kInliers,
+                                                        EdgeWeighting::kTrace, EdgeWeighting::kFrobenius,
+                                                        EdgeWeighting::kCovariance};
+  return weightings;
+}
 
 inline std::string Fixed(double v, int digits) {
   std::ostringstream s;

@@ -286,12 +286,8 @@ int main(int argc, char** argv) {
     go.anisotropic = true;
     go.outlier_ratio = 0.1;
     const int seeds = quick ? 1 : 3;
-    const std::vector<ra::LossType> losses = {ra::LossType::kSquared, ra::LossType::kHuber,  ra::LossType::kCauchy,
-                                              ra::LossType::kGemanMcClure, ra::LossType::kTukey, ra::LossType::kLHalf,
-                                              ra::LossType::kSoftL1, ra::LossType::kMagsac};
-    const std::vector<ra::EdgeWeighting> weightings = {ra::EdgeWeighting::kNone, ra::EdgeWeighting::kInliers,
-                                                       ra::EdgeWeighting::kTrace, ra::EdgeWeighting::kFrobenius,
-                                                       ra::EdgeWeighting::kCovariance};
+    const std::vector<ra::LossType>& losses = ra::PaperTableLosses();
+    const std::vector<ra::EdgeWeighting>& weightings = ra::PaperTableWeightings();
     md << "\n## Loss x weighting (synthetic)\n\nThe paper's table on synthetic graphs with known truth: " << go.num_views
        << " views, mean degree 10, 1 deg x [1/10, 10] anisotropic noise per edge with its true covariance, 10% outlier "
           "edges, inlier counts all equal (so inlier weighting is no weighting). Each cell: median error (deg) / AUC@2 / "

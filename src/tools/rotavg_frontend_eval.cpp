@@ -39,12 +39,8 @@ using rotation_averaging::Median;
 
 namespace {
 
-const std::vector<ra::LossType> kLosses = {ra::LossType::kSquared, ra::LossType::kHuber,  ra::LossType::kCauchy,
-                                          ra::LossType::kGemanMcClure, ra::LossType::kTukey, ra::LossType::kLHalf,
-                                          ra::LossType::kSoftL1, ra::LossType::kMagsac};
-const std::vector<ra::EdgeWeighting> kWeightings = {ra::EdgeWeighting::kNone, ra::EdgeWeighting::kInliers,
-                                                    ra::EdgeWeighting::kTrace, ra::EdgeWeighting::kFrobenius,
-                                                    ra::EdgeWeighting::kCovariance};
+const std::vector<ra::LossType>& kLosses = ra::PaperTableLosses();
+const std::vector<ra::EdgeWeighting>& kWeightings = ra::PaperTableWeightings();
 
 struct Scene {
   std::string name, images, intrinsics, ground_truth;
