@@ -151,7 +151,7 @@ BlockSparseSystem::BlockSparseSystem(int num_blocks, const std::vector<std::pair
   // (rotavg_scale_benchmark) CHOLMOD's supernodal factor with a METIS
   // ordering solved in 1.6 s against 5.8 s with the simplicial LLT.
   factorization_->use_cholmod = block_dim_ == 3 || num_blocks > kScalarCholmodMinBlocks;
-  factorization_->use_metis = num_blocks * block_dim_ > kMetisMinRows;
+  factorization_->use_metis = block_dim_ == 1 && num_blocks > kMetisMinRows;
 #endif
 }
 
