@@ -2,7 +2,6 @@
 
 #include <Eigen/SparseCholesky>
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdlib>
 
@@ -59,17 +58,6 @@ struct BlockSparseSystem::Factorization {
   bool analyzed = false;
   bool has_factor = false;      // a numeric factor of an earlier matrix exists
   bool refactor_next = false;   // the last PCG solve struggled: refresh the factor
-  // Measured cost of the last factorisation and of one solve with it: PCG
-  // may run as many iterations as half a factorisation buys (at least
-  // kMaxPcgIterations). On large systems a factorisation costs dozens of
-  // solves, and stale factors stay good preconditioners for many IRLS steps.
-  double factorize_s = 0.0;
-  double apply_s = 0.0;
-  int PcgBudget() const {
-    if (!(apply_s > 0.0)) return kMaxPcgIterations;
-    const double affordable = 0.5 * factorize_s / (1.5 * apply_s);  // an iteration: a solve and a product
-    return static_cast<int>(std::clamp(affordable, double{kMaxPcgIterations}, 40.0));
-  }
 
   template <typename Matrix>
   Matrix ApplyInverse(const Matrix& b) {
@@ -311,8 +299,7 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
       const double target = 1e-10 * b.squaredNorm();
       bool converged = r.squaredNorm() <= target;
       int iterations = 0;
-      const int budget = f.PcgBudget();
-      for (int it = 0; it < budget && !converged && std::isfinite(rz) && rz > 0.0; ++it) {
+      for (int it = 0; it < kMaxPcgIterations && !converged && std::isfinite(rz) && rz > 0.0; ++it) {
         const Eigen::VectorXd hp = h * p;
         const double alpha = rz / p.dot(hp);
         if (!std::isfinite(alpha) || alpha <= 0.0) break;
@@ -321,10 +308,9 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
         ++iterations;
         converged = r.squaredNorm() <= target;
         if (converged) break;
-        // A stale factor shows at once: if the first iterations (three, or a
-        // third of a larger budget) have not reduced the residual tenfold,
-        // refactorising is cheaper than going on.
-        if (iterations == std::max(3, budget / 3) && r.squaredNorm() > 1e-2 * initial_residual2) break;
+        // A stale factor shows at once: if three iterations have not reduced
+        // the residual tenfold, refactorising is cheaper than going on.
+        if (iterations == 3 && r.squaredNorm() > 1e-2 * initial_residual2) break;
         z = f.ApplyInverse(r);
         const double rz_new = r.dot(z);
         p = z + (rz_new / rz) * p;
@@ -336,7 +322,7 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
     }
     if (all_converged) {
       ++num_pcg_solves_;
-      f.refactor_next = last_pcg_iterations_ > std::max(kRefactorAfterPcgIterations, f.PcgBudget() / 2);
+      f.refactor_next = last_pcg_iterations_ > kRefactorAfterPcgIterations;
       for (int k = 0; k < n; ++k) values[diagonal_positions_[k]] -= applied;
       if (lambda_used) *lambda_used = lambda;
       return true;
@@ -346,17 +332,12 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
   for (int attempt = 0; attempt <= max_retries; ++attempt) {
     for (int k = 0; k < n; ++k) values[diagonal_positions_[k]] += lambda - applied;
     applied = lambda;
-    const auto start = std::chrono::steady_clock::now();
     bool ok = f.Factorize(matrix_);
-    const auto factorized = std::chrono::steady_clock::now();
     f.has_factor = ok;
     f.refactor_next = false;
     if (ok) {
       *x = f.ApplyInverse(rhs_);
       ok = x->allFinite();
-      f.factorize_s = std::chrono::duration<double>(factorized - start).count();
-      f.apply_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - factorized).count() /
-                  static_cast<double>(std::max<Eigen::Index>(1, rhs_.cols()));
     }
     if (ok) {
       ++num_factorizations_;
