@@ -202,6 +202,16 @@ TEST(ErrorPlot, CdfPlotCountsMissingViewsAsFailures) {
   bool half_height = false;
   for (int y : rows) half_height = half_height || std::abs(y - (top + bottom) / 2) <= 4;
   EXPECT_TRUE(half_height);
+  // Errors beyond the x range do not draw a rise at the right edge: with the
+  // range cut at 0.45 deg, both curves end at 40% (4 of 10 views) there.
+  ASSERT_TRUE(WriteCdfPlot(path, "cut", {all, half}, 10, 0.45, &error)) << error;
+  const cv::Mat cut = cv::imread(path);
+  int highest = bottom;
+  for (int y = 0; y < cut.rows; ++y) {
+    const cv::Vec3b p = cut.at<cv::Vec3b>(y, 70 + 560 - 3);
+    if (std::max({p[0], p[1], p[2]}) - std::min({p[0], p[1], p[2]}) > 60) highest = std::min(highest, y);
+  }
+  EXPECT_NEAR(highest, bottom - 0.4 * 400, 4);
 }
 
 }  // namespace

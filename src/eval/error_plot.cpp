@@ -70,15 +70,17 @@ void DrawCdf(cv::Mat* canvas, const Panel& p, std::vector<double> errors, const 
   std::sort(errors.begin(), errors.end());
   const double n = static_cast<double>(std::max(total, errors.size()));
   cv::Point previous = p.Map(0.0, 0.0);
-  for (std::size_t k = 0; k < errors.size(); ++k) {
-    const double fraction = static_cast<double>(k + 1) / n;
+  double reached = 0.0;  // fraction of views with error up to the right edge
+  for (std::size_t k = 0; k < errors.size() && errors[k] <= p.x_max; ++k) {
+    reached = static_cast<double>(k + 1) / n;
     const cv::Point step = p.Map(errors[k], static_cast<double>(k) / n);
-    const cv::Point up = p.Map(errors[k], fraction);
+    const cv::Point up = p.Map(errors[k], reached);
     cv::line(*canvas, previous, step, colour, thickness, cv::LINE_AA);
     cv::line(*canvas, step, up, colour, thickness, cv::LINE_AA);
     previous = up;
   }
-  cv::line(*canvas, previous, p.Map(p.x_max, errors.size() / n), colour, thickness, cv::LINE_AA);
+  // Flat to the right edge: errors beyond it do not raise the curve here.
+  cv::line(*canvas, previous, p.Map(p.x_max, reached), colour, thickness, cv::LINE_AA);
 }
 
 bool Write(const std::string& path, const cv::Mat& canvas, std::string* error) {
