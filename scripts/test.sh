@@ -3,7 +3,7 @@
 # `make run_tests`, fails when a test fails); the quick results report
 # (scripts/report.sh --quick); then the same suite again in an
 # AddressSanitizer + UndefinedBehaviorSanitizer build (scripts/test_sanitizers.sh)
-# and a 60 s libFuzzer run over the file readers (scripts/fuzz.sh).
+# and a 60 s libFuzzer run of each target: file readers and the message path (scripts/fuzz.sh).
 #   bash scripts/test.sh [--no-sanitizers]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -21,6 +21,6 @@ if [ "$SANITIZERS" = 1 ]; then
   echo "== The test suite again with AddressSanitizer and UndefinedBehaviorSanitizer =="
   bash scripts/test_sanitizers.sh
   echo
-  echo "== Fuzzing the file readers for 60 s (libFuzzer) =="
+  echo "== Fuzzing the file readers and the message path, 60 s each (libFuzzer) =="
   bash scripts/fuzz.sh 60
 fi
