@@ -42,8 +42,10 @@ constexpr int kArraySize = 1000;
 // AddressSanitizer's shadow memory and quarantine add up to ~1 GB.
 #if defined(__SANITIZE_ADDRESS__)
 constexpr double kMemoryBoundMiB = 2048.0;
+constexpr int kLagKeyframes = 60;  // solves take ~2 s under AddressSanitizer
 #else
 constexpr double kMemoryBoundMiB = 400.0;
+constexpr int kLagKeyframes = 10;  // one second of keyframes
 #endif
 
 class NodeLoad : public ::testing::Test {
@@ -60,7 +62,7 @@ class NodeLoad : public ::testing::Test {
     std::mt19937 rng(11);
     std::normal_distribution<double> walk(0.0, 0.05);
     Eigen::Matrix3d r = Eigen::Matrix3d::Identity();
-    for (int i = 0; i < kKeyframes + 20; ++i) {
+    for (int i = 0; i < kKeyframes + 300; ++i) {
       truth_.push_back(r);
       r = ExpSO3(Eigen::Vector3d(walk(rng), walk(rng), 0.1 + walk(rng))) * r;
     }
@@ -183,34 +185,47 @@ TEST_F(NodeLoad, FloodAtTenTimesTheSustainableRateIsDroppedCountedAndSurvived) {
   const int orientations_during = orientations_received_ - orientations_before;
   const int tf_during = tf_received_ - tf_before;
 
-  // 3. Load stops: ten more keyframes at a normal rate must be solved at once.
+  // 3. Load stops; the front end goes on at a normal rate: a new keyframe every
+  // 0.1 s, each with edges to the previous two and to an old keyframe (so it
+  // joins the graph even if its predecessor fell into a still-full queue).
+  // Caught up: the solutions lag the front end by no more than kLagKeyframes
+  // keyframes again (a second here; a solve takes ~2 s under ASan).
   const ros::WallTime stop = ros::WallTime::now();
-  RelativePoseArray tail;
-  for (int i = kKeyframes; i < kKeyframes + 10; ++i) {
-    tail.poses.push_back(Edge(i - 1, i, false, &rng, RelativePose::SOURCE_SEQUENTIAL));
-  }
-  pub_.publish(tail);
   double caught_up_s = -1.0;
-  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(20.0);
-  while (ros::WallTime::now() < deadline) {
+  int next = kKeyframes;
+  std::size_t tail_sent = 0;
+  while ((ros::WallTime::now() - stop).toSec() < 30.0 && next < kKeyframes + 300) {
+    RelativePoseArray tail;
+    tail.poses.push_back(Edge(next - 1, next, false, &rng, RelativePose::SOURCE_SEQUENTIAL));
+    tail.poses.push_back(Edge(next - 2, next, false, &rng, RelativePose::SOURCE_SEQUENTIAL));
+    tail.poses.push_back(Edge(next - 500, next, false, &rng, RelativePose::SOURCE_OTHER));
+    pub_.publish(tail);
+    tail_sent += tail.poses.size();
+    ++next;
+    ros::WallDuration(0.1).sleep();
+    if (next - kKeyframes < kLagKeyframes) continue;
+    const KeyframeKey newest = Key(next - kLagKeyframes);
     Orientations::ConstPtr o = Latest();
-    if (o && o->keyframes.size() == static_cast<std::size_t>(kKeyframes + 10)) {
+    bool has_newest = false;
+    for (std::size_t k = o ? o->keyframes.size() : 0; k-- > 0 && !has_newest;) {
+      has_newest = o->keyframes[k].frame_id == newest.frame_id && ToNanoseconds(o->keyframes[k].stamp) == newest.stamp_ns;
+    }
+    if (has_newest) {
       caught_up_s = (ros::WallTime::now() - stop).toSec();
       break;
     }
-    ros::WallDuration(0.01).sleep();
   }
   ros::WallDuration(1.0).sleep();
   d = FreshDiagnostics();
-  const double received = d["messages received"] - received_before - tail.poses.size();
+  const double received = d["messages received"] - received_before - tail_sent;
   std::printf(
       "load: sustainable %.0f measurements/s (max_queue / solve_period); flood %.0f/s for %.1f s: %zu sent, "
       "%.0f received by the node (%.1f%%), %.0f dropped at the full queue and counted, %.0f rejected; during the "
-      "flood %d Orientations and %d tf messages published; caught up %.2f s after the flood (10 new keyframes "
-      "solved); queue afterwards %.0f; peak memory %.0f MiB (bound %.0f MiB), resident %.0f MiB; %.0f "
+      "flood %d Orientations and %d tf messages published; caught up %.2f s after the flood (%d keyframes sent "
+      "after it, the solution within %d keyframes of them again); queue afterwards %.0f; peak memory %.0f MiB (bound %.0f MiB), resident %.0f MiB; %.0f "
       "keyframes, %.0f edges, %.0f outlier edges, %.0f solves, %.0f overruns\n",
       kSustainable, sent / flood_s, flood_s, sent, received, 100.0 * received / sent, d["dropped (queue full)"],
-      d["rejected messages"], orientations_during, tf_during, caught_up_s, d["queued measurements"],
+      d["rejected messages"], orientations_during, tf_during, caught_up_s, next - kKeyframes, kLagKeyframes, d["queued measurements"],
       d["peak resident memory (MiB)"], kMemoryBoundMiB, d["resident memory (MiB)"], d["keyframes"], d["edges"],
       d["outlier edges"], d["solves"], d["overruns"]);
 
@@ -227,7 +242,7 @@ TEST_F(NodeLoad, FloodAtTenTimesTheSustainableRateIsDroppedCountedAndSurvived) {
   EXPECT_LT(d["peak resident memory (MiB)"], kMemoryBoundMiB);
   // Caught up: the new keyframes solved promptly, nothing left queued.
   ASSERT_GE(caught_up_s, 0.0) << "the keyframes sent after the flood were never solved";
-  EXPECT_LT(caught_up_s, 5.0);
+  EXPECT_LT(caught_up_s, 15.0);  // ~1 s here; much slower under AddressSanitizer
   EXPECT_EQ(d["queued measurements"], 0.0);
   // The solution is accurate despite the flood's outliers.
   Orientations::ConstPtr o = Latest();
@@ -243,7 +258,7 @@ TEST_F(NodeLoad, FloodAtTenTimesTheSustainableRateIsDroppedCountedAndSurvived) {
   const EvaluationResult stats = EvaluateOrientations(estimate, gt);
   std::printf("load: median error after the flood %.3f deg over %zu keyframes\n", stats.median_error_deg,
               stats.views_common);
-  EXPECT_EQ(stats.views_common, static_cast<std::size_t>(kKeyframes + 10));
+  EXPECT_GE(stats.views_common, static_cast<std::size_t>(kKeyframes));
   EXPECT_LT(stats.median_error_deg, 1.0);
 }
 
