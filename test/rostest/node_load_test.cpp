@@ -43,9 +43,11 @@ constexpr int kArraySize = 1000;
 #if defined(__SANITIZE_ADDRESS__)
 constexpr double kMemoryBoundMiB = 2048.0;
 constexpr int kLagKeyframes = 60;  // solves take ~2 s under AddressSanitizer
+constexpr int kMinSolvesDuringFlood = 1;
 #else
 constexpr double kMemoryBoundMiB = 400.0;
 constexpr int kLagKeyframes = 10;  // one second of keyframes
+constexpr int kMinSolvesDuringFlood = 3;
 #endif
 
 class NodeLoad : public ::testing::Test {
@@ -215,8 +217,12 @@ TEST_F(NodeLoad, FloodAtTenTimesTheSustainableRateIsDroppedCountedAndSurvived) {
       break;
     }
   }
-  ros::WallDuration(1.0).sleep();
-  d = FreshDiagnostics();
+  // The last keyframes sent wait for the next solve: give it time.
+  for (int i = 0; i < 20; ++i) {
+    ros::WallDuration(1.0).sleep();
+    d = FreshDiagnostics();
+    if (d["queued measurements"] == 0.0) break;
+  }
   const double received = d["messages received"] - received_before - tail_sent;
   std::printf(
       "load: sustainable %.0f measurements/s (max_queue / solve_period); flood %.0f/s for %.1f s: %zu sent, "
@@ -235,8 +241,8 @@ TEST_F(NodeLoad, FloodAtTenTimesTheSustainableRateIsDroppedCountedAndSurvived) {
   EXPECT_GT(received, 0.5 * sent) << "most of the flood should reach the node's own queue";
   EXPECT_EQ(d["rejected messages"], 0.0) << "valid measurements dropped under load are not 'rejected'";
   // The node kept solving and publishing during the flood.
-  EXPECT_GE(orientations_during, 3);
-  EXPECT_GE(tf_during, 3);
+  EXPECT_GE(orientations_during, kMinSolvesDuringFlood);
+  EXPECT_GE(tf_during, kMinSolvesDuringFlood);
   // Memory stayed bounded.
   EXPECT_GT(d["peak resident memory (MiB)"], 0.0);
   EXPECT_LT(d["peak resident memory (MiB)"], kMemoryBoundMiB);
