@@ -2,6 +2,10 @@
 #ifndef ROTATION_AVERAGING_TOOLS_REPORT_H_
 #define ROTATION_AVERAGING_TOOLS_REPORT_H_
 
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -48,6 +52,38 @@ inline std::string CommandLine(const std::string& program, int argc, char** argv
   std::string command = program;
   for (int k = 1; k < argc; ++k) command += std::string(" ") + argv[k];
   return command;
+}
+
+// Runs this program again (`self` = argv[0]) with `args` in a child process,
+// for a figure of its own: what it writes to stdout goes to `out` (may be
+// null) and its peak resident memory (MiB, from wait4's rusage) to
+// `peak_mib`. False if the child did not exit with status 0.
+inline bool RunChildProcess(const char* self, const std::vector<std::string>& args, std::string* out,
+                            double* peak_mib) {
+  int fds[2];
+  if (pipe(fds) != 0) return false;
+  const pid_t pid = fork();
+  if (pid == 0) {
+    dup2(fds[1], STDOUT_FILENO);
+    close(fds[0]);
+    close(fds[1]);
+    std::vector<char*> argv{const_cast<char*>(self)};
+    for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    execv(self, argv.data());
+    _exit(127);
+  }
+  close(fds[1]);
+  std::string text;
+  char buffer[256];
+  for (ssize_t got; (got = read(fds[0], buffer, sizeof(buffer))) > 0;) text.append(buffer, static_cast<std::size_t>(got));
+  close(fds[0]);
+  int status = 0;
+  struct rusage usage {};
+  if (pid < 0 || wait4(pid, &status, 0, &usage) < 0 || !WIFEXITED(status) || WEXITSTATUS(status) != 0) return false;
+  if (out) *out = text;
+  if (peak_mib) *peak_mib = usage.ru_maxrss / 1024.0;  // ru_maxrss is in KiB on Linux
+  return true;
 }
 
 // Prints the report and writes it to `path` (creating its folder).

@@ -6,10 +6,6 @@
 // Times are of the solve alone (no file reading), single-threaded, median of
 // N runs in this process. Peak memory is the maximum resident set size of a
 // child process that reads the graph and solves it once (wait4's rusage).
-#include <sys/resource.h>
-#include <sys/wait.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cstdlib>
@@ -74,16 +70,8 @@ int RunSingle(const std::string& path, int config_index) {
 }
 
 double PeakMemoryMiB(const char* self, const std::string& path, int config_index) {
-  const pid_t pid = fork();
-  if (pid == 0) {
-    const std::string index = std::to_string(config_index);
-    execl(self, self, "--single", path.c_str(), index.c_str(), static_cast<char*>(nullptr));
-    _exit(127);
-  }
-  int status = 0;
-  struct rusage usage {};
-  if (pid < 0 || wait4(pid, &status, 0, &usage) < 0 || !WIFEXITED(status) || WEXITSTATUS(status) != 0) return -1.0;
-  return usage.ru_maxrss / 1024.0;  // ru_maxrss is in KiB on Linux
+  double mib = -1.0;
+  return ra::RunChildProcess(self, {"--single", path, std::to_string(config_index)}, nullptr, &mib) ? mib : -1.0;
 }
 
 

@@ -11,10 +11,6 @@
 // generated and solved once (IRLS, MAGSAC, covariance weights) in a child
 // process whose peak resident memory the parent reads (wait4's rusage).
 // Online: see OnlineSection below.
-#include <sys/resource.h>
-#include <sys/wait.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -94,29 +90,11 @@ int RunChild(int views) {
 ScaleRun RunScale(const char* self, int views) {
   ScaleRun run;
   run.views = views;
-  int fds[2];
-  if (pipe(fds) != 0) return run;
-  const pid_t pid = fork();
-  if (pid == 0) {
-    dup2(fds[1], STDOUT_FILENO);
-    close(fds[0]);
-    close(fds[1]);
-    const std::string n = std::to_string(views);
-    execl(self, self, "--child", n.c_str(), static_cast<char*>(nullptr));
-    _exit(127);
-  }
-  close(fds[1]);
   std::string out;
-  char buffer[256];
-  for (ssize_t got; (got = read(fds[0], buffer, sizeof(buffer))) > 0;) out.append(buffer, static_cast<std::size_t>(got));
-  close(fds[0]);
-  int status = 0;
-  struct rusage usage {};
-  if (pid < 0 || wait4(pid, &status, 0, &usage) < 0 || !WIFEXITED(status) || WEXITSTATUS(status) != 0) return run;
+  if (!ra::RunChildProcess(self, {"--child", std::to_string(views)}, &out, &run.peak_mib)) return run;
   std::istringstream line(out);
   run.ok = static_cast<bool>(line >> run.edges >> run.generate_s >> run.solve_s >> run.iterations >>
                              run.factorizations >> run.median_deg >> run.views_off);
-  run.peak_mib = usage.ru_maxrss / 1024.0;
   return run;
 }
 
