@@ -159,10 +159,11 @@ bool WriteErrorPlot(const std::string& path, const std::string& title, const std
 
 bool WriteCdfPlot(const std::string& path, const std::string& title, const std::vector<CdfSeries>& series,
                   std::size_t num_views, double x_max_deg, std::string* error) {
+  std::vector<std::vector<double>> finite(series.size());  // each series' finite errors, sorted
   std::vector<double> p90;
-  for (const CdfSeries& s : series) {
-    std::vector<double> e;
-    for (double v : s.error_deg)
+  for (std::size_t k = 0; k < series.size(); ++k) {
+    std::vector<double>& e = finite[k];
+    for (double v : series[k].error_deg)
       if (std::isfinite(v)) e.push_back(v);
     if (e.empty()) continue;
     std::sort(e.begin(), e.end());
@@ -183,10 +184,7 @@ bool WriteCdfPlot(const std::string& path, const std::string& title, const std::
   DrawAxes(&canvas, cdf, "rotation error threshold (deg)", "fraction of views below", "");
   int legend_y = cdf.area.y + cdf.area.height - 12 - 18 * static_cast<int>(series.size() - 1);
   for (std::size_t k = 0; k < series.size(); ++k) {
-    std::vector<double> errors;
-    for (double v : series[k].error_deg)
-      if (std::isfinite(v)) errors.push_back(v);
-    DrawCdf(&canvas, cdf, errors, Colour(k), 2, num_views);
+    DrawCdf(&canvas, cdf, finite[k], Colour(k), 2, num_views);
     cv::putText(canvas, series[k].label, cv::Point(cdf.area.x + cdf.area.width / 2 - 20, legend_y),
                 cv::FONT_HERSHEY_SIMPLEX, 0.42, Colour(k), 1, cv::LINE_AA);
     legend_y += 18;

@@ -424,6 +424,12 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
     }
   };
 
+  // A message whose bytes are damaged: dropped and counted, the rest goes on.
+  auto dropped_damaged = [&](const rosbag::MessageInstance& m, const ros::Time& time, const std::string& why) {
+    ++result.damaged_messages;
+    warn("message on " + m.getTopic() + " at " + std::to_string(time.toSec()) + " does not deserialise (" + why +
+         "): dropped");
+  };
   ProgressBar bar(options.progress, result.messages_total);
   ros::Time last_time = bag_start;
   try {
@@ -464,20 +470,12 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
         }
       }
       } catch (const ros::serialization::StreamOverrunException& e) {
-        // A message whose bytes are damaged: dropped, the rest goes on.
-        ++result.damaged_messages;
-        warn("message on " + m.getTopic() + " at " + std::to_string(time.toSec()) + " does not deserialise (" +
-             e.what() + "): dropped");
+        dropped_damaged(m, time, e.what());
       } catch (const std::bad_alloc&) {
-        // A damaged array length: ROS's deserialiser allocates before it
-        // checks the bytes, and asks for more memory than there is.
-        ++result.damaged_messages;
-        warn("message on " + m.getTopic() + " at " + std::to_string(time.toSec()) +
-             " does not deserialise (an array length beyond the memory): dropped");
+        // ROS's deserialiser allocates an array before it checks the bytes.
+        dropped_damaged(m, time, "an array length beyond the memory");
       } catch (const std::length_error&) {
-        ++result.damaged_messages;
-        warn("message on " + m.getTopic() + " at " + std::to_string(time.toSec()) +
-             " does not deserialise (an array length beyond what a vector holds): dropped");
+        dropped_damaged(m, time, "an array length beyond what a vector holds");
       }
       ++result.messages_read;
       bar.Update(result.messages_read, (time - bag_start).toSec());

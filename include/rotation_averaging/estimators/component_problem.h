@@ -57,7 +57,6 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
 // from the gauge, which is then set to identity).
 void InitializeBySpanningTree(ComponentProblem* problem);
 
-
 class BlockSparseSystem;
 
 // State kept between IRLS solves of the same component (GNC stages, the final
