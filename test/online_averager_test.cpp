@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <functional>
+#include <map>
 #include <limits>
 #include <random>
 #include <thread>
@@ -244,6 +246,150 @@ TEST(OnlineAverager, ChangingOptionsSolvesColdButKeepsTheFrame) {
   double worst = 0.0;
   for (const auto& [key, r] : first->orientations) worst = std::max(worst, AngularDistanceRad(r, back->orientations.at(key)));
   EXPECT_LT(RadToDeg(worst), 0.05);
+}
+
+int CaptureOf(const KeyframeKey& key) { return static_cast<int>((key.stamp_ns - 1'000'000'000LL) / 100'000'000LL); }
+
+// Feeds a rig capture by capture: the first `start` captures at once, then
+// one capture (its keyframes and edges to earlier ones) per SolveNow; the
+// rig's closing loop closures last.
+void FeedCaptures(const RigData& d, int start, OnlineAverager* averager,
+                  const std::function<void(int capture, const OnlineSolution& before)>& after_solve = nullptr) {
+  std::map<int, std::vector<KeyframeRelativeRotation>> by_capture;
+  std::vector<KeyframeRelativeRotation> loops;
+  for (const auto& m : d.measurements) {
+    if (m.source == EdgeSource::kLoopClosure) loops.push_back(m);
+    else by_capture[std::max(CaptureOf(m.keyframe1), CaptureOf(m.keyframe2))].push_back(m);
+  }
+  for (const auto& [c, ms] : by_capture) {
+    for (const auto& m : ms) ASSERT_TRUE(averager->AddRelativeRotation(m));
+    if (c < start - 1) continue;
+    const std::shared_ptr<const OnlineSolution> before = averager->Solution();
+    ASSERT_TRUE(averager->SolveNow());
+    if (after_solve) after_solve(c, *before);
+  }
+  for (const auto& m : loops) ASSERT_TRUE(averager->AddRelativeRotation(m));
+  ASSERT_TRUE(averager->SolveNow());
+}
+
+// Local re-solves (forced on a small graph): after each new capture only
+// keyframes near it move, a full solve comes every full_solve_every + 1
+// solves, and the end result is as accurate as solving everything in full.
+TEST(OnlineAverager, LocalSolvesMoveOnlyTheNeighbourhoodAndStayAccurate) {
+  const RigData d = MakeRig(150, 0.05, 12);
+  OnlineAveragerOptions options;
+  options.local_solve_min_views = 50;
+  options.full_solve_every = 4;
+  options.background_full_solves = false;  // deterministic: the due full solve runs in SolveNow
+  options.local.hops = 2;
+  OnlineAverager averager(options);
+  int local = 0, full = 0, far_moved = 0;
+  FeedCaptures(d, 60, &averager, [&](int capture, const OnlineSolution& before) {
+    const auto after = averager.Solution();
+    if (capture == 59) return;  // the first, cold solve
+    (after->local ? local : full)++;
+    if (!after->local) return;
+    // Keyframes more than a few captures back (2 hops = 2 captures along the
+    // sequential edges, the rig edge to the other camera, ...) did not move.
+    for (const auto& [key, r] : before.orientations) {
+      if (CaptureOf(key) < capture - 6 && !(after->orientations.at(key) == r)) ++far_moved;
+    }
+    EXPECT_EQ(after->orientations.size(), 2u * (capture + 1));
+  });
+  EXPECT_EQ(far_moved, 0);
+  // 90 captures after the cold solve: 4 local, then one full, and so on.
+  EXPECT_EQ(local, 72);
+  EXPECT_EQ(full, 18);
+  // The loop closures (the last solve) make a full solve due at once: the
+  // loop's error is spread over the whole loop, not the neighbourhoods of
+  // its ends.
+  EXPECT_EQ(averager.Stats().local_solves, 72u);
+  EXPECT_FALSE(averager.Solution()->local);
+  OnlineAveragerOptions all_full = options;
+  all_full.local_solve_min_views = 0;
+  OnlineAverager reference(all_full);
+  for (const auto& m : d.measurements) reference.AddRelativeRotation(m);
+  ASSERT_TRUE(reference.SolveNow());
+  const double local_error = MedianErrorDeg(*averager.Solution(), d);
+  const double full_error = MedianErrorDeg(*reference.Solution(), d);
+  EXPECT_LT(local_error, 1.0);
+  EXPECT_NEAR(local_error, full_error, 0.05);
+  // A full solve on request (nothing new) is the same solution again.
+  ASSERT_TRUE(averager.SolveFullNow());
+  EXPECT_FALSE(averager.Solution()->local);
+  EXPECT_NEAR(MedianErrorDeg(*averager.Solution(), d), local_error, 1e-3);
+  // Every edge has a result in the published solution, local or not.
+  EXPECT_EQ(averager.Solution()->edges.size(), d.measurements.size());
+}
+
+// The periodic full solve in a second thread: taken by a later solve once
+// finished; Reset while it runs drops it.
+TEST(OnlineAverager, BackgroundFullSolvesAreTakenAndResetDropsThem) {
+  const RigData d = MakeRig(100, 0.05, 13);
+  OnlineAveragerOptions options;
+  options.local_solve_min_views = 50;
+  options.full_solve_every = 3;
+  OnlineAverager averager(options);
+  FeedCaptures(d, 40, &averager);
+  for (int i = 0; i < 500 && averager.Stats().background_solves == 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    ASSERT_TRUE(averager.SolveNow());
+  }
+  const OnlineAveragerStats stats = averager.Stats();
+  EXPECT_GE(stats.background_solves, 1u);
+  EXPECT_GE(stats.local_solves, 50u);
+  EXPECT_EQ(averager.Solution()->orientations.size(), 200u);
+  EXPECT_LT(MedianErrorDeg(*averager.Solution(), d), 1.0);
+  // Start a background solve (three local solves), reset at once, then a new graph.
+  const RigData other = MakeRig(60, 0.0, 14);
+  averager.Reset();
+  FeedCaptures(other, 30, &averager);
+  averager.Reset();
+  for (const auto& m : other.measurements) averager.AddRelativeRotation(m);
+  ASSERT_TRUE(averager.SolveNow());
+  for (int i = 0; i < 20; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    averager.SolveNow();
+  }
+  EXPECT_EQ(averager.Solution()->orientations.size(), 120u);
+  EXPECT_LT(MedianErrorDeg(*averager.Solution(), other), 1.0);
+}
+
+// An edge that joins two components solved apart (each in its own gauge)
+// cannot be solved locally: the averager solves in full and the joined
+// component ends in one frame.
+TEST(OnlineAverager, JoiningComponentsTakesAFullSolve) {
+  const RigData d = MakeRig(60, 0.0, 15);
+  for (std::size_t min_views : {std::size_t{50}, std::size_t{0}}) {  // local solves on / off
+    SCOPED_TRACE("local_solve_min_views " + std::to_string(min_views));
+    OnlineAveragerOptions options;
+    options.local_solve_min_views = min_views;
+    options.background_full_solves = false;
+    OnlineAverager averager(options);
+    // Captures 0-29 and 30-59 as two components (the edges between them held back).
+    std::vector<KeyframeRelativeRotation> bridge;
+    for (const auto& m : d.measurements) {
+      const bool first = CaptureOf(m.keyframe1) < 30, second = CaptureOf(m.keyframe2) < 30;
+      if (first != second) bridge.push_back(m);
+      else averager.AddRelativeRotation(m);
+    }
+    ASSERT_FALSE(bridge.empty());
+    ASSERT_TRUE(averager.SolveNow());
+    EXPECT_EQ(averager.Stats().components, 2u);
+    averager.AddRelativeRotation(bridge.front());
+    ASSERT_TRUE(averager.SolveNow());
+    EXPECT_FALSE(averager.Solution()->local);
+    EXPECT_EQ(averager.Stats().components, 1u);
+    EXPECT_LT(MedianErrorDeg(*averager.Solution(), d), 1.0);
+    // Within the joined component, local solves again (loop closures would
+    // make a full solve due).
+    for (std::size_t k = 1; k < bridge.size(); ++k) {
+      if (bridge[k].source != EdgeSource::kLoopClosure) averager.AddRelativeRotation(bridge[k]);
+    }
+    ASSERT_TRUE(averager.SolveNow());
+    EXPECT_EQ(averager.Solution()->local, min_views > 0);
+    EXPECT_LT(MedianErrorDeg(*averager.Solution(), d), 1.0);
+  }
 }
 
 TEST(OnlineAverager, SaveLoadAndReset) {

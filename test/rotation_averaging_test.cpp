@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <set>
 #include <thread>
 
 #include <algorithm>
@@ -355,6 +356,141 @@ TEST(RotationAveraging, MostlyWarmStartPlacesNewViewsByConsensus) {
     if (name == sg.graph.FindView(fresh)->name) fresh_error = error;
   EXPECT_GE(fresh_error, 0.0);
   EXPECT_LT(fresh_error, 2.0);
+}
+
+// A grid-local graph solved in full, then a new view with four edges (one a
+// confident outlier) and a loop edge between two old views: the local
+// re-solve moves only views within the region, places the new view as well
+// as a full solve does, and leaves the rest bit for bit as it was.
+TEST(RotationAveraging, LocalSolveMovesOnlyTheRegionAndMatchesAFullSolve) {
+  for (SolverType solver : {SolverType::kIrls, SolverType::kCeres}) {
+    SCOPED_TRACE(SolverTypeName(solver));
+    SyntheticGraphOptions go;
+    go.num_views = 400;
+    go.noise_deg = 1.0;
+    go.outlier_ratio = 0.05;
+    go.locality = 3;
+    go.seed = 31;
+    SyntheticGraph sg = MakeSyntheticGraph(go);
+    RotationAveragingOptions options;
+    options.solver = solver;
+    ViewOrientations solved;
+    RotationAveragingSummary summary;
+    ASSERT_TRUE(SolveRotationAveraging(sg.graph, options, &solved, &summary));
+    const ViewId fresh = 1000;
+    sg.graph.AddView(fresh);
+    const Eigen::Matrix3d truth = ExpSO3(Eigen::Vector3d(0.3, -0.2, 1.0));
+    sg.ground_truth[fresh] = truth;
+    const ViewId anchors[] = {201, 202, 221, 222};
+    for (int k = 0; k < 4; ++k) {
+      RelativeRotation e;
+      e.view1 = anchors[k];
+      e.view2 = fresh;
+      e.rotation = sg.ground_truth[e.view1] * truth.transpose() * ExpSO3(Eigen::Vector3d(0.005, -0.004, 0.003));
+      e.has_covariance = true;
+      e.covariance = std::pow(DegToRad(1.0), 2) * Eigen::Matrix3d::Identity();
+      if (k == 0) {
+        e.rotation = e.rotation * ExpSO3(Eigen::Vector3d(0.0, 1.2, 0.0));
+        e.covariance *= 0.01;
+      }
+      ASSERT_NE(sg.graph.AddEdge(e), AddEdgeResult::kRejected);
+    }
+    ViewOrientations local = solved;
+    LocalSolveOptions lo;
+    lo.hops = 2;
+    std::vector<int> labels(sg.graph.NumViews() + 1000, 0);  // one component, label 0
+    lo.component_labels = &labels;
+    ASSERT_EQ(SolveRotationAveragingLocally(sg.graph, {fresh}, lo, options, &local, &summary),
+              LocalSolveOutcome::kSolved);
+    ASSERT_EQ(summary.components.size(), 1u);
+    EXPECT_EQ(labels[fresh], 0);
+    // The edges of the region were solved, the rest not: the region is the
+    // new view, its four neighbours and theirs.
+    std::size_t solved_edges = 0;
+    for (const EdgeResult& r : summary.edges) solved_edges += r.solved;
+    EXPECT_GT(solved_edges, 20u);
+    EXPECT_LT(solved_edges, sg.graph.NumEdges() / 4);
+    ASSERT_EQ(local.size(), solved.size() + 1);
+    std::size_t moved = 0;
+    for (const auto& [id, r] : solved) moved += !(local.at(id) == r);
+    EXPECT_GT(moved, 4u);
+    EXPECT_LT(moved, 100u);
+    // Every moved view is within two hops of the new view.
+    std::set<ViewId> near = {fresh};
+    for (int hop = 0; hop < 2; ++hop) {
+      std::set<ViewId> next = near;
+      for (const RelativeRotation& e : sg.graph.Edges()) {
+        if (near.count(e.view1)) next.insert(e.view2);
+        if (near.count(e.view2)) next.insert(e.view1);
+      }
+      near = next;
+    }
+    for (const auto& [id, r] : solved) {
+      if (!(local.at(id) == r)) EXPECT_TRUE(near.count(id)) << "view " << id << " moved";
+    }
+    // The new view: as well placed as by a full solve, despite the outlier.
+    ViewOrientations full = solved;
+    ASSERT_TRUE(SolveRotationAveraging(sg.graph, options, &full, &summary));
+    const double local_error = RadToDeg(AngularDistanceRad(local.at(fresh), full.at(fresh)));
+    EXPECT_LT(local_error, 0.1);
+    // Against the truth, in the frame of a neighbour (the solution has its own gauge).
+    const Eigen::Matrix3d relative = local.at(fresh) * local.at(202).transpose();
+    EXPECT_LT(RadToDeg(AngularDistanceRad(relative, truth * sg.ground_truth[202].transpose())), 1.0);
+  }
+}
+
+TEST(RotationAveraging, LocalSolveRefusesWhatNeedsAFullSolve) {
+  SyntheticGraphOptions go;
+  go.num_views = 60;
+  go.noise_deg = 1.0;
+  go.seed = 5;
+  SyntheticGraph a = MakeSyntheticGraph(go);
+  // A second component: views 100.. with the same structure.
+  ViewGraph graph = a.graph;
+  for (const View& v : a.graph.Views()) graph.AddView(v.id + 100);
+  for (RelativeRotation e : a.graph.Edges()) {
+    e.view1 += 100;
+    e.view2 += 100;
+    graph.AddEdge(e);
+  }
+  RotationAveragingOptions options;
+  ViewOrientations solved;
+  RotationAveragingSummary summary;
+  ASSERT_TRUE(SolveRotationAveraging(graph, options, &solved, &summary));
+  ASSERT_EQ(summary.components.size(), 2u);
+  std::vector<int> labels(200, -1);
+  for (const View& v : graph.Views()) labels[v.id] = v.id < 100 ? 0 : 1;
+  LocalSolveOptions lo;
+  lo.component_labels = &labels;
+  // A local solve within one component is fine.
+  ViewOrientations fine = solved;
+  EXPECT_EQ(SolveRotationAveragingLocally(graph, {5}, lo, options, &fine, &summary), LocalSolveOutcome::kSolved);
+  ViewOrientations copy = solved;
+  // Nothing changed that the graph knows.
+  EXPECT_EQ(SolveRotationAveragingLocally(graph, {}, lo, options, &copy, &summary), LocalSolveOutcome::kNothingToSolve);
+  EXPECT_EQ(SolveRotationAveragingLocally(graph, {555}, lo, options, &copy, &summary),
+            LocalSolveOutcome::kNothingToSolve);
+  // An edge joining the two components, each solved in its own gauge.
+  RelativeRotation join;
+  join.view1 = 3;
+  join.view2 = 107;
+  join.rotation = a.ground_truth[3] * a.ground_truth[7].transpose();
+  ASSERT_NE(graph.AddEdge(join), AddEdgeResult::kRejected);
+  EXPECT_EQ(SolveRotationAveragingLocally(graph, {3, 107}, lo, options, &copy, &summary),
+            LocalSolveOutcome::kNeedsFullSolve);
+  // More changed views than the region may hold.
+  lo.max_views = 10;
+  std::vector<ViewId> many;
+  for (ViewId id = 0; id < 20; ++id) many.push_back(id);
+  EXPECT_EQ(SolveRotationAveragingLocally(graph, many, lo, options, &copy, &summary), LocalSolveOutcome::kNeedsFullSolve);
+  // The L1-IRLS baseline has no local form.
+  lo.max_views = 1000;
+  RotationAveragingOptions l1 = options;
+  l1.solver = SolverType::kL1Irls;
+  EXPECT_EQ(SolveRotationAveragingLocally(graph, {5}, lo, l1, &copy, &summary), LocalSolveOutcome::kNeedsFullSolve);
+  // None of the refusals touched the orientations.
+  ASSERT_EQ(copy.size(), solved.size());
+  for (const auto& [id, r] : solved) EXPECT_TRUE(copy.at(id) == r);
 }
 
 // Two solves in two threads at once (the online averager's background full

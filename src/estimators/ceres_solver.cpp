@@ -79,7 +79,11 @@ void SolveComponentCeres(const RotationAveragingOptions& options, const RobustLo
     if (!ceres_problem.HasParameterBlock(quaternions[v].data())) continue;
     ceres_problem.SetManifold(quaternions[v].data(), &manifold);
   }
-  ceres_problem.SetParameterBlockConstant(quaternions[problem->gauge].data());
+  for (int v = 0; v < n; ++v) {
+    if (problem->IsFixed(v) && ceres_problem.HasParameterBlock(quaternions[v].data())) {
+      ceres_problem.SetParameterBlockConstant(quaternions[v].data());
+    }
+  }
 
   ceres::Solver::Options solver_options;
   solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;

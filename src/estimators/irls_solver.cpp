@@ -57,7 +57,7 @@ void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace)
   ws.var.assign(n, -1);
   int free_blocks = 0;
   for (int v = 0; v < n; ++v)
-    if (v != problem.gauge) ws.var[v] = free_blocks++;
+    if (!problem.IsFixed(v)) ws.var[v] = free_blocks++;
   std::vector<std::pair<int, int>> pairs;
   pairs.reserve(problem.edges.size());
   for (const ComponentEdge& e : problem.edges) {

@@ -172,6 +172,130 @@ std::string RotationAveragingSummary::Report() const {
   return out.str();
 }
 
+namespace {
+
+// Solves one component problem (already initialised) with the options' robust
+// start, loss and auto-scaling; writes its per-edge results into
+// summary->edges (by graph_index) and, when asked, its posterior covariances.
+void SolveComponent(const RotationAveragingOptions& options, EdgeWeighting weighting, double scale, bool all_warm,
+                    bool covariances, ComponentProblem* problem_in, ComponentSummary* cs_out,
+                    RotationAveragingSummary* summary) {
+  ComponentProblem& problem = *problem_in;
+  ComponentSummary& cs = *cs_out;
+  const std::vector<Eigen::Matrix3d> initial_rotations = problem.rotations;
+  double component_scale = scale;
+  std::unique_ptr<RobustLoss> component_loss = CreateLoss(options.loss, scale);
+
+  if (options.solver == SolverType::kL1Irls) {
+    SolveComponentL1Irls(options, &problem, &cs);
+  } else {
+    IrlsWorkspace workspace;
+    auto solve_with = [&](const RotationAveragingOptions& o, const RobustLoss& l) {
+      if (o.solver == SolverType::kCeres) {
+        SolveComponentCeres(o, l, &problem, &cs);
+      } else {
+        SolveComponentIrls(o, l, &problem, &cs, &workspace);
+      }
+    };
+    auto solve = [&](const RobustLoss& l) { solve_with(options, l); };
+    // A start that already agrees with (almost) every edge needs neither
+    // the L1 start nor graduated non-convexity.
+    const bool needs_robust_start =
+        !all_warm && TreeDisagreement(problem, scale) > options.l1_initialization_min_disagreement;
+    if (options.l1_initialization && needs_robust_start) {
+      // Unweighted, so the start does not depend on the covariances and
+      // always takes the scalar-Laplacian path of the IRLS solver.
+      RotationAveragingOptions l1_options = options;
+      l1_options.max_iterations = options.l1_init_max_iterations;
+      l1_options.function_tolerance = options.l1_init_function_tolerance;
+      cs.iterations += SolveSurrogate(l1_options, SoftL1Loss(options.l1_init_smoothing_rad),
+                                      [](const Eigen::Matrix3d&) { return 1.0; }, &problem);
+    } else if (!all_warm && !needs_robust_start && options.isotropic_presolve_max_anisotropy > 1.0) {
+      double max_anisotropy = 1.0;
+      for (const ComponentEdge& e : problem.edges) max_anisotropy = std::max(max_anisotropy, Anisotropy(e.information));
+      if (max_anisotropy > 1.0 + 1e-9 && max_anisotropy <= options.isotropic_presolve_max_anisotropy) {
+        RotationAveragingOptions iso_options = options;
+        iso_options.function_tolerance = options.isotropic_presolve_function_tolerance;
+        cs.iterations += SolveSurrogate(iso_options, *component_loss,
+                                        [](const Eigen::Matrix3d& w) { return w.trace() / 3.0; }, &problem);
+      }
+    }
+    // Graduated non-convexity for redescending losses started from a tree.
+    if (IsRedescending(options.loss) && needs_robust_start && options.gnc_initial_scale_factor > 1.0 &&
+        options.gnc_scale_step > 1.0) {
+      // Intermediate stages only need to move into the right basin: a few
+      // iterations each, not convergence.
+      RotationAveragingOptions stage_options = options;
+      stage_options.max_iterations = std::min(options.max_iterations, options.gnc_stage_max_iterations);
+      for (double s = scale * options.gnc_initial_scale_factor; s > scale * 1.0001; s /= options.gnc_scale_step) {
+        solve_with(stage_options, *CreateLoss(options.loss, s));
+      }
+    }
+    solve(*component_loss);
+    // Self-calibration of the covariance scale (see auto_scale_threshold).
+    if (weighting == EdgeWeighting::kCovariance &&
+        options.covariance_normalization == CovarianceNormalization::kStandardDeviations &&
+        options.auto_scale_threshold > 0.0 && options.loss_scale <= 0.0) {
+      cs.noise_scale = WhitenedResidualScale(problem);
+      if (cs.noise_scale > options.auto_scale_threshold) {
+        component_scale = scale * cs.noise_scale;
+        component_loss = CreateLoss(options.loss, component_scale);
+        solve(*component_loss);
+      }
+    }
+    // The reported initial cost is that of the starting point under the final loss.
+    cs.initial_cost = ComponentProblem::CostOf(problem.edges, initial_rotations, *component_loss);
+  }
+
+  // A solve that produced non-finite numbers keeps the initial orientations.
+  bool finite = true;
+  for (const Eigen::Matrix3d& r : problem.rotations) finite = finite && r.allFinite();
+  if (!finite || !std::isfinite(cs.final_cost)) {
+    problem.rotations = initial_rotations;
+    cs.status = "solve failed (non-finite result); kept the initial orientations: " + cs.status;
+    cs.converged = false;
+    cs.final_cost = problem.Cost(*component_loss);
+    summary->warnings.push_back(cs.status);
+  }
+  if (finite && covariances && options.solver != SolverType::kL1Irls && options.posterior_covariance_max_views > 0 &&
+      static_cast<int>(problem.view_ids.size()) <= options.posterior_covariance_max_views) {
+    std::vector<Eigen::Matrix3d> view_covariances;
+    if (ComputeViewCovariances(problem, *component_loss, &view_covariances)) {
+      for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
+        summary->view_covariances[problem.view_ids[v]] = view_covariances[v];
+      }
+    } else {
+      summary->warnings.push_back("posterior covariances of a component of " +
+                                  std::to_string(problem.view_ids.size()) +
+                                  " views skipped (normal matrix singular or its factor too dense)");
+    }
+  }
+  // Per-edge results under the final loss and the weighting of the options
+  // (the L1-IRLS baseline reports its own unweighted residuals).
+  for (const ComponentEdge& e : problem.edges) {
+    EdgeResult& er = summary->edges[e.graph_index];
+    const Eigen::Vector3d r = problem.Residual(e);
+    er.residual_rad = r.norm();
+    er.whitened_squared = (e.sqrt_information * r).squaredNorm();
+    er.robust_weight = options.solver == SolverType::kL1Irls
+                           ? GemanMcClureLoss(DegToRad(options.l1_irls_sigma_deg)).Weight(er.whitened_squared)
+                           : component_loss->Weight(er.whitened_squared);
+    er.solved = true;
+    if (er.robust_weight < 0.01) ++summary->num_outlier_edges;
+  }
+  cs.loss_scale = options.solver == SolverType::kL1Irls ? DegToRad(options.l1_irls_sigma_deg) : component_scale;
+}
+
+// Whether the warm start covers enough of the component (see warm_start_min_fraction).
+bool AllWarm(const ComponentProblem& problem, double min_fraction) {
+  std::size_t warm = 0;
+  for (bool h : problem.has_initial) warm += h;
+  return warm == problem.has_initial.size() ||
+         (warm > 0 && static_cast<double>(warm) >= min_fraction * static_cast<double>(problem.has_initial.size()));
+}
+
+}  // namespace
+
 bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptions& options,
                             ViewOrientations* orientations, RotationAveragingSummary* summary) {
   const auto start = std::chrono::steady_clock::now();
@@ -189,116 +313,10 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
     ComponentSummary cs;
     cs.num_views = problem.view_ids.size();
     cs.num_edges = problem.edges.size();
-    std::size_t warm = 0;
-    for (bool h : problem.has_initial) warm += h;
-    // "all warm" also when only a few views are new (see warm_start_min_fraction).
-    const bool all_warm = warm == problem.has_initial.size() ||
-                          (warm > 0 && static_cast<double>(warm) >=
-                                           options.warm_start_min_fraction * static_cast<double>(problem.has_initial.size()));
+    const bool all_warm = AllWarm(problem, options.warm_start_min_fraction);
     InitializeBySpanningTree(&problem);
     cs.gauge_view = problem.view_ids[problem.gauge];
-    const std::vector<Eigen::Matrix3d> initial_rotations = problem.rotations;
-    double component_scale = scale;
-    std::unique_ptr<RobustLoss> component_loss = CreateLoss(options.loss, scale);
-
-    if (options.solver == SolverType::kL1Irls) {
-      SolveComponentL1Irls(options, &problem, &cs);
-    } else {
-      IrlsWorkspace workspace;
-      auto solve_with = [&](const RotationAveragingOptions& o, const RobustLoss& l) {
-        if (o.solver == SolverType::kCeres) {
-          SolveComponentCeres(o, l, &problem, &cs);
-        } else {
-          SolveComponentIrls(o, l, &problem, &cs, &workspace);
-        }
-      };
-      auto solve = [&](const RobustLoss& l) { solve_with(options, l); };
-      // A start that already agrees with (almost) every edge needs neither
-      // the L1 start nor graduated non-convexity.
-      const bool needs_robust_start =
-          !all_warm && TreeDisagreement(problem, scale) > options.l1_initialization_min_disagreement;
-      if (options.l1_initialization && needs_robust_start) {
-        // Unweighted, so the start does not depend on the covariances and
-        // always takes the scalar-Laplacian path of the IRLS solver.
-        RotationAveragingOptions l1_options = options;
-        l1_options.max_iterations = options.l1_init_max_iterations;
-        l1_options.function_tolerance = options.l1_init_function_tolerance;
-        cs.iterations += SolveSurrogate(l1_options, SoftL1Loss(options.l1_init_smoothing_rad),
-                                        [](const Eigen::Matrix3d&) { return 1.0; }, &problem);
-      } else if (!all_warm && !needs_robust_start && options.isotropic_presolve_max_anisotropy > 1.0) {
-        double max_anisotropy = 1.0;
-        for (const ComponentEdge& e : problem.edges) max_anisotropy = std::max(max_anisotropy, Anisotropy(e.information));
-        if (max_anisotropy > 1.0 + 1e-9 && max_anisotropy <= options.isotropic_presolve_max_anisotropy) {
-          RotationAveragingOptions iso_options = options;
-          iso_options.function_tolerance = options.isotropic_presolve_function_tolerance;
-          cs.iterations += SolveSurrogate(iso_options, *component_loss,
-                                          [](const Eigen::Matrix3d& w) { return w.trace() / 3.0; }, &problem);
-        }
-      }
-      // Graduated non-convexity for redescending losses started from a tree.
-      if (IsRedescending(options.loss) && needs_robust_start && options.gnc_initial_scale_factor > 1.0 &&
-          options.gnc_scale_step > 1.0) {
-        // Intermediate stages only need to move into the right basin: a few
-        // iterations each, not convergence.
-        RotationAveragingOptions stage_options = options;
-        stage_options.max_iterations = std::min(options.max_iterations, options.gnc_stage_max_iterations);
-        for (double s = scale * options.gnc_initial_scale_factor; s > scale * 1.0001; s /= options.gnc_scale_step) {
-          solve_with(stage_options, *CreateLoss(options.loss, s));
-        }
-      }
-      solve(*component_loss);
-      // Self-calibration of the covariance scale (see auto_scale_threshold).
-      if (weighting == EdgeWeighting::kCovariance &&
-          options.covariance_normalization == CovarianceNormalization::kStandardDeviations &&
-          options.auto_scale_threshold > 0.0 && options.loss_scale <= 0.0) {
-        cs.noise_scale = WhitenedResidualScale(problem);
-        if (cs.noise_scale > options.auto_scale_threshold) {
-          component_scale = scale * cs.noise_scale;
-          component_loss = CreateLoss(options.loss, component_scale);
-          solve(*component_loss);
-        }
-      }
-      // The reported initial cost is that of the starting point under the final loss.
-      cs.initial_cost = ComponentProblem::CostOf(problem.edges, initial_rotations, *component_loss);
-    }
-
-    // A solve that produced non-finite numbers keeps the initial orientations.
-    bool finite = true;
-    for (const Eigen::Matrix3d& r : problem.rotations) finite = finite && r.allFinite();
-    if (!finite || !std::isfinite(cs.final_cost)) {
-      problem.rotations = initial_rotations;
-      cs.status = "solve failed (non-finite result); kept the initial orientations: " + cs.status;
-      cs.converged = false;
-      cs.final_cost = problem.Cost(*component_loss);
-      summary->warnings.push_back(cs.status);
-    }
-    if (finite && options.solver != SolverType::kL1Irls && options.posterior_covariance_max_views > 0 &&
-        static_cast<int>(problem.view_ids.size()) <= options.posterior_covariance_max_views) {
-      std::vector<Eigen::Matrix3d> covariances;
-      if (ComputeViewCovariances(problem, *component_loss, &covariances)) {
-        for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
-          summary->view_covariances[problem.view_ids[v]] = covariances[v];
-        }
-      } else {
-        summary->warnings.push_back("posterior covariances of a component of " +
-                                    std::to_string(problem.view_ids.size()) +
-                                    " views skipped (normal matrix singular or its factor too dense)");
-      }
-    }
-    // Per-edge results under the final loss and the weighting of the options
-    // (the L1-IRLS baseline reports its own unweighted residuals).
-    for (const ComponentEdge& e : problem.edges) {
-      EdgeResult& er = summary->edges[e.graph_index];
-      const Eigen::Vector3d r = problem.Residual(e);
-      er.residual_rad = r.norm();
-      er.whitened_squared = (e.sqrt_information * r).squaredNorm();
-      er.robust_weight = options.solver == SolverType::kL1Irls
-                             ? GemanMcClureLoss(DegToRad(options.l1_irls_sigma_deg)).Weight(er.whitened_squared)
-                             : component_loss->Weight(er.whitened_squared);
-      er.solved = true;
-      if (er.robust_weight < 0.01) ++summary->num_outlier_edges;
-    }
-    cs.loss_scale = options.solver == SolverType::kL1Irls ? DegToRad(options.l1_irls_sigma_deg) : component_scale;
+    SolveComponent(options, weighting, scale, all_warm, /*covariances=*/true, &problem, &cs, summary);
     for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
       (*orientations)[problem.view_ids[v]] = problem.rotations[v];
     }
@@ -308,6 +326,155 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
   summary->num_isolated_views = graph.NumViews() - solved_views;
   summary->solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return summary->Success();
+}
+
+LocalSolveOutcome SolveRotationAveragingLocally(const ViewGraph& graph, const std::vector<ViewId>& changed,
+                                                const LocalSolveOptions& local,
+                                                const RotationAveragingOptions& options,
+                                                ViewOrientations* orientations, RotationAveragingSummary* summary) {
+  const auto start = std::chrono::steady_clock::now();
+  *summary = RotationAveragingSummary();
+  if (options.solver == SolverType::kL1Irls) return LocalSolveOutcome::kNeedsFullSolve;
+  const std::vector<RelativeRotation>& edges = graph.Edges();
+  // Incident edges per view (ids need not be dense).
+  std::unordered_map<ViewId, int> index;
+  index.reserve(graph.NumViews());
+  for (const View& v : graph.Views()) index.emplace(v.id, static_cast<int>(index.size()));
+  const int n = static_cast<int>(index.size());
+  std::vector<int> offsets(n + 1, 0), incident(2 * edges.size());
+  std::vector<std::pair<int, int>> ends(edges.size());
+  for (std::size_t k = 0; k < edges.size(); ++k) {
+    ends[k] = {index.at(edges[k].view1), index.at(edges[k].view2)};
+    ++offsets[ends[k].first + 1];
+    ++offsets[ends[k].second + 1];
+  }
+  for (int v = 0; v < n; ++v) offsets[v + 1] += offsets[v];
+  {
+    std::vector<int> fill(offsets.begin(), offsets.end() - 1);
+    for (std::size_t k = 0; k < edges.size(); ++k) {
+      incident[fill[ends[k].first]++] = static_cast<int>(k);
+      incident[fill[ends[k].second]++] = static_cast<int>(k);
+    }
+  }
+  // The region: breadth-first from the changed views, `hops` deep, at most
+  // max_views views (nearest first).
+  std::vector<int> depth(n, -1);
+  std::vector<int> region;
+  for (ViewId id : changed) {
+    auto it = index.find(id);
+    if (it == index.end() || depth[it->second] >= 0) continue;
+    depth[it->second] = 0;
+    region.push_back(it->second);
+  }
+  if (region.empty()) return LocalSolveOutcome::kNothingToSolve;
+  if (region.size() > local.max_views) return LocalSolveOutcome::kNeedsFullSolve;
+  for (std::size_t head = 0; head < region.size() && region.size() < local.max_views; ++head) {
+    const int v = region[head];
+    if (depth[v] >= local.hops) break;  // breadth-first: every later view is as deep
+    for (int p = offsets[v]; p < offsets[v + 1] && region.size() < local.max_views; ++p) {
+      const int u = ends[incident[p]].first == v ? ends[incident[p]].second : ends[incident[p]].first;
+      if (depth[u] < 0) {
+        depth[u] = depth[v] + 1;
+        region.push_back(u);
+      }
+    }
+  }
+  std::vector<char> in_region(n, 0);
+  for (int v : region) in_region[v] = 1;
+  // The sub-graph: every edge with an end in the region whose other end is in
+  // the region or already oriented (a boundary view, held fixed).
+  ViewGraph sub(graph.Validation());
+  std::vector<std::size_t> sub_to_graph;
+  std::vector<char> added(n, 0), taken(edges.size(), 0);
+  const std::vector<View>& views = graph.Views();
+  auto add_view = [&](int v) {
+    if (!added[v]) {
+      sub.AddView(views[v].id, views[v].name);
+      added[v] = 1;
+    }
+  };
+  for (int v : region) {
+    for (int p = offsets[v]; p < offsets[v + 1]; ++p) {
+      const int k = incident[p];
+      const int u = ends[k].first == v ? ends[k].second : ends[k].first;
+      if (taken[k] || (!in_region[u] && !orientations->count(views[u].id))) continue;
+      taken[k] = 1;
+      add_view(v);
+      add_view(u);
+      if (sub.AddEdge(edges[k], nullptr, DuplicatePolicy::kKeepBoth) != AddEdgeResult::kRejected) {
+        sub_to_graph.push_back(static_cast<std::size_t>(k));
+      }
+    }
+  }
+  // Components of the sub-graph; views outside the region are held fixed.
+  EdgeWeighting weighting = options.weighting;
+  std::vector<ComponentProblem> problems =
+      BuildComponentProblems(sub, options, *orientations, &summary->warnings, &weighting);
+  std::vector<int>* labels = local.component_labels;
+  auto label_of = [labels](ViewId id) {
+    return labels && id < labels->size() ? (*labels)[id] : -1;
+  };
+  std::vector<int> problem_label(problems.size(), -1);
+  for (std::size_t p = 0; p < problems.size(); ++p) {
+    ComponentProblem& problem = problems[p];
+    problem.fixed.assign(problem.view_ids.size(), false);
+    for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
+      const ViewId id = problem.view_ids[v];
+      problem.fixed[v] = !in_region[index.at(id)];
+      const int label = label_of(id);
+      if (label < 0) continue;
+      // New edges that join components solved apart (each in its own gauge)
+      // need a full solve of the joined component.
+      if (problem_label[p] >= 0 && problem_label[p] != label) return LocalSolveOutcome::kNeedsFullSolve;
+      problem_label[p] = label;
+    }
+    for (ComponentEdge& e : problem.edges) e.graph_index = sub_to_graph[e.graph_index];
+  }
+  const double default_scale =
+      options.loss_scale > 0.0 ? options.loss_scale : DefaultScaleFor(weighting, options.covariance_normalization);
+  summary->loss_scale = default_scale;
+  summary->edges.assign(edges.size(), EdgeResult());
+  int next_label = 0;
+  if (labels) {
+    for (int l : *labels) next_label = std::max(next_label, l + 1);
+  }
+  for (std::size_t p = 0; p < problems.size(); ++p) {
+    ComponentProblem& problem = problems[p];
+    ComponentSummary cs;
+    cs.num_views = problem.view_ids.size();
+    cs.num_edges = problem.edges.size();
+    RotationAveragingOptions component_options = options;
+    const int label = problem_label[p];
+    if (options.loss_scale <= 0.0 && local.label_loss_scale && label >= 0 &&
+        static_cast<std::size_t>(label) < local.label_loss_scale->size() && (*local.label_loss_scale)[label] > 0.0) {
+      component_options.loss_scale = (*local.label_loss_scale)[label];
+    }
+    const double scale = component_options.loss_scale > 0.0 ? component_options.loss_scale : default_scale;
+    const bool all_warm = AllWarm(problem, options.warm_start_min_fraction);
+    InitializeBySpanningTree(&problem);
+    // The gauge is one of the held views when there are any (it is held as well).
+    for (std::size_t v = 0; v < problem.view_ids.size() && !problem.fixed[problem.gauge]; ++v) {
+      if (problem.fixed[v]) problem.gauge = static_cast<int>(v);
+    }
+    cs.gauge_view = problem.view_ids[problem.gauge];
+    SolveComponent(component_options, weighting, scale, all_warm, /*covariances=*/false, &problem, &cs, summary);
+    for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
+      if (!problem.fixed[v]) (*orientations)[problem.view_ids[v]] = problem.rotations[v];
+    }
+    if (labels) {
+      const int l = label >= 0 ? label : next_label++;
+      for (ViewId id : problem.view_ids) {
+        if (id >= labels->size()) {
+          if (id > 2 * graph.NumViews() + 1024) continue;  // sparse ids are not labelled
+          labels->resize(id + 1, -1);
+        }
+        (*labels)[id] = l;
+      }
+    }
+    summary->components.push_back(cs);
+  }
+  summary->solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return summary->Success() ? LocalSolveOutcome::kSolved : LocalSolveOutcome::kFailed;
 }
 
 }  // namespace rotation_averaging

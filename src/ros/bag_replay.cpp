@@ -244,6 +244,10 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
   }
   YamlParameters params(root);
   PipelineConfig config = ReadPipelineConfig(params, &result.warnings);
+  // Solutions that depend on the input only, not on how fast this machine
+  // runs: the periodic full solve of large graphs runs in the solve that is
+  // due, not in a background thread (OnlineAveragerOptions).
+  config.averager.background_full_solves = false;
   for (const std::string& p : params.Problems()) result.warnings.push_back(p);
   KeyframePipeline pipeline(config);
   OnlineAverager& averager = pipeline.Averager();

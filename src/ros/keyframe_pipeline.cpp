@@ -60,6 +60,11 @@ PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std
   a.max_queue = PositiveSize(params, "max_queue", 10000, 1);
   a.max_views = PositiveSize(params, "max_views", 1000000, 2);
   a.max_edges = PositiveSize(params, "max_edges", 10000000, 1);
+  a.local_solve_min_views = static_cast<std::size_t>(std::max(0, Param(params, "local_solve_min_keyframes", 3000)));
+  a.local.hops = std::max(1, Param(params, "local_solve_hops", a.local.hops));
+  a.local.max_views = PositiveSize(params, "local_solve_max_keyframes", 1000, 1);
+  a.full_solve_every = std::max(1, Param(params, "full_solve_every", a.full_solve_every));
+  a.background_full_solves = Param(params, "background_full_solves", a.background_full_solves);
   RotationAveragingOptions& o = a.averaging;
   const std::string loss = Param<std::string>(params, "loss", "magsac");
   if (!ParseLossType(loss, &o.loss)) warn("loss '" + loss + "' unknown: using magsac");

@@ -277,7 +277,7 @@ class RotationAveragingNode {
   }
 
   bool OnSolve(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
-    res.success = averager_->SolveNow();
+    res.success = averager_->SolveFullNow();  // on request: the whole graph, not a local re-solve
     const OnlineAveragerStats s = averager_->Stats();
     res.message = res.success ? "solved " + std::to_string(s.views) + " keyframes, " + std::to_string(s.edges) +
                                     " edges in " + std::to_string(s.last_solve_s) + " s"
@@ -403,6 +403,8 @@ class RotationAveragingNode {
     status.add("resident memory (MiB)", resident);
     status.add("peak resident memory (MiB)", peak);
     status.add("solves", s.solves);
+    status.add("local solves (of all solves)", s.local_solves);
+    status.add("background full solves taken", s.background_solves);
     status.add("failed solves", s.failed_solves);
     status.add("overruns", s.overruns);
     status.add("last solve time (s)", s.last_solve_s);

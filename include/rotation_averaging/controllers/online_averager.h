@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <future>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -53,6 +54,26 @@ struct OnlineAveragerOptions {
   std::size_t max_queue = 10000;        // pending measurements; beyond, new ones are dropped and counted
   std::size_t max_views = 1000000;      // caps: new keyframes / edges beyond them are dropped and counted
   std::size_t max_edges = 10000000;
+  // Local re-solves for large graphs. With at least local_solve_min_views
+  // keyframes, a solve after a small change (new keyframes and their edges,
+  // a loop closure) moves only the neighbourhood of the change
+  // (SolveRotationAveragingLocally with `local`), holding the rest of the
+  // last solution fixed; every full_solve_every local solves a full solve
+  // (warm-started) revisits the whole graph. Changes that join two solved
+  // components, touch more than local.max_views keyframes, a cold start, new
+  // options and the L1-IRLS solver always take a full solve; a loop-closure
+  // edge makes the next full solve due at once. 0 disables.
+  // Measured at 10,000 keyframes (results/online.md): see README.
+  std::size_t local_solve_min_views = 3000;
+  LocalSolveOptions local;  // previous_component is set by the averager
+  int full_solve_every = 10;
+  // Run the periodic full solve in a second thread on a snapshot of the
+  // graph, while local solves go on; its result is taken by the first solve
+  // after it has finished (keyframes added since the snapshot are then
+  // re-solved locally around them). Off: the full solve runs in the solve
+  // that is due, so the sequence of solutions depends only on the input and
+  // not on timing (the bag replay uses that).
+  bool background_full_solves = true;
 };
 
 // Counters for diagnostics; all monotonic.
@@ -64,6 +85,8 @@ struct OnlineAveragerStats {
   std::uint64_t dropped_cap = 0;        // view or edge cap reached
   std::size_t queued = 0;               // measurements waiting for the next solve (at most max_queue)
   std::uint64_t solves = 0;
+  std::uint64_t local_solves = 0;       // of `solves`: local re-solves (see local_solve_min_views)
+  std::uint64_t background_solves = 0;  // full solves run in the background and taken into a solution
   std::uint64_t failed_solves = 0;
   std::uint64_t overruns = 0;           // solves that took longer than the period
   double last_solve_s = 0.0;
@@ -81,6 +104,7 @@ struct SolvedEdge {
 // The latest solution: world-to-camera orientation per keyframe.
 struct OnlineSolution {
   std::uint64_t sequence = 0;  // increases with every successful solve
+  bool local = false;          // a local re-solve: `summary` covers the re-solved region only
   std::map<KeyframeKey, Eigen::Matrix3d> orientations;
   std::map<KeyframeKey, int> component;  // index of the connected component, largest first
   std::vector<SolvedEdge> edges;         // every edge of the solved graph
@@ -110,8 +134,11 @@ class OnlineAverager {
   void Start();
   void Stop();
   // Applies pending measurements and solves in the calling thread; returns
-  // whether the solve succeeded. Thread-safe with the worker.
+  // whether the solve succeeded. Thread-safe with the worker. A local or a
+  // full solve as the options say; SolveFullNow always solves the whole graph
+  // (and drops a background full solve still running).
   bool SolveNow();
+  bool SolveFullNow();
   // Asks the worker for a solve as soon as possible.
   void RequestSolve();
   // Clears graph, queue and solution (counters are kept).
@@ -139,7 +166,28 @@ class OnlineAverager {
  private:
   void WorkerLoop();
   std::size_t DrainQueue();  // applies queued measurements to the graph; needs graph_mutex_
-  bool SolveLocked();        // needs solve_mutex_
+  bool SolveLocked(bool force_full);  // needs solve_mutex_
+  // The full solve of a snapshot, run in the background.
+  struct FullSolve {
+    std::uint64_t generation = 0;
+    bool ok = false;
+    ViewOrientations orientations;
+    RotationAveragingSummary summary;
+    std::vector<std::vector<ViewId>> components;
+  };
+  static FullSolve RunFullSolve(const ViewGraph& graph, const RotationAveragingOptions& options,
+                                ViewOrientations orientations, std::uint64_t generation);
+  void ClearLocalState();  // needs solve_mutex_
+  // Drops the keyframes added since the last full solve from its start.
+  void StartFromTree(ViewOrientations* orientations);
+  // Components solved apart are in different frames: where new edges joined
+  // them, only the largest keeps its warm start; the others are placed from
+  // it along the spanning tree (a warm start mixing two frames made the
+  // joined solve end 90 deg off: test JoiningComponentsTakesAFullSolve).
+  void StartJoinedComponentsFromTree(const std::vector<std::vector<ViewId>>& components,
+                                     ViewOrientations* orientations) const;
+  // Labels and loss scales of the components of a full solve (see local_).
+  void TakeComponents(const std::vector<std::vector<ViewId>>& components, const RotationAveragingSummary& summary);
 
   OnlineAveragerOptions options_;
   const ViewGraph validator_;  // validates measurements without taking the graph lock
@@ -154,6 +202,21 @@ class OnlineAverager {
   std::vector<KeyframeKey> keys_;  // by ViewId
   ViewOrientations warm_start_;
   std::uint64_t generation_ = 0;  // bumped by Reset and LoadGraph: a solve started before is discarded
+  // Local re-solve state (solve_mutex_): views touched since the last solve
+  // and since the snapshot of the running background solve; component label
+  // per view and loss scale per label from the last full solve; results of
+  // every edge (by graph index) for the published solution.
+  std::vector<ViewId> changed_, changed_since_snapshot_;
+  std::vector<ViewId> new_views_;  // keyframes added since the last full solve (or its snapshot)
+  std::vector<ViewId> snapshot_new_views_;  // new_views_ when the running background solve was started
+  std::vector<char> changed_flag_;
+  std::vector<int> component_label_;
+  std::vector<double> label_scale_;
+  std::vector<EdgeResult> edge_results_;
+  int local_solves_since_full_ = 0;
+  bool loop_closure_since_full_ = false;  // a loop-closure edge arrived since the last full solve (or snapshot)
+  std::future<FullSolve> background_;
+  bool background_stale_ = false;  // a full solve ran in the foreground since the snapshot
   std::mutex solve_mutex_;  // one solve at a time
   mutable std::mutex solution_mutex_;
   std::shared_ptr<const OnlineSolution> solution_;

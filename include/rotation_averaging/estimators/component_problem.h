@@ -29,6 +29,11 @@ struct ComponentProblem {
   std::vector<bool> has_initial;           // rotation came from a warm start
   std::vector<ComponentEdge> edges;
   int gauge = 0;  // local index of the view held fixed
+  // Further views held at their given rotations (a local re-solve's boundary,
+  // see SolveRotationAveragingLocally); empty: only the gauge. The IRLS and
+  // Ceres solvers honour it; the L1-IRLS baseline does not.
+  std::vector<bool> fixed;
+  bool IsFixed(int v) const { return v == gauge || (!fixed.empty() && fixed[v]); }
 
   // r_ij = Log(M_ij^T R_i R_j^T).
   Eigen::Vector3d Residual(const ComponentEdge& e) const {

@@ -209,6 +209,51 @@ struct RotationAveragingSummary {
 bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptions& options,
                             ViewOrientations* orientations, RotationAveragingSummary* summary);
 
+// A local re-solve after a small change (a new keyframe and its edges, a
+// loop closure): only the views within `hops` edges of the changed views (at
+// most max_views of them, nearest first) move; their neighbours outside that
+// region are held at their given orientations, so the rest of the solution
+// and its gauge stay as they are. Costs in proportion to the region, not the
+// graph. The robust start, loss and weighting are those of the options, with
+// two differences: the loss scale comes from the last full solve when known
+// (LocalSolveOptions::label_loss_scale; otherwise the region's edges are
+// auto-scaled as in a full solve), and scalar
+// weightings (inliers, trace, Frobenius) are normalised by the medians of
+// the region's edges rather than the graph's. Not a substitute for full
+// solves: the error of a long loop is spread over the region only, and views
+// outside it are not revisited; the online averager runs full solves every
+// few local ones (OnlineAveragerOptions::full_solve_every).
+struct LocalSolveOptions {
+  int hops = 3;                   // breadth-first depth of the region around the changed views
+  std::size_t max_views = 1000;   // region size cap; more changed views than this: kNeedsFullSolve
+  // Component label of each view (indexed by ViewId, -1 or beyond the end:
+  // none) in the solution the orientations come from. When given, a change
+  // that joins two labelled components (solved apart, each in its own gauge)
+  // is refused with kNeedsFullSolve, and on kSolved the region's views get
+  // the label of their component (a new one, 1 + the largest, for a
+  // component without labelled views). Meant for dense ids (the online
+  // averager's); views with ids far beyond the graph's size stay unlabelled.
+  std::vector<int>* component_labels = nullptr;
+  // Loss scale per label (e.g. each component's scale in the last full
+  // solve), used when options.loss_scale <= 0: a region's few edges are a
+  // poor basis for the auto-scaling.
+  const std::vector<double>* label_loss_scale = nullptr;
+};
+enum class LocalSolveOutcome {
+  kSolved,          // the region's views hold the new solution
+  kNothingToSolve,  // no changed view is in the graph
+  kNeedsFullSolve,  // too many changed views, a join of components, or the L1-IRLS solver: nothing changed
+  kFailed,          // a component's solve failed (its initial orientations were kept)
+};
+// `orientations` holds the current solution on input (views without one are
+// placed from their neighbours) and the updated region on output. The
+// summary's components are those of the region; its edges are indexed like
+// graph.Edges(), with solved = true for the region's edges only.
+LocalSolveOutcome SolveRotationAveragingLocally(const ViewGraph& graph, const std::vector<ViewId>& changed,
+                                                const LocalSolveOptions& local,
+                                                const RotationAveragingOptions& options,
+                                                ViewOrientations* orientations, RotationAveragingSummary* summary);
+
 }  // namespace rotation_averaging
 
 #endif  // ROTATION_AVERAGING_ESTIMATORS_ROTATION_AVERAGING_H_
