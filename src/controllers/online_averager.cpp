@@ -187,12 +187,13 @@ void OnlineAverager::TakeComponents(const std::vector<std::vector<ViewId>>& comp
 bool OnlineAverager::SolveLocked(bool force_full) {
   ViewOrientations orientations;
   RotationAveragingOptions averaging;
-  std::uint64_t generation = 0;
+  std::uint64_t generation = 0, options_epoch = 0;
   std::vector<ViewId> changed;
   {
     std::lock_guard<std::mutex> lock(graph_mutex_);
     DrainQueue();
     generation = generation_;
+    options_epoch = options_epoch_;
     orientations = warm_start_;
     averaging = options_.averaging;
   }
@@ -321,7 +322,6 @@ bool OnlineAverager::SolveLocked(bool force_full) {
   {
     std::lock_guard<std::mutex> lock(graph_mutex_);
     if (generation != generation_) return false;  // reset or reloaded while solving: discard
-    warm_start_ = orientations;
   }
   const std::shared_ptr<const OnlineSolution> previous = Solution();
   const std::vector<RelativeRotation>& graph_edges = snapshot.Edges();
@@ -363,6 +363,13 @@ bool OnlineAverager::SolveLocked(bool force_full) {
                              std::move(start_from), generation);
     changed_since_snapshot_.clear();
     background_stale_ = false;
+  }
+  {
+    // The next solve starts here (Reset and LoadGraph, which clear it, wait
+    // for solve_mutex_; SetAveragingOptions may have cleared it meanwhile:
+    // then the next solve is cold, as asked).
+    std::lock_guard<std::mutex> lock(graph_mutex_);
+    if (options_epoch == options_epoch_) warm_start_.swap(orientations);
   }
   std::function<void(std::shared_ptr<const OnlineSolution>)> callback;
   {
@@ -505,6 +512,7 @@ void OnlineAverager::SetAveragingOptions(const RotationAveragingOptions& options
   {
     std::lock_guard<std::mutex> lock(graph_mutex_);
     options_.averaging = options;
+    ++options_epoch_;
     // Start the next solve cold (spanning tree + robust start): a warm start
     // from a solution of another loss can sit in that loss's basin (measured:
     // MAGSAC warm-started from a squared-loss solution stayed 5x off).

@@ -202,6 +202,7 @@ class OnlineAverager {
   std::vector<KeyframeKey> keys_;  // by ViewId
   ViewOrientations warm_start_;
   std::uint64_t generation_ = 0;  // bumped by Reset and LoadGraph: a solve started before is discarded
+  std::uint64_t options_epoch_ = 0;  // bumped by SetAveragingOptions: a solve started before keeps the next one cold
   // Local re-solve state (solve_mutex_): views touched since the last solve
   // and since the snapshot of the running background solve; component label
   // per view and loss scale per label from the last full solve; results of
