@@ -57,6 +57,22 @@ TEST(MsgConversion, RejectsMalformedMessages) {
   m = good;
   m.source = 9;
   EXPECT_FALSE(FromMsg(m, &out, &error));
+  // A stamp with nsec >= 1e9 at the end of the 32-bit range: its nanoseconds
+  // do not fit a ros::Time again (found by fuzz_messages: the output threw).
+  m = good;
+  m.stamp_2.sec = 0xffffffffu;
+  m.stamp_2.nsec = 1500000000u;
+  EXPECT_FALSE(FromMsg(m, &out, &error));
+  EXPECT_NE(error.find("not normalised"), std::string::npos);
+}
+
+TEST(MsgConversion, NanosecondsOutsideRosTimeAreClampedNotThrown) {
+  EXPECT_NO_THROW(FromNanoseconds(std::numeric_limits<std::int64_t>::max()));
+  EXPECT_EQ(FromNanoseconds(std::numeric_limits<std::int64_t>::max()).sec, 0xffffffffu);
+  EXPECT_EQ(FromNanoseconds(-5).toNSec(), 0u);
+  EXPECT_EQ(FromNanoseconds(1234567890123LL).toNSec(), 1234567890123u);
+  KeyframeKey key{"cam", std::numeric_limits<std::int64_t>::max()};
+  EXPECT_NO_THROW(ToMsg(key, Eigen::Matrix3d::Identity(), 0, nullptr));
 }
 
 TEST(MsgConversion, OrientationIsCameraToWorld) {

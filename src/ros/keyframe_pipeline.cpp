@@ -174,6 +174,9 @@ bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp
   if (info.width > 0 && (static_cast<int>(info.width) != grey.cols || static_cast<int>(info.height) != grey.rows)) {
     return Reject(&stats_.rejected_images, "image of " + frame + " does not match its camera_info size", error);
   }
+  if (!IsNormalizedStamp(stamp)) {
+    return Reject(&stats_.rejected_images, "image of " + frame + " has a stamp with nsec >= 1e9 (not normalised)", error);
+  }
   const std::int64_t ns = ToNanoseconds(stamp);
   {
     std::lock_guard<std::mutex> lock(mutex_);

@@ -1,5 +1,6 @@
 #include "rotation_averaging/ros/msg_conversion.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include "rotation_averaging/geometry/so3.h"
@@ -8,9 +9,14 @@ namespace rotation_averaging {
 
 std::int64_t ToNanoseconds(const ros::Time& t) { return static_cast<std::int64_t>(t.toNSec()); }
 
+bool IsNormalizedStamp(const ros::Time& t) { return t.nsec < 1000000000u; }
+
 ros::Time FromNanoseconds(std::int64_t ns) {
+  // ros::Time holds 32-bit seconds; fromNSec throws beyond them. Input
+  // stamps are checked (IsNormalizedStamp), so this clamp only guards.
+  constexpr std::int64_t kMax = static_cast<std::int64_t>(0xffffffffLL) * 1000000000LL + 999999999LL;
   ros::Time t;
-  t.fromNSec(static_cast<std::uint64_t>(std::max<std::int64_t>(ns, 0)));
+  t.fromNSec(static_cast<std::uint64_t>(std::clamp<std::int64_t>(ns, 0, kMax)));
   return t;
 }
 
@@ -22,6 +28,11 @@ bool FromMsg(const RelativePose& msg, KeyframeRelativeRotation* out, std::string
   if (msg.frame_id_1.empty() || msg.frame_id_2.empty()) return fail("empty camera frame id");
   // A zero stamp is an uninitialised header, not a capture time.
   if (msg.stamp_1.isZero() || msg.stamp_2.isZero()) return fail("keyframe stamp is zero (uninitialised header?)");
+  // A deserialised stamp may carry nsec >= 1e9; its nanoseconds would not
+  // round-trip into a ros::Time (fuzz_messages found that crash on output).
+  if (!IsNormalizedStamp(msg.stamp_1) || !IsNormalizedStamp(msg.stamp_2)) {
+    return fail("keyframe stamp has nsec >= 1e9 (not normalised)");
+  }
   const auto& q = msg.rotation;
   const double norm = std::sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z);
   if (!std::isfinite(norm)) return fail("rotation quaternion is not finite");

@@ -203,7 +203,9 @@ struct RotationAveragingSummary {
 
 // Solves every connected component of two or more views. On input
 // `orientations` may hold warm-start values; on output it holds the solution
-// for every view of a solved component (isolated views are left out).
+// for every view of a solved component (isolated views are left out). The
+// warm-start values of one component must share one frame: after new edges
+// join components solved apart, pass only one side's (OnlineAverager does).
 // Never throws on bad numbers: a component whose solve fails keeps its input
 // (or spanning-tree) orientations and says so in its status.
 bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptions& options,

@@ -14,7 +14,11 @@
 namespace rotation_averaging {
 
 std::int64_t ToNanoseconds(const ros::Time& t);
+// Clamped to what a ros::Time holds (0 .. 2^32 s): never throws.
 ros::Time FromNanoseconds(std::int64_t ns);
+// nsec < 1e9: input stamps that are not are rejected (their nanoseconds may
+// not fit a ros::Time again).
+bool IsNormalizedStamp(const ros::Time& t);
 
 // Fails (with `error`) on an empty frame id, a zero stamp, a non-finite or non-unit
 // quaternion (|q| off by more than 1e-3), a non-finite or asymmetric
