@@ -209,8 +209,7 @@ bool OnlineAverager::SolveLocked(bool force_full) {
   auto solution = std::make_shared<OnlineSolution>();
   const bool cold = orientations.empty();
   const bool local_enabled = options_.local_solve_min_views > 0 && snapshot.NumViews() >= options_.local_solve_min_views &&
-                             averaging.solver != SolverType::kL1Irls && !cold && !force_full &&
-                             edge_results_.size() <= snapshot.NumEdges();
+                             averaging.solver != SolverType::kL1Irls && !cold && !force_full;
   // A finished background full solve is taken unless a full solve ran in
   // the foreground since its snapshot; one still running is never waited for.
   bool took_background = false;

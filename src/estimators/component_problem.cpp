@@ -175,11 +175,15 @@ void InitializeBySpanningTree(ComponentProblem* problem) {
     strength[e.i] += e.tree_weight;
     strength[e.j] += e.tree_weight;
   }
-  bool any_initial = false;
-  for (int v = 0; v < n; ++v) any_initial = any_initial || problem->has_initial[v];
+  bool any_initial = false, any_fixed = false;
+  for (int v = 0; v < n; ++v) {
+    any_initial = any_initial || problem->has_initial[v];
+    any_fixed = any_fixed || (!problem->fixed.empty() && problem->fixed[v]);
+  }
+  // The gauge is held: one of the held views when there are any.
   int gauge = -1;
   for (int v = 0; v < n; ++v) {
-    if (any_initial && !problem->has_initial[v]) continue;
+    if (any_fixed ? !problem->fixed[v] : (any_initial && !problem->has_initial[v])) continue;
     if (gauge < 0 || strength[v] > strength[gauge]) gauge = v;
   }
   problem->gauge = gauge;

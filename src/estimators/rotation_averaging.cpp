@@ -174,14 +174,27 @@ std::string RotationAveragingSummary::Report() const {
 
 namespace {
 
-// Solves one component problem (already initialised) with the options' robust
-// start, loss and auto-scaling; writes its per-edge results into
-// summary->edges (by graph_index) and, when asked, its posterior covariances.
-void SolveComponent(const RotationAveragingOptions& options, EdgeWeighting weighting, double scale, bool all_warm,
-                    bool covariances, ComponentProblem* problem_in, ComponentSummary* cs_out,
-                    RotationAveragingSummary* summary) {
+// Whether the warm start covers enough of the component (see warm_start_min_fraction).
+bool AllWarm(const ComponentProblem& problem, double min_fraction) {
+  std::size_t warm = 0;
+  for (bool h : problem.has_initial) warm += h;
+  return warm == problem.has_initial.size() ||
+         (warm > 0 && static_cast<double>(warm) >= min_fraction * static_cast<double>(problem.has_initial.size()));
+}
+
+// Initialises one component problem (spanning tree from its warm views) and
+// solves it with the options' robust start, loss and auto-scaling; writes
+// its per-edge results into summary->edges (by graph_index) and, when asked,
+// its posterior covariances.
+ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWeighting weighting, double scale,
+                                bool covariances, ComponentProblem* problem_in, RotationAveragingSummary* summary) {
   ComponentProblem& problem = *problem_in;
-  ComponentSummary& cs = *cs_out;
+  ComponentSummary cs;
+  cs.num_views = problem.view_ids.size();
+  cs.num_edges = problem.edges.size();
+  const bool all_warm = AllWarm(problem, options.warm_start_min_fraction);
+  InitializeBySpanningTree(&problem);
+  cs.gauge_view = problem.view_ids[problem.gauge];
   const std::vector<Eigen::Matrix3d> initial_rotations = problem.rotations;
   double component_scale = scale;
   std::unique_ptr<RobustLoss> component_loss = CreateLoss(options.loss, scale);
@@ -284,14 +297,7 @@ void SolveComponent(const RotationAveragingOptions& options, EdgeWeighting weigh
     if (er.robust_weight < 0.01) ++summary->num_outlier_edges;
   }
   cs.loss_scale = options.solver == SolverType::kL1Irls ? DegToRad(options.l1_irls_sigma_deg) : component_scale;
-}
-
-// Whether the warm start covers enough of the component (see warm_start_min_fraction).
-bool AllWarm(const ComponentProblem& problem, double min_fraction) {
-  std::size_t warm = 0;
-  for (bool h : problem.has_initial) warm += h;
-  return warm == problem.has_initial.size() ||
-         (warm > 0 && static_cast<double>(warm) >= min_fraction * static_cast<double>(problem.has_initial.size()));
+  return cs;
 }
 
 }  // namespace
@@ -310,18 +316,11 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
   std::size_t solved_views = 0;
   summary->edges.assign(graph.NumEdges(), EdgeResult());
   for (ComponentProblem& problem : problems) {
-    ComponentSummary cs;
-    cs.num_views = problem.view_ids.size();
-    cs.num_edges = problem.edges.size();
-    const bool all_warm = AllWarm(problem, options.warm_start_min_fraction);
-    InitializeBySpanningTree(&problem);
-    cs.gauge_view = problem.view_ids[problem.gauge];
-    SolveComponent(options, weighting, scale, all_warm, /*covariances=*/true, &problem, &cs, summary);
+    summary->components.push_back(SolveComponent(options, weighting, scale, /*covariances=*/true, &problem, summary));
     for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
       (*orientations)[problem.view_ids[v]] = problem.rotations[v];
     }
     solved_views += problem.view_ids.size();
-    summary->components.push_back(cs);
   }
   summary->num_isolated_views = graph.NumViews() - solved_views;
   summary->solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -440,9 +439,6 @@ LocalSolveOutcome SolveRotationAveragingLocally(const ViewGraph& graph, const st
   }
   for (std::size_t p = 0; p < problems.size(); ++p) {
     ComponentProblem& problem = problems[p];
-    ComponentSummary cs;
-    cs.num_views = problem.view_ids.size();
-    cs.num_edges = problem.edges.size();
     RotationAveragingOptions component_options = options;
     const int label = problem_label[p];
     if (options.loss_scale <= 0.0 && local.label_loss_scale && label >= 0 &&
@@ -450,14 +446,8 @@ LocalSolveOutcome SolveRotationAveragingLocally(const ViewGraph& graph, const st
       component_options.loss_scale = (*local.label_loss_scale)[label];
     }
     const double scale = component_options.loss_scale > 0.0 ? component_options.loss_scale : default_scale;
-    const bool all_warm = AllWarm(problem, options.warm_start_min_fraction);
-    InitializeBySpanningTree(&problem);
-    // The gauge is one of the held views when there are any (it is held as well).
-    for (std::size_t v = 0; v < problem.view_ids.size() && !problem.fixed[problem.gauge]; ++v) {
-      if (problem.fixed[v]) problem.gauge = static_cast<int>(v);
-    }
-    cs.gauge_view = problem.view_ids[problem.gauge];
-    SolveComponent(component_options, weighting, scale, all_warm, /*covariances=*/false, &problem, &cs, summary);
+    summary->components.push_back(
+        SolveComponent(component_options, weighting, scale, /*covariances=*/false, &problem, summary));
     for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
       if (!problem.fixed[v]) (*orientations)[problem.view_ids[v]] = problem.rotations[v];
     }
@@ -471,7 +461,6 @@ LocalSolveOutcome SolveRotationAveragingLocally(const ViewGraph& graph, const st
         (*labels)[id] = l;
       }
     }
-    summary->components.push_back(cs);
   }
   summary->solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return summary->Success() ? LocalSolveOutcome::kSolved : LocalSolveOutcome::kFailed;

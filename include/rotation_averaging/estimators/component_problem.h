@@ -56,8 +56,8 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
                                                      const ViewOrientations& initial, std::vector<std::string>* warnings,
                                                      EdgeWeighting* effective_weighting = nullptr);
 
-// Chooses the gauge (the view with the largest total tree weight, preferring
-// warm-started views) and fills every view without a warm start by chaining
+// Chooses the gauge (the view with the largest total tree weight among the
+// fixed views if there are any, else preferring warm-started views) and fills every view without a warm start by chaining
 // edges along a maximum spanning tree grown from the warm-started views (or
 // from the gauge, which is then set to identity).
 void InitializeBySpanningTree(ComponentProblem* problem);
