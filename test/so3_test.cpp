@@ -26,6 +26,26 @@ TEST(So3, ExpLogRoundTripIncludingNearZeroAndNearPi) {
   }
 }
 
+// Small angles take a series for atan(t) / t instead of atan2: it must agree
+// with atan2 (in long double) to rounding, on both sides of the switch.
+TEST(So3, LogSeriesBranchAgreesWithAtan2) {
+  std::mt19937 rng(4);
+  std::normal_distribution<double> normal;
+  double worst = 0.0;
+  for (double angle = 1e-7; angle < 0.2; angle *= 1.05) {
+    const Eigen::Vector3d axis = Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+    const Eigen::Matrix3d r = ExpSO3(angle * axis);
+    const long double c = 0.5L * (static_cast<long double>(r.trace()) - 1.0L);
+    const Eigen::Vector3d v(0.5 * (r(2, 1) - r(1, 2)), 0.5 * (r(0, 2) - r(2, 0)), 0.5 * (r(1, 0) - r(0, 1)));
+    const long double s = std::sqrt(static_cast<long double>(v.squaredNorm()));
+    const Eigen::Vector3d expected = static_cast<double>(std::atan2(s, c) / s) * v;
+    const Eigen::Vector3d log = LogSO3(r);
+    worst = std::max(worst, (log - expected).norm() / expected.norm());
+    EXPECT_NEAR(log.norm(), angle, 1e-12 * angle + 1e-15) << angle;
+  }
+  EXPECT_LT(worst, 1e-15);
+}
+
 TEST(So3, QuaternionConversionsAgreeWithEigen) {
   const Eigen::Matrix3d r = ExpSO3(Eigen::Vector3d(0.3, -1.2, 0.7));
   const Eigen::Vector4d q = RotationToQuaternion(r);

@@ -47,6 +47,18 @@ inline Eigen::Vector3d LogSO3(const Eigen::Matrix3d& rotation) {
   // theta / sin(theta) = 1 + theta^2 / 6 + O(theta^4).
   if (s2 < 1e-16) return (1.0 + s2 / 6.0) * v;
   const double s = std::sqrt(s2);
+  // Below ~5.7 degrees (t = tan(theta) <= 0.1, most residuals of a solve)
+  // atan(t) / t by its series, whose first omitted term is t^18 / 19 <
+  // 1e-19: several times cheaper than atan2 (Madrid: atan2 was 16% of the
+  // solve).
+  if (s <= 0.1 * c) {
+    const double t2 = s2 / (c * c);
+    double p = 1.0 / 17.0;
+    for (const double k : {-1.0 / 15.0, 1.0 / 13.0, -1.0 / 11.0, 1.0 / 9.0, -1.0 / 7.0, 1.0 / 5.0, -1.0 / 3.0, 1.0}) {
+      p = k + t2 * p;
+    }
+    return (p / c) * v;
+  }
   return (std::atan2(s, c) / s) * v;
 }
 
