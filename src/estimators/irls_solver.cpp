@@ -52,7 +52,10 @@ bool AllIsotropic(const std::vector<ComponentEdge>& edges) {
 // The normal-equation pattern of a component, once per workspace.
 void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace) {
   IrlsWorkspace& ws = *workspace;
-  if (ws.system) return;
+  // A workspace passes from the isotropic surrogate of the robust start to
+  // the problem itself: kept (with its symbolic analysis and factor) when
+  // that is isotropic too, rebuilt for 3x3 blocks otherwise.
+  if (ws.system && ws.isotropic == AllIsotropic(problem.edges)) return;
   const int n = static_cast<int>(problem.view_ids.size());
   ws.var.assign(n, -1);
   int free_blocks = 0;
@@ -77,8 +80,8 @@ void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace)
 // The IRLS normal equations at `residuals` (of the problem's rotations):
 // scalar Laplacian with three right-hand sides (isotropic information, right
 // updates) or 3x3 blocks (left updates), see the comment at the top.
-void Assemble(const ComponentProblem& component, const RobustLoss& loss, const std::vector<Eigen::Vector3d>& residuals,
-              IrlsWorkspace* workspace) {
+void Assemble(const ComponentProblem& component, const std::vector<Eigen::Vector3d>& residuals,
+              const std::vector<double>& weights, IrlsWorkspace* workspace) {
   const ComponentProblem* problem = &component;
   const std::vector<int>& var = workspace->var;
   const std::vector<int>& slot = workspace->offdiagonal_slot;
@@ -87,13 +90,10 @@ void Assemble(const ComponentProblem& component, const RobustLoss& loss, const s
   const std::size_t m = component.edges.size();
   system.SetZero();
   Eigen::MatrixXd& rhs = system.Rhs();
-  double rho[3];
   for (std::size_t k = 0; isotropic && k < m; ++k) {
     const ComponentEdge& e = problem->edges[k];
-    const double s = e.information(0, 0);
-    loss.Evaluate(s * residuals[k].squaredNorm(), rho);
-    if (rho[1] <= 0.0) continue;
-    const double w = rho[1] * s;
+    if (weights[k] <= 0.0) continue;
+    const double w = weights[k] * e.information(0, 0);
     // e_ij = R_j^T r_ij: the residual in the frame of the right updates.
     const Eigen::RowVector3d w_e = w * (problem->rotations[e.j].transpose() * residuals[k]).transpose();
     const int vi = var[e.i], vj = var[e.j];
@@ -110,9 +110,8 @@ void Assemble(const ComponentProblem& component, const RobustLoss& loss, const s
   for (std::size_t k = 0; !isotropic && k < m; ++k) {
     const ComponentEdge& e = problem->edges[k];
     const Eigen::Vector3d& r = residuals[k];
-    loss.Evaluate((e.sqrt_information * r).squaredNorm(), rho);
-    if (rho[1] <= 0.0) continue;
-    const Eigen::Matrix3d weighted = rho[1] * e.information;
+    if (weights[k] <= 0.0) continue;
+    const Eigen::Matrix3d weighted = weights[k] * e.information;
     const Eigen::Matrix3d jinv = RightJacobianInverseSO3(r);
     const int vi = var[e.i], vj = var[e.j];
     // A_i = Jinv Rc^T, A_j = -Jinv.
@@ -153,17 +152,22 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
 
   const std::size_t m = problem->edges.size();
   std::vector<Eigen::Vector3d> residuals(m);
-  auto cost_of = [&](const std::vector<Eigen::Vector3d>& res) {
+  // Robust weights rho' of each edge at `residuals`, kept from the cost
+  // evaluation for the next assembly (the loss is not evaluated twice).
+  std::vector<double> weights(m);
+  auto cost_of = [&](const std::vector<Eigen::Vector3d>& res, std::vector<double>* w) {
     double cost = 0.0, rho[3];
     for (std::size_t k = 0; k < m; ++k) {
       loss.Evaluate((problem->edges[k].sqrt_information * res[k]).squaredNorm(), rho);
       cost += 0.5 * rho[0];
+      (*w)[k] = rho[1];
     }
     return cost;
   };
-  auto evaluate = [&](const std::vector<Eigen::Matrix3d>& rotations, std::vector<Eigen::Vector3d>* res) {
+  auto evaluate = [&](const std::vector<Eigen::Matrix3d>& rotations, std::vector<Eigen::Vector3d>* res,
+                      std::vector<double>* w) {
     for (std::size_t k = 0; k < m; ++k) (*res)[k] = ComponentProblem::ResidualOf(problem->edges[k], rotations);
-    return cost_of(*res);
+    return cost_of(*res, w);
   };
 
   // The residuals a previous solve on this workspace ended with (GNC stages,
@@ -172,9 +176,9 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   double cost = 0.0;
   if (ws.residuals.size() == m && ws.residual_rotations == problem->rotations) {
     residuals = ws.residuals;
-    cost = cost_of(residuals);
+    cost = cost_of(residuals, &weights);
   } else {
-    cost = evaluate(problem->rotations, &residuals);
+    cost = evaluate(problem->rotations, &residuals, &weights);
   }
   summary->initial_cost = cost;
   summary->converged = false;
@@ -187,13 +191,16 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
 
   std::vector<Eigen::Matrix3d> candidate(n);
   std::vector<Eigen::Vector3d> candidate_residuals(m);
+  std::vector<double> candidate_weights(m);
   std::vector<Eigen::Matrix3d> extrapolation(n);
   std::vector<Eigen::Vector3d> extrapolation_residuals(m);
+  std::vector<double> extrapolation_weights(m);
   Eigen::VectorXd previous_update;
   Eigen::MatrixXd delta;
   int iteration = 0;
+  system.SetPcgTolerance(options.linear_solve_tolerance);
   for (; iteration < options.max_iterations; ++iteration) {
-    Assemble(*problem, loss, residuals, &ws);
+    Assemble(*problem, residuals, weights, &ws);
     if (!system.Solve(1e-12, 6, &delta)) {
       summary->status = "linear solve failed even with regularisation";
       break;
@@ -214,7 +221,7 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
     bool accepted = false;
     for (int attempt = 0; attempt < 5; ++attempt, step *= 0.5) {
       apply(step, problem->rotations, &candidate);
-      new_cost = evaluate(candidate, &candidate_residuals);
+      new_cost = evaluate(candidate, &candidate_residuals, &candidate_weights);
       if (std::isfinite(new_cost) && new_cost <= cost * (1.0 + 1e-12) + 1e-300) {
         accepted = true;
         break;
@@ -242,10 +249,11 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
         if (cosine > 0.95 && ratio > 0.3 && ratio < 0.99) {
           const double factor = std::min(ratio / (1.0 - ratio), 10.0);
           apply(factor, candidate, &extrapolation);
-          const double extrapolated_cost = evaluate(extrapolation, &extrapolation_residuals);
+          const double extrapolated_cost = evaluate(extrapolation, &extrapolation_residuals, &extrapolation_weights);
           if (std::isfinite(extrapolated_cost) && extrapolated_cost < new_cost) {
             candidate.swap(extrapolation);
             candidate_residuals.swap(extrapolation_residuals);
+            candidate_weights.swap(extrapolation_weights);
             new_cost = extrapolated_cost;
             extrapolated = factor;
             ++summary->extrapolations;
@@ -261,6 +269,7 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
     const double decrease = cost - new_cost;
     problem->rotations.swap(candidate);
     residuals.swap(candidate_residuals);
+    weights.swap(candidate_weights);
     cost = new_cost;
     if (max_step < options.step_tolerance_rad) {
       summary->converged = true;
@@ -280,7 +289,7 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   summary->iterations += iteration;
   summary->factorizations = system.NumFactorizations();
   summary->preconditioned_solves = system.NumPreconditionedSolves();
-  summary->final_cost = evaluate(problem->rotations, &residuals);
+  summary->final_cost = evaluate(problem->rotations, &residuals, &weights);
   ws.residuals = residuals;
   ws.residual_rotations = problem->rotations;
 }
@@ -297,18 +306,20 @@ bool ComputeViewCovariances(const ComponentProblem& problem, const RobustLoss& l
   PrepareWorkspace(problem, &ws);
   const std::size_t m = problem.edges.size();
   std::vector<Eigen::Vector3d> residuals(m);
+  std::vector<double> weights(m);
   double weighted_sum = 0.0, weight_sum = 0.0, rho[3];
   for (std::size_t k = 0; k < m; ++k) {
     residuals[k] = problem.Residual(problem.edges[k]);
     const double s = (problem.edges[k].sqrt_information * residuals[k]).squaredNorm();
     loss.Evaluate(s, rho);
+    weights[k] = rho[1];
     weighted_sum += rho[1] * s;
     weight_sum += rho[1];
   }
   const double redundancy = 3.0 * weight_sum - 3.0 * (n - 1);
   const double scale = redundancy >= 10.0 ? weighted_sum / redundancy : 1.0;
   if (scale_used) *scale_used = scale;
-  Assemble(problem, loss, residuals, &ws);
+  Assemble(problem, residuals, weights, &ws);
   std::vector<Eigen::Matrix3d> blocks;
   if (!ws.system->InverseDiagonalBlocks(&blocks)) return false;
   for (int v = 0; v < n; ++v) {

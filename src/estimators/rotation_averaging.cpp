@@ -87,7 +87,7 @@ double Anisotropy(const Eigen::Matrix3d& information) {
 // the new start when the solve ends finite. Returns its iterations.
 template <typename IsotropicScale>
 int SolveSurrogate(const RotationAveragingOptions& options, const RobustLoss& loss, IsotropicScale scale_of,
-                   ComponentProblem* problem) {
+                   ComponentProblem* problem, IrlsWorkspace* workspace) {
   ComponentProblem surrogate = *problem;
   for (ComponentEdge& e : surrogate.edges) {
     const double s = scale_of(e.information);
@@ -95,7 +95,7 @@ int SolveSurrogate(const RotationAveragingOptions& options, const RobustLoss& lo
     e.sqrt_information = std::sqrt(s) * Eigen::Matrix3d::Identity();
   }
   ComponentSummary summary;
-  SolveComponentIrls(options, loss, &surrogate, &summary);
+  SolveComponentIrls(options, loss, &surrogate, &summary, workspace);
   bool finite = std::isfinite(summary.final_cost);
   for (const Eigen::Matrix3d& r : surrogate.rotations) finite = finite && r.allFinite();
   if (finite) problem->rotations = surrogate.rotations;
@@ -221,8 +221,12 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
       RotationAveragingOptions l1_options = options;
       l1_options.max_iterations = options.l1_init_max_iterations;
       l1_options.function_tolerance = options.l1_init_function_tolerance;
+      l1_options.linear_solve_tolerance =
+          static_cast<int>(problem.view_ids.size()) >= options.l1_start_inexact_min_views
+              ? options.l1_start_inexact_linear_solve_tolerance
+              : options.robust_start_linear_solve_tolerance;
       cs.iterations += SolveSurrogate(l1_options, SoftL1Loss(options.l1_init_smoothing_rad),
-                                      [](const Eigen::Matrix3d&) { return 1.0; }, &problem);
+                                      [](const Eigen::Matrix3d&) { return 1.0; }, &problem, &workspace);
     } else if (!all_warm && !needs_robust_start && options.isotropic_presolve_max_anisotropy > 1.0) {
       double max_anisotropy = 1.0;
       for (const ComponentEdge& e : problem.edges) max_anisotropy = std::max(max_anisotropy, Anisotropy(e.information));
@@ -230,7 +234,8 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
         RotationAveragingOptions iso_options = options;
         iso_options.function_tolerance = options.isotropic_presolve_function_tolerance;
         cs.iterations += SolveSurrogate(iso_options, *component_loss,
-                                        [](const Eigen::Matrix3d& w) { return w.trace() / 3.0; }, &problem);
+                                        [](const Eigen::Matrix3d& w) { return w.trace() / 3.0; }, &problem,
+                                        &workspace);
       }
     }
     // Graduated non-convexity for redescending losses started from a tree.
@@ -240,6 +245,7 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
       // iterations each, not convergence.
       RotationAveragingOptions stage_options = options;
       stage_options.max_iterations = std::min(options.max_iterations, options.gnc_stage_max_iterations);
+      stage_options.linear_solve_tolerance = options.robust_start_linear_solve_tolerance;
       for (double s = scale * options.gnc_initial_scale_factor; s > scale * 1.0001; s /= options.gnc_scale_step) {
         solve_with(stage_options, *CreateLoss(options.loss, s));
       }

@@ -46,9 +46,11 @@ class BlockSparseSystem {
   // Returns false if every attempt failed; `lambda_used` reports the last.
   //
   // When a factor of an earlier matrix exists (same pattern), the system is
-  // first solved by conjugate gradients preconditioned with that factor
-  // (relative residual 1e-5); only if that fails to converge in
-  // kMaxPcgIterations is the matrix factorised again.
+  // first solved by conjugate gradients preconditioned with that factor, all
+  // right-hand sides together, to the relative residual of
+  // SetPcgTolerance; only if that does not converge in kMaxPcgIterations
+  // (or the first three iterations show it will not) is the matrix
+  // factorised again.
   bool Solve(double relative_lambda, int max_retries, Eigen::MatrixXd* x, double* lambda_used = nullptr);
   // The diagonal blocks (block_dim x block_dim, in the top-left of each 3x3;
   // scalar systems give c I) of the inverse of the current matrix, by a
@@ -61,6 +63,9 @@ class BlockSparseSystem {
   // Single right-hand side.
   bool Solve(double relative_lambda, int max_retries, Eigen::VectorXd* x, double* lambda_used = nullptr);
   void SetReuseFactorization(bool reuse) { reuse_factorization_ = reuse; }
+  // Relative residual |H x - b| / |b| (per column) at which the
+  // preconditioned solve stops.
+  void SetPcgTolerance(double tolerance) { pcg_tolerance_ = tolerance; }
   int NumFactorizations() const { return num_factorizations_; }
   int NumPreconditionedSolves() const { return num_pcg_solves_; }
   int LastPcgIterations() const { return last_pcg_iterations_; }
@@ -82,6 +87,7 @@ class BlockSparseSystem {
   std::unique_ptr<Index> index_;
   Eigen::MatrixXd rhs_;
   bool reuse_factorization_ = true;
+  double pcg_tolerance_ = 1e-5;
   int num_factorizations_ = 0;
   int num_pcg_solves_ = 0;
   int last_pcg_iterations_ = 0;
