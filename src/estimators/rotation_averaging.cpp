@@ -221,10 +221,7 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
       RotationAveragingOptions l1_options = options;
       l1_options.max_iterations = options.l1_init_max_iterations;
       l1_options.function_tolerance = options.l1_init_function_tolerance;
-      l1_options.linear_solve_tolerance =
-          static_cast<int>(problem.view_ids.size()) >= options.l1_start_inexact_min_views
-              ? options.l1_start_inexact_linear_solve_tolerance
-              : options.robust_start_linear_solve_tolerance;
+      l1_options.linear_solve_tolerance = options.robust_start_linear_solve_tolerance;
       cs.iterations += SolveSurrogate(l1_options, SoftL1Loss(options.l1_init_smoothing_rad),
                                       [](const Eigen::Matrix3d&) { return 1.0; }, &problem, &workspace);
     } else if (!all_warm && !needs_robust_start && options.isotropic_presolve_max_anisotropy > 1.0) {

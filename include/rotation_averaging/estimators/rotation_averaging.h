@@ -142,15 +142,11 @@ struct RotationAveragingOptions {
   // iterations is factorised anew.
   double linear_solve_tolerance = 1e-5;
   // The steps of the robust start (L1, GNC stages) only have to head into
-  // the right basin (Madrid: 19 -> 13 factorisations, same minimum).
+  // the right basin (Madrid: 19 -> 13 factorisations, same minimum). Looser
+  // L1 steps (0.3) saved another 12 of 31 factorisations on the
+  // 100,000-view scale graph but left the 10,100-keyframe chain of
+  // results/online.md with 581 instead of 469 keyframes > 5 deg off.
   double robust_start_linear_solve_tolerance = 1e-2;
-  // Large components, where a factorisation costs several times a
-  // preconditioned iteration, take the L1 start's steps looser still: on the
-  // 100,000-view scale graph 19 instead of 31 factorisations at the same
-  // accuracy. On small ones (Madrid, 394 views) the looser L1 start only
-  // costs later iterations (37 -> 39-43).
-  int l1_start_inexact_min_views = 5000;
-  double l1_start_inexact_linear_solve_tolerance = 0.3;
   int num_threads = 1;                 // Ceres threads; the IRLS solver is single-threaded
   // Posterior covariances of the views (RotationAveragingSummary::
   // view_covariances) for components of at most this many views (0: never).
