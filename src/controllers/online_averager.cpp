@@ -199,7 +199,7 @@ bool OnlineAverager::SolveLocked(bool force_full) {
   }
   changed.swap(changed_);
   for (ViewId id : changed) changed_flag_[id] = 0;
-  // graph_ and keys_ change only under solve_mutex_, which this thread holds
+  // graph_, ids_ and keys_ change only under solve_mutex_, which this thread holds
   // (DrainQueue above, Reset, LoadGraph): read them in place rather than copy
   // them (a copy of a 10,000-keyframe graph was a sizeable part of a re-solve).
   const ViewGraph& snapshot = graph_;
@@ -222,9 +222,7 @@ bool OnlineAverager::SolveLocked(bool force_full) {
       for (auto& [id, r] : full.orientations) orientations[id] = r;
       TakeComponents(full.components, full.summary);
       edge_results_ = std::move(full.summary.edges);
-      for (const auto& [id, c] : full.summary.view_covariances) {
-        if (id < keys_.size()) background_covariances[keys_[id]] = c;
-      }
+      background_covariances = CovariancesByKey(full.summary.view_covariances);
       for (ViewId id : changed_since_snapshot_) changed.push_back(id);
       took_background = true;
       local_solves_since_full_ = 0;
@@ -328,9 +326,7 @@ bool OnlineAverager::SolveLocked(bool force_full) {
   if (!local) {
     TakeComponents(components, solution->summary);
     edge_results_ = solution->summary.edges;
-    for (const auto& [id, c] : solution->summary.view_covariances) {
-      if (id < keys.size()) solution->covariance[keys[id]] = c;
-    }
+    solution->covariance = CovariancesByKey(solution->summary.view_covariances);
   } else {
     // Only the region changed: its edges' results; the posterior
     // covariances of the last full solve (keyframes since have none yet).
@@ -340,10 +336,16 @@ bool OnlineAverager::SolveLocked(bool force_full) {
     solution->covariance = took_background ? std::move(background_covariances) : previous->covariance;
     solution->local = true;
   }
-  for (std::size_t id = 0; id < keys.size() && id < component_label_.size(); ++id) {
-    if (component_label_[id] >= 0) solution->component[keys[id]] = component_label_[id];
+  // ids_ is in key order: the published maps are built by appending at
+  // their end (O(n)) rather than by n searches with string comparisons
+  // (10,000 keyframes: 2.5-3 ms of a ~5 ms local re-solve).
+  for (const auto& [key, id] : ids_) {
+    if (id < component_label_.size() && component_label_[id] >= 0) {
+      solution->component.emplace_hint(solution->component.end(), key, component_label_[id]);
+    }
+    const auto it = orientations.find(id);
+    if (it != orientations.end()) solution->orientations.emplace_hint(solution->orientations.end(), key, it->second);
   }
-  for (const auto& [id, r] : orientations) solution->orientations[keys[id]] = r;
   solution->edges.reserve(graph_edges.size());
   for (std::size_t k = 0; k < graph_edges.size(); ++k) {
     const EdgeResult& result = edge_results_[k];
@@ -379,6 +381,18 @@ bool OnlineAverager::SolveLocked(bool force_full) {
   }
   if (callback) callback(solution);
   return true;
+}
+
+std::map<KeyframeKey, Eigen::Matrix3d> OnlineAverager::CovariancesByKey(
+    const std::map<ViewId, Eigen::Matrix3d>& by_id) const {
+  // In key order (ids_), appended at the end: O(n), no key comparisons.
+  std::map<KeyframeKey, Eigen::Matrix3d> by_key;
+  if (by_id.empty()) return by_key;
+  for (const auto& [key, id] : ids_) {
+    const auto it = by_id.find(id);
+    if (it != by_id.end()) by_key.emplace_hint(by_key.end(), key, it->second);
+  }
+  return by_key;
 }
 
 void OnlineAverager::StartFromTree(ViewOrientations* orientations) {

@@ -182,6 +182,8 @@ class OnlineAverager {
   void ClearLocalState();  // needs solve_mutex_
   // Drops the keyframes added since the last full solve from its start.
   void StartFromTree(ViewOrientations* orientations);
+  // Posterior covariances by keyframe (solve_mutex_ held).
+  std::map<KeyframeKey, Eigen::Matrix3d> CovariancesByKey(const std::map<ViewId, Eigen::Matrix3d>& by_id) const;
   // Components solved apart are in different frames: where new edges joined
   // them, only the largest keeps its warm start; the others are placed from
   // it along the spanning tree (a warm start mixing two frames made the
@@ -195,9 +197,9 @@ class OnlineAverager {
   const ViewGraph validator_;  // validates measurements without taking the graph lock
   mutable std::mutex queue_mutex_;
   std::deque<KeyframeRelativeRotation> queue_;
-  // graph_mutex_ guards graph_, ids_, keys_ and warm_start_; graph_ and keys_
-  // are only modified with solve_mutex_ held too, so the solving thread reads
-  // them without graph_mutex_.
+  // graph_mutex_ guards graph_, ids_, keys_ and warm_start_; graph_, ids_
+  // and keys_ are only modified with solve_mutex_ held too, so the solving
+  // thread reads them without graph_mutex_.
   mutable std::mutex graph_mutex_;
   ViewGraph graph_;
   std::map<KeyframeKey, ViewId> ids_;
