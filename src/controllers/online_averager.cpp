@@ -338,7 +338,7 @@ bool OnlineAverager::SolveLocked(bool force_full) {
   }
   // ids_ is in key order: the published maps are built by appending at
   // their end (O(n)) rather than by n searches with string comparisons
-  // (10,000 keyframes: 2.5-3 ms of a ~5 ms local re-solve).
+  // (a map of 10,000 keyframes: 0.6 instead of 1.3-2.1 ms).
   for (const auto& [key, id] : ids_) {
     if (id < component_label_.size() && component_label_[id] >= 0) {
       solution->component.emplace_hint(solution->component.end(), key, component_label_[id]);

@@ -57,9 +57,10 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
                                                      EdgeWeighting* effective_weighting = nullptr);
 
 // Chooses the gauge (the view with the largest total tree weight among the
-// fixed views if there are any, else preferring warm-started views) and fills every view without a warm start by chaining
-// edges along a maximum spanning tree grown from the warm-started views (or
-// from the gauge, which is then set to identity).
+// fixed views if there are any, else preferring warm-started views) and
+// fills every view without a warm start by chaining edges along a maximum
+// spanning tree grown from the warm-started views (or from the gauge, which
+// is then set to identity).
 void InitializeBySpanningTree(ComponentProblem* problem);
 
 class BlockSparseSystem;
