@@ -1,5 +1,7 @@
 #include "rotation_averaging/estimators/block_sparse_system.h"
 
+#include "rotation_averaging/estimators/aggregation_amg.h"
+
 #include <Eigen/SparseCholesky>
 #include <algorithm>
 #include <cmath>
@@ -76,6 +78,10 @@ struct BlockSparseSystem::Factorization {
   bool analyzed = false;
   bool has_factor = false;      // a numeric factor of an earlier matrix exists
   bool refactor_next = false;   // the last PCG solve struggled: refresh the factor
+  // Preconditioned solves that failed in a row, and how many solves still go
+  // straight to a factorisation because of them (see Solve).
+  int failed_in_a_row = 0;
+  int skip_pcg = 0;
 
   template <typename Matrix>
   Matrix ApplyInverse(const Matrix& b) {
@@ -166,6 +172,15 @@ BlockSparseSystem::BlockSparseSystem(int num_blocks, const std::vector<std::pair
 }
 
 BlockSparseSystem::~BlockSparseSystem() = default;
+
+void BlockSparseSystem::SetPcgTolerance(double tolerance) {
+  // A new accuracy (the next stage of a robust solve) gets a fresh chance.
+  if (tolerance != pcg_tolerance_) {
+    factorization_->failed_in_a_row = factorization_->skip_pcg = 0;
+    multigrid_rebuild_ = true;
+  }
+  pcg_tolerance_ = tolerance;
+}
 
 void BlockSparseSystem::SetZero() {
   std::fill(matrix_.valuePtr(), matrix_.valuePtr() + matrix_.nonZeros(), 0.0);
@@ -303,10 +318,48 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
   for (int k = 0; k < n; ++k) values[diagonal_positions_[k]] += lambda;
   applied = lambda;
 
-  // First try preconditioned conjugate gradients with the factor of an
-  // earlier matrix of the same pattern: IRLS weights change little from one
-  // iteration to the next, so a few cheap iterations replace a factorisation.
-  if (f.has_factor && !f.refactor_next && reuse_factorization_) {
+  // Large scalar systems (SetUseMultigrid): conjugate gradients
+  // preconditioned with aggregation multigrid, set up for this matrix. The
+  // aggregates of the last full setup are kept while the solves they serve
+  // take at most two iterations more than the first one did; a solve that
+  // takes more, or a new tolerance (the next stage), rebuilds them.
+  if (use_multigrid_) {
+    if (!multigrid_) multigrid_ = std::make_unique<AggregationAmg>();
+    for (int pass = 0; pass < 2; ++pass) {
+      const bool reuse = pass == 0 && !multigrid_rebuild_;
+      bool converged = false;
+      if (multigrid_->Setup(matrix_, reuse)) {
+        last_pcg_iterations_ = multigrid_->Solve(rhs_, pcg_tolerance_, kMaxMultigridIterations, x, &converged);
+      }
+      converged = converged && x->allFinite();
+      if (!reuse) {
+        multigrid_baseline_iterations_ = last_pcg_iterations_;
+        multigrid_rebuild_ = false;
+      } else if (!converged || last_pcg_iterations_ > multigrid_baseline_iterations_ + 2) {
+        multigrid_rebuild_ = true;
+      }
+      if (converged) {
+        ++num_multigrid_solves_;
+        for (int i = 0; i < n; ++i) values[diagonal_positions_[i]] -= applied;
+        if (lambda_used) *lambda_used = lambda;
+        return true;
+      }
+      if (!reuse) break;  // a fresh hierarchy did not converge: factorise
+    }
+  }
+  // Otherwise first try conjugate gradients preconditioned with the factor
+  // of an earlier matrix of the same pattern: IRLS weights change little
+  // from one iteration to the next, so a few cheap iterations replace a
+  // factorisation. Where the weights change too much between solves (the
+  // robust start's early iterations), every attempt fails and costs about
+  // half a factorisation (three or more iterations through the old factor):
+  // after k failures in a row, the next 2^(k-1) solves factorise directly
+  // (100,000-view scale graph, all by factorisation: 29 failed attempts,
+  // ~8 s of a 26 s solve; with the back-off 6 attempts and 18 s).
+  const bool try_pcg = f.has_factor && !f.refactor_next && reuse_factorization_;
+  if (try_pcg && f.skip_pcg > 0) {
+    --f.skip_pcg;
+  } else if (try_pcg) {
     // All right-hand sides iterate together, each with its own step
     // lengths: one triangular solve with k columns streams the factor once
     // (100,000-row grid Laplacian: 3 columns 44 ms, one column 30 ms), so
@@ -364,12 +417,15 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
     }
     last_pcg_iterations_ = iterations;
     if (!failed && all_converged() && xs.allFinite()) {
+      f.failed_in_a_row = 0;
       ++num_pcg_solves_;
       f.refactor_next = last_pcg_iterations_ > kRefactorAfterPcgIterations;
       for (int i = 0; i < n; ++i) values[diagonal_positions_[i]] -= applied;
       if (lambda_used) *lambda_used = lambda;
       return true;
     }
+    ++f.failed_in_a_row;
+    f.skip_pcg = 1 << std::min(f.failed_in_a_row - 1, 16);
   }
 
   for (int attempt = 0; attempt <= max_retries; ++attempt) {

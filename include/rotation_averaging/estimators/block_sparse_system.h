@@ -15,6 +15,8 @@
 
 namespace rotation_averaging {
 
+class AggregationAmg;
+
 class BlockSparseSystem {
  public:
   // `num_blocks` free variables of dimension `block_dim` (3 or 1); `pairs`
@@ -35,6 +37,11 @@ class BlockSparseSystem {
   int Locate(int row, int col) const;
   // H(row, col) += v at a slot from Locate. block_dim 1 only.
   void AddScalarAt(int col, int slot, double v) { matrix_.valuePtr()[matrix_.outerIndexPtr()[col] + slot] += v; }
+  // Position of entry (row, col), row >= col, in the stored values
+  // (block_dim 1), and H(entry) += v there: an assembly loop over a fixed
+  // edge list keeps one index per edge instead of (column, slot).
+  int ScalarIndex(int row, int col) const { return matrix_.outerIndexPtr()[col] + Locate(row, col); }
+  void AddScalarAtIndex(int index, double v) { matrix_.valuePtr()[index] += v; }
   void AddBlockAt(int col, int slot, const Eigen::Matrix3d& m);
   // H(a, b) += m and H(b, a) += m^T for any a != b, or H(a, a) += m.
   void AddSymmetric(int a, int b, const Eigen::Matrix3d& m) {
@@ -63,9 +70,17 @@ class BlockSparseSystem {
   // Single right-hand side.
   bool Solve(double relative_lambda, int max_retries, Eigen::VectorXd* x, double* lambda_used = nullptr);
   void SetReuseFactorization(bool reuse) { reuse_factorization_ = reuse; }
+  // Scalar systems: solve by conjugate gradients preconditioned with
+  // aggregation multigrid (AggregationAmg, set up for each matrix) to the
+  // tolerance of SetPcgTolerance, before any factorisation; the
+  // factorisation path follows only when that does not converge within
+  // kMaxMultigridIterations.
+  void SetUseMultigrid(bool use) { use_multigrid_ = use && block_dim_ == 1; }
+  int NumMultigridSolves() const { return num_multigrid_solves_; }
   // Relative residual |H x - b| / |b| (per column) at which the
-  // preconditioned solve stops.
-  void SetPcgTolerance(double tolerance) { pcg_tolerance_ = tolerance; }
+  // preconditioned solve stops. A changed tolerance forgets earlier failed
+  // preconditioned solves (see Solve).
+  void SetPcgTolerance(double tolerance);
   int NumFactorizations() const { return num_factorizations_; }
   int NumPreconditionedSolves() const { return num_pcg_solves_; }
   int LastPcgIterations() const { return last_pcg_iterations_; }
@@ -77,6 +92,7 @@ class BlockSparseSystem {
   static constexpr int kMetisMinRows = 15000;
   static constexpr int kMaxPcgIterations = 8;
   static constexpr int kRefactorAfterPcgIterations = 4;
+  static constexpr int kMaxMultigridIterations = 40;
 
  private:
   struct Index;
@@ -91,6 +107,11 @@ class BlockSparseSystem {
   int num_factorizations_ = 0;
   int num_pcg_solves_ = 0;
   int last_pcg_iterations_ = 0;
+  bool use_multigrid_ = false;
+  bool multigrid_rebuild_ = true;  // next multigrid setup: new aggregates
+  int multigrid_baseline_iterations_ = 0;  // iterations of the first solve on the current aggregates
+  int num_multigrid_solves_ = 0;
+  std::unique_ptr<AggregationAmg> multigrid_;
   struct Factorization;
   std::unique_ptr<Factorization> factorization_;
 };

@@ -1,0 +1,663 @@
+#include "rotation_averaging/estimators/aggregation_amg.h"
+
+#include <Eigen/SparseCholesky>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+namespace rotation_averaging {
+namespace {
+
+constexpr int kUnassigned = -2;
+constexpr int kSkip = std::numeric_limits<int>::min();  // entry with an end outside every aggregate
+// Coarsening that stalls above this size leaves a coarsest level too large
+// to factorise cheaply: the hierarchy is refused.
+constexpr int kMaxCoarsestSize = 20000;
+// A level that keeps more than this fraction of the nodes of the one above
+// has stalled.
+constexpr double kStall = 0.7;
+// Relaxed matching merges singletons into groups of up to this size.
+constexpr int kMaxRelaxedGroup = 6;
+
+// One level: off-diagonal entries of every row in compressed rows (the full
+// symmetric pattern) and the diagonal apart.
+struct Level {
+  int n = 0;
+  std::vector<int> ptr, col;
+  std::vector<double> val, diag, inv_diag;
+  std::vector<int> aggregate;  // node -> node of the next level; -1: smoothed only
+  // Per off-diagonal entry: its slot in the next level's entries, -1 - a for
+  // the diagonal of aggregate a, kSkip (see Impl::Galerkin numeric update).
+  std::vector<int> entry_target;
+  // Work vectors, K values per node (row-major blocks).
+  std::vector<double> residual;
+  // Coarse-correction work on the next level's nodes.
+  std::vector<double> rc, c1, v1, rt, c2, v2;
+  std::size_t NonZeros() const { return col.size() + static_cast<std::size_t>(n); }
+};
+
+// Pairwise matching along the strongest couplings; returns the number of
+// groups, group[i] = -1 for rows left out (strongly diagonally dominant).
+int PairwiseMatch(const Level& level, double strong_coupling, double dominance, bool relaxed,
+                  std::vector<int>* group_out) {
+  const int n = level.n;
+  std::vector<int>& group = *group_out;
+  group.assign(n, kUnassigned);
+  std::vector<double> strongest(n, 0.0);
+  for (int i = 0; i < n; ++i) {
+    double sum_abs = 0.0, max_negative = 0.0;
+    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
+      sum_abs += std::abs(level.val[p]);
+      max_negative = std::max(max_negative, -level.val[p]);
+    }
+    strongest[i] = max_negative;
+    if (level.diag[i] >= dominance * sum_abs) group[i] = -1;
+  }
+  // Heavy-edge matching: couplings in decreasing order of their strength
+  // relative to the two diagonals, c_ij = -a_ij / sqrt(a_ii a_jj) in (0, 1]
+  // (bucketed by quarter octaves: a counting sort), so that the strongest
+  // pairs stay together; a greedy pass in node order splits chains of strong
+  // couplings, leaving modes that neither the smoother nor the coarse
+  // level reduces.
+  constexpr int kBuckets = 128;
+  std::vector<int> bucket_start(kBuckets + 1, 0);
+  std::vector<std::pair<int, int>> pairs;  // (node, position of the coupling in its row)
+  std::vector<unsigned char> bucket_of;
+  pairs.reserve(level.col.size() / 2);
+  bucket_of.reserve(level.col.size() / 2);
+  for (int i = 0; i < n; ++i) {
+    if (group[i] != kUnassigned) continue;
+    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
+      const int j = level.col[p];
+      const double coupling = -level.val[p];
+      if (j <= i || group[j] != kUnassigned || !(coupling > 0.0)) continue;
+      // Strong for both ends (relaxed: for either end).
+      const double needed = strong_coupling * (relaxed ? std::min(strongest[i], strongest[j])
+                                                       : std::max(strongest[i], strongest[j]));
+      if (coupling < needed) continue;
+      const double relative = coupling / std::sqrt(level.diag[i] * level.diag[j]);
+      const int b = std::min(kBuckets - 1, std::max(0, static_cast<int>(-4.0 * std::log2(std::min(relative, 1.0)))));
+      pairs.emplace_back(i, p);
+      bucket_of.push_back(static_cast<unsigned char>(b));
+      ++bucket_start[b + 1];
+    }
+  }
+  for (int b = 0; b < kBuckets; ++b) bucket_start[b + 1] += bucket_start[b];
+  std::vector<int> order(pairs.size());
+  {
+    std::vector<int> fill(bucket_start.begin(), bucket_start.end() - 1);
+    for (std::size_t k = 0; k < pairs.size(); ++k) order[fill[bucket_of[k]]++] = static_cast<int>(k);
+  }
+  int groups = 0;
+  for (int k : order) {
+    const int i = pairs[k].first, j = level.col[pairs[k].second];
+    if (group[i] != kUnassigned || group[j] != kUnassigned) continue;
+    group[i] = group[j] = groups++;
+  }
+  for (int i = 0; i < n; ++i)
+    if (group[i] == kUnassigned) group[i] = groups++;
+  // A node left alone because its strong neighbours were taken joins the
+  // pair of its strongest neighbour (groups of at most three) when that
+  // coupling is strong for the neighbour too. A node tied to everything
+  // weakly (a view whose edges are mostly outliers, hanging on a few
+  // low-weight inliers) stays alone: merged into a strongly coupled pair,
+  // its own motion could be reduced neither by the coarse level nor by the
+  // smoother. Such nodes may stall the coarsening; the coarsest level is
+  // then larger and factorised sparsely. `relaxed` (for levels too large to
+  // factorise) pairs along couplings strong for either end and merges every
+  // singleton into the group of its strongest neighbour (up to six nodes).
+  std::vector<int> size(groups, 0);
+  for (int i = 0; i < n; ++i)
+    if (group[i] >= 0) ++size[group[i]];
+  for (int i = 0; i < n; ++i) {
+    if (group[i] < 0 || size[group[i]] != 1) continue;
+    int best = -1;
+    double best_coupling = 0.0;
+    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
+      const int j = level.col[p];
+      const double coupling = -level.val[p];
+      if (j != i && group[j] >= 0 && coupling > best_coupling) {
+        best = j;
+        best_coupling = coupling;
+      }
+    }
+    const double needed =
+        relaxed ? 0.0 : strong_coupling * std::max(strongest[i], strongest[best < 0 ? i : best]);
+    if (best >= 0 && best_coupling >= needed && (size[group[best]] == 2 || (relaxed && size[group[best]] < kMaxRelaxedGroup))) {
+      --size[group[i]];
+      group[i] = group[best];
+      ++size[group[i]];
+    }
+  }
+  // Renumber the groups that are left.
+  std::vector<int> renumber(groups, -1);
+  int kept = 0;
+  for (int g = 0; g < groups; ++g)
+    if (size[g] > 0) renumber[g] = kept++;
+  for (int i = 0; i < n; ++i)
+    if (group[i] >= 0) group[i] = renumber[group[i]];
+  return kept;
+}
+
+// coarse = P^T A P for the piecewise-constant P of `aggregate`.
+void Galerkin(const Level& fine, const std::vector<int>& aggregate, int num_coarse, Level* coarse_out) {
+  Level& coarse = *coarse_out;
+  coarse = Level();
+  coarse.n = num_coarse;
+  // Members of each aggregate (counting sort).
+  std::vector<int> start(num_coarse + 1, 0), members;
+  for (int a : aggregate)
+    if (a >= 0) ++start[a + 1];
+  for (int a = 0; a < num_coarse; ++a) start[a + 1] += start[a];
+  members.resize(start[num_coarse]);
+  {
+    std::vector<int> fill(start.begin(), start.end() - 1);
+    for (int i = 0; i < fine.n; ++i)
+      if (aggregate[i] >= 0) members[fill[aggregate[i]]++] = i;
+  }
+  coarse.ptr.assign(num_coarse + 1, 0);
+  coarse.diag.assign(num_coarse, 0.0);
+  coarse.col.reserve(fine.col.size() / 2);
+  coarse.val.reserve(fine.col.size() / 2);
+  std::vector<int> position(num_coarse, -1);  // of column J in the current row
+  for (int a = 0; a < num_coarse; ++a) {
+    const int row_start = static_cast<int>(coarse.col.size());
+    double d = 0.0;
+    for (int m = start[a]; m < start[a + 1]; ++m) {
+      const int i = members[m];
+      d += fine.diag[i];
+      for (int p = fine.ptr[i]; p < fine.ptr[i + 1]; ++p) {
+        const int b = aggregate[fine.col[p]];
+        if (b < 0) continue;
+        if (b == a) {
+          d += fine.val[p];
+        } else if (position[b] < row_start) {
+          position[b] = static_cast<int>(coarse.col.size());
+          coarse.col.push_back(b);
+          coarse.val.push_back(fine.val[p]);
+        } else {
+          coarse.val[position[b]] += fine.val[p];
+        }
+      }
+    }
+    coarse.diag[a] = d;
+    coarse.ptr[a + 1] = static_cast<int>(coarse.col.size());
+  }
+}
+
+template <int K>
+using Block = std::array<double, K>;
+
+template <int K>
+void Multiply(const Level& level, const double* x, double* y) {
+  for (int i = 0; i < level.n; ++i) {
+    Block<K> s;
+    for (int c = 0; c < K; ++c) s[c] = level.diag[i] * x[K * i + c];
+    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
+      const double a = level.val[p];
+      const double* xj = x + K * level.col[p];
+      for (int c = 0; c < K; ++c) s[c] += a * xj[c];
+    }
+    for (int c = 0; c < K; ++c) y[K * i + c] = s[c];
+  }
+}
+
+// z = one forward Gauss-Seidel sweep on A z = r from z = 0.
+template <int K>
+void ForwardGaussSeidel(const Level& level, const double* r, double* z) {
+  for (int i = 0; i < level.n; ++i) {
+    Block<K> s;
+    for (int c = 0; c < K; ++c) s[c] = r[K * i + c];
+    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
+      const int j = level.col[p];
+      if (j >= i) continue;  // not yet visited: still zero
+      const double a = level.val[p];
+      for (int c = 0; c < K; ++c) s[c] -= a * z[K * j + c];
+    }
+    for (int c = 0; c < K; ++c) z[K * i + c] = s[c] * level.inv_diag[i];
+  }
+}
+
+// One backward Gauss-Seidel sweep on A z = r, in place.
+template <int K>
+void BackwardGaussSeidel(const Level& level, const double* r, double* z) {
+  for (int i = level.n - 1; i >= 0; --i) {
+    Block<K> s;
+    for (int c = 0; c < K; ++c) s[c] = r[K * i + c];
+    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
+      const double a = level.val[p];
+      const double* zj = z + K * level.col[p];
+      for (int c = 0; c < K; ++c) s[c] -= a * zj[c];
+    }
+    for (int c = 0; c < K; ++c) z[K * i + c] = s[c] * level.inv_diag[i];
+  }
+}
+
+template <int K>
+void ForwardSweep(const Level& level, const double* r, double* z) {
+  for (int i = 0; i < level.n; ++i) {
+    Block<K> s;
+    for (int c = 0; c < K; ++c) s[c] = r[K * i + c];
+    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
+      const double a = level.val[p];
+      const double* zj = z + K * level.col[p];
+      for (int c = 0; c < K; ++c) s[c] -= a * zj[c];
+    }
+    for (int c = 0; c < K; ++c) z[K * i + c] = s[c] * level.inv_diag[i];
+  }
+}
+
+template <int K>
+Block<K> Dot(const std::vector<double>& a, const std::vector<double>& b, int n) {
+  Block<K> s{};
+  for (int i = 0; i < n; ++i)
+    for (int c = 0; c < K; ++c) s[c] += a[K * i + c] * b[K * i + c];
+  return s;
+}
+
+}  // namespace
+
+struct AggregationAmg::Impl {
+  std::vector<Level> levels;
+  double kcycle_reduction = 0.25;
+  int sweeps = 2;
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> coarsest;
+  // The coarsest matrix (lower triangle) and, per entry of the last level,
+  // its slot there (diagonal apart): numeric updates keep the pattern and
+  // CHOLMOD-free symbolic analysis.
+  Eigen::SparseMatrix<double> coarsest_matrix;
+  std::vector<int> coarsest_diagonal_slot, coarsest_entry_slot;
+  bool structure_valid = false;  // aggregates and patterns of the last full setup
+  // Index of the finest level's pattern: for each of its off-diagonal
+  // entries and diagonal entries, the position in the lower-triangular input.
+  int pattern_n = -1;
+  std::vector<int> pattern_outer, pattern_inner;
+  std::vector<int> offdiagonal_source, diagonal_source;
+  // Outer iteration's vectors (K values per node).
+  std::vector<double> x, r, z, p, q;
+
+  bool BuildFinest(const Eigen::SparseMatrix<double>& lower, bool* pattern_changed);
+  void IndexEntries(int l);
+  bool FactorCoarsest(bool analyse);
+  bool UpdateNumeric();
+  template <int K>
+  void Cycle(int l, const double* r, double* z);
+  template <int K>
+  int Solve(const Eigen::MatrixXd& b, int first_column, double tolerance, int max_iterations, Eigen::MatrixXd* x,
+            bool* converged);
+};
+
+bool AggregationAmg::Impl::BuildFinest(const Eigen::SparseMatrix<double>& lower, bool* pattern_changed) {
+  const int n = static_cast<int>(lower.rows());
+  const int* outer = lower.outerIndexPtr();
+  const int* inner = lower.innerIndexPtr();
+  const double* values = lower.valuePtr();
+  const int nnz = outer[n];
+  const bool same = pattern_n == n && static_cast<int>(pattern_inner.size()) == nnz &&
+                    std::memcmp(pattern_outer.data(), outer, sizeof(int) * (n + 1)) == 0 &&
+                    std::memcmp(pattern_inner.data(), inner, sizeof(int) * nnz) == 0;
+  Level& level = levels.front();
+  *pattern_changed = !same;
+  if (!same) {
+    pattern_n = n;
+    pattern_outer.assign(outer, outer + n + 1);
+    pattern_inner.assign(inner, inner + nnz);
+    level = Level();
+    level.n = n;
+    level.ptr.assign(n + 1, 0);
+    diagonal_source.assign(n, -1);
+    for (int c = 0; c < n; ++c) {
+      for (int k = outer[c]; k < outer[c + 1]; ++k) {
+        const int row = inner[k];
+        if (row == c) continue;
+        ++level.ptr[row + 1];
+        ++level.ptr[c + 1];
+      }
+    }
+    for (int i = 0; i < n; ++i) level.ptr[i + 1] += level.ptr[i];
+    level.col.resize(level.ptr[n]);
+    offdiagonal_source.resize(level.ptr[n]);
+    // Columns in order: row r receives (r, c < r) in ascending c, then its
+    // own column's rows, ascending too.
+    std::vector<int> fill(level.ptr.begin(), level.ptr.end() - 1);
+    for (int c = 0; c < n; ++c) {
+      for (int k = outer[c]; k < outer[c + 1]; ++k) {
+        const int row = inner[k];
+        if (row == c) {
+          diagonal_source[c] = k;
+          continue;
+        }
+        level.col[fill[row]] = c;
+        offdiagonal_source[fill[row]++] = k;
+        level.col[fill[c]] = row;
+        offdiagonal_source[fill[c]++] = k;
+      }
+    }
+  }
+  level.val.resize(level.col.size());
+  for (std::size_t k = 0; k < level.col.size(); ++k) level.val[k] = values[offdiagonal_source[k]];
+  level.diag.resize(n);
+  for (int i = 0; i < n; ++i) {
+    level.diag[i] = diagonal_source[i] >= 0 ? values[diagonal_source[i]] : 0.0;
+    if (!(level.diag[i] > 0.0) || !std::isfinite(level.diag[i])) return false;
+  }
+  for (double v : level.val)
+    if (!std::isfinite(v)) return false;
+  return true;
+}
+
+template <int K>
+void AggregationAmg::Impl::Cycle(int l, const double* r, double* z) {
+  Level& level = levels[l];
+  const int n = level.n;
+  if (l + 1 == static_cast<int>(levels.size())) {
+    using Vectors = Eigen::Matrix<double, Eigen::Dynamic, K, K == 1 ? Eigen::ColMajor : Eigen::RowMajor>;
+    Eigen::Map<const Vectors> rhs(r, n, K);
+    Eigen::Map<Vectors> out(z, n, K);
+    out = coarsest.solve(rhs);
+    return;
+  }
+  ForwardGaussSeidel<K>(level, r, z);
+  for (int sweep = 1; sweep < sweeps; ++sweep) ForwardSweep<K>(level, r, z);
+  level.residual.resize(static_cast<std::size_t>(K) * n);
+  Multiply<K>(level, z, level.residual.data());
+  for (std::size_t k = 0; k < level.residual.size(); ++k) level.residual[k] = r[k] - level.residual[k];
+  const Level& next = levels[l + 1];
+  const int nc = next.n;
+  const std::size_t size = static_cast<std::size_t>(K) * nc;
+  level.rc.assign(size, 0.0);
+  level.c1.resize(size);
+  for (int i = 0; i < n; ++i) {
+    const int a = level.aggregate[i];
+    if (a < 0) continue;
+    for (int c = 0; c < K; ++c) level.rc[K * a + c] += level.residual[K * i + c];
+  }
+  Cycle<K>(l + 1, level.rc.data(), level.c1.data());
+  if (l + 2 < static_cast<int>(levels.size())) {
+    // Two steps of flexible CG on the next level (K-cycle).
+    level.v1.resize(size);
+    Multiply<K>(next, level.c1.data(), level.v1.data());
+    const Block<K> rho1 = Dot<K>(level.c1, level.v1, nc), alpha1 = Dot<K>(level.c1, level.rc, nc);
+    Block<K> coef1;
+    for (int c = 0; c < K; ++c) coef1[c] = rho1[c] > 0.0 ? alpha1[c] / rho1[c] : 0.0;
+    level.rt.resize(size);
+    for (int a = 0; a < nc; ++a)
+      for (int c = 0; c < K; ++c) level.rt[K * a + c] = level.rc[K * a + c] - coef1[c] * level.v1[K * a + c];
+    const Block<K> rt2 = Dot<K>(level.rt, level.rt, nc), rc2 = Dot<K>(level.rc, level.rc, nc);
+    bool enough = true;
+    const double t2 = kcycle_reduction * kcycle_reduction;
+    for (int c = 0; c < K; ++c) enough = enough && rt2[c] <= t2 * rc2[c];
+    Block<K> coef2{};
+    if (!enough) {
+      level.c2.resize(size);
+      level.v2.resize(size);
+      Cycle<K>(l + 1, level.rt.data(), level.c2.data());
+      Multiply<K>(next, level.c2.data(), level.v2.data());
+      const Block<K> gamma = Dot<K>(level.c2, level.v1, nc), beta = Dot<K>(level.c2, level.v2, nc),
+                     alpha2 = Dot<K>(level.c2, level.rt, nc);
+      for (int c = 0; c < K; ++c) {
+        const double rho2 = rho1[c] > 0.0 ? beta[c] - gamma[c] * gamma[c] / rho1[c] : 0.0;
+        if (rho2 > 0.0 && std::isfinite(rho2)) {
+          coef2[c] = alpha2[c] / rho2;
+          coef1[c] -= gamma[c] * alpha2[c] / (rho1[c] * rho2);
+        }
+      }
+    }
+    for (int a = 0; a < nc; ++a) {
+      for (int c = 0; c < K; ++c) {
+        level.c1[K * a + c] = coef1[c] * level.c1[K * a + c] + (enough ? 0.0 : coef2[c] * level.c2[K * a + c]);
+      }
+    }
+  }
+  for (int i = 0; i < n; ++i) {
+    const int a = level.aggregate[i];
+    if (a < 0) continue;
+    for (int c = 0; c < K; ++c) z[K * i + c] += level.c1[K * a + c];
+  }
+  for (int sweep = 0; sweep < sweeps; ++sweep) BackwardGaussSeidel<K>(level, r, z);
+}
+
+template <int K>
+int AggregationAmg::Impl::Solve(const Eigen::MatrixXd& b, int first_column, double tolerance, int max_iterations,
+                                Eigen::MatrixXd* x_out, bool* converged) {
+  const Level& finest = levels.front();
+  const int n = finest.n;
+  const std::size_t size = static_cast<std::size_t>(K) * n;
+  x.assign(size, 0.0);
+  r.resize(size);
+  z.resize(size);
+  p.resize(size);
+  q.resize(size);
+  for (int i = 0; i < n; ++i)
+    for (int c = 0; c < K; ++c) r[K * i + c] = b(i, first_column + c);
+  const Block<K> b2 = Dot<K>(r, r, n);
+  Block<K> target, residual2 = b2;
+  for (int c = 0; c < K; ++c) target[c] = tolerance * tolerance * b2[c];
+  auto done = [&](int c) { return residual2[c] <= target[c]; };
+  auto all_done = [&]() {
+    for (int c = 0; c < K; ++c)
+      if (!done(c)) return false;
+    return true;
+  };
+  int iterations = 0;
+  bool failed = false;
+  if (!all_done()) {
+    Cycle<K>(0, r.data(), z.data());
+    p = z;
+  }
+  while (!all_done() && !failed && iterations < max_iterations) {
+    Multiply<K>(finest, p.data(), q.data());
+    ++iterations;
+    const Block<K> pq = Dot<K>(p, q, n), pr = Dot<K>(p, r, n);
+    Block<K> alpha;
+    for (int c = 0; c < K; ++c) {
+      alpha[c] = done(c) ? 0.0 : pr[c] / pq[c];
+      if (!done(c) && !(std::isfinite(alpha[c]) && pq[c] > 0.0)) failed = true;
+    }
+    if (failed) break;
+    for (std::size_t k = 0; k < size; ++k) {
+      x[k] += alpha[k % K] * p[k];
+      r[k] -= alpha[k % K] * q[k];
+    }
+    const Block<K> before = residual2;
+    residual2 = Dot<K>(r, r, n);
+    for (int c = 0; c < K; ++c)
+      if (before[c] <= target[c]) residual2[c] = before[c];  // frozen column
+    if (all_done()) break;
+    Cycle<K>(0, r.data(), z.data());
+    // Flexible CG: p = z - (z . q / p . q) p keeps p A-orthogonal to the
+    // previous direction whatever the cycle did.
+    const Block<K> zq = Dot<K>(z, q, n);
+    Block<K> beta;
+    for (int c = 0; c < K; ++c) beta[c] = pq[c] > 0.0 ? -zq[c] / pq[c] : 0.0;
+    for (std::size_t k = 0; k < size; ++k) p[k] = z[k] + beta[k % K] * p[k];
+  }
+  *converged = !failed && all_done();
+  for (int i = 0; i < n; ++i)
+    for (int c = 0; c < K; ++c) (*x_out)(i, first_column + c) = x[K * i + c];
+  return iterations;
+}
+
+AggregationAmg::AggregationAmg() : AggregationAmg(Options()) {}
+AggregationAmg::AggregationAmg(const Options& options) : options_(options), impl_(new Impl) {}
+AggregationAmg::~AggregationAmg() = default;
+
+void AggregationAmg::Impl::IndexEntries(int l) {
+  Level& fine = levels[l];
+  const Level& coarse = levels[l + 1];
+  fine.entry_target.assign(fine.col.size(), kSkip);
+  std::vector<int> start(coarse.n + 1, 0), members;
+  for (int a : fine.aggregate)
+    if (a >= 0) ++start[a + 1];
+  for (int a = 0; a < coarse.n; ++a) start[a + 1] += start[a];
+  members.resize(start[coarse.n]);
+  {
+    std::vector<int> fill(start.begin(), start.end() - 1);
+    for (int i = 0; i < fine.n; ++i)
+      if (fine.aggregate[i] >= 0) members[fill[fine.aggregate[i]]++] = i;
+  }
+  std::vector<int> position(coarse.n, -1);
+  for (int a = 0; a < coarse.n; ++a) {
+    for (int q = coarse.ptr[a]; q < coarse.ptr[a + 1]; ++q) position[coarse.col[q]] = q;
+    for (int m = start[a]; m < start[a + 1]; ++m) {
+      const int i = members[m];
+      for (int p = fine.ptr[i]; p < fine.ptr[i + 1]; ++p) {
+        const int b = fine.aggregate[fine.col[p]];
+        if (b >= 0) fine.entry_target[p] = b == a ? -1 - a : position[b];
+      }
+    }
+    for (int q = coarse.ptr[a]; q < coarse.ptr[a + 1]; ++q) position[coarse.col[q]] = -1;
+  }
+}
+
+bool AggregationAmg::Impl::FactorCoarsest(bool analyse) {
+  const Level& last = levels.back();
+  if (analyse) {
+    std::vector<Eigen::Triplet<double>> entries;
+    entries.reserve(last.col.size() / 2 + last.n);
+    for (int i = 0; i < last.n; ++i) {
+      entries.emplace_back(i, i, 0.0);
+      for (int p = last.ptr[i]; p < last.ptr[i + 1]; ++p)
+        if (last.col[p] > i) entries.emplace_back(last.col[p], i, 0.0);
+    }
+    coarsest_matrix.resize(last.n, last.n);
+    coarsest_matrix.setFromTriplets(entries.begin(), entries.end());
+    coarsest_matrix.makeCompressed();
+    const int* outer = coarsest_matrix.outerIndexPtr();
+    const int* inner = coarsest_matrix.innerIndexPtr();
+    auto slot = [&](int row, int column) {
+      return static_cast<int>(std::lower_bound(inner + outer[column], inner + outer[column + 1], row) - inner);
+    };
+    coarsest_diagonal_slot.resize(last.n);
+    coarsest_entry_slot.assign(last.col.size(), -1);
+    for (int i = 0; i < last.n; ++i) {
+      coarsest_diagonal_slot[i] = slot(i, i);
+      for (int p = last.ptr[i]; p < last.ptr[i + 1]; ++p)
+        if (last.col[p] > i) coarsest_entry_slot[p] = slot(last.col[p], i);
+    }
+  }
+  double* values = coarsest_matrix.valuePtr();
+  for (int i = 0; i < last.n; ++i) {
+    values[coarsest_diagonal_slot[i]] = last.diag[i];
+    for (int p = last.ptr[i]; p < last.ptr[i + 1]; ++p)
+      if (coarsest_entry_slot[p] >= 0) values[coarsest_entry_slot[p]] = last.val[p];
+  }
+  if (analyse) coarsest.analyzePattern(coarsest_matrix);
+  coarsest.factorize(coarsest_matrix);
+  if (coarsest.info() != Eigen::Success) return false;
+  const auto d = coarsest.vectorD();
+  return d.size() == 0 || (d.minCoeff() > 0.0 && d.allFinite());
+}
+
+bool AggregationAmg::Impl::UpdateNumeric() {
+  for (std::size_t l = 0; l + 1 < levels.size(); ++l) {
+    const Level& fine = levels[l];
+    Level& coarse = levels[l + 1];
+    std::fill(coarse.diag.begin(), coarse.diag.end(), 0.0);
+    std::fill(coarse.val.begin(), coarse.val.end(), 0.0);
+    for (int i = 0; i < fine.n; ++i)
+      if (fine.aggregate[i] >= 0) coarse.diag[fine.aggregate[i]] += fine.diag[i];
+    for (std::size_t p = 0; p < fine.col.size(); ++p) {
+      const int t = fine.entry_target[p];
+      if (t >= 0) {
+        coarse.val[t] += fine.val[p];
+      } else if (t != kSkip) {
+        coarse.diag[-1 - t] += fine.val[p];
+      }
+    }
+  }
+  return true;
+}
+
+bool AggregationAmg::Setup(const Eigen::SparseMatrix<double>& lower, bool reuse_aggregates) {
+  Impl& m = *impl_;
+  if (lower.rows() == 0 || lower.rows() != lower.cols() || !lower.isCompressed()) return false;
+  m.kcycle_reduction = options_.kcycle_reduction;
+  m.sweeps = std::max(1, options_.smoothing_sweeps);
+  const bool reuse = reuse_aggregates && m.structure_valid;
+  m.structure_valid = false;
+  bool pattern_changed = false;
+  if (m.levels.empty()) m.levels.resize(1);
+  if (!m.BuildFinest(lower, &pattern_changed)) {
+    m.pattern_n = -1;
+    return false;
+  }
+  if (reuse && !pattern_changed) {
+    m.UpdateNumeric();
+  } else {
+    m.levels.resize(1);
+    std::vector<int> first, second;
+    Level intermediate;
+    while (static_cast<int>(m.levels.size()) < options_.max_levels &&
+           m.levels.back().n > options_.max_coarsest_size) {
+      Level& fine = m.levels.back();
+      int n2 = 0;
+      for (const bool relaxed : {false, true}) {
+        const int n1 = PairwiseMatch(fine, options_.strong_coupling, options_.dominance, relaxed, &first);
+        Galerkin(fine, first, n1, &intermediate);
+        n2 = PairwiseMatch(intermediate, options_.strong_coupling, options_.dominance, relaxed, &second);
+        if (n2 > 0 && n2 <= kStall * fine.n) break;
+        // Coarsening stalls when many weakly tied nodes are left alone:
+        // below relaxed_coarsening_size this level becomes the coarsest (and
+        // is factorised), above it they are merged after all.
+        if (fine.n <= options_.relaxed_coarsening_size) break;
+      }
+      if (n2 == 0 || n2 > kStall * fine.n) break;
+      fine.aggregate.resize(fine.n);
+      for (int i = 0; i < fine.n; ++i) fine.aggregate[i] = first[i] < 0 ? -1 : second[first[i]];
+      Level coarse;
+      Galerkin(intermediate, second, n2, &coarse);
+      m.levels.push_back(std::move(coarse));
+      m.IndexEntries(static_cast<int>(m.levels.size()) - 2);
+    }
+    if (m.levels.back().n > kMaxCoarsestSize) return false;
+  }
+  for (Level& level : m.levels) {
+    level.inv_diag.resize(level.n);
+    for (int i = 0; i < level.n; ++i) {
+      if (!(level.diag[i] > 0.0) || !std::isfinite(level.diag[i])) return false;
+      level.inv_diag[i] = 1.0 / level.diag[i];
+    }
+  }
+  if (!m.FactorCoarsest(/*analyse=*/!reuse || pattern_changed)) return false;
+  m.structure_valid = true;
+  return true;
+}
+
+int AggregationAmg::Solve(const Eigen::MatrixXd& b, double tolerance, int max_iterations, Eigen::MatrixXd* x,
+                          bool* converged) {
+  Impl& m = *impl_;
+  x->setZero(b.rows(), b.cols());
+  *converged = true;
+  if (!m.structure_valid || m.levels.empty() || b.rows() != m.levels.front().n) {
+    *converged = false;
+    return 0;
+  }
+  int iterations = 0;
+  for (int c = 0; c < b.cols();) {
+    bool ok = false;
+    if (b.cols() - c >= 3) {
+      iterations = std::max(iterations, m.Solve<3>(b, c, tolerance, max_iterations, x, &ok));
+      c += 3;
+    } else {
+      iterations = std::max(iterations, m.Solve<1>(b, c, tolerance, max_iterations, x, &ok));
+      c += 1;
+    }
+    *converged = *converged && ok;
+  }
+  return iterations;
+}
+
+int AggregationAmg::NumLevels() const { return static_cast<int>(impl_->levels.size()); }
+int AggregationAmg::LevelSize(int level) const { return impl_->levels[level].n; }
+
+double AggregationAmg::OperatorComplexity() const {
+  if (impl_->levels.empty()) return 0.0;
+  double total = 0.0;
+  for (const Level& level : impl_->levels) total += static_cast<double>(level.NonZeros());
+  return total / static_cast<double>(impl_->levels.front().NonZeros());
+}
+
+}  // namespace rotation_averaging
