@@ -46,6 +46,24 @@ TEST(So3, LogSeriesBranchAgreesWithAtan2) {
   EXPECT_LT(worst, 1e-15);
 }
 
+TEST(So3, LogOfAUnitQuaternionAgreesWithLogOfItsMatrix) {
+  std::mt19937 rng(5);
+  std::normal_distribution<double> normal;
+  double worst = 0.0;
+  for (double angle = 1e-8; angle < kPi - 1e-6; angle = std::min(angle * 1.05, angle + 0.01)) {
+    const Eigen::Vector3d omega = angle * Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+    const Eigen::Quaterniond q(Eigen::AngleAxisd(angle, omega.normalized()));
+    // Either sign of the quaternion is the same rotation.
+    for (const double sign : {1.0, -1.0}) {
+      const Eigen::Quaterniond signed_q(sign * q.coeffs());
+      const Eigen::Vector3d log = LogUnitQuaternion(signed_q);
+      worst = std::max(worst, (log - omega).norm() / angle);
+      EXPECT_LT((log - LogSO3(signed_q.toRotationMatrix())).norm(), 1e-9 * angle + 1e-15) << angle;
+    }
+  }
+  EXPECT_LT(worst, 1e-13);
+}
+
 TEST(So3, QuaternionConversionsAgreeWithEigen) {
   const Eigen::Matrix3d r = ExpSO3(Eigen::Vector3d(0.3, -1.2, 0.7));
   const Eigen::Vector4d q = RotationToQuaternion(r);

@@ -55,7 +55,14 @@ void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace)
   // A workspace passes from the isotropic surrogate of the robust start to
   // the problem itself: kept (with its symbolic analysis and factor) when
   // that is isotropic too, rebuilt for 3x3 blocks otherwise.
-  if (ws.system && ws.isotropic == AllIsotropic(problem.edges)) return;
+  const bool isotropic = AllIsotropic(problem.edges);
+  if (ws.system && ws.isotropic == isotropic) {
+    // Same pattern; the information may differ (the surrogate's is 1).
+    if (isotropic) {
+      for (std::size_t k = 0; k < problem.edges.size(); ++k) ws.scalar_information[k] = problem.edges[k].information(0, 0);
+    }
+    return;
+  }
   const int n = static_cast<int>(problem.view_ids.size());
   ws.var.assign(n, -1);
   int free_blocks = 0;
@@ -66,7 +73,18 @@ void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace)
   for (const ComponentEdge& e : problem.edges) {
     if (ws.var[e.i] >= 0 && ws.var[e.j] >= 0) pairs.emplace_back(ws.var[e.i], ws.var[e.j]);
   }
-  ws.isotropic = AllIsotropic(problem.edges);
+  ws.isotropic = isotropic;
+  // The measurements as unit quaternions, conjugated (the surrogate of the
+  // robust start shares the problem's measurements and this workspace).
+  ws.measured_conjugate.resize(problem.edges.size());
+  for (std::size_t k = 0; k < problem.edges.size(); ++k) {
+    ws.measured_conjugate[k] = Eigen::Quaterniond(problem.edges[k].measured).normalized().conjugate();
+  }
+  ws.scalar_information.clear();
+  if (ws.isotropic) {
+    ws.scalar_information.reserve(problem.edges.size());
+    for (const ComponentEdge& e : problem.edges) ws.scalar_information.push_back(e.information(0, 0));
+  }
   ws.system = ws.isotropic ? std::make_unique<BlockSparseSystem>(free_blocks, pairs, 1, 3)
                            : std::make_unique<BlockSparseSystem>(free_blocks, pairs);
   // Slot of each edge's off-diagonal block in its column (-1: touches the gauge).
@@ -74,6 +92,19 @@ void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace)
   for (std::size_t k = 0; k < problem.edges.size(); ++k) {
     const int a = ws.var[problem.edges[k].i], b = ws.var[problem.edges[k].j];
     if (a >= 0 && b >= 0 && a != b) ws.offdiagonal_slot[k] = ws.system->Locate(std::max(a, b), std::min(a, b));
+  }
+  ws.ends.resize(problem.edges.size());
+  for (std::size_t k = 0; k < problem.edges.size(); ++k) ws.ends[k] = {problem.edges[k].i, problem.edges[k].j};
+  ws.offdiagonal_index.clear();
+  ws.diagonal_index.clear();
+  if (ws.isotropic) {
+    ws.offdiagonal_index.assign(problem.edges.size(), -1);
+    for (std::size_t k = 0; k < problem.edges.size(); ++k) {
+      const int a = ws.var[problem.edges[k].i], b = ws.var[problem.edges[k].j];
+      if (ws.offdiagonal_slot[k] >= 0) ws.offdiagonal_index[k] = ws.system->ScalarIndex(std::max(a, b), std::min(a, b));
+    }
+    ws.diagonal_index.resize(free_blocks);
+    for (int v = 0; v < free_blocks; ++v) ws.diagonal_index[v] = ws.system->ScalarIndex(v, v);
   }
 }
 
@@ -90,22 +121,33 @@ void Assemble(const ComponentProblem& component, const std::vector<Eigen::Vector
   const std::size_t m = component.edges.size();
   system.SetZero();
   Eigen::MatrixXd& rhs = system.Rhs();
-  for (std::size_t k = 0; isotropic && k < m; ++k) {
-    const ComponentEdge& e = problem->edges[k];
-    if (weights[k] <= 0.0) continue;
-    const double w = weights[k] * e.information(0, 0);
-    // e_ij = R_j^T r_ij: the residual in the frame of the right updates.
-    const Eigen::RowVector3d w_e = w * (problem->rotations[e.j].transpose() * residuals[k]).transpose();
-    const int vi = var[e.i], vj = var[e.j];
-    if (vi >= 0) {
-      system.AddScalarAt(vi, 0, w);
-      rhs.row(vi) -= w_e;
+  if (isotropic) {
+    // Right-hand side rows and diagonal entries are gathered per view (four
+    // adjacent numbers) and written into the system at the end.
+    std::vector<Eigen::Vector4d>& accumulated = workspace->accumulated;
+    accumulated.assign(system.NumBlocks(), Eigen::Vector4d::Zero());
+    const std::vector<double>& information = workspace->scalar_information;
+    const std::vector<std::pair<int, int>>& ends = workspace->ends;
+    const std::vector<int>& offdiagonal = workspace->offdiagonal_index;
+    for (std::size_t k = 0; k < m; ++k) {
+      if (weights[k] <= 0.0) continue;
+      const auto [i, j] = ends[k];
+      const double w = weights[k] * information[k];
+      // e_ij = R_j^T r_ij: the residual in the frame of the right updates.
+      Eigen::Vector4d w_e;
+      w_e.head<3>() = w * (problem->rotations[j].transpose() * residuals[k]);
+      w_e(3) = w;
+      const int vi = var[i], vj = var[j];
+      if (vi >= 0) accumulated[vi] += Eigen::Vector4d(-w_e(0), -w_e(1), -w_e(2), w);
+      if (vj >= 0) accumulated[vj] += w_e;
+      if (offdiagonal[k] >= 0) system.AddScalarAtIndex(offdiagonal[k], -w);
     }
-    if (vj >= 0) {
-      system.AddScalarAt(vj, 0, w);
-      rhs.row(vj) += w_e;
+    const std::vector<int>& diagonal = workspace->diagonal_index;
+    for (std::size_t v = 0; v < accumulated.size(); ++v) system.AddScalarAtIndex(diagonal[v], accumulated[v](3));
+    for (int c = 0; c < 3; ++c) {
+      double* column = rhs.col(c).data();
+      for (std::size_t v = 0; v < accumulated.size(); ++v) column[v] = accumulated[v](c);
     }
-    if (slot[k] >= 0) system.AddScalarAt(std::min(vi, vj), slot[k], -w);
   }
   for (std::size_t k = 0; !isotropic && k < m; ++k) {
     const ComponentEdge& e = problem->edges[k];
@@ -155,19 +197,39 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   // Robust weights rho' of each edge at `residuals`, kept from the cost
   // evaluation for the next assembly (the loss is not evaluated twice).
   std::vector<double> weights(m);
+  // |D^T r|^2 of edge k: s |r|^2 for isotropic information (one number per
+  // edge instead of the 3x3 square root: the edge loops stream less memory).
+  const std::vector<double>& scalar_information = ws.scalar_information;
+  auto whitened_squared = [&](std::size_t k, const Eigen::Vector3d& r) {
+    return isotropic ? scalar_information[k] * r.squaredNorm() : (problem->edges[k].sqrt_information * r).squaredNorm();
+  };
   auto cost_of = [&](const std::vector<Eigen::Vector3d>& res, std::vector<double>* w) {
     double cost = 0.0, rho[3];
     for (std::size_t k = 0; k < m; ++k) {
-      loss.Evaluate((problem->edges[k].sqrt_information * res[k]).squaredNorm(), rho);
+      loss.Evaluate(whitened_squared(k, res[k]), rho);
       cost += 0.5 * rho[0];
       (*w)[k] = rho[1];
     }
     return cost;
   };
+  std::vector<Eigen::Quaterniond> quaternions(n);
+  // Residuals, robust weights and cost in one pass over the edges.
   auto evaluate = [&](const std::vector<Eigen::Matrix3d>& rotations, std::vector<Eigen::Vector3d>* res,
                       std::vector<double>* w) {
-    for (std::size_t k = 0; k < m; ++k) (*res)[k] = ComponentProblem::ResidualOf(problem->edges[k], rotations);
-    return cost_of(*res, w);
+    // r_ij = Log(conj(m_ij) q_i conj(q_j)): two quaternion products (32
+    // multiplications) instead of two 3x3 matrix products (54), and 32
+    // bytes per measurement streamed instead of 72.
+    for (int v = 0; v < n; ++v) quaternions[v] = Eigen::Quaterniond(rotations[v]);
+    double cost = 0.0, rho[3];
+    for (std::size_t k = 0; k < m; ++k) {
+      const auto [i, j] = ws.ends[k];
+      const Eigen::Vector3d r = LogUnitQuaternion(ws.measured_conjugate[k] * quaternions[i] * quaternions[j].conjugate());
+      (*res)[k] = r;
+      loss.Evaluate(whitened_squared(k, r), rho);
+      cost += 0.5 * rho[0];
+      (*w)[k] = rho[1];
+    }
+    return cost;
   };
 
   // The residuals a previous solve on this workspace ended with (GNC stages,
@@ -198,7 +260,10 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   Eigen::VectorXd previous_update;
   Eigen::MatrixXd delta;
   int iteration = 0;
-  system.SetPcgTolerance(options.linear_solve_tolerance);
+  const bool multigrid = isotropic && options.multigrid_min_views > 0 && num_free >= options.multigrid_min_views;
+  system.SetUseMultigrid(multigrid);
+  system.SetPcgTolerance(multigrid ? std::max(options.linear_solve_tolerance, options.multigrid_linear_solve_tolerance)
+                                   : options.linear_solve_tolerance);
   for (; iteration < options.max_iterations; ++iteration) {
     Assemble(*problem, residuals, weights, &ws);
     if (!system.Solve(1e-12, 6, &delta)) {
@@ -289,6 +354,7 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   summary->iterations += iteration;
   summary->factorizations = system.NumFactorizations();
   summary->preconditioned_solves = system.NumPreconditionedSolves();
+  summary->multigrid_solves = system.NumMultigridSolves();
   summary->final_cost = evaluate(problem->rotations, &residuals, &weights);
   ws.residuals = residuals;
   ws.residual_rotations = problem->rotations;

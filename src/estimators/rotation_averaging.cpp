@@ -164,7 +164,7 @@ std::string RotationAveragingSummary::Report() const {
     const ComponentSummary& c = components[k];
     out << "\n  component " << k << ": " << c.num_views << " views, " << c.num_edges << " edges, " << c.iterations
         << " iterations (" << c.factorizations << " factorisations, " << c.preconditioned_solves
-        << " preconditioned solves, " << c.extrapolations << " extrapolations), loss scale " << c.loss_scale << " (residual scale " << c.noise_scale << "), "
+        << " preconditioned solves, " << c.multigrid_solves << " multigrid solves, " << c.extrapolations << " extrapolations), loss scale " << c.loss_scale << " (residual scale " << c.noise_scale << "), "
         << c.status;
   }
   if (components.size() > 5) out << "\n  ... " << components.size() - 5 << " more components";

@@ -5,6 +5,7 @@
 #define ROTATION_AVERAGING_ESTIMATORS_COMPONENT_PROBLEM_H_
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <memory>
 #include <vector>
 
@@ -74,6 +75,15 @@ struct IrlsWorkspace {
   std::vector<int> var;  // local view -> free block (-1 for the gauge)
   bool isotropic = false;  // every edge has W = s I: scalar Laplacian system
   std::vector<int> offdiagonal_slot;  // per edge: BlockSparseSystem::Locate of its off-diagonal block
+  // Isotropic problems (the scalar Laplacian), per edge: s of W = s I, the
+  // views it joins, the index of its off-diagonal entry (-1: none); per free
+  // view: the index of its diagonal entry. Compact copies of what the edge
+  // loops read, so that they stream 20 bytes per edge, not the edge.
+  std::vector<double> scalar_information;
+  std::vector<std::pair<int, int>> ends;
+  std::vector<int> offdiagonal_index, diagonal_index;
+  std::vector<Eigen::Vector4d> accumulated;  // assembly buffer: rhs row and diagonal per view
+  std::vector<Eigen::Quaterniond> measured_conjugate;  // per edge: conj(M_ij) as a unit quaternion
   // Residuals at the end of the last solve and the rotations they belong to.
   std::vector<Eigen::Vector3d> residuals;
   std::vector<Eigen::Matrix3d> residual_rotations;

@@ -62,6 +62,25 @@ inline Eigen::Vector3d LogSO3(const Eigen::Matrix3d& rotation) {
   return (std::atan2(s, c) / s) * v;
 }
 
+// Log of the rotation of a unit quaternion q = (w, v): theta = 2 atan2(|v|,
+// |w|), in [0, pi]. Below ~11 degrees (t = |v| / |w| <= 0.1) atan(t) / t by
+// its series (first omitted term t^18 / 19 < 1e-19), as in LogSO3.
+inline Eigen::Vector3d LogUnitQuaternion(const Eigen::Quaterniond& q) {
+  const double w = std::abs(q.w());
+  const Eigen::Vector3d v = q.w() < 0.0 ? Eigen::Vector3d(-q.vec()) : Eigen::Vector3d(q.vec());
+  const double s2 = v.squaredNorm();
+  if (s2 <= 0.01 * w * w) {
+    const double t2 = s2 / (w * w);
+    double p = 1.0 / 17.0;
+    for (const double k : {-1.0 / 15.0, 1.0 / 13.0, -1.0 / 11.0, 1.0 / 9.0, -1.0 / 7.0, 1.0 / 5.0, -1.0 / 3.0, 1.0}) {
+      p = k + t2 * p;
+    }
+    return (2.0 * p / w) * v;
+  }
+  const double s = std::sqrt(s2);
+  return (2.0 * std::atan2(s, w) / s) * v;
+}
+
 // Inverse of the right Jacobian of SO(3): Log(Exp(phi) Exp(d)) ~ phi + Jr^-1(phi) d.
 Eigen::Matrix3d RightJacobianInverseSO3(const Eigen::Vector3d& phi_rad);
 
