@@ -29,7 +29,7 @@ struct Level {
   std::vector<double> val, diag, inv_diag;
   std::vector<int> aggregate;  // node -> node of the next level; -1: smoothed only
   // Per off-diagonal entry: its slot in the next level's entries, -1 - a for
-  // the diagonal of aggregate a, kSkip (see Impl::Galerkin numeric update).
+  // the diagonal of aggregate a, or kSkip (see Impl::UpdateNumeric).
   std::vector<int> entry_target;
   // Work vectors, K values per node (row-major blocks).
   std::vector<double> residual;
@@ -220,32 +220,26 @@ void ForwardGaussSeidel(const Level& level, const double* r, double* z) {
   }
 }
 
-// One backward Gauss-Seidel sweep on A z = r, in place.
+// Gauss-Seidel update of row i of A z = r, in place.
 template <int K>
-void BackwardGaussSeidel(const Level& level, const double* r, double* z) {
-  for (int i = level.n - 1; i >= 0; --i) {
-    Block<K> s;
-    for (int c = 0; c < K; ++c) s[c] = r[K * i + c];
-    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
-      const double a = level.val[p];
-      const double* zj = z + K * level.col[p];
-      for (int c = 0; c < K; ++c) s[c] -= a * zj[c];
-    }
-    for (int c = 0; c < K; ++c) z[K * i + c] = s[c] * level.inv_diag[i];
+inline void RelaxRow(const Level& level, const double* r, double* z, int i) {
+  Block<K> s;
+  for (int c = 0; c < K; ++c) s[c] = r[K * i + c];
+  for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
+    const double a = level.val[p];
+    const double* zj = z + K * level.col[p];
+    for (int c = 0; c < K; ++c) s[c] -= a * zj[c];
   }
+  for (int c = 0; c < K; ++c) z[K * i + c] = s[c] * level.inv_diag[i];
 }
 
+// One Gauss-Seidel sweep on A z = r, in place, forward or backward.
 template <int K>
-void ForwardSweep(const Level& level, const double* r, double* z) {
-  for (int i = 0; i < level.n; ++i) {
-    Block<K> s;
-    for (int c = 0; c < K; ++c) s[c] = r[K * i + c];
-    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
-      const double a = level.val[p];
-      const double* zj = z + K * level.col[p];
-      for (int c = 0; c < K; ++c) s[c] -= a * zj[c];
-    }
-    for (int c = 0; c < K; ++c) z[K * i + c] = s[c] * level.inv_diag[i];
+void GaussSeidel(const Level& level, const double* r, double* z, bool forward) {
+  if (forward) {
+    for (int i = 0; i < level.n; ++i) RelaxRow<K>(level, r, z, i);
+  } else {
+    for (int i = level.n - 1; i >= 0; --i) RelaxRow<K>(level, r, z, i);
   }
 }
 
@@ -265,8 +259,8 @@ struct AggregationAmg::Impl {
   int sweeps = 2;
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> coarsest;
   // The coarsest matrix (lower triangle) and, per entry of the last level,
-  // its slot there (diagonal apart): numeric updates keep the pattern and
-  // CHOLMOD-free symbolic analysis.
+  // its slot there (diagonal apart): a numeric update refactorises it without
+  // a new symbolic analysis.
   Eigen::SparseMatrix<double> coarsest_matrix;
   std::vector<int> coarsest_diagonal_slot, coarsest_entry_slot;
   bool structure_valid = false;  // aggregates and patterns of the last full setup
@@ -360,7 +354,7 @@ void AggregationAmg::Impl::Cycle(int l, const double* r, double* z) {
     return;
   }
   ForwardGaussSeidel<K>(level, r, z);
-  for (int sweep = 1; sweep < sweeps; ++sweep) ForwardSweep<K>(level, r, z);
+  for (int sweep = 1; sweep < sweeps; ++sweep) GaussSeidel<K>(level, r, z, /*forward=*/true);
   level.residual.resize(static_cast<std::size_t>(K) * n);
   Multiply<K>(level, z, level.residual.data());
   for (std::size_t k = 0; k < level.residual.size(); ++k) level.residual[k] = r[k] - level.residual[k];
@@ -416,7 +410,7 @@ void AggregationAmg::Impl::Cycle(int l, const double* r, double* z) {
     if (a < 0) continue;
     for (int c = 0; c < K; ++c) z[K * i + c] += level.c1[K * a + c];
   }
-  for (int sweep = 0; sweep < sweeps; ++sweep) BackwardGaussSeidel<K>(level, r, z);
+  for (int sweep = 0; sweep < sweeps; ++sweep) GaussSeidel<K>(level, r, z, /*forward=*/false);
 }
 
 template <int K>
