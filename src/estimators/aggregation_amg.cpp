@@ -141,22 +141,29 @@ int PairwiseMatch(const Level& level, double strong_coupling, double dominance, 
   return kept;
 }
 
+// The nodes of each aggregate (counting sort): members[start[a] ..
+// start[a + 1]) in ascending order; nodes outside every aggregate left out.
+void AggregateMembers(const std::vector<int>& aggregate, int num_aggregates, std::vector<int>* start_out,
+                      std::vector<int>* members_out) {
+  std::vector<int>& start = *start_out;
+  std::vector<int>& members = *members_out;
+  start.assign(num_aggregates + 1, 0);
+  for (int a : aggregate)
+    if (a >= 0) ++start[a + 1];
+  for (int a = 0; a < num_aggregates; ++a) start[a + 1] += start[a];
+  members.resize(start[num_aggregates]);
+  std::vector<int> fill(start.begin(), start.end() - 1);
+  for (std::size_t i = 0; i < aggregate.size(); ++i)
+    if (aggregate[i] >= 0) members[fill[aggregate[i]]++] = static_cast<int>(i);
+}
+
 // coarse = P^T A P for the piecewise-constant P of `aggregate`.
 void Galerkin(const Level& fine, const std::vector<int>& aggregate, int num_coarse, Level* coarse_out) {
   Level& coarse = *coarse_out;
   coarse = Level();
   coarse.n = num_coarse;
-  // Members of each aggregate (counting sort).
-  std::vector<int> start(num_coarse + 1, 0), members;
-  for (int a : aggregate)
-    if (a >= 0) ++start[a + 1];
-  for (int a = 0; a < num_coarse; ++a) start[a + 1] += start[a];
-  members.resize(start[num_coarse]);
-  {
-    std::vector<int> fill(start.begin(), start.end() - 1);
-    for (int i = 0; i < fine.n; ++i)
-      if (aggregate[i] >= 0) members[fill[aggregate[i]]++] = i;
-  }
+  std::vector<int> start, members;
+  AggregateMembers(aggregate, num_coarse, &start, &members);
   coarse.ptr.assign(num_coarse + 1, 0);
   coarse.diag.assign(num_coarse, 0.0);
   coarse.col.reserve(fine.col.size() / 2);
@@ -482,16 +489,8 @@ void AggregationAmg::Impl::IndexEntries(int l) {
   Level& fine = levels[l];
   const Level& coarse = levels[l + 1];
   fine.entry_target.assign(fine.col.size(), kSkip);
-  std::vector<int> start(coarse.n + 1, 0), members;
-  for (int a : fine.aggregate)
-    if (a >= 0) ++start[a + 1];
-  for (int a = 0; a < coarse.n; ++a) start[a + 1] += start[a];
-  members.resize(start[coarse.n]);
-  {
-    std::vector<int> fill(start.begin(), start.end() - 1);
-    for (int i = 0; i < fine.n; ++i)
-      if (fine.aggregate[i] >= 0) members[fill[fine.aggregate[i]]++] = i;
-  }
+  std::vector<int> start, members;
+  AggregateMembers(fine.aggregate, coarse.n, &start, &members);
   std::vector<int> position(coarse.n, -1);
   for (int a = 0; a < coarse.n; ++a) {
     for (int q = coarse.ptr[a]; q < coarse.ptr[a + 1]; ++q) position[coarse.col[q]] = q;

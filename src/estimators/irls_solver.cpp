@@ -56,13 +56,14 @@ void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace)
   // the problem itself: kept (with its symbolic analysis and factor) when
   // that is isotropic too, rebuilt for 3x3 blocks otherwise.
   const bool isotropic = AllIsotropic(problem.edges);
-  if (ws.system && ws.isotropic == isotropic) {
-    // Same pattern; the information may differ (the surrogate's is 1).
-    if (isotropic) {
-      for (std::size_t k = 0; k < problem.edges.size(); ++k) ws.scalar_information[k] = problem.edges[k].information(0, 0);
-    }
-    return;
+  // Per-edge s of W = s I, refreshed on every call: a kept workspace may
+  // come from the robust start's surrogate, whose s is 1.
+  ws.scalar_information.clear();
+  if (isotropic) {
+    ws.scalar_information.reserve(problem.edges.size());
+    for (const ComponentEdge& e : problem.edges) ws.scalar_information.push_back(e.information(0, 0));
   }
+  if (ws.system && ws.isotropic == isotropic) return;
   const int n = static_cast<int>(problem.view_ids.size());
   ws.var.assign(n, -1);
   int free_blocks = 0;
@@ -79,11 +80,6 @@ void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace)
   ws.measured_conjugate.resize(problem.edges.size());
   for (std::size_t k = 0; k < problem.edges.size(); ++k) {
     ws.measured_conjugate[k] = Eigen::Quaterniond(problem.edges[k].measured).normalized().conjugate();
-  }
-  ws.scalar_information.clear();
-  if (ws.isotropic) {
-    ws.scalar_information.reserve(problem.edges.size());
-    for (const ComponentEdge& e : problem.edges) ws.scalar_information.push_back(e.information(0, 0));
   }
   ws.system = ws.isotropic ? std::make_unique<BlockSparseSystem>(free_blocks, pairs, 1, 3)
                            : std::make_unique<BlockSparseSystem>(free_blocks, pairs);
@@ -203,13 +199,16 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   auto whitened_squared = [&](std::size_t k, const Eigen::Vector3d& r) {
     return isotropic ? scalar_information[k] * r.squaredNorm() : (problem->edges[k].sqrt_information * r).squaredNorm();
   };
+  // Robust cost of edge k at residual r; its weight rho' into w[k].
+  auto edge_cost = [&](std::size_t k, const Eigen::Vector3d& r, std::vector<double>* w) {
+    double rho[3];
+    loss.Evaluate(whitened_squared(k, r), rho);
+    (*w)[k] = rho[1];
+    return 0.5 * rho[0];
+  };
   auto cost_of = [&](const std::vector<Eigen::Vector3d>& res, std::vector<double>* w) {
-    double cost = 0.0, rho[3];
-    for (std::size_t k = 0; k < m; ++k) {
-      loss.Evaluate(whitened_squared(k, res[k]), rho);
-      cost += 0.5 * rho[0];
-      (*w)[k] = rho[1];
-    }
+    double cost = 0.0;
+    for (std::size_t k = 0; k < m; ++k) cost += edge_cost(k, res[k], w);
     return cost;
   };
   std::vector<Eigen::Quaterniond> quaternions(n);
@@ -220,14 +219,11 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
     // multiplications) instead of two 3x3 matrix products (54), and 32
     // bytes per measurement streamed instead of 72.
     for (int v = 0; v < n; ++v) quaternions[v] = Eigen::Quaterniond(rotations[v]);
-    double cost = 0.0, rho[3];
+    double cost = 0.0;
     for (std::size_t k = 0; k < m; ++k) {
       const auto [i, j] = ws.ends[k];
-      const Eigen::Vector3d r = LogUnitQuaternion(ws.measured_conjugate[k] * quaternions[i] * quaternions[j].conjugate());
-      (*res)[k] = r;
-      loss.Evaluate(whitened_squared(k, r), rho);
-      cost += 0.5 * rho[0];
-      (*w)[k] = rho[1];
+      (*res)[k] = LogUnitQuaternion(ws.measured_conjugate[k] * quaternions[i] * quaternions[j].conjugate());
+      cost += edge_cost(k, (*res)[k], w);
     }
     return cost;
   };
