@@ -1,11 +1,14 @@
 #include "rotation_averaging/estimators/aggregation_amg.h"
 
+#include <Eigen/Cholesky>
 #include <Eigen/SparseCholesky>
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <tuple>
+#include <type_traits>
 
 namespace rotation_averaging {
 namespace {
@@ -258,12 +261,75 @@ Block<K> Dot(const std::vector<double>& a, const std::vector<double>& b, int n) 
   return s;
 }
 
+// The finest level of a 3x3-block system (SetupBlocks): every block row's
+// off-diagonal blocks (the full symmetric pattern, columns ascending; those
+// left of the diagonal end at split[i]) and its diagonal block apart, with
+// where each block's entries are in the lower-triangular input.
+struct BlockLevel {
+  int n = 0;
+  std::vector<int> ptr, split, col;
+  std::vector<Eigen::Matrix3d> val, diag, inv_diag;
+  // The off-diagonal blocks again in single precision for the smoother: the
+  // cycle streams them three times per iteration, the outer iteration's
+  // product (exact, in double) once; single precision halves that traffic
+  // and only perturbs the preconditioner, which flexible CG absorbs.
+  std::vector<Eigen::Matrix3f> val_single;
+  // Entry (a, b) of off-diagonal block k is input value base[k] + b *
+  // stride[k] + a, transposed for the blocks above the diagonal; likewise
+  // the diagonal blocks (diagonal_base, diagonal_stride).
+  std::vector<int> base, stride, diagonal_base, diagonal_stride;
+  std::vector<unsigned char> transposed;
+  std::vector<double> residual;
+};
+
+// y = H x (3 values per node).
+void BlockMultiply(const BlockLevel& level, const double* x, double* y) {
+  using Vector = Eigen::Map<const Eigen::Vector3d>;
+  for (int i = 0; i < level.n; ++i) {
+    Eigen::Vector3d s = level.diag[i] * Vector(x + 3 * i);
+    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) s.noalias() += level.val[p] * Vector(x + 3 * level.col[p]);
+    Eigen::Map<Eigen::Vector3d>(y + 3 * i) = s;
+  }
+}
+
+// sum over p in [first, last) of H_p z_col(p), H in single precision.
+inline Eigen::Vector3d BlockRowProduct(const BlockLevel& level, int first, int last, const double* z) {
+  Eigen::Vector3f s = Eigen::Vector3f::Zero();
+  for (int p = first; p < last; ++p) {
+    s.noalias() += level.val_single[p] * Eigen::Map<const Eigen::Vector3d>(z + 3 * level.col[p]).cast<float>();
+  }
+  return s.cast<double>();
+}
+
+// Block Gauss-Seidel on H z = r: each view's three unknowns are solved
+// together with its diagonal block, which is where an anisotropic
+// information matrix couples them (a scalar smoother would leave the error
+// along its weak axes). A forward sweep from z = 0 needs only the blocks
+// left of the diagonal; the other sweeps update z in place.
+void BlockGaussSeidelFromZero(const BlockLevel& level, const double* r, double* z) {
+  for (int i = 0; i < level.n; ++i) {
+    const Eigen::Vector3d s = Eigen::Map<const Eigen::Vector3d>(r + 3 * i) -
+                              BlockRowProduct(level, level.ptr[i], level.split[i], z);
+    Eigen::Map<Eigen::Vector3d>(z + 3 * i) = level.inv_diag[i] * s;
+  }
+}
+
+void BlockGaussSeidel(const BlockLevel& level, const double* r, double* z, bool forward) {
+  for (int k = 0; k < level.n; ++k) {
+    const int i = forward ? k : level.n - 1 - k;
+    const Eigen::Vector3d s = Eigen::Map<const Eigen::Vector3d>(r + 3 * i) -
+                              BlockRowProduct(level, level.ptr[i], level.ptr[i + 1], z);
+    Eigen::Map<Eigen::Vector3d>(z + 3 * i) = level.inv_diag[i] * s;
+  }
+}
+
 }  // namespace
 
 struct AggregationAmg::Impl {
   std::vector<Level> levels;
   double kcycle_reduction = 0.25;
   int sweeps = 2;
+  int block_sweeps = 1;
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> coarsest;
   // The coarsest matrix (lower triangle) and, per entry of the last level,
   // its slot there (diagonal apart): a numeric update refactorises it without
@@ -278,16 +344,35 @@ struct AggregationAmg::Impl {
   std::vector<int> offdiagonal_source, diagonal_source;
   // Outer iteration's vectors (K values per node).
   std::vector<double> x, r, z, p, q;
+  // 3x3-block systems (SetupBlocks): the block level, smoothed on the
+  // blocks, above the scalar hierarchy of its surrogate (levels[0]), and the
+  // surrogate's lower triangle with, per entry, where its block is.
+  bool block_mode = false;
+  BlockLevel block;
+  int block_pattern_n = -1;
+  std::vector<int> block_pattern_outer, block_pattern_inner;
+  Eigen::SparseMatrix<double> surrogate;
+  std::vector<int> surrogate_base, surrogate_stride;
 
   bool BuildFinest(const Eigen::SparseMatrix<double>& lower, bool* pattern_changed);
+  bool BuildBlocks(const Eigen::SparseMatrix<double>& lower);
+  // *rebuilt: new aggregates (not only new values).
+  bool BuildHierarchy(const AggregationAmg::Options& options, const Eigen::SparseMatrix<double>& lower, bool reuse,
+                      bool* rebuilt);
   void IndexEntries(int l);
   bool FactorCoarsest(bool analyse);
   bool UpdateNumeric();
   template <int K>
   void Cycle(int l, const double* r, double* z);
+  // Restriction of `residual` to level l + 1, its cycle there (with two
+  // steps of flexible CG, the K-cycle, below the next-coarsest level) and
+  // the prolongated correction added to z.
   template <int K>
-  int Solve(const Eigen::MatrixXd& b, int first_column, double tolerance, int max_iterations, Eigen::MatrixXd* x,
-            bool* converged);
+  void CoarseCorrection(int l, const double* residual, double* z);
+  void BlockCycle(const double* r, double* z);
+  template <int K, typename Apply, typename Precondition>
+  int Solve(int n, const Eigen::MatrixXd& b, int first_column, double tolerance, int max_iterations,
+            bool give_up_early, Eigen::MatrixXd* x, bool* converged, Apply apply, Precondition precondition);
 };
 
 bool AggregationAmg::Impl::BuildFinest(const Eigen::SparseMatrix<double>& lower, bool* pattern_changed) {
@@ -365,6 +450,14 @@ void AggregationAmg::Impl::Cycle(int l, const double* r, double* z) {
   level.residual.resize(static_cast<std::size_t>(K) * n);
   Multiply<K>(level, z, level.residual.data());
   for (std::size_t k = 0; k < level.residual.size(); ++k) level.residual[k] = r[k] - level.residual[k];
+  CoarseCorrection<K>(l, level.residual.data(), z);
+  for (int sweep = 0; sweep < sweeps; ++sweep) GaussSeidel<K>(level, r, z, /*forward=*/false);
+}
+
+template <int K>
+void AggregationAmg::Impl::CoarseCorrection(int l, const double* residual, double* z) {
+  Level& level = levels[l];
+  const int n = level.n;
   const Level& next = levels[l + 1];
   const int nc = next.n;
   const std::size_t size = static_cast<std::size_t>(K) * nc;
@@ -373,7 +466,7 @@ void AggregationAmg::Impl::Cycle(int l, const double* r, double* z) {
   for (int i = 0; i < n; ++i) {
     const int a = level.aggregate[i];
     if (a < 0) continue;
-    for (int c = 0; c < K; ++c) level.rc[K * a + c] += level.residual[K * i + c];
+    for (int c = 0; c < K; ++c) level.rc[K * a + c] += residual[K * i + c];
   }
   Cycle<K>(l + 1, level.rc.data(), level.c1.data());
   if (l + 2 < static_cast<int>(levels.size())) {
@@ -417,14 +510,37 @@ void AggregationAmg::Impl::Cycle(int l, const double* r, double* z) {
     if (a < 0) continue;
     for (int c = 0; c < K; ++c) z[K * i + c] += level.c1[K * a + c];
   }
-  for (int sweep = 0; sweep < sweeps; ++sweep) GaussSeidel<K>(level, r, z, /*forward=*/false);
 }
 
-template <int K>
-int AggregationAmg::Impl::Solve(const Eigen::MatrixXd& b, int first_column, double tolerance, int max_iterations,
-                                Eigen::MatrixXd* x_out, bool* converged) {
-  const Level& finest = levels.front();
-  const int n = finest.n;
+// The cycle of a block system: block Gauss-Seidel on the blocks, the
+// coarse correction on the scalar surrogate's hierarchy (its three
+// coordinates as three columns), block Gauss-Seidel back.
+void AggregationAmg::Impl::BlockCycle(const double* r, double* z) {
+  const std::size_t size = 3 * static_cast<std::size_t>(block.n);
+  block.residual.resize(size);
+  BlockGaussSeidelFromZero(block, r, z);
+  for (int sweep = 1; sweep < block_sweeps; ++sweep) BlockGaussSeidel(block, r, z, /*forward=*/true);
+  if (block_sweeps == 1) {
+    // After one forward sweep from zero, (D + L) z = r: the residual is
+    // -U z, the blocks right of the diagonal only.
+    for (int i = 0; i < block.n; ++i) {
+      Eigen::Map<Eigen::Vector3d>(block.residual.data() + 3 * i) =
+          -BlockRowProduct(block, block.split[i], block.ptr[i + 1], z);
+    }
+  } else {
+    BlockMultiply(block, z, block.residual.data());
+    for (std::size_t k = 0; k < size; ++k) block.residual[k] = r[k] - block.residual[k];
+  }
+  CoarseCorrection<3>(0, block.residual.data(), z);
+  for (int sweep = 0; sweep < block_sweeps; ++sweep) BlockGaussSeidel(block, r, z, /*forward=*/false);
+}
+
+// Flexible CG on n nodes of K independent columns (apply: y = A x,
+// precondition: z ~ A^-1 r, both on K values per node).
+template <int K, typename Apply, typename Precondition>
+int AggregationAmg::Impl::Solve(int n, const Eigen::MatrixXd& b, int first_column, double tolerance,
+                                int max_iterations, bool give_up_early, Eigen::MatrixXd* x_out, bool* converged,
+                                Apply apply, Precondition precondition) {
   const std::size_t size = static_cast<std::size_t>(K) * n;
   x.assign(size, 0.0);
   r.resize(size);
@@ -445,11 +561,11 @@ int AggregationAmg::Impl::Solve(const Eigen::MatrixXd& b, int first_column, doub
   int iterations = 0;
   bool failed = false;
   if (!all_done()) {
-    Cycle<K>(0, r.data(), z.data());
+    precondition(r.data(), z.data());
     p = z;
   }
   while (!all_done() && !failed && iterations < max_iterations) {
-    Multiply<K>(finest, p.data(), q.data());
+    apply(p.data(), q.data());
     ++iterations;
     const Block<K> pq = Dot<K>(p, q, n), pr = Dot<K>(p, r, n);
     Block<K> alpha;
@@ -467,7 +583,21 @@ int AggregationAmg::Impl::Solve(const Eigen::MatrixXd& b, int first_column, doub
     for (int c = 0; c < K; ++c)
       if (before[c] <= target[c]) residual2[c] = before[c];  // frozen column
     if (all_done()) break;
-    Cycle<K>(0, r.data(), z.data());
+    // A block system whose preconditioner does not suit it (information so
+    // anisotropic that the scalar surrogate misjudges the smooth error:
+    // cubicle's, up to 1.6e5, stalls for hundreds of iterations) shows it
+    // early; a factorisation is then cheaper than iterating to the cap.
+    if (give_up_early && iterations >= 8) {
+      for (int c = 0; c < K; ++c) {
+        if (done(c)) continue;
+        const double rate2 = std::pow(residual2[c] / b2[c], 1.0 / iterations);
+        if (!(rate2 < 1.0) || iterations + std::log(target[c] / residual2[c]) / std::log(rate2) > 1.5 * max_iterations) {
+          failed = true;
+        }
+      }
+      if (failed) break;
+    }
+    precondition(r.data(), z.data());
     // Flexible CG: p = z - (z . q / p . q) p keeps p A-orthogonal to the
     // previous direction whatever the cycle did.
     const Block<K> zq = Dot<K>(z, q, n);
@@ -564,57 +694,210 @@ bool AggregationAmg::Impl::UpdateNumeric() {
   return true;
 }
 
-bool AggregationAmg::Setup(const Eigen::SparseMatrix<double>& lower, bool reuse_aggregates) {
-  Impl& m = *impl_;
-  if (lower.rows() == 0 || lower.rows() != lower.cols() || !lower.isCompressed()) return false;
-  m.kcycle_reduction = options_.kcycle_reduction;
-  m.sweeps = std::max(1, options_.smoothing_sweeps);
-  const bool reuse = reuse_aggregates && m.structure_valid;
-  m.structure_valid = false;
+bool AggregationAmg::Impl::BuildHierarchy(const AggregationAmg::Options& options,
+                                          const Eigen::SparseMatrix<double>& lower, bool reuse, bool* rebuilt) {
   bool pattern_changed = false;
-  if (m.levels.empty()) m.levels.resize(1);
-  if (!m.BuildFinest(lower, &pattern_changed)) {
-    m.pattern_n = -1;
+  *rebuilt = true;
+  if (levels.empty()) levels.resize(1);
+  if (!BuildFinest(lower, &pattern_changed)) {
+    pattern_n = -1;
     return false;
   }
   if (reuse && !pattern_changed) {
-    m.UpdateNumeric();
+    UpdateNumeric();
+    *rebuilt = false;
   } else {
-    m.levels.resize(1);
+    levels.resize(1);
     std::vector<int> first, second;
     Level intermediate;
-    while (static_cast<int>(m.levels.size()) < options_.max_levels &&
-           m.levels.back().n > options_.max_coarsest_size) {
-      Level& fine = m.levels.back();
+    while (static_cast<int>(levels.size()) < options.max_levels && levels.back().n > options.max_coarsest_size) {
+      Level& fine = levels.back();
       int n2 = 0;
       for (const bool relaxed : {false, true}) {
-        const int n1 = PairwiseMatch(fine, options_.strong_coupling, options_.dominance, relaxed, &first);
+        const int n1 = PairwiseMatch(fine, options.strong_coupling, options.dominance, relaxed, &first);
         Galerkin(fine, first, n1, &intermediate);
-        n2 = PairwiseMatch(intermediate, options_.strong_coupling, options_.dominance, relaxed, &second);
+        n2 = PairwiseMatch(intermediate, options.strong_coupling, options.dominance, relaxed, &second);
         if (n2 > 0 && n2 <= kStall * fine.n) break;
         // Coarsening stalls when many weakly tied nodes are left alone:
         // below relaxed_coarsening_size this level becomes the coarsest (and
         // is factorised), above it they are merged after all.
-        if (fine.n <= options_.relaxed_coarsening_size) break;
+        if (fine.n <= options.relaxed_coarsening_size) break;
       }
       if (n2 == 0 || n2 > kStall * fine.n) break;
       fine.aggregate.resize(fine.n);
       for (int i = 0; i < fine.n; ++i) fine.aggregate[i] = first[i] < 0 ? -1 : second[first[i]];
       Level coarse;
       Galerkin(intermediate, second, n2, &coarse);
-      m.levels.push_back(std::move(coarse));
-      m.IndexEntries(static_cast<int>(m.levels.size()) - 2);
+      levels.push_back(std::move(coarse));
+      IndexEntries(static_cast<int>(levels.size()) - 2);
     }
-    if (m.levels.back().n > kMaxCoarsestSize) return false;
+    if (levels.back().n > kMaxCoarsestSize) return false;
   }
-  for (Level& level : m.levels) {
+  for (Level& level : levels) {
     level.inv_diag.resize(level.n);
     for (int i = 0; i < level.n; ++i) {
       if (!(level.diag[i] > 0.0) || !std::isfinite(level.diag[i])) return false;
       level.inv_diag[i] = 1.0 / level.diag[i];
     }
   }
-  if (!m.FactorCoarsest(/*analyse=*/!reuse || pattern_changed)) return false;
+  return FactorCoarsest(/*analyse=*/!reuse || pattern_changed);
+}
+
+bool AggregationAmg::Setup(const Eigen::SparseMatrix<double>& lower, bool reuse_aggregates) {
+  Impl& m = *impl_;
+  if (lower.rows() == 0 || lower.rows() != lower.cols() || !lower.isCompressed()) return false;
+  m.kcycle_reduction = options_.kcycle_reduction;
+  m.sweeps = std::max(1, options_.smoothing_sweeps);
+  const bool reuse = reuse_aggregates && m.structure_valid && !m.block_mode;
+  m.structure_valid = false;
+  m.block_mode = false;
+  bool rebuilt = false;
+  if (!m.BuildHierarchy(options_, lower, reuse, &rebuilt)) return false;
+  m.structure_valid = true;
+  return true;
+}
+
+bool AggregationAmg::Impl::BuildBlocks(const Eigen::SparseMatrix<double>& lower) {
+  const int rows = static_cast<int>(lower.rows());
+  const int* outer = lower.outerIndexPtr();
+  const int* inner = lower.innerIndexPtr();
+  const double* values = lower.valuePtr();
+  const int n = rows / 3;
+  const bool same = block_pattern_n == rows && static_cast<int>(block_pattern_inner.size()) == outer[rows] &&
+                    std::memcmp(block_pattern_outer.data(), outer, sizeof(int) * (rows + 1)) == 0 &&
+                    std::memcmp(block_pattern_inner.data(), inner, sizeof(int) * outer[rows]) == 0;
+  if (!same) {
+    block_pattern_n = -1;
+    if (rows % 3 != 0) return false;
+    // Block column c: three columns holding the same rows, in triples 3r,
+    // 3r + 1, 3r + 2 of ascending block rows r >= c, the diagonal block first.
+    for (int c = 0; c < n; ++c) {
+      const int* rows_of_c = inner + outer[3 * c];
+      const int count = outer[3 * c + 1] - outer[3 * c];
+      if (count % 3 != 0 || count == 0 || rows_of_c[0] != 3 * c) return false;
+      for (int b = 1; b < 3; ++b) {
+        if (outer[3 * c + b + 1] - outer[3 * c + b] != count ||
+            !std::equal(rows_of_c, rows_of_c + count, inner + outer[3 * c + b])) {
+          return false;
+        }
+      }
+      for (int k = 0; k < count; k += 3) {
+        const int first = rows_of_c[k];
+        if (first % 3 != 0 || rows_of_c[k + 1] != first + 1 || rows_of_c[k + 2] != first + 2 ||
+            (k > 0 && first <= rows_of_c[k - 3])) {
+          return false;
+        }
+      }
+    }
+    block = BlockLevel();
+    block.n = n;
+    block.ptr.assign(n + 1, 0);
+    block.diagonal_base.resize(n);
+    block.diagonal_stride.resize(n);
+    std::vector<Eigen::Triplet<double>> pattern;
+    for (int c = 0; c < n; ++c) {
+      const int count = outer[3 * c + 1] - outer[3 * c];
+      for (int k = 3; k < count; k += 3) {
+        ++block.ptr[inner[outer[3 * c] + k] / 3 + 1];
+        ++block.ptr[c + 1];
+      }
+    }
+    for (int i = 0; i < n; ++i) block.ptr[i + 1] += block.ptr[i];
+    const int entries = block.ptr[n];
+    block.split.resize(n);
+    block.col.resize(entries);
+    block.base.resize(entries);
+    block.stride.resize(entries);
+    block.transposed.resize(entries);
+    std::vector<int> fill(block.ptr.begin(), block.ptr.end() - 1);
+    // The surrogate: lower triangle of the n x n matrix of the blocks'
+    // traces / 3, in the same order.
+    std::vector<int> surrogate_outer(n + 1, 0), surrogate_inner;
+    surrogate_base.clear();
+    surrogate_stride.clear();
+    for (int c = 0; c < n; ++c) {
+      const int count = outer[3 * c + 1] - outer[3 * c];
+      block.diagonal_base[c] = outer[3 * c];
+      block.diagonal_stride[c] = count;
+      for (int k = 0; k < count; k += 3) {
+        const int r = inner[outer[3 * c] + k] / 3;
+        surrogate_inner.push_back(r);
+        surrogate_base.push_back(outer[3 * c] + k);
+        surrogate_stride.push_back(count);
+        if (r == c) continue;
+        // Block (r, c) below the diagonal: row r sees it as stored, row c
+        // as its transpose.
+        for (const auto& [row, column, t] : {std::tuple<int, int, int>{r, c, 0}, {c, r, 1}}) {
+          const int q = fill[row]++;
+          block.col[q] = column;
+          block.base[q] = outer[3 * c] + k;
+          block.stride[q] = count;
+          block.transposed[q] = static_cast<unsigned char>(t);
+        }
+      }
+      surrogate_outer[c + 1] = static_cast<int>(surrogate_inner.size());
+    }
+    // Block columns are visited in ascending order, so row i receives its
+    // blocks left of the diagonal (from the columns c < i) in ascending c,
+    // then those of its own column, ascending too.
+    for (int i = 0; i < n; ++i) {
+      block.split[i] = block.ptr[i];
+      while (block.split[i] < block.ptr[i + 1] && block.col[block.split[i]] < i) ++block.split[i];
+    }
+    surrogate.resize(n, n);
+    surrogate.resizeNonZeros(static_cast<Eigen::Index>(surrogate_inner.size()));
+    std::copy(surrogate_outer.begin(), surrogate_outer.end(), surrogate.outerIndexPtr());
+    std::copy(surrogate_inner.begin(), surrogate_inner.end(), surrogate.innerIndexPtr());
+    block.val.resize(entries);
+    block.diag.resize(n);
+    block.inv_diag.resize(n);
+    block_pattern_outer.assign(outer, outer + rows + 1);
+    block_pattern_inner.assign(inner, inner + outer[rows]);
+    block_pattern_n = rows;
+  }
+  auto read = [&](int base, int stride) {
+    Eigen::Matrix3d m;
+    for (int b = 0; b < 3; ++b)
+      for (int a = 0; a < 3; ++a) m(a, b) = values[base + b * stride + a];
+    return m;
+  };
+  block.val_single.resize(block.val.size());
+  for (std::size_t q = 0; q < block.val.size(); ++q) {
+    block.val[q] = read(block.base[q], block.stride[q]);
+    if (block.transposed[q]) block.val[q].transposeInPlace();
+    if (!block.val[q].allFinite()) return false;
+    block.val_single[q] = block.val[q].cast<float>();
+  }
+  for (int i = 0; i < n; ++i) {
+    // The input's diagonal blocks hold the full 3x3; symmetrised against rounding.
+    const Eigen::Matrix3d d = read(block.diagonal_base[i], block.diagonal_stride[i]);
+    block.diag[i] = 0.5 * (d + d.transpose());
+    Eigen::LLT<Eigen::Matrix3d> llt(block.diag[i]);
+    if (llt.info() != Eigen::Success || !block.diag[i].allFinite()) return false;
+    block.inv_diag[i] = llt.solve(Eigen::Matrix3d::Identity());
+    if (!block.inv_diag[i].allFinite()) return false;
+  }
+  double* surrogate_values = surrogate.valuePtr();
+  for (std::size_t k = 0; k < surrogate_base.size(); ++k) {
+    const int base = surrogate_base[k], stride = surrogate_stride[k];
+    surrogate_values[k] = (values[base] + values[base + stride + 1] + values[base + 2 * stride + 2]) / 3.0;
+  }
+  return true;
+}
+
+bool AggregationAmg::SetupBlocks(const Eigen::SparseMatrix<double>& lower, bool reuse_aggregates) {
+  Impl& m = *impl_;
+  if (lower.rows() == 0 || lower.rows() != lower.cols() || !lower.isCompressed()) return false;
+  m.kcycle_reduction = options_.kcycle_reduction;
+  m.sweeps = std::max(1, options_.smoothing_sweeps);
+  m.block_sweeps = std::max(1, options_.block_smoothing_sweeps);
+  const bool reuse = reuse_aggregates && m.structure_valid && m.block_mode;
+  m.structure_valid = false;
+  m.block_mode = true;
+  if (!m.BuildBlocks(lower)) return false;
+  // One level would leave the surrogate's factor as the whole solve.
+  bool rebuilt = false;
+  if (!m.BuildHierarchy(options_, m.surrogate, reuse, &rebuilt) || m.levels.size() < 2) return false;
   m.structure_valid = true;
   return true;
 }
@@ -624,21 +907,40 @@ int AggregationAmg::Solve(const Eigen::MatrixXd& b, double tolerance, int max_it
   Impl& m = *impl_;
   x->setZero(b.rows(), b.cols());
   *converged = true;
-  if (!m.structure_valid || m.levels.empty() || b.rows() != m.levels.front().n) {
+  const int rows = m.levels.empty() ? -1 : m.block_mode ? 3 * m.block.n : m.levels.front().n;
+  if (!m.structure_valid || b.rows() != rows) {
     *converged = false;
     return 0;
   }
   int iterations = 0;
-  for (int c = 0; c < b.cols();) {
+  auto run = [&](auto k, int column) {
+    constexpr int K = decltype(k)::value;
     bool ok = false;
-    if (b.cols() - c >= 3) {
-      iterations = std::max(iterations, m.Solve<3>(b, c, tolerance, max_iterations, x, &ok));
+    int taken = 0;
+    if (m.block_mode) {
+      taken = m.Solve<1>(
+          rows, b, column, tolerance, max_iterations, /*give_up_early=*/true, x, &ok,
+          [&](const double* in, double* out) { BlockMultiply(m.block, in, out); },
+          [&](const double* r, double* z) { m.BlockCycle(r, z); });
+    } else {
+      taken = m.Solve<K>(
+          rows, b, column, tolerance, max_iterations, /*give_up_early=*/false, x, &ok,
+          [&](const double* in, double* out) { Multiply<K>(m.levels.front(), in, out); },
+          [&](const double* r, double* z) { m.Cycle<K>(0, r, z); });
+    }
+    iterations = std::max(iterations, taken);
+    *converged = *converged && ok;
+  };
+  // Scalar systems: three columns at a time (one pass over each matrix for
+  // all three); block systems: one coupled system per column.
+  for (int c = 0; c < b.cols();) {
+    if (!m.block_mode && b.cols() - c >= 3) {
+      run(std::integral_constant<int, 3>(), c);
       c += 3;
     } else {
-      iterations = std::max(iterations, m.Solve<1>(b, c, tolerance, max_iterations, x, &ok));
+      run(std::integral_constant<int, 1>(), c);
       c += 1;
     }
-    *converged = *converged && ok;
   }
   return iterations;
 }

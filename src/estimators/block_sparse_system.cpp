@@ -177,6 +177,7 @@ void BlockSparseSystem::SetPcgTolerance(double tolerance) {
   // A new accuracy (the next stage of a robust solve) gets a fresh chance.
   if (tolerance != pcg_tolerance_) {
     factorization_->failed_in_a_row = factorization_->skip_pcg = 0;
+    multigrid_failed_in_a_row_ = multigrid_skip_ = 0;
     multigrid_rebuild_ = true;
   }
   pcg_tolerance_ = tolerance;
@@ -318,18 +319,25 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
   for (int k = 0; k < n; ++k) values[diagonal_positions_[k]] += lambda;
   applied = lambda;
 
-  // Large scalar systems (SetUseMultigrid): conjugate gradients
-  // preconditioned with aggregation multigrid, set up for this matrix. The
+  // Large systems (SetUseMultigrid): conjugate gradients preconditioned
+  // with aggregation multigrid, set up for this matrix. The
   // aggregates of the last full setup are kept while the solves they serve
   // take at most two iterations more than the first one did; a solve that
   // takes more, or a new tolerance (the next stage), rebuilds them.
-  if (use_multigrid_) {
+  // A system multigrid did not solve goes to the factorisation, and so do
+  // the next 2^(k-1) solves after k such failures in a row: where the
+  // hierarchy does not suit the matrix (cubicle's information, anisotropic
+  // up to 1.6e5), each attempt would cost the iterations it takes to give up.
+  const bool try_multigrid = use_multigrid_ && multigrid_skip_ == 0;
+  if (use_multigrid_ && multigrid_skip_ > 0) --multigrid_skip_;
+  if (try_multigrid) {
     if (!multigrid_) multigrid_ = std::make_unique<AggregationAmg>();
     for (int pass = 0; pass < 2; ++pass) {
       const bool reuse = pass == 0 && !multigrid_rebuild_;
       bool converged = false;
-      if (multigrid_->Setup(matrix_, reuse)) {
-        last_pcg_iterations_ = multigrid_->Solve(rhs_, pcg_tolerance_, kMaxMultigridIterations, x, &converged);
+      if (block_dim_ == 1 ? multigrid_->Setup(matrix_, reuse) : multigrid_->SetupBlocks(matrix_, reuse)) {
+        last_pcg_iterations_ = multigrid_->Solve(
+            rhs_, pcg_tolerance_, block_dim_ == 1 ? kMaxMultigridIterations : kMaxBlockMultigridIterations, x, &converged);
       }
       converged = converged && x->allFinite();
       if (!reuse) {
@@ -340,12 +348,15 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
       }
       if (converged) {
         ++num_multigrid_solves_;
+        multigrid_failed_in_a_row_ = 0;
         for (int i = 0; i < n; ++i) values[diagonal_positions_[i]] -= applied;
         if (lambda_used) *lambda_used = lambda;
         return true;
       }
       if (!reuse) break;  // a fresh hierarchy did not converge: factorise
     }
+    ++multigrid_failed_in_a_row_;
+    multigrid_skip_ = 1 << std::min(multigrid_failed_in_a_row_ - 1, 16);
   }
   // Otherwise first try conjugate gradients preconditioned with the factor
   // of an earlier matrix of the same pattern: IRLS weights change little

@@ -1,29 +1,29 @@
 // Fast IRLS rotation averaging in the tangent space with 3x3 block weights.
 //
-// Each iteration linearises r_ij = Log(M_ij^T R_i R_j^T) under the left
-// updates R_i <- Exp(d_i) R_i:
-//
-//   r_ij(d) ~ r_ij + Jr^-1(r_ij) (Rc_ij^T d_i - d_j),   Rc_ij = R_i R_j^T,
-//
-// weights each edge by w_ij = rho'(|D^T r|^2) times its information W_ij, and
-// solves the normal equations  sum A^T (w W) A d = -sum A^T (w W) r  by a sparse
-// Cholesky factorisation whose symbolic analysis is done once per component.
-// This is Gauss-Newton with IRLS weights (the Theia / GLOMAP scheme) extended
-// to full covariance weights and the exact Jacobian. A step that raises the
-// robust cost is halved (up to 4 times); a factorisation that fails is
-// retried with Levenberg regularisation.
-//
-// Isotropic information (W_ij = s_ij I on every edge: no weighting, inlier,
-// trace or Frobenius weights, isotropic covariances) takes a cheaper path.
-// With right updates R_i <- R_i Exp(x_i) the linearisation is
+// Each iteration linearises r_ij = Log(M_ij^T R_i R_j^T) under the right
+// updates R_i <- R_i Exp(x_i):
 //
 //   r_ij(x) ~ r_ij + Jr^-1(r_ij) R_j (x_i - x_j),
 //
-// and with Jr^-1 replaced by I the normal equations become a scalar weighted
-// graph Laplacian L (weights w_ij = rho' s_ij) with three right-hand sides,
-// one per coordinate: L has a ninth of the nonzeros of the block system and
-// its factorisation ~27x fewer flops. The fixed points are unchanged, not
-// approximated: for W = s I the exact gradient term
+// weights each edge by w_ij = rho'(|D^T r|^2) times its information W_ij, and
+// solves the normal equations  sum A^T (w W) A x = -sum A^T (w W) r. With
+// G_ij = R_j^T Jr^-T (w W) Jr^-1 R_j (symmetric, positive semi-definite) the
+// normal matrix is a matrix-weighted graph Laplacian: G_ij on the diagonal
+// blocks of both views and -G_ij off the diagonal. Its null space (before
+// the gauge view is held) is the three constant vectors x_i = c, exactly as
+// for a scalar Laplacian, which is what lets aggregation multigrid precondition
+// it (AggregationAmg::SetupBlocks). This is Gauss-Newton with IRLS weights
+// (the Theia / GLOMAP scheme) extended to full covariance weights and the
+// exact Jacobian. A step that raises the robust cost is halved (up to 4
+// times); a linear solve that fails is retried with Levenberg regularisation.
+//
+// Isotropic information (W_ij = s_ij I on every edge: no weighting, inlier,
+// trace or Frobenius weights, isotropic covariances) takes a cheaper path:
+// with Jr^-1 replaced by I, G_ij = w s_ij I and the normal equations become a
+// scalar weighted graph Laplacian L (weights w_ij = rho' s_ij) with three
+// right-hand sides, one per coordinate: L has a ninth of the nonzeros of the
+// block system and its factorisation ~27x fewer flops. The fixed points are
+// unchanged, not approximated: for W = s I the exact gradient term
 // (Jr^-1 R_j)^T W r = s R_j^T Jr^-T(r) r equals s R_j^T r, because
 // Jr^-T(r) r = r. Only the curvature is approximated, which the step halving
 // guards.
@@ -104,9 +104,9 @@ void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace)
   }
 }
 
-// The IRLS normal equations at `residuals` (of the problem's rotations):
-// scalar Laplacian with three right-hand sides (isotropic information, right
-// updates) or 3x3 blocks (left updates), see the comment at the top.
+// The IRLS normal equations at `residuals` (of the problem's rotations), in
+// the right updates: a scalar Laplacian with three right-hand sides
+// (isotropic information) or 3x3 blocks, see the comment at the top.
 void Assemble(const ComponentProblem& component, const std::vector<Eigen::Vector3d>& residuals,
               const std::vector<double>& weights, IrlsWorkspace* workspace) {
   const ComponentProblem* problem = &component;
@@ -146,29 +146,24 @@ void Assemble(const ComponentProblem& component, const std::vector<Eigen::Vector
     }
   }
   for (std::size_t k = 0; !isotropic && k < m; ++k) {
-    const ComponentEdge& e = problem->edges[k];
     const Eigen::Vector3d& r = residuals[k];
     if (weights[k] <= 0.0) continue;
-    const Eigen::Matrix3d weighted = weights[k] * e.information;
-    const Eigen::Matrix3d jinv = RightJacobianInverseSO3(r);
+    const ComponentEdge& e = problem->edges[k];
+    // A = Jr^-1 R_j for view i and -A for view j.
+    const Eigen::Matrix3d a = RightJacobianInverseSO3(r) * problem->rotations[e.j];
+    const Eigen::Matrix3d a_t_w = a.transpose() * (weights[k] * e.information);
+    const Eigen::Matrix3d g = a_t_w * a;
+    const Eigen::Vector3d g_r = a_t_w * r;
     const int vi = var[e.i], vj = var[e.j];
-    // A_i = Jinv Rc^T, A_j = -Jinv.
-    const Eigen::Matrix3d a_i = jinv * (problem->rotations[e.j] * problem->rotations[e.i].transpose());
-    const Eigen::Matrix3d w_jinv = weighted * jinv;
-    const Eigen::Vector3d w_r = weighted * r;
     if (vi >= 0) {
-      const Eigen::Matrix3d a_i_t_w = a_i.transpose() * weighted;
-      system.AddBlockAt(vi, 0, a_i_t_w * a_i);
-      rhs.col(0).segment<3>(3 * vi) -= a_i.transpose() * w_r;
-      if (slot[k] >= 0) {
-        const Eigen::Matrix3d off = -a_i_t_w * jinv;  // block (vi, vj)
-        if (vi > vj) system.AddBlockAt(vj, slot[k], off); else system.AddBlockAt(vi, slot[k], off.transpose());
-      }
+      system.AddBlockAt(vi, 0, g);
+      rhs.col(0).segment<3>(3 * vi) -= g_r;
     }
     if (vj >= 0) {
-      system.AddBlockAt(vj, 0, jinv.transpose() * w_jinv);
-      rhs.col(0).segment<3>(3 * vj) += jinv.transpose() * w_r;
+      system.AddBlockAt(vj, 0, g);
+      rhs.col(0).segment<3>(3 * vj) += g_r;
     }
+    if (slot[k] >= 0) system.AddBlockAt(std::min(vi, vj), slot[k], -g);  // symmetric: either triangle
   }
 }
 
@@ -256,7 +251,7 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   Eigen::VectorXd previous_update;
   Eigen::MatrixXd delta;
   int iteration = 0;
-  const bool multigrid = isotropic && options.multigrid_min_views > 0 && num_free >= options.multigrid_min_views;
+  const bool multigrid = options.multigrid_min_views > 0 && num_free >= options.multigrid_min_views;
   system.SetUseMultigrid(multigrid);
   system.SetPcgTolerance(multigrid ? std::max(options.linear_solve_tolerance, options.multigrid_linear_solve_tolerance)
                                    : options.linear_solve_tolerance);
@@ -274,7 +269,7 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
         } else if (isotropic) {
           (*to)[v] = from[v] * ExpSO3(scale * delta.row(var[v]).transpose());
         } else {
-          (*to)[v] = ExpSO3(scale * delta.col(0).segment<3>(3 * var[v])) * from[v];
+          (*to)[v] = from[v] * ExpSO3(scale * delta.col(0).segment<3>(3 * var[v]));
         }
       }
     };
@@ -387,9 +382,11 @@ bool ComputeViewCovariances(const ComponentProblem& problem, const RobustLoss& l
   for (int v = 0; v < n; ++v) {
     const int b = ws.var[v];
     if (b < 0) continue;
-    // Scalar Laplacian, right updates x = R^T d: C_d = R (c I) R^T = c I;
-    // blocks: left updates d directly.
-    (*covariances)[v] = scale * blocks[b];
+    // Right updates x with R = R_hat Exp(x) = Exp(R_hat x) R_hat: the left
+    // perturbation is d = R_hat x, so C_d = R_hat C_x R_hat^T (for a scalar
+    // Laplacian's c I, c I itself).
+    const Eigen::Matrix3d& r = problem.rotations[v];
+    (*covariances)[v] = scale * (r * blocks[b] * r.transpose());
     if (!(*covariances)[v].allFinite()) return false;
   }
   for (Eigen::Matrix3d& c : *covariances) c = 0.5 * (c + c.transpose());

@@ -147,18 +147,21 @@ struct RotationAveragingOptions {
   // 100,000-view scale graph but left the 10,100-keyframe chain of
   // results/online.md with 581 instead of 469 keyframes > 5 deg off.
   double robust_start_linear_solve_tolerance = 1e-2;
-  // IRLS systems of at least this many views whose information is
-  // isotropic (scalar Laplacians: the L1 start, no or scalar weighting) are
-  // solved by conjugate gradients preconditioned with aggregation multigrid
-  // (AggregationAmg), set up in O(nonzeros) for each matrix, instead of
-  // through a sparse Cholesky factor; a solve it does not finish falls back
-  // to the factorisation. The robust start's weights change too much between
-  // iterations for an earlier factor to precondition the next matrix, so
-  // there every step was a fresh factorisation with a fill that grows
-  // faster than the graph (100,000-view grid graph: 0.36 s each, against
-  // ~0.1 s for multigrid to 1e-2; whole solve 18 -> 7.5 s; 3,000 views 0.43 ->
-  // 0.15 s). Below ~2,000 views a factorisation is cheaper (iRotAvg's 1,832:
-  // 5.5 against 7.7 ms). 0: never.
+  // IRLS systems of at least this many views are solved by conjugate
+  // gradients preconditioned with aggregation multigrid (AggregationAmg),
+  // set up in O(nonzeros) for each matrix, instead of through a sparse
+  // Cholesky factor; a solve it does not finish falls back to the
+  // factorisation. Scalar Laplacians (isotropic information: the L1 start,
+  // no or scalar weighting) and the 3x3-block systems of full covariances
+  // alike. The robust start's weights change too much between iterations
+  // for an earlier factor to precondition the next matrix, so there every
+  // step was a fresh factorisation with a fill that grows faster than the
+  // graph (100,000-view grid graph: 0.36 s each, against ~0.1 s for
+  // multigrid to 1e-2; whole solve 18 -> 7.5 s; 3,000 views 0.43 -> 0.15 s;
+  // results/scale.md has both paths side by side). Below ~2,000 views a
+  // factorisation is cheaper (iRotAvg's 1,832: 5.5 against 7.7 ms). Blocks
+  // whose anisotropy defeats the preconditioner (cubicle's information, up to
+  // 1.6e5) are noticed within a few iterations and factorised. 0: never.
   int multigrid_min_views = 2000;
   // Systems solved by multigrid take max(linear_solve_tolerance, this): each
   // of its iterations costs a pass over the matrix, where the stale-factor
