@@ -147,6 +147,20 @@ BlockLaplacian GridBlockLaplacian(int side, int reach, double decades, double an
   return l;
 }
 
+// Solves to a loose (1e-2) and a tight (1e-8) relative residual within the
+// given iterations.
+void ExpectSolvesToEachTolerance(AggregationAmg* amg, const Eigen::SparseMatrix<double>& full, const Eigen::MatrixXd& b,
+                                 int loose_iterations, int tight_iterations) {
+  for (const double tolerance : {1e-2, 1e-8}) {
+    Eigen::MatrixXd x;
+    bool converged = false;
+    const int iterations = amg->Solve(b, tolerance, 100, &x, &converged);
+    EXPECT_TRUE(converged) << tolerance;
+    EXPECT_LE(MaxRelativeResidual(full, x, b), tolerance) << tolerance;
+    EXPECT_LE(iterations, tolerance > 1e-3 ? loose_iterations : tight_iterations) << tolerance;
+  }
+}
+
 TEST(AggregationAmg, SolvesAWeightedGridLaplacianToTheTolerance) {
   // 4 decades of weights, as IRLS weights times covariance information.
   const Laplacian l = GridLaplacian(90, 2, 4.0, 1);
@@ -155,16 +169,8 @@ TEST(AggregationAmg, SolvesAWeightedGridLaplacianToTheTolerance) {
   EXPECT_GE(amg.NumLevels(), 3);
   EXPECT_LT(amg.LevelSize(1), l.n / 3);  // aggregates of about four
   EXPECT_LT(amg.OperatorComplexity(), 2.0);
-  const Eigen::MatrixXd b = RandomRhs(l.n, 3, 2);
-  for (const double tolerance : {1e-2, 1e-8}) {
-    Eigen::MatrixXd x;
-    bool converged = false;
-    const int iterations = amg.Solve(b, tolerance, 100, &x, &converged);
-    EXPECT_TRUE(converged) << tolerance;
-    EXPECT_LE(MaxRelativeResidual(l.full, x, b), tolerance) << tolerance;
-    // A multigrid preconditioner: iterations do not grow like sqrt(condition).
-    EXPECT_LE(iterations, tolerance > 1e-3 ? 10 : 40) << tolerance;
-  }
+  // A multigrid preconditioner: iterations do not grow like sqrt(condition).
+  ExpectSolvesToEachTolerance(&amg, l.full, RandomRhs(l.n, 3, 2), 10, 40);
 }
 
 TEST(AggregationAmg, TakesAnyNumberOfColumnsAndZeroColumns) {
@@ -333,14 +339,7 @@ TEST(AggregationAmg, SolvesAMatrixWeightedLaplacianOfAnisotropicBlocks) {
   EXPECT_GE(amg.NumLevels(), 3);
   EXPECT_EQ(amg.LevelSize(0), l.n);  // the surrogate: one node per block row
   const Eigen::MatrixXd b = RandomRhs(3 * l.n, 2, 22);
-  for (const double tolerance : {1e-2, 1e-8}) {
-    Eigen::MatrixXd x;
-    bool converged = false;
-    const int iterations = amg.Solve(b, tolerance, 100, &x, &converged);
-    EXPECT_TRUE(converged) << tolerance;
-    EXPECT_LE(MaxRelativeResidual(l.full, x, b), tolerance) << tolerance;
-    EXPECT_LE(iterations, tolerance > 1e-3 ? 12 : 50) << tolerance;
-  }
+  ExpectSolvesToEachTolerance(&amg, l.full, b, 12, 50);
   // Isotropic blocks (G = w I): as few iterations as the scalar Laplacian.
   const BlockLaplacian iso = GridBlockLaplacian(60, 2, 3.0, 1.0, 21);
   ASSERT_TRUE(amg.SetupBlocks(iso.lower));
