@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <limits>
+
 #include <set>
 #include <thread>
 
@@ -167,6 +169,29 @@ TEST_P(MultigridAgainstFactor, MultigridSolvesReachTheFactorisationPathsMinimum)
   for (const auto& e : between.errors_deg) max_between = std::max(max_between, e.second);
   EXPECT_LT(max_between, 0.01);
   EXPECT_LT(multigrid.eval.median_error_deg, 0.5);
+}
+
+// Information too anisotropic for the scalar surrogate's hierarchy (median
+// lambda_max / lambda_min far above block_multigrid_max_anisotropy) is
+// factorised from the start.
+TEST(RotationAveraging, NearlyDegenerateInformationIsFactorised) {
+  SyntheticGraphOptions go;
+  go.num_views = 1500;
+  go.noise_deg = 1.0;
+  go.noise_spread = 1000.0;  // per-axis standard deviations up to 1e6 apart
+  go.anisotropic = true;
+  go.locality = 3;
+  go.seed = 43;
+  const SyntheticGraph sg = MakeSyntheticGraph(go);
+  RotationAveragingOptions options;
+  options.multigrid_min_views = 1000;
+  const Outcome outcome = SolveAndScore(sg, options);
+  const ComponentSummary& c = outcome.summary.components[0];
+  EXPECT_EQ(c.multigrid_solves, 0);
+  EXPECT_GT(c.factorizations, 0);
+  options.block_multigrid_max_anisotropy = std::numeric_limits<double>::infinity();
+  // Without the gate multigrid is tried (and solves some of the systems).
+  EXPECT_GT(SolveAndScore(sg, options).summary.components[0].multigrid_solves, 0);
 }
 
 INSTANTIATE_TEST_SUITE_P(RotationAveraging, MultigridAgainstFactor, ::testing::Values(false, true),

@@ -11,6 +11,13 @@
 #include "rotation_averaging/geometry/so3.h"
 
 namespace rotation_averaging {
+
+double InformationAnisotropy(const Eigen::Matrix3d& information) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+  eig.computeDirect(information, Eigen::EigenvaluesOnly);
+  const Eigen::Vector3d l = eig.eigenvalues();  // ascending
+  return l(0) > 0.0 ? l(2) / l(0) : std::numeric_limits<double>::infinity();
+}
 namespace {
 
 double Median(std::vector<double> values) {

@@ -29,6 +29,7 @@
 // guards.
 #include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include "rotation_averaging/estimators/block_sparse_system.h"
 #include "rotation_averaging/estimators/component_problem.h"
@@ -83,6 +84,15 @@ void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace)
   }
   ws.system = ws.isotropic ? std::make_unique<BlockSparseSystem>(free_blocks, pairs, 1, 3)
                            : std::make_unique<BlockSparseSystem>(free_blocks, pairs);
+  ws.median_anisotropy = 1.0;
+  if (!ws.isotropic && !problem.edges.empty()) {
+    const std::size_t stride = std::max<std::size_t>(1, problem.edges.size() / 10000);
+    std::vector<double> anisotropy;
+    for (std::size_t k = 0; k < problem.edges.size(); k += stride)
+      anisotropy.push_back(InformationAnisotropy(problem.edges[k].information));
+    std::nth_element(anisotropy.begin(), anisotropy.begin() + anisotropy.size() / 2, anisotropy.end());
+    ws.median_anisotropy = anisotropy[anisotropy.size() / 2];
+  }
   // Slot of each edge's off-diagonal block in its column (-1: touches the gauge).
   ws.offdiagonal_slot.assign(problem.edges.size(), -1);
   for (std::size_t k = 0; k < problem.edges.size(); ++k) {
@@ -251,7 +261,8 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   Eigen::VectorXd previous_update;
   Eigen::MatrixXd delta;
   int iteration = 0;
-  const bool multigrid = options.multigrid_min_views > 0 && num_free >= options.multigrid_min_views;
+  const bool multigrid = options.multigrid_min_views > 0 && num_free >= options.multigrid_min_views &&
+                         (isotropic || ws.median_anisotropy <= options.block_multigrid_max_anisotropy);
   system.SetUseMultigrid(multigrid);
   system.SetPcgTolerance(multigrid ? std::max(options.linear_solve_tolerance, options.multigrid_linear_solve_tolerance)
                                    : options.linear_solve_tolerance);

@@ -74,14 +74,6 @@ double TreeDisagreement(const ComponentProblem& problem, double scale) {
   return static_cast<double>(beyond) / problem.edges.size();
 }
 
-// lambda_max / lambda_min of an information matrix (inf if singular).
-double Anisotropy(const Eigen::Matrix3d& information) {
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
-  eig.computeDirect(information, Eigen::EigenvaluesOnly);
-  const Eigen::Vector3d l = eig.eigenvalues();  // ascending
-  return l(0) > 0.0 ? l(2) / l(0) : std::numeric_limits<double>::infinity();
-}
-
 // Solves a copy of the problem whose edges carry isotropic information
 // s(W) I (a scalar-Laplacian IRLS solve, cheap) and takes its rotations as
 // the new start when the solve ends finite. Returns its iterations.
@@ -226,7 +218,7 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
                                       [](const Eigen::Matrix3d&) { return 1.0; }, &problem, &workspace);
     } else if (!all_warm && !needs_robust_start && options.isotropic_presolve_max_anisotropy > 1.0) {
       double max_anisotropy = 1.0;
-      for (const ComponentEdge& e : problem.edges) max_anisotropy = std::max(max_anisotropy, Anisotropy(e.information));
+      for (const ComponentEdge& e : problem.edges) max_anisotropy = std::max(max_anisotropy, InformationAnisotropy(e.information));
       if (max_anisotropy > 1.0 + 1e-9 && max_anisotropy <= options.isotropic_presolve_max_anisotropy) {
         RotationAveragingOptions iso_options = options;
         iso_options.function_tolerance = options.isotropic_presolve_function_tolerance;

@@ -49,6 +49,9 @@ struct ComponentProblem {
                        const RobustLoss& loss);
 };
 
+// lambda_max / lambda_min of an information matrix (inf if singular).
+double InformationAnisotropy(const Eigen::Matrix3d& information);
+
 // Splits the graph into components of >= 2 views and fills edges with their
 // information per the options. Warnings (e.g. covariance weighting asked for
 // but missing on every edge, which falls back to no weighting) are appended
@@ -74,6 +77,9 @@ struct IrlsWorkspace {
   std::unique_ptr<BlockSparseSystem> system;
   std::vector<int> var;  // local view -> free block (-1 for the gauge)
   bool isotropic = false;  // every edge has W = s I: scalar Laplacian system
+  // Median over the edges of InformationAnisotropy (3x3-block systems; from
+  // at most 10,000 edges evenly spread): see block_multigrid_max_anisotropy.
+  double median_anisotropy = 1.0;
   std::vector<int> offdiagonal_slot;  // per edge: BlockSparseSystem::Locate of its off-diagonal block
   // Isotropic problems (the scalar Laplacian), per edge: s of W = s I, the
   // views it joins, the index of its off-diagonal entry (-1: none); per free

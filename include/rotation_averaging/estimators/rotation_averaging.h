@@ -159,10 +159,19 @@ struct RotationAveragingOptions {
   // graph (100,000-view grid graph: 0.36 s each, against ~0.1 s for
   // multigrid to 1e-2; whole solve 18 -> 7.5 s; 3,000 views 0.43 -> 0.15 s;
   // results/scale.md has both paths side by side). Below ~2,000 views a
-  // factorisation is cheaper (iRotAvg's 1,832: 5.5 against 7.7 ms). Blocks
-  // whose anisotropy defeats the preconditioner (cubicle's information, up to
-  // 1.6e5) are noticed within a few iterations and factorised. 0: never.
+  // factorisation is cheaper (iRotAvg's 1,832: 5.5 against 7.7 ms). A
+  // system multigrid does not solve is noticed within a few iterations and
+  // factorised, and the next ones with it. 0: never.
   int multigrid_min_views = 2000;
+  // 3x3-block systems go to multigrid only when the median over their edges
+  // of lambda_max / lambda_min of the information is at most this. Its
+  // hierarchy is built on the scalar Laplacian of each block's trace / 3,
+  // which bounds the block matrix only within the edges' anisotropy: on the
+  // anisotropic scale graphs (median 94, up to 1e4) it takes 10-20
+  // iterations per solve, on cubicle (median 1.6e5, degenerate covariances
+  // up to 1e9) it does not converge in 400, and each attempt to find that out
+  // cost more than the factorisation (cubicle 0.12 -> 0.14 s).
+  double block_multigrid_max_anisotropy = 1000.0;
   // Systems solved by multigrid take max(linear_solve_tolerance, this): each
   // of its iterations costs a pass over the matrix, where the stale-factor
   // iterations of the factorisation path are nearly free to add. The final
