@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# One command for the whole results report (issue #6): regenerates every
+# One command for the whole results report: regenerates every
 # results/*.md file and the plots in results/plots/, each file naming the
 # command that produced it:
 #   core_benchmark.md  solvers on the real graphs (time, iterations, cost,
@@ -14,7 +14,7 @@
 #   replay.md          bag replay of the demo and castle-P19
 # results/README.md is the written summary of these files.
 #
-#   bash scripts/report.sh            under 30 minutes on 2 cores (17.6 measured; 1,000,000 views alone: 11-18)
+#   bash scripts/report.sh            about 13 minutes on 2 cores (1,000,000 views alone: 3-4, beside the front end)
 #   bash scripts/report.sh --quick    under 3 minutes; small sizes, written to build/report_quick/
 #                                     (CI runs it so the report code never rots)
 # Real data comes from ../shared/data (ROTAVG_DATA_DIR to override); parts that
