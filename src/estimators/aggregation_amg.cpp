@@ -356,9 +356,7 @@ struct AggregationAmg::Impl {
 
   bool BuildFinest(const Eigen::SparseMatrix<double>& lower, bool* pattern_changed);
   bool BuildBlocks(const Eigen::SparseMatrix<double>& lower);
-  // *rebuilt: new aggregates (not only new values).
-  bool BuildHierarchy(const AggregationAmg::Options& options, const Eigen::SparseMatrix<double>& lower, bool reuse,
-                      bool* rebuilt);
+  bool BuildHierarchy(const AggregationAmg::Options& options, const Eigen::SparseMatrix<double>& lower, bool reuse);
   void IndexEntries(int l);
   bool FactorCoarsest(bool analyse);
   bool UpdateNumeric();
@@ -695,9 +693,8 @@ bool AggregationAmg::Impl::UpdateNumeric() {
 }
 
 bool AggregationAmg::Impl::BuildHierarchy(const AggregationAmg::Options& options,
-                                          const Eigen::SparseMatrix<double>& lower, bool reuse, bool* rebuilt) {
+                                          const Eigen::SparseMatrix<double>& lower, bool reuse) {
   bool pattern_changed = false;
-  *rebuilt = true;
   if (levels.empty()) levels.resize(1);
   if (!BuildFinest(lower, &pattern_changed)) {
     pattern_n = -1;
@@ -705,7 +702,6 @@ bool AggregationAmg::Impl::BuildHierarchy(const AggregationAmg::Options& options
   }
   if (reuse && !pattern_changed) {
     UpdateNumeric();
-    *rebuilt = false;
   } else {
     levels.resize(1);
     std::vector<int> first, second;
@@ -751,8 +747,7 @@ bool AggregationAmg::Setup(const Eigen::SparseMatrix<double>& lower, bool reuse_
   const bool reuse = reuse_aggregates && m.structure_valid && !m.block_mode;
   m.structure_valid = false;
   m.block_mode = false;
-  bool rebuilt = false;
-  if (!m.BuildHierarchy(options_, lower, reuse, &rebuilt)) return false;
+  if (!m.BuildHierarchy(options_, lower, reuse)) return false;
   m.structure_valid = true;
   return true;
 }
@@ -794,7 +789,6 @@ bool AggregationAmg::Impl::BuildBlocks(const Eigen::SparseMatrix<double>& lower)
     block.ptr.assign(n + 1, 0);
     block.diagonal_base.resize(n);
     block.diagonal_stride.resize(n);
-    std::vector<Eigen::Triplet<double>> pattern;
     for (int c = 0; c < n; ++c) {
       const int count = outer[3 * c + 1] - outer[3 * c];
       for (int k = 3; k < count; k += 3) {
@@ -896,8 +890,7 @@ bool AggregationAmg::SetupBlocks(const Eigen::SparseMatrix<double>& lower, bool 
   m.block_mode = true;
   if (!m.BuildBlocks(lower)) return false;
   // One level would leave the surrogate's factor as the whole solve.
-  bool rebuilt = false;
-  if (!m.BuildHierarchy(options_, m.surrogate, reuse, &rebuilt) || m.levels.size() < 2) return false;
+  if (!m.BuildHierarchy(options_, m.surrogate, reuse) || m.levels.size() < 2) return false;
   m.structure_valid = true;
   return true;
 }

@@ -78,10 +78,7 @@ struct BlockSparseSystem::Factorization {
   bool analyzed = false;
   bool has_factor = false;      // a numeric factor of an earlier matrix exists
   bool refactor_next = false;   // the last PCG solve struggled: refresh the factor
-  // Preconditioned solves that failed in a row, and how many solves still go
-  // straight to a factorisation because of them (see Solve).
-  int failed_in_a_row = 0;
-  int skip_pcg = 0;
+  BackOff pcg_back_off;  // preconditioned solves through this factor (see Solve)
 
   template <typename Matrix>
   Matrix ApplyInverse(const Matrix& b) {
@@ -176,8 +173,8 @@ BlockSparseSystem::~BlockSparseSystem() = default;
 void BlockSparseSystem::SetPcgTolerance(double tolerance) {
   // A new accuracy (the next stage of a robust solve) gets a fresh chance.
   if (tolerance != pcg_tolerance_) {
-    factorization_->failed_in_a_row = factorization_->skip_pcg = 0;
-    multigrid_failed_in_a_row_ = multigrid_skip_ = 0;
+    factorization_->pcg_back_off.Reset();
+    multigrid_back_off_.Reset();
     multigrid_rebuild_ = true;
   }
   pcg_tolerance_ = tolerance;
@@ -328,9 +325,7 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
   // the next 2^(k-1) solves after k such failures in a row: where the
   // hierarchy does not suit the matrix (cubicle's information, anisotropic
   // up to 1.6e5), each attempt would cost the iterations it takes to give up.
-  const bool try_multigrid = use_multigrid_ && multigrid_skip_ == 0;
-  if (use_multigrid_ && multigrid_skip_ > 0) --multigrid_skip_;
-  if (try_multigrid) {
+  if (use_multigrid_ && multigrid_back_off_.Try()) {
     if (!multigrid_) multigrid_ = std::make_unique<AggregationAmg>();
     for (int pass = 0; pass < 2; ++pass) {
       const bool reuse = pass == 0 && !multigrid_rebuild_;
@@ -348,15 +343,14 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
       }
       if (converged) {
         ++num_multigrid_solves_;
-        multigrid_failed_in_a_row_ = 0;
+        multigrid_back_off_.Succeeded();
         for (int i = 0; i < n; ++i) values[diagonal_positions_[i]] -= applied;
         if (lambda_used) *lambda_used = lambda;
         return true;
       }
       if (!reuse) break;  // a fresh hierarchy did not converge: factorise
     }
-    ++multigrid_failed_in_a_row_;
-    multigrid_skip_ = 1 << std::min(multigrid_failed_in_a_row_ - 1, 16);
+    multigrid_back_off_.Failed();
   }
   // Otherwise first try conjugate gradients preconditioned with the factor
   // of an earlier matrix of the same pattern: IRLS weights change little
@@ -367,10 +361,7 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
   // after k failures in a row, the next 2^(k-1) solves factorise directly
   // (100,000-view scale graph, all by factorisation: 29 failed attempts,
   // ~8 s of a 26 s solve; with the back-off 6 attempts and 18 s).
-  const bool try_pcg = f.has_factor && !f.refactor_next && reuse_factorization_;
-  if (try_pcg && f.skip_pcg > 0) {
-    --f.skip_pcg;
-  } else if (try_pcg) {
+  if (f.has_factor && !f.refactor_next && reuse_factorization_ && f.pcg_back_off.Try()) {
     // All right-hand sides iterate together, each with its own step
     // lengths: one triangular solve with k columns streams the factor once
     // (100,000-row grid Laplacian: 3 columns 44 ms, one column 30 ms), so
@@ -428,15 +419,14 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
     }
     last_pcg_iterations_ = iterations;
     if (!failed && all_converged() && xs.allFinite()) {
-      f.failed_in_a_row = 0;
+      f.pcg_back_off.Succeeded();
       ++num_pcg_solves_;
       f.refactor_next = last_pcg_iterations_ > kRefactorAfterPcgIterations;
       for (int i = 0; i < n; ++i) values[diagonal_positions_[i]] -= applied;
       if (lambda_used) *lambda_used = lambda;
       return true;
     }
-    ++f.failed_in_a_row;
-    f.skip_pcg = 1 << std::min(f.failed_in_a_row - 1, 16);
+    f.pcg_back_off.Failed();
   }
 
   for (int attempt = 0; attempt <= max_retries; ++attempt) {

@@ -178,15 +178,17 @@ std::string ScaleSection(const char* self, const std::vector<int>& sizes, int an
       if (r.multigrid_solves > 0 && n <= 100000) row(n, anisotropic, false);
     }
   }
+  bool first = true;
   for (const bool anisotropic : {false, true}) {
     const Series& s = series[anisotropic];
     if (s.x.size() < 2) continue;
     const std::size_t k = s.x.size();
-    md << (anisotropic ? "" : "\n") << "Growth exponents, " << (anisotropic ? "anisotropic" : "isotropic")
+    md << (first ? "\n" : "") << "Growth exponents, " << (anisotropic ? "anisotropic" : "isotropic")
        << " (least-squares slope of log against log views, multigrid rows): solve time "
        << Fixed(GrowthExponent(s.x, s.t), 2) << ", peak memory " << Fixed(GrowthExponent(s.x, s.m), 2)
        << "; between the two largest sizes: time " << Fixed(std::log(s.t[k - 1] / s.t[k - 2]) / std::log(s.x[k - 1] / s.x[k - 2]), 2)
        << ", memory " << Fixed(std::log(s.m[k - 1] / s.m[k - 2]) / std::log(s.x[k - 1] / s.x[k - 2]), 2) << ".\n";
+    first = false;
   }
   return md.str();
 }

@@ -9,6 +9,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
+#include <algorithm>
 #include <memory>
 #include <utility>
 #include <vector>
@@ -101,6 +102,22 @@ class BlockSparseSystem {
   static constexpr int kMaxBlockMultigridIterations = 100;
 
  private:
+  // Back-off for a cheaper solve that keeps failing (preconditioned CG with
+  // an old factor, multigrid): after k failures in a row the next 2^(k-1)
+  // solves go straight to a factorisation.
+  struct BackOff {
+    int failed_in_a_row = 0;
+    int skip = 0;  // solves still sent straight to the factorisation
+    // Whether to try now; counts a skipped solve otherwise.
+    bool Try() {
+      if (skip == 0) return true;
+      --skip;
+      return false;
+    }
+    void Succeeded() { failed_in_a_row = 0; }
+    void Failed() { skip = 1 << std::min(failed_in_a_row++, 16); }
+    void Reset() { failed_in_a_row = skip = 0; }
+  };
   struct Index;
   int num_blocks_;
   int block_dim_;
@@ -117,8 +134,7 @@ class BlockSparseSystem {
   bool multigrid_rebuild_ = true;  // next multigrid setup: new aggregates
   int multigrid_baseline_iterations_ = 0;  // iterations of the first solve on the current aggregates
   int num_multigrid_solves_ = 0;
-  int multigrid_failed_in_a_row_ = 0;  // solves multigrid did not finish, in a row
-  int multigrid_skip_ = 0;             // solves still sent straight to the factorisation
+  BackOff multigrid_back_off_;
   std::unique_ptr<AggregationAmg> multigrid_;
   struct Factorization;
   std::unique_ptr<Factorization> factorization_;
