@@ -5,25 +5,28 @@
 //                [--sigma-max S] [--normalization std|paper] [--no-gnc] [--max-iterations N]
 //                [--gt PATH [--gt-format ...]] --output orientations.csv
 //   rotavg eval --estimate orientations.csv --gt PATH [--gt-format auto|csv|strecha|colmap|chain] [--json]
-#include <algorithm>
+//   rotavg images ...  runs rotavg_images (beside this program) with the same arguments
+//
+// This program links the core library only (no OpenCV, no ROS), so that it
+// starts in milliseconds; the image front end lives in rotavg_images.
+#include <unistd.h>
+
+#include <cerrno>
 #include <chrono>
 #include <cstdlib>
+#include <cstring>
+#include <filesystem>
 #include <iomanip>
 #include <iostream>
-#include <map>
 #include <string>
 #include <vector>
 
-#include "rotation_averaging/controllers/image_pipeline.h"
-#include "rotation_averaging/estimators/rotation_averaging.h"
-#include "rotation_averaging/eval/rotation_evaluation.h"
-#include "rotation_averaging/io/graph_io.h"
-#include "rotation_averaging/io/orientation_io.h"
+#include "cli.h"
 #include "rotation_averaging/scene/synthetic_graph.h"
 
-namespace ra = rotation_averaging;
-
 namespace {
+
+using namespace rotation_averaging_cli;  // NOLINT: the tool's own helpers
 
 const char* kUsage = R"(usage:
   rotavg solve INPUT --output orientations.csv [options]
@@ -51,111 +54,6 @@ const char* kUsage = R"(usage:
       edge to edge, 20% outlier edges): solves it with the squared loss, the L1-IRLS baseline and
       MAGSAC with covariance weights, and prints the scores of each
 )";
-
-int Fail(const std::string& message) {
-  std::cerr << "rotavg: " << message << "\n";
-  return 2;
-}
-
-// Minimal "--flag value" parser; positional arguments are collected in order.
-struct Args {
-  std::map<std::string, std::string> values;
-  std::vector<std::string> flags, positional;
-  bool Has(const std::string& f) const {
-    return values.count(f) || std::find(flags.begin(), flags.end(), f) != flags.end();
-  }
-  std::string Get(const std::string& f, const std::string& fallback = "") const {
-    auto it = values.find(f);
-    return it == values.end() ? fallback : it->second;
-  }
-};
-
-bool ParseArgs(int argc, char** argv, int first, const std::vector<std::string>& boolean_flags, Args* args,
-               std::string* error) {
-  for (int k = first; k < argc; ++k) {
-    const std::string a = argv[k];
-    if (a.rfind("--", 0) == 0) {
-      if (std::find(boolean_flags.begin(), boolean_flags.end(), a) != boolean_flags.end()) {
-        args->flags.push_back(a);
-      } else if (k + 1 < argc) {
-        args->values[a] = argv[++k];
-      } else {
-        *error = "option " + a + " needs a value";
-        return false;
-      }
-    } else {
-      args->positional.push_back(a);
-    }
-  }
-  return true;
-}
-
-bool CheckKnown(const Args& args, const std::vector<std::string>& known, std::string* error) {
-  for (const auto& [k, v] : args.values) {
-    if (std::find(known.begin(), known.end(), k) == known.end()) {
-      *error = "unknown option " + k;
-      return false;
-    }
-  }
-  return true;
-}
-
-const std::vector<std::string> kAveragingFlags = {"--solver", "--loss", "--weighting", "--sigma-max",
-                                                  "--normalization", "--max-iterations"};
-
-bool ParseAveragingOptions(const Args& args, ra::RotationAveragingOptions* options, std::string* error) {
-  auto fail = [error](const std::string& e) {
-    *error = e;
-    return false;
-  };
-  if (!ra::ParseSolverType(args.Get("--solver", "irls"), &options->solver)) return fail("unknown --solver");
-  if (!ra::ParseLossType(args.Get("--loss", "magsac"), &options->loss)) return fail("unknown --loss");
-  if (!ra::ParseEdgeWeighting(args.Get("--weighting", "covariance"), &options->weighting)) {
-    return fail("unknown --weighting");
-  }
-  if (!ra::ParseCovarianceNormalization(args.Get("--normalization", "std"), &options->covariance_normalization)) {
-    return fail("unknown --normalization (std or paper)");
-  }
-  if (args.Has("--sigma-max")) {
-    options->loss_scale = std::atof(args.Get("--sigma-max").c_str());
-    if (!(options->loss_scale > 0.0)) return fail("--sigma-max must be positive");
-  }
-  if (args.Has("--max-iterations")) {
-    options->max_iterations = std::atoi(args.Get("--max-iterations").c_str());
-    if (options->max_iterations < 0) return fail("--max-iterations must be >= 0");
-  }
-  if (args.Has("--no-gnc")) options->gnc_initial_scale_factor = 1.0;
-  return true;
-}
-
-std::vector<std::string> Concat(std::vector<std::string> a, const std::vector<std::string>& b) {
-  a.insert(a.end(), b.begin(), b.end());
-  return a;
-}
-
-int Evaluate(const ra::NamedOrientations& estimate, const std::string& gt_path, const std::string& gt_format_text,
-             bool json) {
-  ra::GroundTruthFormat gt_format;
-  if (!ra::ParseGroundTruthFormat(gt_format_text, &gt_format)) return Fail("unknown --gt-format " + gt_format_text);
-  ra::NamedOrientations gt;
-  const ra::ReadReport report = ra::ReadGroundTruth(gt_path, gt_format, &gt);
-  if (!report.ok()) return Fail(report.error);
-  const ra::EvaluationResult result = ra::EvaluateOrientations(estimate, gt);
-  std::cout << (json ? result.ToJson() : result.ToText()) << std::endl;
-  return 0;
-}
-
-// --output: write the orientations; --gt: score them. Returns an exit code.
-int WriteAndScore(const Args& args, const ra::NamedOrientations& named) {
-  const std::string output = args.Get("--output");
-  std::string error;
-  if (!output.empty()) {
-    if (!ra::WriteOrientationsCsv(output, named, &error)) return Fail(error);
-    std::cout << "wrote " << named.size() << " orientations to " << output << std::endl;
-  }
-  if (args.Has("--gt")) return Evaluate(named, args.Get("--gt"), args.Get("--gt-format", "auto"), args.Has("--json"));
-  return 0;
-}
 
 int Solve(int argc, char** argv) {
   Args args;
@@ -206,70 +104,6 @@ int EvalCommand(int argc, char** argv) {
   return Evaluate(estimate, args.Get("--gt"), args.Get("--gt-format", "auto"), args.Has("--json"));
 }
 
-int Images(int argc, char** argv) {
-  Args args;
-  std::string error;
-  if (!ParseArgs(argc, argv, 2, {"--no-gnc", "--json", "--verbose"}, &args, &error)) return Fail(error);
-  if (!CheckKnown(args,
-                  Concat({"--images", "--intrinsics", "--downsample", "--features", "--max-features", "--pairs",
-                          "--covariance", "--graph-out", "--output", "--gt", "--gt-format"},
-                         kAveragingFlags),
-                  &error)) {
-    return Fail(error);
-  }
-  if (!args.Has("--images") || !args.Has("--intrinsics")) return Fail("images needs --images DIR and --intrinsics K.txt");
-  ra::ImagePipelineOptions pipeline;
-  if (!ra::ParseFeatureType(args.Get("--features", "sift"), &pipeline.features.type)) return Fail("unknown --features");
-  pipeline.features.downsample = std::atof(args.Get("--downsample", "1").c_str());
-  if (!(pipeline.features.downsample > 0.0 && pipeline.features.downsample <= 1.0)) {
-    return Fail("--downsample must be in (0, 1] (0.25 = a quarter of the width)");
-  }
-  pipeline.features.max_features = std::atoi(args.Get("--max-features", "8000").c_str());
-  if (pipeline.features.max_features < 10) return Fail("--max-features must be >= 10");
-  if (!ra::PairSelection::Parse(args.Get("--pairs", "exhaustive"), &pipeline.pairs, &error)) {
-    return Fail(error.empty() ? "--pairs must be exhaustive, sequential:N or list:FILE" : error);
-  }
-  if (!ra::ParseRotationCovarianceModel(args.Get("--covariance", "marginal"), &pipeline.relative_pose.covariance_model)) {
-    return Fail("--covariance must be marginal or conditional");
-  }
-  ra::RotationAveragingOptions options;
-  if (!ParseAveragingOptions(args, &options, &error)) return Fail(error);
-  const std::string output = args.Get("--output");
-  if (output.empty() && !args.Has("--gt") && !args.Has("--graph-out")) {
-    return Fail("images needs --output, --graph-out or --gt");
-  }
-  ra::CameraIntrinsics k;
-  if (!ra::ReadCameraIntrinsics(args.Get("--intrinsics"), &k, &error)) return Fail(error);
-  const std::vector<std::string> images = ra::ListImages(args.Get("--images"));
-  if (images.size() < 2) return Fail("need at least two images in " + args.Get("--images"));
-
-  const ra::ImagePipelineResult front = ra::BuildViewGraphFromImages(images, k, pipeline);
-  std::cout << front.Report() << "\n";
-  const bool verbose = args.Has("--verbose");
-  std::cout << "per pair (image1 image2: matches, inliers, sigma px, parallax deg, homography inlier share, ms, result):\n";
-  int shown = 0;
-  for (const ra::PairReport& p : front.pairs) {
-    if (!verbose && shown >= 20) break;
-    ++shown;
-    std::cout << "  " << front.graph.FindView(p.image1)->name << " " << front.graph.FindView(p.image2)->name << ": "
-              << p.matches << ", " << p.pose.inliers.size() << ", " << std::setprecision(3) << p.pose.sigma_px << ", "
-              << p.pose.median_parallax_deg << ", " << p.pose.homography_inlier_ratio << ", " << p.milliseconds << ", "
-              << (p.pose.success ? "ok" : std::string(ra::TwoViewFailureName(p.pose.failure)) + " (" + p.pose.message + ")")
-              << "\n";
-  }
-  if (!verbose && front.pairs.size() > 20) std::cout << "  ... " << front.pairs.size() - 20 << " more (--verbose)\n";
-  if (args.Has("--graph-out")) {
-    if (!ra::WriteRotavgGraph(args.Get("--graph-out"), front.graph, &error)) return Fail(error);
-    std::cout << "wrote the view graph to " << args.Get("--graph-out") << "\n";
-  }
-  ra::ViewOrientations orientations;
-  ra::RotationAveragingSummary summary;
-  const bool ok = ra::SolveRotationAveraging(front.graph, options, &orientations, &summary);
-  std::cout << "averaging: " << summary.Report() << std::endl;
-  const int rc = WriteAndScore(args, ra::NameOrientations(front.graph, orientations));
-  return rc != 0 ? rc : (ok ? 0 : 1);
-}
-
 int Demo(int argc, char** argv) {
   Args args;
   std::string error;
@@ -317,6 +151,21 @@ int Demo(int argc, char** argv) {
   return 0;
 }
 
+// Replaces this process by rotavg_images from the same folder, passing the
+// arguments after "images".
+int RunImages(int argc, char** argv) {
+  std::error_code ec;
+  const std::filesystem::path self = std::filesystem::read_symlink("/proc/self/exe", ec);
+  const std::filesystem::path program = (ec ? std::filesystem::path(argv[0]) : self).parent_path() / "rotavg_images";
+  std::vector<char*> args;
+  const std::string program_text = program.string();
+  args.push_back(const_cast<char*>(program_text.c_str()));
+  for (int k = 2; k < argc; ++k) args.push_back(argv[k]);
+  args.push_back(nullptr);
+  execv(program_text.c_str(), args.data());
+  return Fail("cannot run " + program_text + ": " + std::strerror(errno));
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -329,7 +178,7 @@ int main(int argc, char** argv) {
     if (command == "solve") return Solve(argc, argv);
     if (command == "eval") return EvalCommand(argc, argv);
     if (command == "demo") return Demo(argc, argv);
-    if (command == "images") return Images(argc, argv);
+    if (command == "images") return RunImages(argc, argv);
   } catch (const std::exception& e) {
     return Fail(e.what());
   }

@@ -1,0 +1,130 @@
+// Command-line helpers shared by rotavg and rotavg_images: a minimal
+// "--flag value" parser, the averaging options both accept, writing and
+// scoring a solution.
+#ifndef ROTATION_AVERAGING_TOOLS_CLI_H_
+#define ROTATION_AVERAGING_TOOLS_CLI_H_
+
+#include <algorithm>
+#include <cstdlib>
+#include <iostream>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "rotation_averaging/estimators/rotation_averaging.h"
+#include "rotation_averaging/eval/rotation_evaluation.h"
+#include "rotation_averaging/io/graph_io.h"
+#include "rotation_averaging/io/orientation_io.h"
+
+namespace rotation_averaging_cli {
+
+namespace ra = rotation_averaging;
+
+inline int Fail(const std::string& message) {
+  std::cerr << "rotavg: " << message << "\n";
+  return 2;
+}
+
+// Minimal "--flag value" parser; positional arguments are collected in order.
+struct Args {
+  std::map<std::string, std::string> values;
+  std::vector<std::string> flags, positional;
+  bool Has(const std::string& f) const {
+    return values.count(f) || std::find(flags.begin(), flags.end(), f) != flags.end();
+  }
+  std::string Get(const std::string& f, const std::string& fallback = "") const {
+    auto it = values.find(f);
+    return it == values.end() ? fallback : it->second;
+  }
+};
+
+inline bool ParseArgs(int argc, char** argv, int first, const std::vector<std::string>& boolean_flags, Args* args,
+               std::string* error) {
+  for (int k = first; k < argc; ++k) {
+    const std::string a = argv[k];
+    if (a.rfind("--", 0) == 0) {
+      if (std::find(boolean_flags.begin(), boolean_flags.end(), a) != boolean_flags.end()) {
+        args->flags.push_back(a);
+      } else if (k + 1 < argc) {
+        args->values[a] = argv[++k];
+      } else {
+        *error = "option " + a + " needs a value";
+        return false;
+      }
+    } else {
+      args->positional.push_back(a);
+    }
+  }
+  return true;
+}
+
+inline bool CheckKnown(const Args& args, const std::vector<std::string>& known, std::string* error) {
+  for (const auto& [k, v] : args.values) {
+    if (std::find(known.begin(), known.end(), k) == known.end()) {
+      *error = "unknown option " + k;
+      return false;
+    }
+  }
+  return true;
+}
+
+inline const std::vector<std::string> kAveragingFlags = {"--solver", "--loss", "--weighting", "--sigma-max",
+                                                  "--normalization", "--max-iterations"};
+
+inline bool ParseAveragingOptions(const Args& args, ra::RotationAveragingOptions* options, std::string* error) {
+  auto fail = [error](const std::string& e) {
+    *error = e;
+    return false;
+  };
+  if (!ra::ParseSolverType(args.Get("--solver", "irls"), &options->solver)) return fail("unknown --solver");
+  if (!ra::ParseLossType(args.Get("--loss", "magsac"), &options->loss)) return fail("unknown --loss");
+  if (!ra::ParseEdgeWeighting(args.Get("--weighting", "covariance"), &options->weighting)) {
+    return fail("unknown --weighting");
+  }
+  if (!ra::ParseCovarianceNormalization(args.Get("--normalization", "std"), &options->covariance_normalization)) {
+    return fail("unknown --normalization (std or paper)");
+  }
+  if (args.Has("--sigma-max")) {
+    options->loss_scale = std::atof(args.Get("--sigma-max").c_str());
+    if (!(options->loss_scale > 0.0)) return fail("--sigma-max must be positive");
+  }
+  if (args.Has("--max-iterations")) {
+    options->max_iterations = std::atoi(args.Get("--max-iterations").c_str());
+    if (options->max_iterations < 0) return fail("--max-iterations must be >= 0");
+  }
+  if (args.Has("--no-gnc")) options->gnc_initial_scale_factor = 1.0;
+  return true;
+}
+
+inline std::vector<std::string> Concat(std::vector<std::string> a, const std::vector<std::string>& b) {
+  a.insert(a.end(), b.begin(), b.end());
+  return a;
+}
+
+inline int Evaluate(const ra::NamedOrientations& estimate, const std::string& gt_path, const std::string& gt_format_text,
+             bool json) {
+  ra::GroundTruthFormat gt_format;
+  if (!ra::ParseGroundTruthFormat(gt_format_text, &gt_format)) return Fail("unknown --gt-format " + gt_format_text);
+  ra::NamedOrientations gt;
+  const ra::ReadReport report = ra::ReadGroundTruth(gt_path, gt_format, &gt);
+  if (!report.ok()) return Fail(report.error);
+  const ra::EvaluationResult result = ra::EvaluateOrientations(estimate, gt);
+  std::cout << (json ? result.ToJson() : result.ToText()) << std::endl;
+  return 0;
+}
+
+// --output: write the orientations; --gt: score them. Returns an exit code.
+inline int WriteAndScore(const Args& args, const ra::NamedOrientations& named) {
+  const std::string output = args.Get("--output");
+  std::string error;
+  if (!output.empty()) {
+    if (!ra::WriteOrientationsCsv(output, named, &error)) return Fail(error);
+    std::cout << "wrote " << named.size() << " orientations to " << output << std::endl;
+  }
+  if (args.Has("--gt")) return Evaluate(named, args.Get("--gt"), args.Get("--gt-format", "auto"), args.Has("--json"));
+  return 0;
+}
+
+}  // namespace rotation_averaging_cli
+
+#endif  // ROTATION_AVERAGING_TOOLS_CLI_H_

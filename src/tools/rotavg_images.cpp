@@ -1,0 +1,103 @@
+// rotavg_images: `rotavg images`, the image front end then the averaging
+// (features, matching, relative poses with rotation covariances). A program of
+// its own because it needs OpenCV, which `rotavg solve` and `eval` do not load.
+// Run as `rotavg images ARGS` or `rotavg_images ARGS`; `--help` lists them.
+#include <iomanip>
+#include <iostream>
+#include <string>
+#include <vector>
+
+#include "cli.h"
+#include "rotation_averaging/controllers/image_pipeline.h"
+
+namespace {
+
+using namespace rotation_averaging_cli;  // NOLINT: the tool's own helpers
+
+const char* kUsage = R"(usage:
+  rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
+               [--pairs exhaustive|sequential:N|list:FILE] [--covariance marginal|conditional] [--graph-out graph.txt]
+               [--output orientations.csv] [--gt PATH [--gt-format F]] [--verbose] [--json]
+               [the averaging options of rotavg solve: --solver --loss --weighting --sigma-max --normalization
+                --no-gnc --max-iterations]
+      features, matching, relative poses with rotation covariances, then averaging; prints per-stage
+      timings and per-pair statistics; --graph-out writes the view graph for `rotavg solve`
+)";
+
+int Images(int argc, char** argv) {
+  Args args;
+  std::string error;
+  if (!ParseArgs(argc, argv, 1, {"--no-gnc", "--json", "--verbose"}, &args, &error)) return Fail(error);
+  if (!CheckKnown(args,
+                  Concat({"--images", "--intrinsics", "--downsample", "--features", "--max-features", "--pairs",
+                          "--covariance", "--graph-out", "--output", "--gt", "--gt-format"},
+                         kAveragingFlags),
+                  &error)) {
+    return Fail(error);
+  }
+  if (!args.Has("--images") || !args.Has("--intrinsics")) return Fail("images needs --images DIR and --intrinsics K.txt");
+  ra::ImagePipelineOptions pipeline;
+  if (!ra::ParseFeatureType(args.Get("--features", "sift"), &pipeline.features.type)) return Fail("unknown --features");
+  pipeline.features.downsample = std::atof(args.Get("--downsample", "1").c_str());
+  if (!(pipeline.features.downsample > 0.0 && pipeline.features.downsample <= 1.0)) {
+    return Fail("--downsample must be in (0, 1] (0.25 = a quarter of the width)");
+  }
+  pipeline.features.max_features = std::atoi(args.Get("--max-features", "8000").c_str());
+  if (pipeline.features.max_features < 10) return Fail("--max-features must be >= 10");
+  if (!ra::PairSelection::Parse(args.Get("--pairs", "exhaustive"), &pipeline.pairs, &error)) {
+    return Fail(error.empty() ? "--pairs must be exhaustive, sequential:N or list:FILE" : error);
+  }
+  if (!ra::ParseRotationCovarianceModel(args.Get("--covariance", "marginal"), &pipeline.relative_pose.covariance_model)) {
+    return Fail("--covariance must be marginal or conditional");
+  }
+  ra::RotationAveragingOptions options;
+  if (!ParseAveragingOptions(args, &options, &error)) return Fail(error);
+  const std::string output = args.Get("--output");
+  if (output.empty() && !args.Has("--gt") && !args.Has("--graph-out")) {
+    return Fail("images needs --output, --graph-out or --gt");
+  }
+  ra::CameraIntrinsics k;
+  if (!ra::ReadCameraIntrinsics(args.Get("--intrinsics"), &k, &error)) return Fail(error);
+  const std::vector<std::string> images = ra::ListImages(args.Get("--images"));
+  if (images.size() < 2) return Fail("need at least two images in " + args.Get("--images"));
+
+  const ra::ImagePipelineResult front = ra::BuildViewGraphFromImages(images, k, pipeline);
+  std::cout << front.Report() << "\n";
+  const bool verbose = args.Has("--verbose");
+  std::cout << "per pair (image1 image2: matches, inliers, sigma px, parallax deg, homography inlier share, ms, result):\n";
+  int shown = 0;
+  for (const ra::PairReport& p : front.pairs) {
+    if (!verbose && shown >= 20) break;
+    ++shown;
+    std::cout << "  " << front.graph.FindView(p.image1)->name << " " << front.graph.FindView(p.image2)->name << ": "
+              << p.matches << ", " << p.pose.inliers.size() << ", " << std::setprecision(3) << p.pose.sigma_px << ", "
+              << p.pose.median_parallax_deg << ", " << p.pose.homography_inlier_ratio << ", " << p.milliseconds << ", "
+              << (p.pose.success ? "ok" : std::string(ra::TwoViewFailureName(p.pose.failure)) + " (" + p.pose.message + ")")
+              << "\n";
+  }
+  if (!verbose && front.pairs.size() > 20) std::cout << "  ... " << front.pairs.size() - 20 << " more (--verbose)\n";
+  if (args.Has("--graph-out")) {
+    if (!ra::WriteRotavgGraph(args.Get("--graph-out"), front.graph, &error)) return Fail(error);
+    std::cout << "wrote the view graph to " << args.Get("--graph-out") << "\n";
+  }
+  ra::ViewOrientations orientations;
+  ra::RotationAveragingSummary summary;
+  const bool ok = ra::SolveRotationAveraging(front.graph, options, &orientations, &summary);
+  std::cout << "averaging: " << summary.Report() << std::endl;
+  const int rc = WriteAndScore(args, ra::NameOrientations(front.graph, orientations));
+  return rc != 0 ? rc : (ok ? 0 : 1);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
+    std::cout << kUsage;
+    return argc < 2 ? 2 : 0;
+  }
+  try {
+    return Images(argc, argv);
+  } catch (const std::exception& e) {
+    return Fail(e.what());
+  }
+}
