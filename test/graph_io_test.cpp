@@ -8,6 +8,7 @@
 
 #include "rotation_averaging/geometry/so3.h"
 #include "rotation_averaging/io/orientation_io.h"
+#include "rotation_averaging/io/text_lines.h"
 
 namespace rotation_averaging {
 namespace {
@@ -224,6 +225,103 @@ TEST(OrientationIo, ColmapAndStrechaConventions) {
   NamedOrientations strecha;
   ASSERT_TRUE(ReadGroundTruth(dir.Path() + "/s", GroundTruthFormat::kAuto, &strecha).ok());
   EXPECT_LT((strecha.at("0000.jpg") - world_to_camera).norm(), 1e-12);
+}
+
+TEST(OrientationIo, StrechaAsPublishedAndUnreadableFoldersSayWhatWasLookedFor) {
+  TempDir dir;
+  const Eigen::Matrix3d world_to_camera = ExpSO3(Eigen::Vector3d(-0.3, 0.1, 0.7));
+  std::ostringstream cam;
+  cam.precision(17);
+  cam << "1 0 0\n0 1 0\n0 0 1\n0 0 0\n";
+  const Eigen::Matrix3d c2w = world_to_camera.transpose();
+  for (int r = 0; r < 3; ++r) cam << c2w(r, 0) << " " << c2w(r, 1) << " " << c2w(r, 2) << "\n";
+  cam << "1 2 3\n100 100\n";
+  // The published layout: gt_dense_cameras/.
+  fs::create_directories(dir.Path() + "/published/gt_dense_cameras");
+  std::ofstream(dir.Path() + "/published/gt_dense_cameras/0003.png.camera") << cam.str();
+  NamedOrientations published;
+  ASSERT_TRUE(ReadGroundTruth(dir.Path() + "/published", GroundTruthFormat::kAuto, &published).ok());
+  EXPECT_LT((published.at("0003.png") - world_to_camera).norm(), 1e-12);
+  // The camera folder itself.
+  NamedOrientations direct;
+  ASSERT_TRUE(ReadGroundTruth(dir.Path() + "/published/gt_dense_cameras", GroundTruthFormat::kAuto, &direct).ok());
+  EXPECT_EQ(direct.size(), 1u);
+  // A folder with no ground truth in it: the error lists what was looked for.
+  fs::create_directories(dir.Path() + "/empty/images");
+  NamedOrientations none;
+  const ReadReport report = ReadGroundTruth(dir.Path() + "/empty", GroundTruthFormat::kAuto, &none);
+  ASSERT_FALSE(report.ok());
+  EXPECT_NE(report.error.find("gt_dense_cameras"), std::string::npos) << report.error;
+  EXPECT_NE(report.error.find("images.txt"), std::string::npos) << report.error;
+  EXPECT_EQ(report.error.find("EGs.txt: "), std::string::npos) << report.error;
+  const ReadReport strecha = ReadGroundTruth(dir.Path() + "/empty", GroundTruthFormat::kStrecha, &none);
+  ASSERT_FALSE(strecha.ok());
+  EXPECT_NE(strecha.error.find("no .camera files"), std::string::npos) << strecha.error;
+}
+
+TEST(TextLines, NumbersAreParsedStrictly) {
+  double v = 0.0;
+  EXPECT_TRUE(ParseDouble("+1.5", &v));
+  EXPECT_EQ(v, 1.5);
+  EXPECT_TRUE(ParseDouble("-2.5e-3", &v));
+  EXPECT_EQ(v, -2.5e-3);
+  EXPECT_TRUE(ParseDouble("0.1", &v));
+  EXPECT_EQ(v, 0.1);  // correctly rounded, like strtod
+  for (const char* bad : {"", "+", "1.5x", "--1", "+-1", "1e-400", "1e400", "1,5", " 1"}) {
+    EXPECT_FALSE(ParseDouble(bad, &v)) << bad;
+  }
+  std::uint64_t u = 0;
+  EXPECT_TRUE(ParseUint64("18446744073709551615", &u));
+  EXPECT_EQ(u, 18446744073709551615ULL);
+  for (const char* bad : {"-1", "+1", "18446744073709551616", "1.0", ""}) EXPECT_FALSE(ParseUint64(bad, &u)) << bad;
+  int i = 0;
+  EXPECT_TRUE(ParseInt("-42", &i));
+  EXPECT_EQ(i, -42);
+  EXPECT_FALSE(ParseInt("2147483648", &i));
+  std::string text;
+  for (const double x : {0.1, 1.0 / 3.0, -2.5e-300, 6.02214076e23}) {
+    text.clear();
+    AppendDouble(&text, x);
+    ASSERT_TRUE(ParseDouble(text, &v)) << text;
+    EXPECT_EQ(v, x) << text;  // exact round trip
+  }
+}
+
+TEST(TextLines, LinesAcrossBlocksLongLinesCrlfAndNoFinalNewline) {
+  TempDir dir;
+  // Lines of varying length spanning several 1 MiB blocks, one line longer
+  // than a block, CRLF endings, and a last line without a newline.
+  std::string text;
+  std::vector<std::string> expected;
+  for (int k = 0; k < 60000; ++k) {
+    expected.push_back(std::string(k % 97, 'a' + k % 26) + std::to_string(k));
+    text += expected.back() + (k % 3 == 0 ? "\r\n" : "\n");
+    if (k % 3 == 0) expected.back() += '\r';
+    if (k == 30000) {
+      expected.push_back(std::string(3 << 20, 'x'));
+      text += expected.back() + "\n";
+    }
+  }
+  expected.push_back("last");
+  text += "last";
+  const std::string path = dir.Write("lines.txt", text);
+  LineReader reader(path);
+  ASSERT_TRUE(reader.IsOpen());
+  std::string_view line;
+  std::size_t n = 0;
+  while (reader.Next(&line)) {
+    ASSERT_LT(n, expected.size());
+    ASSERT_EQ(line, expected[n]) << "line " << n + 1;
+    ++n;
+  }
+  EXPECT_EQ(n, expected.size());
+  EXPECT_EQ(reader.LineNumber(), static_cast<int>(expected.size()));
+  EXPECT_FALSE(LineReader(dir.Path()).IsOpen());  // a folder is not a file
+  std::vector<std::string_view> tokens;
+  SplitTokens(" a,b\tc  d\r", &tokens, true);
+  EXPECT_EQ(tokens, (std::vector<std::string_view>{"a", "b", "c", "d"}));
+  SplitTokens(" a,b\tc  d\r", &tokens);
+  EXPECT_EQ(tokens, (std::vector<std::string_view>{"a,b", "c", "d"}));
 }
 
 }  // namespace

@@ -53,12 +53,19 @@ ReadReport ReadOrientationsCsv(const std::string& path, NamedOrientations* orien
 
 bool WriteOrientationsCsv(const std::string& path, const NamedOrientations& orientations, std::string* error) {
   return WriteFileAtomically(path, [&orientations](std::ostream& out) -> std::string {
-    out << "name,qw,qx,qy,qz\n" << std::setprecision(17);
+    std::string text = "name,qw,qx,qy,qz\n";
+    text.reserve(80 * (orientations.size() + 1));
     for (const auto& [name, r] : orientations) {
       if (name.find_first_of(",\n\r") != std::string::npos) return "view name '" + name + "' contains a comma or newline";
       const Eigen::Vector4d q = RotationToQuaternion(r);
-      out << name << ',' << q[0] << ',' << q[1] << ',' << q[2] << ',' << q[3] << '\n';
+      text += name;
+      for (int k = 0; k < 4; ++k) {
+        text += ',';
+        AppendDouble(&text, q[k]);
+      }
+      text += '\n';
     }
+    out << text;
     return "";
   }, error);
 }
@@ -72,16 +79,44 @@ NamedOrientations NameOrientations(const ViewGraph& graph, const ViewOrientation
   return named;
 }
 
+namespace {
+
+// Where a Strecha scene keeps its cameras: gt_dense_cameras/ as published,
+// gt_cameras/ as some copies name it, or the folder itself.
+constexpr const char* kStrechaCameraFolders[] = {"gt_dense_cameras", "gt_cameras"};
+
+bool HasCameraFiles(const fs::path& folder) {
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator(folder, ec)) {
+    if (entry.path().extension() == ".camera") return true;
+  }
+  return false;
+}
+
+// The folder holding the .camera files of a Strecha scene, or empty.
+fs::path StrechaCameraFolder(const fs::path& directory) {
+  std::error_code ec;
+  for (const char* name : kStrechaCameraFolders) {
+    if (fs::is_directory(directory / name, ec) && HasCameraFiles(directory / name)) return directory / name;
+  }
+  if (fs::is_directory(directory, ec) && HasCameraFiles(directory)) return directory;
+  return {};
+}
+
+}  // namespace
+
 ReadReport ReadStrechaGroundTruth(const std::string& directory, NamedOrientations* orientations) {
   std::error_code ec;
-  const fs::path folder = fs::path(directory) / "gt_cameras";
-  if (!fs::is_directory(folder, ec)) return {directory + ": no gt_cameras/ folder"};
+  if (!fs::is_directory(directory, ec)) return {directory + ": not a folder (Strecha ground truth is a folder)"};
+  const fs::path folder = StrechaCameraFolder(directory);
+  if (folder.empty()) {
+    return {directory + ": no .camera files in gt_dense_cameras/, gt_cameras/ or the folder itself"};
+  }
   std::vector<fs::path> files;
   for (const auto& entry : fs::directory_iterator(folder, ec)) {
     if (entry.path().extension() == ".camera") files.push_back(entry.path());
   }
   std::sort(files.begin(), files.end());
-  if (files.empty()) return {folder.string() + ": no .camera files"};
   for (const fs::path& file : files) {
     LineReader reader(file.string());
     if (!reader.IsOpen()) return {"cannot open " + file.string()};
@@ -176,10 +211,23 @@ ReadReport ReadGroundTruth(const std::string& path, GroundTruthFormat format, Na
   std::error_code ec;
   if (format == GroundTruthFormat::kAuto) {
     const fs::path p(path);
-    if (fs::is_directory(p / "gt_cameras", ec)) format = GroundTruthFormat::kStrecha;
-    else if (p.filename() == "images.txt" || fs::exists(p / "images.txt", ec)) format = GroundTruthFormat::kColmap;
-    else if (p.extension() == ".csv") format = GroundTruthFormat::kCsv;
-    else format = GroundTruthFormat::kChain;
+    if (fs::is_directory(p, ec)) {
+      if (!StrechaCameraFolder(p).empty()) format = GroundTruthFormat::kStrecha;
+      else if (fs::exists(p / "images.txt", ec)) format = GroundTruthFormat::kColmap;
+      else if (fs::exists(p / "EGs.txt", ec)) format = GroundTruthFormat::kChain;
+      else {
+        return {path + ": a folder without ground truth: looked for *.camera files in gt_dense_cameras/, "
+                       "gt_cameras/ or the folder (Strecha), images.txt (COLMAP) and EGs.txt (a graph to chain)"};
+      }
+    } else if (!fs::exists(p, ec)) {
+      return {"cannot open " + path};
+    } else if (p.filename() == "images.txt") {
+      format = GroundTruthFormat::kColmap;
+    } else if (p.extension() == ".csv") {
+      format = GroundTruthFormat::kCsv;
+    } else {
+      format = GroundTruthFormat::kChain;
+    }
   }
   switch (format) {
     case GroundTruthFormat::kCsv: return ReadOrientationsCsv(path, orientations);

@@ -21,7 +21,8 @@ bool WriteOrientationsCsv(const std::string& path, const NamedOrientations& orie
 // Names solved orientations with the graph's view names.
 NamedOrientations NameOrientations(const ViewGraph& graph, const ViewOrientations& orientations);
 
-// Strecha folder: <dir>/gt_cameras/<image>.camera, lines 5-7 the
+// Strecha folder: <dir>/gt_dense_cameras/<image>.camera as published (or
+// gt_cameras/, or .camera files in <dir> itself), lines 5-7 the
 // camera-to-world R (world-to-camera is R^T); views named by image file name.
 ReadReport ReadStrechaGroundTruth(const std::string& directory, NamedOrientations* orientations);
 // COLMAP text model images.txt (or a folder holding it): "IMAGE_ID QW QX QY QZ
@@ -34,8 +35,10 @@ ReadReport ReadChainedGroundTruth(const std::string& graph_path, GraphFormat for
 
 enum class GroundTruthFormat { kAuto, kCsv, kStrecha, kColmap, kChain };
 bool ParseGroundTruthFormat(const std::string& text, GroundTruthFormat* format);
-// kAuto: a folder with gt_cameras/ is Strecha, images.txt (or a folder with
-// it) is COLMAP, *.csv is CSV, anything else a graph file to chain.
+// kAuto: a folder with .camera files (in gt_dense_cameras/, gt_cameras/ or
+// itself) is Strecha, images.txt (or a folder with it) is COLMAP, *.csv is
+// CSV, EGs.txt (or a folder with it) and any other file a graph to chain. A
+// folder with none of these is an error that says what was looked for.
 ReadReport ReadGroundTruth(const std::string& path, GroundTruthFormat format, NamedOrientations* orientations);
 
 }  // namespace rotation_averaging
