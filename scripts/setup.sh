@@ -16,6 +16,7 @@ PACKAGES=(
   libceres-dev libeigen3-dev libsuitesparse-dev libopencv-dev libgtest-dev
   libyaml-cpp-dev python3-rosbag libvisualization-msgs-dev
   clang libclang-rt-14-dev  # libFuzzer targets (scripts/fuzz.sh); the fuzzer runtime is only a Recommends of clang
+  pybind11-dev python3-numpy python3-pytest  # Python bindings and their tests
   libopenblas0-pthread  # BLAS for CHOLMOD's supernodal solves, thread-safe (see CMakeLists.txt)
 )
 missing=()
