@@ -10,12 +10,16 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <random>
 #include <sstream>
 
 #include "rotation_averaging/RelativePose.h"
+#include <opencv2/imgcodecs.hpp>
+
 #include "rotation_averaging/geometry/so3.h"
 #include "rotation_averaging/io/orientation_io.h"
 #include "rotation_averaging/ros/demo_bag.h"
@@ -275,6 +279,51 @@ TEST_F(BagReplay, ArrayLengthAskingForTerabytesIsDropped) {
   for (const std::string& w : r.warnings) warned = warned || w.find("does not deserialise") != std::string::npos;
   EXPECT_TRUE(warned);
 #endif
+}
+
+// rotation_averaging_images_to_bag names its outputs as outputs and refuses
+// to write over any of its inputs.
+TEST(ImagesToBag, NeverOverwritesAnInput) {
+  const std::string dir = TempDir() + "/images_to_bag";
+  std::filesystem::create_directories(dir + "/images");
+  cv::Mat image(48, 64, CV_8UC1);
+  cv::randu(image, 0, 255);
+  ASSERT_TRUE(cv::imwrite(dir + "/images/a.png", image));
+  ASSERT_TRUE(cv::imwrite(dir + "/images/b.png", image));
+  WriteText(dir + "/K.txt", "50 0 32\n0 50 24\n0 0 1\n");
+  NamedOrientations truth;
+  truth["a.png"] = Eigen::Matrix3d::Identity();
+  truth["b.png"] = ExpSO3(Eigen::Vector3d(0.0, 0.1, 0.0));
+  std::string error;
+  ASSERT_TRUE(WriteOrientationsCsv(dir + "/gt.csv", truth, &error)) << error;
+  const std::string gt_before = ReadAll(dir + "/gt.csv");
+  const auto run = [&](const std::string& extra) {
+    const std::string command = std::string(ROTAVG_IMAGES_TO_BAG) + " --images " + dir + "/images --intrinsics " + dir +
+                                "/K.txt --gt " + dir + "/gt.csv " + extra + " > " + dir + "/log.txt 2>&1";
+    const int status = std::system(command.c_str());
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  };
+  // The CSV to write given as the ground truth read: refused, input intact.
+  EXPECT_NE(run("--output " + dir + "/out.bag --write-gt-csv " + dir + "/gt.csv"), 0);
+  EXPECT_NE(ReadAll(dir + "/log.txt").find("refusing to overwrite an input"), std::string::npos)
+      << ReadAll(dir + "/log.txt");
+  EXPECT_EQ(ReadAll(dir + "/gt.csv"), gt_before);
+  // Through another spelling of the same path, and the bag over an image.
+  EXPECT_NE(run("--output " + dir + "/out.bag --write-gt-csv " + dir + "/images/../gt.csv"), 0);
+  EXPECT_EQ(ReadAll(dir + "/gt.csv"), gt_before);
+  const std::string png_before = ReadAll(dir + "/images/a.png");
+  EXPECT_NE(run("--output " + dir + "/images/a.png"), 0);
+  EXPECT_EQ(ReadAll(dir + "/images/a.png"), png_before);
+  // The old ambiguous flag is refused with the two names to use.
+  EXPECT_NE(run("--output " + dir + "/out.bag --gt-csv " + dir + "/gt.csv"), 0);
+  EXPECT_NE(ReadAll(dir + "/log.txt").find("--write-gt-csv"), std::string::npos);
+  EXPECT_EQ(ReadAll(dir + "/gt.csv"), gt_before);
+  // Distinct outputs: the bag and a CSV keyed by keyframe name.
+  ASSERT_EQ(run("--output " + dir + "/out.bag --write-gt-csv " + dir + "/keyframes.csv"), 0) << ReadAll(dir + "/log.txt");
+  NamedOrientations written;
+  ASSERT_TRUE(ReadOrientationsCsv(dir + "/keyframes.csv", &written).ok());
+  EXPECT_EQ(written.size(), 2u);
+  EXPECT_EQ(ReadAll(dir + "/gt.csv"), gt_before);
 }
 
 }  // namespace

@@ -4,13 +4,16 @@
 //
 //   rotation_averaging_images_to_bag --images DIR --intrinsics K.txt|cameras.txt --output out.bag
 //       [--gt Strecha-folder|images.txt|orientations.csv] [--downsample 0.25] [--rate 1.0]
-//       [--frame-id camera] [--compressed] [--gt-csv ground_truth.csv]
+//       [--frame-id camera] [--compressed] [--write-gt-csv ground_truth.csv]
 //
 // Images are written in file-name order, 1/rate seconds apart, as mono8
 // <frame-id>/image_raw (or PNG <frame-id>/image_raw/compressed) with
 // <frame-id>/camera_info; radial distortion (COLMAP SIMPLE_RADIAL/RADIAL) is
 // removed from the images, so camera_info carries no distortion. Ground truth
-// goes on /ground_truth/orientations, keyed by the keyframes' frame id and stamp.
+// goes on /ground_truth/orientations, keyed by the keyframes' frame id and stamp,
+// and with --write-gt-csv also to a CSV keyed by keyframe name (for
+// rotation_averaging_replay --gt). No output may be one of the inputs: the
+// program refuses to start rather than overwrite one.
 #include <rosbag/bag.h>
 #include <rosbag/exceptions.h>
 #include <sensor_msgs/CameraInfo.h>
@@ -18,11 +21,14 @@
 #include <sensor_msgs/Image.h>
 
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/controllers/image_pipeline.h"
@@ -39,8 +45,19 @@ int Usage(const std::string& why) {
   if (!why.empty()) std::cerr << "rotation_averaging_images_to_bag: " << why << "\n";
   std::cerr << "usage: rotation_averaging_images_to_bag --images DIR --intrinsics K.txt|cameras.txt --output out.bag\n"
                "           [--gt Strecha-folder|images.txt|orientations.csv] [--downsample 0.25] [--rate 1.0]\n"
-               "           [--frame-id camera] [--compressed] [--gt-csv ground_truth.csv]\n";
+               "           [--frame-id camera] [--compressed] [--write-gt-csv ground_truth.csv]\n";
   return 2;
+}
+
+// True if both name the same file (an existing one, through links), or the
+// same path once made absolute.
+bool SameFile(const std::string& a, const std::string& b) {
+  std::error_code ec;
+  if (std::filesystem::exists(a, ec) && std::filesystem::exists(b, ec)) {
+    const bool same = std::filesystem::equivalent(a, b, ec);
+    if (!ec) return same;
+  }
+  return std::filesystem::weakly_canonical(a, ec) == std::filesystem::weakly_canonical(b, ec);
 }
 
 std::string BaseName(const std::string& path) {
@@ -65,8 +82,10 @@ int main(int argc, char** argv) {
       output = argv[++k];
     } else if (a == "--gt" && has_value) {
       gt_path = argv[++k];
-    } else if (a == "--gt-csv" && has_value) {
+    } else if (a == "--write-gt-csv" && has_value) {
       gt_csv = argv[++k];
+    } else if (a == "--gt-csv") {
+      return Usage("--gt-csv is ambiguous: the ground truth to read is --gt, the CSV to write is --write-gt-csv");
     } else if (a == "--frame-id" && has_value) {
       frame_id = argv[++k];
     } else if (a == "--downsample" && has_value) {
@@ -84,13 +103,25 @@ int main(int argc, char** argv) {
   if (!(rate > 0.0)) return Usage("--rate must be positive");
   if (frame_id.empty()) return Usage("--frame-id must not be empty");
 
+  if (!gt_csv.empty() && SameFile(gt_csv, output)) return Usage("--output and --write-gt-csv name the same file");
+  const std::vector<std::string> images = ra::ListImages(images_dir);
+  std::vector<std::pair<std::string, std::string>> inputs = {{"--intrinsics", intrinsics_path}};
+  if (!gt_path.empty()) inputs.emplace_back("--gt", gt_path);
+  for (const std::string& image : images) inputs.emplace_back("an image of --images", image);
+  for (const auto& [what, input] : inputs) {
+    for (const auto& [flag, out] : {std::make_pair("--output", output), std::make_pair("--write-gt-csv", gt_csv)}) {
+      if (!out.empty() && SameFile(out, input)) {
+        return Usage(std::string(flag) + " " + out + " is " + what + " (" + input + "): refusing to overwrite an input");
+      }
+    }
+  }
+
   ra::CameraIntrinsics intrinsics;
   std::string error;
   if (!ra::ReadCameraIntrinsics(intrinsics_path, &intrinsics, &error)) {
     std::cerr << "rotation_averaging_images_to_bag: " << error << "\n";
     return 1;
   }
-  const std::vector<std::string> images = ra::ListImages(images_dir);
   if (images.empty()) {
     std::cerr << "rotation_averaging_images_to_bag: no images in " << images_dir << "\n";
     return 1;
