@@ -44,7 +44,7 @@ const std::vector<ra::EdgeWeighting>& kWeightings = ra::PaperTableWeightings();
 
 struct Scene {
   std::string name, images, intrinsics, ground_truth;
-  double colmap_median_deg;  // COLMAP 3.8 incremental SfM + BA, full resolution (issue #3); < 0 if none
+  double colmap_median_deg;  // COLMAP 3.8 incremental SfM + BA, full resolution (reference figure); < 0 if none
 };
 
 
@@ -263,7 +263,7 @@ int main(int argc, char** argv) {
         accuracy << " |\n";
       }
       if (scene.colmap_median_deg > 0 && scale_text == "1") {
-        accuracy << "| COLMAP 3.8 incremental SfM + BA (reference from issue #3) | " << scene.colmap_median_deg
+        accuracy << "| COLMAP 3.8 incremental SfM + BA (reference figure, full resolution) | " << scene.colmap_median_deg
                  << " | | | | |\n";
       }
       // The paper's figure: cumulative error distributions of a few methods.
