@@ -21,11 +21,11 @@ namespace rotation_averaging {
 namespace {
 
 // CHOLMOD is built with OpenMP and opens parallel regions inside its
-// supernodal factorisation. On this 2-core machine waking those threads cost
-// ~20% of the solve (cubicle 0.16 -> 0.12-0.15 s, sphere2500 0.08 -> 0.06 s
-// measured with one thread); our solver is single-threaded by design, so the
-// calling thread's OpenMP settings are changed around CHOLMOD calls and
-// restored afterwards (they are per thread: nothing else changes).
+// supernodal factorisation. For systems of the size of the shared pose graphs,
+// waking those threads costs more than they save; our solver is
+// single-threaded by design, so the calling thread's OpenMP settings are
+// changed around CHOLMOD calls and restored afterwards (they are per thread:
+// nothing else changes).
 class SingleThreadedOpenMp {
  public:
 #ifdef _OPENMP

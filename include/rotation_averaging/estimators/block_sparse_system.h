@@ -88,9 +88,9 @@ class BlockSparseSystem {
   int LastPcgIterations() const { return last_pcg_iterations_; }
 
   static constexpr int kScalarCholmodMinBlocks = 5000;  // scalar systems larger than this use CHOLMOD
-  // Scalar systems with more blocks than this are ordered with METIS (grid-like
-  // graphs: 10,000 views 1.9 -> 1.6 s); 3x3-block systems keep CHOLMOD's default
-  // ordering (METIS made cubicle, 17,250 rows, 0.10 -> 0.14 s).
+  // Scalar systems with more blocks than this are ordered with METIS (less fill
+  // on grid-like graphs); 3x3-block systems keep CHOLMOD's default ordering
+  // (METIS made cubicle's slower).
   static constexpr int kMetisMinRows = 15000;
   static constexpr int kMaxPcgIterations = 8;
   static constexpr int kRefactorAfterPcgIterations = 4;

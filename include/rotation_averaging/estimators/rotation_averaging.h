@@ -82,11 +82,9 @@ struct RotationAveragingOptions {
   // directly from the tree, which a single outlier in the tree can defeat.
   // The L1 fit minimises sum |r_ij| (unweighted, rotation-invariant norm) by
   // IRLS with a smoothed L1 loss (Soft L1 at l1_init_smoothing_rad) on the
-  // scalar-Laplacian system: measured on the synthetic benchmark it leaves
-  // fewer views off than Chatterjee-Govindu's coordinate-wise L1 by ADMM
-  // (35% outliers: 72 vs 362 views off without weights, 40 vs 107 with
-  // covariances) at a fraction of the time (Madrid: 13 iterations, ~60 ms,
-  // against 275 ADMM iterations, ~230 ms). The ADMM stage stays in the
+  // scalar-Laplacian system, which leaves fewer views off than
+  // Chatterjee-Govindu's coordinate-wise L1 by ADMM, in less time
+  // (results/core_benchmark.md, robustness); the ADMM stage stays in the
   // paper's L1-IRLS baseline.
   bool l1_initialization = true;
   // The L1 start and GNC run only when more than this fraction of edges
@@ -99,11 +97,10 @@ struct RotationAveragingOptions {
   // this fraction of the views is warm, the start is kept as it is: no L1
   // start or GNC over the graph. 1 (default) = only when every view is warm,
   // so a solve after new keyframes still runs the robust start when the start
-  // disagrees with the edges. 0.99 re-solves a growing 10,000-keyframe graph
-  // about 6x faster, but keyframes an outlier edge placed wrongly before their
-  // later edges arrived stay wrong, and the error spreads (results/online.md:
-  // after 100 additions 4,983 of 10,100 keyframes more than 5 deg off, against
-  // 142 with the default).
+  // disagrees with the edges. 0.99 re-solves a growing graph several times
+  // faster, but keyframes an outlier edge placed wrongly before their later
+  // edges arrived stay wrong, and the error spreads (results/online.md, the
+  // warm_start_min_fraction row: thousands of keyframes more than 5 deg off).
   double warm_start_min_fraction = 1.0;
   int l1_init_max_iterations = 20;       // IRLS iterations of the L1 start
   double l1_init_smoothing_rad = 0.01;   // Soft L1 scale: quadratic below ~0.6 deg
@@ -112,10 +109,10 @@ struct RotationAveragingOptions {
   // anisotropic information is first solved with each W replaced by
   // (trace W / 3) I: a scalar-Laplacian IRLS solve, a fraction of the cost of
   // the 3x3 block system, which lands close enough that the exact solve then
-  // needs one factorisation instead of four (sphere2500: 0.051 -> 0.035 s,
-  // same minimum to 1e-5 deg). Only when every edge's lambda_max/lambda_min
-  // is at most this: on cubicle (ratios up to 1.6e5) the isotropic optimum is
-  // too far off and the pre-solve cost more than it saved. <= 1 disables it.
+  // needs fewer factorisations (same minimum). Only when every edge's
+  // lambda_max/lambda_min is at most this: with nearly degenerate
+  // covariances (cubicle's) the isotropic optimum is too far off and the
+  // pre-solve costs more than it saves. <= 1 disables it.
   double isotropic_presolve_max_anisotropy = 10.0;
   double isotropic_presolve_function_tolerance = 1e-4;
   // Graduated non-convexity for redescending losses (MAGSAC, Tukey,
@@ -130,22 +127,21 @@ struct RotationAveragingOptions {
   // (estimated scale sigma_hat = sqrt(median / 2.366) above this), re-solve
   // with the loss scale multiplied by sigma_hat. 2.366 is the median of
   // chi2(3), so the estimate is robust to up to half the edges being
-  // outliers. Real two-view covariances are optimistic by 3-25x (results/frontend.md).
+  // outliers. Real two-view covariances are optimistic (results/frontend.md, calibration).
   // <= 0 disables.
   double auto_scale_threshold = 1.5;
   int max_iterations = 100;            // per component (IRLS iterations or Ceres iterations)
   double step_tolerance_rad = 1e-6;    // stop when every update is smaller than this (1e-6 rad = 0.00006 deg)
-  double function_tolerance = 1e-8;    // relative cost decrease at which to stop (1e-10 changed Madrid by < 0.0001 deg)
+  double function_tolerance = 1e-8;    // relative cost decrease at which to stop
   // IRLS linear systems are first solved by conjugate gradients
   // preconditioned with the factor of an earlier iteration, to this relative
   // residual |H x - b| / |b|; a system that will not get there within a few
   // iterations is factorised anew.
   double linear_solve_tolerance = 1e-5;
   // The steps of the robust start (L1, GNC stages) only have to head into
-  // the right basin (Madrid: 19 -> 13 factorisations, same minimum). Looser
-  // L1 steps (0.3) saved another 12 of 31 factorisations on the
-  // 100,000-view scale graph but left the 10,100-keyframe chain of
-  // results/online.md with 581 instead of 469 keyframes > 5 deg off.
+  // the right basin, so their systems are solved loosely (same minimum).
+  // Looser still saves factorisations but leaves more views in wrong basins
+  // on the keyframe chain of results/online.md.
   double robust_start_linear_solve_tolerance = 1e-2;
   // IRLS systems of at least this many views are solved by conjugate
   // gradients preconditioned with aggregation multigrid (AggregationAmg),
@@ -155,42 +151,37 @@ struct RotationAveragingOptions {
   // no or scalar weighting) and the 3x3-block systems of full covariances
   // alike. The robust start's weights change too much between iterations
   // for an earlier factor to precondition the next matrix, so there every
-  // step was a fresh factorisation with a fill that grows faster than the
-  // graph (100,000-view grid graph: 0.36 s each, against ~0.1 s for
-  // multigrid to 1e-2; whole solve 18 -> 7.5 s; 3,000 views 0.43 -> 0.15 s;
-  // results/scale.md has both paths side by side). Below ~2,000 views a
-  // factorisation is cheaper (iRotAvg's 1,832: 5.5 against 7.7 ms). A
-  // system multigrid does not solve is noticed within a few iterations and
-  // factorised, and the next ones with it. 0: never.
+  // step would be a fresh factorisation whose fill grows faster than the
+  // graph (results/scale.md has both paths side by side). Below about 2,000
+  // views a factorisation is cheaper. A system multigrid does not solve is
+  // noticed within a few iterations and factorised, and the next ones with
+  // it. 0: never.
   int multigrid_min_views = 2000;
   // 3x3-block systems go to multigrid only when the median over their edges
   // of lambda_max / lambda_min of the information is at most this. Its
   // hierarchy is built on the scalar Laplacian of each block's trace / 3,
   // which bounds the block matrix only within the edges' anisotropy: on the
-  // anisotropic scale graphs (median 94, up to 1e4) it takes 10-20
-  // iterations per solve, on cubicle (median 1.6e5, degenerate covariances
-  // up to 1e9) it does not converge in 400, and each attempt to find that out
-  // cost more than the factorisation (cubicle 0.12 -> 0.14 s).
+  // anisotropic graphs of results/scale.md (median ratio about 100) it
+  // converges in tens of iterations; on nearly degenerate covariances
+  // (cubicle's median is 1.6e5) it does not, and finding that out costs more
+  // than the factorisation.
   double block_multigrid_max_anisotropy = 1000.0;
   // Systems solved by multigrid take max(linear_solve_tolerance, this): each
   // of its iterations costs a pass over the matrix, where the stale-factor
-  // iterations of the factorisation path are nearly free to add. The final
-  // stage at 1e-4 instead of 1e-5 on the 100,000-view scale graph: 2.2 ->
-  // 1.5 s, same final cost, median error and views off (1e-3: 1.4 s).
+  // iterations of the factorisation path are nearly free to add. At 1e-4 the
+  // scale graphs end with the final cost, median error and views off of 1e-5.
   double multigrid_linear_solve_tolerance = 1e-4;
   int num_threads = 1;                 // Ceres threads; the IRLS solver is single-threaded
   // Posterior covariances of the views (RotationAveragingSummary::
   // view_covariances) for components of at most this many views (0: never).
-  // Selected inversion of one sparse factorisation: measured +0.02 s on
-  // torus3D (5,000 views), +0.12 s on sphere2500, +0.03 s on parking-garage;
-  // graphs whose factor is nearly dense (random graphs of 1,000 views: +2.5 s)
-  // are skipped beyond a fixed work budget, with a warning. Off by default
+  // Selected inversion of one sparse factorisation, a fraction of the solve
+  // on sparse pose graphs; graphs whose factor is nearly dense are skipped
+  // beyond a fixed work budget, with a warning. Off by default
   // in the library (an extra output, not part of the solve); the node turns
   // it on (covariance_max_keyframes).
   int posterior_covariance_max_views = 0;
   // IRLS: jump along a geometrically shrinking step sequence (kept only when
-  // it lowers the cost). Madrid: 48 -> 37 iterations, and 4x closer to the
-  // fully converged minimum.
+  // it lowers the cost): fewer iterations, to a point closer to the minimum.
   bool irls_extrapolation = true;
   // L1-IRLS baseline (Theia's RobustRotationEstimator defaults).
   int l1_max_iterations = 5;              // outer L1 relinearisations
