@@ -1,3 +1,4 @@
+// Stable interface of rotation_averaging::frontend (README.md, "Embedding the averager").
 // From images to a view graph with rotation covariances: features, pair
 // selection, matching, relative pose with covariance per pair.
 #ifndef ROTATION_AVERAGING_CONTROLLERS_IMAGE_PIPELINE_H_

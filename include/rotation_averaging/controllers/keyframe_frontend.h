@@ -1,3 +1,4 @@
+// Internal to the package: may change between versions.
 // Keyframe front end for the live node, free of ROS: each keyframe image is
 // described once and related to
 //  * the previous keyframe of the same camera (sequential edge),

@@ -1,3 +1,4 @@
+// Stable interface of rotation_averaging::core (README.md, "Embedding the averager").
 // Online rotation averaging for a live mapping stack, free of ROS: keyframes
 // identified by (camera frame id, capture stamp) come in with relative
 // rotations between them; a worker thread periodically re-solves the graph

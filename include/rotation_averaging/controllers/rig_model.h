@@ -1,3 +1,4 @@
+// Internal to the package: may change between versions.
 // Multi-camera rigs with known extrinsic rotations: rotation averaging then
 // solves one orientation per rig capture, and each camera's orientation is
 // derived from it. Free of ROS (the node and the replay tool feed it static

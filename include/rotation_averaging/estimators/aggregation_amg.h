@@ -1,3 +1,4 @@
+// Internal to the package: may change between versions.
 // Aggregation-based algebraic multigrid (AMG) as a preconditioner of
 // conjugate gradients, for the large systems of the IRLS solver: weighted
 // graph Laplacians with the gauge view's row and column removed (symmetric

@@ -1,3 +1,4 @@
+// Internal to the package: may change between versions.
 // Symmetric block-sparse normal equations H X = B with 3x3 blocks (or 1x1:
 // a scalar, Laplacian-like system with several right-hand sides), one block
 // row per free view. The sparsity pattern is fixed at construction, so the

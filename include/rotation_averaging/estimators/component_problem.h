@@ -1,3 +1,4 @@
+// Internal to the package: may change between versions.
 // One connected component of the view graph in solver form: dense view
 // indices, edges with their information matrices, the current estimate.
 // Shared by every solver; built by BuildComponentProblems().

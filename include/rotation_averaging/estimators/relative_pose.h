@@ -1,3 +1,4 @@
+// Stable interface of rotation_averaging::frontend (README.md, "Embedding the averager").
 // Two-view relative pose with the covariance of its rotation.
 //
 // Convention (camera 1 = view i, camera 2 = view j of an edge): the estimate

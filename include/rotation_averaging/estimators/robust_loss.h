@@ -1,3 +1,4 @@
+// Stable interface of rotation_averaging::core (README.md, "Embedding the averager").
 // Robust losses rho(s) of the squared residual norm s = |r|^2, with the Ceres
 // convention: an edge contributes rho(s) / 2 to the cost, rho(0) = 0 and
 // rho'(0) = 1 so that every loss behaves like least squares near zero.

@@ -1,3 +1,4 @@
+// Stable interface of rotation_averaging::core (README.md, "Embedding the averager").
 // Robust, uncertainty-aware rotation averaging (Zhang, Larsson, Barath,
 // "Revisiting Rotation Averaging: Uncertainties and Robust Losses", CVPR 2023).
 //

@@ -1,3 +1,4 @@
+// Internal to the package: may change between versions.
 // PNG figure of orientation errors, drawn with OpenCV (no plotting library
 // needed): left, the error of each keyframe against its capture time, one
 // colour per series (camera); right, the cumulative distribution of the

@@ -1,3 +1,4 @@
+// Stable interface of rotation_averaging::core (README.md, "Embedding the averager").
 // Scoring an orientation estimate against ground truth.
 //
 // Both are world-to-camera rotations keyed by view name. The estimate lives in

@@ -1,3 +1,4 @@
+// Stable interface of rotation_averaging::frontend (README.md, "Embedding the averager").
 // Local features and matching for the two-view front end (OpenCV).
 #ifndef ROTATION_AVERAGING_FEATURES_FEATURES_H_
 #define ROTATION_AVERAGING_FEATURES_FEATURES_H_

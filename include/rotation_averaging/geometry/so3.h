@@ -1,3 +1,4 @@
+// Stable interface of rotation_averaging::core (README.md, "Embedding the averager").
 // SO(3) helpers: the one place where rotation conventions are defined.
 //
 // Conventions used throughout rotation_averaging (convert at file and message

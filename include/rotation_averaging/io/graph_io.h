@@ -1,3 +1,4 @@
+// Stable interface of rotation_averaging::core (README.md, "Embedding the averager").
 // Readers for view graphs and pose graphs. Each converts to the conventions
 // of geometry/so3.h at the boundary: edges R_ij = R_i R_j^T (world-to-camera),
 // covariances of a right perturbation in rad^2.

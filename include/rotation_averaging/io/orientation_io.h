@@ -1,3 +1,4 @@
+// Stable interface of rotation_averaging::core (README.md, "Embedding the averager").
 // Orientation files and ground truth. Everything is converted to
 // world-to-camera rotations keyed by view name at this boundary.
 #ifndef ROTATION_AVERAGING_IO_ORIENTATION_IO_H_

@@ -1,3 +1,4 @@
+// Internal to the package: may change between versions.
 // Line-oriented parsing helpers shared by the text readers: strict number
 // parsing (the whole token must be a number) and "file:line: message" errors.
 // Lines and tokens are views into the reader's buffer: no allocation per line

@@ -1,3 +1,4 @@
+// Internal to the package: may change between versions.
 // Offline replay of recorded bags through the node's pipeline
 // (KeyframePipeline: the same validation, front end and averager), as fast
 // as the CPU allows, deterministic run after run. Solves happen at the bag

@@ -1,3 +1,4 @@
+// Internal to the package: may change between versions.
 // Writes a rendered rig scene (scene/rig_scene.h) as a bag: per camera
 // /<cam>/image_raw (mono8, or /<cam>/image_raw/compressed PNG) and
 // /<cam>/camera_info at every capture, the extrinsics base_link -> cam_* on

@@ -1,3 +1,4 @@
+// Internal to the package: may change between versions.
 // What the live node and the bag replay tool share: reading the parameters,
 // turning messages into validated keyframes and relative rotations, running
 // the keyframe front end into the averager, and building the output messages.

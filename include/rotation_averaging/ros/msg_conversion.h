@@ -1,3 +1,4 @@
+// Internal to the package: may change between versions.
 // The one conversion per message type between ROS messages and the core
 // library (the only place that knows both). See msg/*.msg for conventions.
 #ifndef ROTATION_AVERAGING_ROS_MSG_CONVERSION_H_

@@ -1,3 +1,4 @@
+// Internal to the package: may change between versions.
 // A synthetic multi-camera rig moving through a textured room, rendered by
 // ray casting: the project's own demo and test data with exact ground truth.
 //

@@ -1,3 +1,4 @@
+// Stable interface of rotation_averaging::core (README.md, "Embedding the averager").
 // Synthetic view graphs with known ground truth, for tests and benchmarks.
 #ifndef ROTATION_AVERAGING_SCENE_SYNTHETIC_GRAPH_H_
 #define ROTATION_AVERAGING_SCENE_SYNTHETIC_GRAPH_H_

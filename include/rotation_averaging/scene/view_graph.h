@@ -1,3 +1,4 @@
+// Stable interface of rotation_averaging::core (README.md, "Embedding the averager").
 // View graph: views (keyed by a 64-bit id) and relative-rotation edges.
 //
 // Conventions are those of geometry/so3.h: an edge (i, j) stores
