@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <iomanip>
+#include <iterator>
 #include <sstream>
 
 #include "rotation_averaging/estimators/component_problem.h"
@@ -27,6 +28,8 @@ bool ParseByName(const std::string& text, const Enum (&all)[N], const char* (*na
 
 constexpr EdgeWeighting kAllWeightings[] = {EdgeWeighting::kNone, EdgeWeighting::kInliers, EdgeWeighting::kTrace,
                                             EdgeWeighting::kFrobenius, EdgeWeighting::kCovariance};
+constexpr SpanningTreeWeight kAllTreeWeights[] = {SpanningTreeWeight::kAuto, SpanningTreeWeight::kUniform,
+                                                 SpanningTreeWeight::kInliers, SpanningTreeWeight::kInformation};
 constexpr SolverType kAllSolvers[] = {SolverType::kIrls, SolverType::kCeres, SolverType::kL1Irls};
 constexpr CovarianceNormalization kAllNormalizations[] = {CovarianceNormalization::kStandardDeviations,
                                                           CovarianceNormalization::kPaper};
@@ -123,6 +126,22 @@ const char* CovarianceNormalizationName(CovarianceNormalization n) {
 }
 bool ParseCovarianceNormalization(const std::string& text, CovarianceNormalization* n) {
   return ParseByName(text, kAllNormalizations, &CovarianceNormalizationName, n);
+}
+const char* SpanningTreeWeightName(SpanningTreeWeight w) {
+  switch (w) {
+    case SpanningTreeWeight::kAuto: return "auto";
+    case SpanningTreeWeight::kUniform: return "uniform";
+    case SpanningTreeWeight::kInliers: return "inliers";
+    case SpanningTreeWeight::kInformation: return "information";
+  }
+  return "?";
+}
+bool ParseSpanningTreeWeight(const std::string& text, SpanningTreeWeight* w) {
+  return ParseByName(text, kAllTreeWeights, &SpanningTreeWeightName, w);
+}
+const std::vector<EdgeWeighting>& AllEdgeWeightings() {
+  static const std::vector<EdgeWeighting> kAll(std::begin(kAllWeightings), std::end(kAllWeightings));
+  return kAll;
 }
 
 double DefaultLossScale(const RotationAveragingOptions& options) {

@@ -85,21 +85,23 @@ namespace {
 // gt_cameras/ as some copies name it, or the folder itself.
 constexpr const char* kStrechaCameraFolders[] = {"gt_dense_cameras", "gt_cameras"};
 
-bool HasCameraFiles(const fs::path& folder) {
+// The .camera files of a Strecha scene, sorted: those of the first of
+// kStrechaCameraFolders that has any, else the folder's own; empty if none.
+std::vector<fs::path> StrechaCameraFiles(const fs::path& directory) {
   std::error_code ec;
-  for (const auto& entry : fs::directory_iterator(folder, ec)) {
-    if (entry.path().extension() == ".camera") return true;
+  std::vector<fs::path> candidates;
+  for (const char* name : kStrechaCameraFolders) candidates.push_back(directory / name);
+  candidates.push_back(directory);
+  for (const fs::path& folder : candidates) {
+    std::vector<fs::path> files;
+    for (const auto& entry : fs::directory_iterator(folder, ec)) {
+      if (entry.path().extension() == ".camera") files.push_back(entry.path());
+    }
+    if (!files.empty()) {
+      std::sort(files.begin(), files.end());
+      return files;
+    }
   }
-  return false;
-}
-
-// The folder holding the .camera files of a Strecha scene, or empty.
-fs::path StrechaCameraFolder(const fs::path& directory) {
-  std::error_code ec;
-  for (const char* name : kStrechaCameraFolders) {
-    if (fs::is_directory(directory / name, ec) && HasCameraFiles(directory / name)) return directory / name;
-  }
-  if (fs::is_directory(directory, ec) && HasCameraFiles(directory)) return directory;
   return {};
 }
 
@@ -108,15 +110,8 @@ fs::path StrechaCameraFolder(const fs::path& directory) {
 ReadReport ReadStrechaGroundTruth(const std::string& directory, NamedOrientations* orientations) {
   std::error_code ec;
   if (!fs::is_directory(directory, ec)) return {directory + ": not a folder (Strecha ground truth is a folder)"};
-  const fs::path folder = StrechaCameraFolder(directory);
-  if (folder.empty()) {
-    return {directory + ": no .camera files in gt_dense_cameras/, gt_cameras/ or the folder itself"};
-  }
-  std::vector<fs::path> files;
-  for (const auto& entry : fs::directory_iterator(folder, ec)) {
-    if (entry.path().extension() == ".camera") files.push_back(entry.path());
-  }
-  std::sort(files.begin(), files.end());
+  const std::vector<fs::path> files = StrechaCameraFiles(directory);
+  if (files.empty()) return {directory + ": no .camera files in gt_dense_cameras/, gt_cameras/ or the folder itself"};
   for (const fs::path& file : files) {
     LineReader reader(file.string());
     if (!reader.IsOpen()) return {"cannot open " + file.string()};
@@ -212,7 +207,7 @@ ReadReport ReadGroundTruth(const std::string& path, GroundTruthFormat format, Na
   if (format == GroundTruthFormat::kAuto) {
     const fs::path p(path);
     if (fs::is_directory(p, ec)) {
-      if (!StrechaCameraFolder(p).empty()) format = GroundTruthFormat::kStrecha;
+      if (!StrechaCameraFiles(p).empty()) format = GroundTruthFormat::kStrecha;
       else if (fs::exists(p / "images.txt", ec)) format = GroundTruthFormat::kColmap;
       else if (fs::exists(p / "EGs.txt", ec)) format = GroundTruthFormat::kChain;
       else {

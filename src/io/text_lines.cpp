@@ -46,11 +46,16 @@ std::vector<std::string> SplitTokens(std::string_view line, bool comma) {
   return std::vector<std::string>(views.begin(), views.end());
 }
 
-bool ParseDouble(std::string_view token, double* value) {
-  // from_chars takes no '+' sign; a second sign after it is still an error.
-  if (token.size() > 1 && token[0] == '+' && token[1] != '-' && token[1] != '+') token.remove_prefix(1);
+namespace {
+
+// The whole token as one number of type T, by std::from_chars; a leading '+'
+// is taken where `plus` allows (from_chars takes none), a second sign after it
+// is still an error.
+template <typename T>
+bool ParseWhole(std::string_view token, bool plus, T* value) {
+  if (plus && token.size() > 1 && token[0] == '+' && token[1] != '-' && token[1] != '+') token.remove_prefix(1);
   if (token.empty()) return false;
-  double v = 0.0;
+  T v{};
   const char* end = token.data() + token.size();
   const auto [ptr, ec] = std::from_chars(token.data(), end, v);
   if (ec != std::errc() || ptr != end) return false;
@@ -58,26 +63,13 @@ bool ParseDouble(std::string_view token, double* value) {
   return true;
 }
 
-bool ParseUint64(std::string_view token, std::uint64_t* value) {
-  if (token.empty()) return false;
-  std::uint64_t v = 0;
-  const char* end = token.data() + token.size();
-  const auto [ptr, ec] = std::from_chars(token.data(), end, v);
-  if (ec != std::errc() || ptr != end) return false;
-  *value = v;
-  return true;
-}
+}  // namespace
 
-bool ParseInt(std::string_view token, int* value) {
-  if (token.size() > 1 && token[0] == '+' && token[1] != '-' && token[1] != '+') token.remove_prefix(1);
-  if (token.empty()) return false;
-  int v = 0;
-  const char* end = token.data() + token.size();
-  const auto [ptr, ec] = std::from_chars(token.data(), end, v);
-  if (ec != std::errc() || ptr != end) return false;
-  *value = v;
-  return true;
-}
+bool ParseDouble(std::string_view token, double* value) { return ParseWhole(token, true, value); }
+
+bool ParseUint64(std::string_view token, std::uint64_t* value) { return ParseWhole(token, false, value); }
+
+bool ParseInt(std::string_view token, int* value) { return ParseWhole(token, true, value); }
 
 void AppendDouble(std::string* out, double value) {
   char buffer[32];

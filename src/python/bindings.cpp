@@ -209,27 +209,6 @@ std::string LossChoices() {
   return s;
 }
 
-const char* SpanningTreeWeightName(ra::SpanningTreeWeight w) {
-  switch (w) {
-    case ra::SpanningTreeWeight::kAuto: return "auto";
-    case ra::SpanningTreeWeight::kUniform: return "uniform";
-    case ra::SpanningTreeWeight::kInliers: return "inliers";
-    case ra::SpanningTreeWeight::kInformation: return "information";
-  }
-  return "?";
-}
-
-bool ParseSpanningTreeWeight(const std::string& text, ra::SpanningTreeWeight* w) {
-  for (auto v : {ra::SpanningTreeWeight::kAuto, ra::SpanningTreeWeight::kUniform, ra::SpanningTreeWeight::kInliers,
-                 ra::SpanningTreeWeight::kInformation}) {
-    if (text == SpanningTreeWeightName(v)) {
-      *w = v;
-      return true;
-    }
-  }
-  return false;
-}
-
 py::dict ComponentToDict(const ra::ComponentSummary& c) {
   py::dict d;
   d["num_views"] = c.num_views;
@@ -421,7 +400,7 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
   EnumProperty(options, "covariance_normalization", &ra::RotationAveragingOptions::covariance_normalization,
                &ra::CovarianceNormalizationName, &ra::ParseCovarianceNormalization, "std, paper");
   EnumProperty(options, "spanning_tree_weight", &ra::RotationAveragingOptions::spanning_tree_weight,
-               &SpanningTreeWeightName, &ParseSpanningTreeWeight, "auto, uniform, inliers, information");
+               &ra::SpanningTreeWeightName, &ra::ParseSpanningTreeWeight, "auto, uniform, inliers, information");
 #define ROTAVG_FIELD(name) options.def_readwrite(#name, &ra::RotationAveragingOptions::name)
   ROTAVG_FIELD(loss_scale);
   ROTAVG_FIELD(paper_covariance_scale);
@@ -630,10 +609,7 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
   });
   m.def("weighting_names", [] {
     std::vector<std::string> names;
-    for (auto w : {ra::EdgeWeighting::kNone, ra::EdgeWeighting::kInliers, ra::EdgeWeighting::kTrace,
-                   ra::EdgeWeighting::kFrobenius, ra::EdgeWeighting::kCovariance}) {
-      names.push_back(ra::EdgeWeightingName(w));
-    }
+    for (ra::EdgeWeighting w : ra::AllEdgeWeightings()) names.push_back(ra::EdgeWeightingName(w));
     return names;
   });
 }

@@ -62,6 +62,9 @@ const char* SolverTypeName(SolverType s);
 bool ParseSolverType(const std::string& text, SolverType* s);
 const char* CovarianceNormalizationName(CovarianceNormalization n);
 bool ParseCovarianceNormalization(const std::string& text, CovarianceNormalization* n);
+const char* SpanningTreeWeightName(SpanningTreeWeight w);  // "auto", "uniform", "inliers", "information"
+bool ParseSpanningTreeWeight(const std::string& text, SpanningTreeWeight* w);
+const std::vector<EdgeWeighting>& AllEdgeWeightings();
 
 struct RotationAveragingOptions {
   SolverType solver = SolverType::kIrls;
