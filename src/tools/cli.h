@@ -39,7 +39,7 @@ struct Args {
 };
 
 inline bool ParseArgs(int argc, char** argv, int first, const std::vector<std::string>& boolean_flags, Args* args,
-               std::string* error) {
+                      std::string* error) {
   for (int k = first; k < argc; ++k) {
     const std::string a = argv[k];
     if (a.rfind("--", 0) == 0) {
@@ -69,7 +69,7 @@ inline bool CheckKnown(const Args& args, const std::vector<std::string>& known, 
 }
 
 inline const std::vector<std::string> kAveragingFlags = {"--solver", "--loss", "--weighting", "--sigma-max",
-                                                  "--normalization", "--max-iterations"};
+                                                         "--normalization", "--max-iterations"};
 
 inline bool ParseAveragingOptions(const Args& args, ra::RotationAveragingOptions* options, std::string* error) {
   auto fail = [error](const std::string& e) {
