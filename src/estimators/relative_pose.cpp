@@ -111,19 +111,16 @@ const char* TwoViewFailureName(TwoViewFailure failure) {
   return "?";
 }
 
-RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::Vector2d>& points1,
-                                                      const std::vector<Eigen::Vector2d>& points2,
-                                                      const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
-                                                      const RelativePoseOptions& options) {
-  const int n = static_cast<int>(std::min(points1.size(), points2.size()));
-  if (points1.size() != points2.size()) {
-    return Fail(TwoViewFailure::kTooFewMatches, "point lists differ in length");
-  }
-  if (n < std::max(options.min_inliers, 5)) {
-    return Fail(TwoViewFailure::kTooFewMatches, std::to_string(n) + " correspondences");
-  }
+namespace {
+
+// One robust estimation (inlier threshold `threshold_px`), refinement and
+// covariance; the inputs are checked by the caller.
+RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& points1,
+                                       const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
+                                       const Eigen::Matrix3d& k2, double threshold_px,
+                                       const RelativePoseOptions& options) {
+  const int n = static_cast<int>(points1.size());
   const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
-  if (!k1_inv.allFinite() || !k2_inv.allFinite()) return Fail(TwoViewFailure::kEssentialFailed, "singular intrinsics");
   const double focal = 0.25 * (k1(0, 0) + k1(1, 1) + k2(0, 0) + k2(1, 1));
 
   // 1. Robust essential matrix on normalised coordinates, then cheirality.
@@ -132,7 +129,7 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
   cv::Mat essential;
   try {
     essential = cv::findEssentialMat(n1, n2, cv::Mat::eye(3, 3, CV_64F), cv::USAC_MAGSAC, options.ransac_confidence,
-                                     options.ransac_threshold_px / focal, options.ransac_max_iterations, mask);
+                                     threshold_px / focal, options.ransac_max_iterations, mask);
   } catch (const cv::Exception& e) {
     return Fail(TwoViewFailure::kEssentialFailed, std::string("OpenCV: ") + e.what());
   }
@@ -171,7 +168,9 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
     cv::Mat h_mask;
     try {
       // Plain RANSAC on the (already clean) essential-matrix inliers: USAC
-      // MAGSAC here cost 20x the rest of the pair's estimation.
+      // MAGSAC here cost 20x the rest of the pair's estimation. Always at the
+      // first threshold, whichever found the inliers: the share describes the
+      // scene and is compared with fixed ratios.
       const cv::Mat h = cv::findHomography(h1, h2, cv::RANSAC, options.ransac_threshold_px / focal, h_mask,
                                            kHomographyIterations, 0.999);
       if (!h.empty()) homography_ratio = static_cast<double>(cv::countNonZero(h_mask)) / h1.rows;
@@ -313,6 +312,7 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
   result.median_parallax_deg = median_parallax_deg;
   result.homography_inlier_ratio = homography_ratio;
   result.refine_iterations = refine_iterations;
+  result.ransac_threshold_px = threshold_px;
   result.covariance_paper = jtj.topLeftCorner<3, 3>().inverse();
   result.covariance_conditional = sigma2 * result.covariance_paper;
   result.covariance_marginal = sigma2 * jtj_inv.topLeftCorner<3, 3>();
@@ -320,6 +320,51 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
   result.covariance = options.covariance_model == RotationCovarianceModel::kConditional ? result.covariance_conditional
                                                                                        : result.covariance_marginal;
   return result;
+}
+
+}  // namespace
+
+RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::Vector2d>& points1,
+                                                      const std::vector<Eigen::Vector2d>& points2,
+                                                      const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
+                                                      const RelativePoseOptions& options) {
+  const int n = static_cast<int>(std::min(points1.size(), points2.size()));
+  if (points1.size() != points2.size()) {
+    return Fail(TwoViewFailure::kTooFewMatches, "point lists differ in length");
+  }
+  if (n < std::max(options.min_inliers, 5)) {
+    return Fail(TwoViewFailure::kTooFewMatches, std::to_string(n) + " correspondences");
+  }
+  if (!k1.inverse().allFinite() || !k2.inverse().allFinite()) {
+    return Fail(TwoViewFailure::kEssentialFailed, "singular intrinsics");
+  }
+  RelativePoseResult first = EstimateAtThreshold(points1, points2, k1, k2, options.ransac_threshold_px, options);
+  if (!first.success || !(options.adaptive_threshold_sigmas > 0.0)) return first;
+  // A threshold far above the pixel noise lets wrong matches that happen to
+  // lie near their epipolar lines (repeated structure) vote, and a few of
+  // them can pull the model along the rotation-translation valley of a pair.
+  // Once the noise of this pair is measured, the robust estimation is run
+  // again with a threshold that scale of noise calls for.
+  const double threshold =
+      std::max(options.min_adaptive_threshold_px, options.adaptive_threshold_sigmas * first.sigma_px);
+  if (!(threshold < options.ransac_threshold_px)) return first;
+  // Only the correspondences within the first threshold of the first model
+  // take part: the others cannot be inliers of a model this close to it, and
+  // without them the robust estimation stops after far fewer samples.
+  const Eigen::Matrix3d f = k2.inverse().transpose() * Hat(first.translation) * first.rotation * k1.inverse();
+  std::vector<int> candidates;
+  std::vector<Eigen::Vector2d> q1, q2;
+  for (int i = 0; i < n; ++i) {
+    if (std::abs(SampsonPx(f, points1[i], points2[i])) >= options.ransac_threshold_px) continue;
+    candidates.push_back(i);
+    q1.push_back(points1[i]);
+    q2.push_back(points2[i]);
+  }
+  if (static_cast<int>(candidates.size()) < std::max(options.min_inliers, 5)) return first;
+  RelativePoseResult second = EstimateAtThreshold(q1, q2, k1, k2, threshold, options);
+  if (!second.success) return first;
+  for (int& i : second.inliers) i = candidates[i];
+  return second;
 }
 
 }  // namespace rotation_averaging

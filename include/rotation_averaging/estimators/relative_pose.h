@@ -46,7 +46,16 @@ enum class TwoViewFailure {
 const char* TwoViewFailureName(TwoViewFailure failure);
 
 struct RelativePoseOptions {
-  double ransac_threshold_px = 3.0;    // MAGSAC++ inlier threshold, pixels (1 px truncates the inliers of 0.5 px noise and biases R)
+  // MAGSAC++ inlier threshold of the first robust estimation, pixels: an
+  // upper bound on the pixel noise of any pair.
+  double ransac_threshold_px = 3.0;
+  // Then, with the pixel noise sigma of the pair measured from the first
+  // model's inliers, the robust estimation is repeated at
+  // max(min_adaptive_threshold_px, adaptive_threshold_sigmas * sigma) when
+  // that is below ransac_threshold_px (0: off). The refinement re-selects
+  // its inliers at 3 sigma of its own model either way.
+  double adaptive_threshold_sigmas = 3.0;
+  double min_adaptive_threshold_px = 0.5;
   double ransac_confidence = 0.9999;   // probability of finding the best model
   int ransac_max_iterations = 10000;
   int min_inliers = 20;                // fewer inliers: pair rejected
@@ -81,6 +90,7 @@ struct RelativePoseResult {
   // (same threshold): near 1 for a (near-)planar scene or a pure rotation.
   double homography_inlier_ratio = 0.0;
   std::vector<int> inliers;           // indices into the input correspondences
+  double ransac_threshold_px = 0.0;   // inlier threshold of the robust estimation that gave this pose
   int refine_iterations = 0;
 
   // The view-graph edge (1, 2) this pose measures: R_12 = R_21^T. `covariance`
