@@ -270,8 +270,33 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
         solve(*component_loss);
       }
     }
-    // The reported initial cost is that of the starting point under the final loss.
+    // Both costs are reported under the final loss. The robust start (L1,
+    // graduated non-convexity from a wider scale, the re-solve after
+    // auto-scaling) can settle in a basin that costs more under the final
+    // loss than the starting point itself: a loop whose misclosure is either
+    // one outlier edge or noise spread over all of them. Then the start is
+    // refined under the final loss as well and the lower of the two kept, so
+    // a solve never ends above its start.
     cs.initial_cost = ComponentProblem::CostOf(problem.edges, initial_rotations, *component_loss);
+    if (cs.final_cost > cs.initial_cost * (1.0 + 1e-9) + 1e-300) {
+      const std::vector<Eigen::Matrix3d> ended = problem.rotations;
+      const double ended_cost = cs.final_cost;
+      const std::string ended_status = cs.status;
+      const double start_cost = cs.initial_cost;
+      problem.rotations = initial_rotations;
+      solve(*component_loss);
+      cs.initial_cost = start_cost;
+      cs.refined_start = true;
+      if (!(cs.final_cost < ended_cost)) {
+        problem.rotations = ended;
+        cs.final_cost = ended_cost;
+        cs.status = ended_status;
+      }
+      std::ostringstream note;
+      note << std::setprecision(6) << "; the robust solve ended above its start (" << ended_cost << " > "
+           << cs.initial_cost << " under the final loss): the start refined under it gives " << cs.final_cost;
+      cs.status += note.str();
+    }
   }
 
   // A solve that produced non-finite numbers keeps the initial orientations.

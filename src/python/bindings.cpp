@@ -223,6 +223,7 @@ py::dict ComponentToDict(const ra::ComponentSummary& c) {
   d["noise_scale"] = c.noise_scale;
   d["initial_cost"] = c.initial_cost;
   d["final_cost"] = c.final_cost;
+  d["refined_start"] = c.refined_start;
   d["converged"] = c.converged;
   d["status"] = c.status;
   return d;

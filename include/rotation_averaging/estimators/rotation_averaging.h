@@ -209,8 +209,13 @@ struct ComponentSummary {
   int preconditioned_solves = 0; // IRLS steps solved by PCG with an earlier factor
   int multigrid_solves = 0;      // IRLS steps solved by multigrid-preconditioned CG
   int extrapolations = 0;        // IRLS extrapolation jumps taken
+  // Both under the final loss (after auto-scaling): the start's cost and the
+  // solution's; final_cost <= initial_cost except for the L1-IRLS baseline.
   double initial_cost = 0.0;
   double final_cost = 0.0;
+  // The robust solve ended above its start, so the start was also refined
+  // under the final loss and the lower of the two kept (status says which).
+  bool refined_start = false;
   bool converged = false;
   std::string status;  // human-readable reason the solve stopped
 };
