@@ -12,7 +12,8 @@
 // Pipeline: essential matrix by OpenCV's USAC MAGSAC++ on normalised
 // coordinates, cheirality by recoverPose, then Ceres refinement of R and t
 // (t on the unit sphere) minimising the Sampson error over the inliers, in
-// pixels. With J the Jacobian of the Sampson residuals w.r.t. (omega, t) at the
+// pixels; then the same again at a threshold scaled to the pair's measured
+// pixel noise (adaptive_threshold_sigmas). With J the Jacobian of the Sampson residuals w.r.t. (omega, t) at the
 // optimum and sigma^2 the pixel noise variance estimated from the residuals:
 //   conditional (the paper's code, t held fixed):  C = (J_w^T J_w)^-1
 //   marginal over t (Schur complement):           C = [(J^T J)^-1]_ww
