@@ -259,26 +259,38 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
   return result;
 }
 
-ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& image_paths,
-                                             const CameraIntrinsics& intrinsics, const ImagePipelineOptions& options) {
+Eigen::Matrix3d FeatureIntrinsics(const CameraIntrinsics& intrinsics, const FeatureOptions& options) {
+  return ScaleIntrinsics(intrinsics.k, options.downsample > 0.0 ? options.downsample : 1.0);
+}
+
+std::vector<ImageFeatures> ExtractImageFeatures(const std::vector<std::string>& image_paths,
+                                                const CameraIntrinsics& intrinsics, const FeatureOptions& options,
+                                                std::vector<std::string>* names, std::vector<std::string>* errors) {
   std::vector<ImageFeatures> features(image_paths.size());
-  std::vector<std::string> names;
-  std::vector<std::string> errors;
-  const double s = options.features.downsample > 0.0 ? options.features.downsample : 1.0;
-  const Eigen::Matrix3d scaled_k = ScaleIntrinsics(intrinsics.k, s);
-  const auto start = Clock::now();
+  const Eigen::Matrix3d scaled_k = FeatureIntrinsics(intrinsics, options);
+  names->clear();
   for (std::size_t i = 0; i < image_paths.size(); ++i) {
-    names.push_back(fs::path(image_paths[i]).filename().string());
+    names->push_back(fs::path(image_paths[i]).filename().string());
     const cv::Mat image = cv::imread(image_paths[i], cv::IMREAD_GRAYSCALE);
     if (image.empty()) {
-      errors.push_back("cannot read image " + image_paths[i]);
+      errors->push_back("cannot read image " + image_paths[i]);
       continue;
     }
-    features[i] = ExtractFeatures(image, options.features);
+    features[i] = ExtractFeatures(image, options);
     for (Eigen::Vector2d& p : features[i].keypoints_px) p = intrinsics.Undistort(p, scaled_k);
   }
+  return features;
+}
+
+ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& image_paths,
+                                             const CameraIntrinsics& intrinsics, const ImagePipelineOptions& options) {
+  std::vector<std::string> names, errors;
+  const auto start = Clock::now();
+  const std::vector<ImageFeatures> features =
+      ExtractImageFeatures(image_paths, intrinsics, options.features, &names, &errors);
   const double features_s = Seconds(start);
-  ImagePipelineResult result = BuildViewGraphFromFeatures(features, names, scaled_k, options);
+  ImagePipelineResult result =
+      BuildViewGraphFromFeatures(features, names, FeatureIntrinsics(intrinsics, options.features), options);
   result.features_s = features_s;
   result.errors = std::move(errors);
   return result;

@@ -335,9 +335,8 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
   if (n < std::max(options.min_inliers, 5)) {
     return Fail(TwoViewFailure::kTooFewMatches, std::to_string(n) + " correspondences");
   }
-  if (!k1.inverse().allFinite() || !k2.inverse().allFinite()) {
-    return Fail(TwoViewFailure::kEssentialFailed, "singular intrinsics");
-  }
+  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+  if (!k1_inv.allFinite() || !k2_inv.allFinite()) return Fail(TwoViewFailure::kEssentialFailed, "singular intrinsics");
   RelativePoseResult first = EstimateAtThreshold(points1, points2, k1, k2, options.ransac_threshold_px, options);
   if (!first.success || !(options.adaptive_threshold_sigmas > 0.0)) return first;
   // A threshold far above the pixel noise lets wrong matches that happen to
@@ -351,7 +350,7 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
   // Only the correspondences within the first threshold of the first model
   // take part: the others cannot be inliers of a model this close to it, and
   // without them the robust estimation stops after far fewer samples.
-  const Eigen::Matrix3d f = k2.inverse().transpose() * Hat(first.translation) * first.rotation * k1.inverse();
+  const Eigen::Matrix3d f = k2_inv.transpose() * Hat(first.translation) * first.rotation * k1_inv;
   std::vector<int> candidates;
   std::vector<Eigen::Vector2d> q1, q2;
   for (int i = 0; i < n; ++i) {

@@ -282,6 +282,7 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
       const std::vector<Eigen::Matrix3d> ended = problem.rotations;
       const double ended_cost = cs.final_cost;
       const std::string ended_status = cs.status;
+      const bool ended_converged = cs.converged;
       const double start_cost = cs.initial_cost;
       problem.rotations = initial_rotations;
       solve(*component_loss);
@@ -291,6 +292,7 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
         problem.rotations = ended;
         cs.final_cost = ended_cost;
         cs.status = ended_status;
+        cs.converged = ended_converged;
       }
       std::ostringstream note;
       note << std::setprecision(6) << "; the robust solve ended above its start (" << ended_cost << " > "

@@ -72,6 +72,18 @@ std::vector<std::string> ListImages(const std::string& directory);
 // Reads a 3x3 intrinsics matrix (nine numbers, row-major, whitespace separated).
 bool ReadIntrinsics(const std::string& path, Eigen::Matrix3d* k, std::string* error);
 
+// The pinhole matrix of the images features are detected in (intrinsics.k
+// scaled by options.downsample).
+Eigen::Matrix3d FeatureIntrinsics(const CameraIntrinsics& intrinsics, const FeatureOptions& options);
+
+// Features of images that share `intrinsics` (of the full-resolution images),
+// keypoints undistorted, in the coordinates of FeatureIntrinsics. `names`
+// gets the file names; an image that cannot be read gets no features and a
+// line in `errors`.
+std::vector<ImageFeatures> ExtractImageFeatures(const std::vector<std::string>& image_paths,
+                                                const CameraIntrinsics& intrinsics, const FeatureOptions& options,
+                                                std::vector<std::string>* names, std::vector<std::string>* errors);
+
 // Runs the front end over images that share the intrinsics `k` (of the
 // full-resolution images). Edge (i, j) stores R_ij = R_i R_j^T and the
 // covariance of its right perturbation (estimators/relative_pose.h).
