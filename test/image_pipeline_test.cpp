@@ -8,7 +8,6 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
-#include <opencv2/imgcodecs.hpp>
 
 #include "rotation_averaging/estimators/rotation_averaging.h"
 #include "rotation_averaging/eval/rotation_evaluation.h"
@@ -142,13 +141,10 @@ TEST(ImagePipeline, NoiseScaledThresholdMakesCastlePairsMoreAccurate) {
   ASSERT_TRUE(ReadGroundTruth(dir, GroundTruthFormat::kStrecha, &gt).ok());
   ImagePipelineOptions options;
   options.features.downsample = 0.25;
-  std::vector<ImageFeatures> features;
-  std::vector<std::string> names;
-  for (const std::string& path : images) {
-    features.push_back(ExtractFeatures(cv::imread(path, cv::IMREAD_GRAYSCALE), options.features));
-    names.push_back(fs::path(path).filename().string());
-  }
-  const Eigen::Matrix3d scaled_k = ScaleIntrinsics(k.k, options.features.downsample);
+  std::vector<std::string> names, read_errors;
+  const std::vector<ImageFeatures> features = ExtractImageFeatures(images, k, options.features, &names, &read_errors);
+  ASSERT_TRUE(read_errors.empty()) << read_errors[0];
+  const Eigen::Matrix3d scaled_k = FeatureIntrinsics(k, options.features);
   struct Scores {
     double median_error_deg, median_nees;
     int pairs;
