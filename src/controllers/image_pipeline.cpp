@@ -209,10 +209,50 @@ RelativeRotation EdgeFromPair(const PairReport& pair) {
   return edge;
 }
 
+PairReport EstimatePair(int image1, int image2, const std::vector<Eigen::Vector2d>& points1,
+                        const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k,
+                        const RelativePoseOptions& options) {
+  PairReport report;
+  report.image1 = image1;
+  report.image2 = image2;
+  report.matches = static_cast<int>(points1.size());
+  report.pose = EstimateRelativePoseWithCovariance(points1, points2, k, k, options);
+  if (report.pose.success) {
+    const Eigen::Matrix3d k_inv = k.inverse();
+    report.inlier_points1.reserve(report.pose.inliers.size());
+    report.inlier_points2.reserve(report.pose.inliers.size());
+    for (int m : report.pose.inliers) {
+      report.inlier_points1.push_back((k_inv * points1[m].homogeneous()).hnormalized());
+      report.inlier_points2.push_back((k_inv * points2[m].homogeneous()).hnormalized());
+    }
+  }
+  return report;
+}
+
+std::vector<EdgeCorrespondences> CorrespondencesOfEdges(const ImagePipelineResult& result) {
+  const double focal = 0.5 * (result.k(0, 0) + result.k(1, 1));
+  std::vector<EdgeCorrespondences> out;
+  for (const PairReport& p : result.pairs) {
+    if (!p.pose.success || p.inlier_points1.empty()) continue;
+    const ViewId a = static_cast<ViewId>(p.image1), b = static_cast<ViewId>(p.image2);
+    EdgeCorrespondences e;
+    e.view1 = a;
+    e.view2 = b;
+    e.points1 = p.inlier_points1;
+    e.points2 = p.inlier_points2;
+    e.translation = p.pose.translation;
+    // A floor keeps a noiseless (synthetic) pair finite.
+    e.sigma = std::max(p.pose.sigma_px, 1e-3) / focal;
+    out.push_back(std::move(e));
+  }
+  return out;
+}
+
 ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>& features,
                                                const std::vector<std::string>& names, const Eigen::Matrix3d& k,
                                                const ImagePipelineOptions& options) {
   ImagePipelineResult result;
+  result.k = k;
   const int n = static_cast<int>(features.size());
   for (int i = 0; i < n; ++i) {
     result.graph.AddView(static_cast<ViewId>(i), i < static_cast<int>(names.size()) ? names[i] : "");
@@ -224,14 +264,10 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
   for (const ImageFeatures& f : features) indices.push_back(std::make_unique<FeatureIndex>(f));
   result.matching_s += Seconds(index_start);
   for (const auto& [i, j] : SelectPairs(n, options.pairs, names, &result.errors)) {
-    PairReport report;
-    report.image1 = i;
-    report.image2 = j;
     const auto start = Clock::now();
     const std::vector<std::pair<int, int>> matches =
         MatchFeatures(features[i], *indices[i], features[j], *indices[j], options.matching);
     result.matching_s += Seconds(start);
-    report.matches = static_cast<int>(matches.size());
     std::vector<Eigen::Vector2d> p1, p2;
     p1.reserve(matches.size());
     p2.reserve(matches.size());
@@ -240,7 +276,7 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
       p2.push_back(features[j].keypoints_px[b]);
     }
     const auto pose_start = Clock::now();
-    report.pose = EstimateRelativePoseWithCovariance(p1, p2, k, k, options.relative_pose);
+    PairReport report = EstimatePair(i, j, p1, p2, k, options.relative_pose);
     result.relative_pose_s += Seconds(pose_start);
     report.milliseconds = 1e3 * Seconds(start);
     if (report.pose.success) {

@@ -9,6 +9,7 @@
 #include <utility>
 #include <vector>
 
+#include "rotation_averaging/estimators/correspondence_refinement.h"
 #include "rotation_averaging/estimators/relative_pose.h"
 #include "rotation_averaging/features/features.h"
 #include "rotation_averaging/scene/view_graph.h"
@@ -51,11 +52,15 @@ struct PairReport {
   int image1 = 0, image2 = 0;
   int matches = 0;
   RelativePoseResult pose;  // R_21 with covariance, inliers, failure reason
+  // The inlier correspondences of a successful pair in normalised image
+  // coordinates (K^-1 x), for RefineRotationsWithCorrespondences.
+  std::vector<Eigen::Vector2d> inlier_points1, inlier_points2;
   double milliseconds = 0.0;  // matching + relative pose + covariance
 };
 
 struct ImagePipelineResult {
   ViewGraph graph;                 // view id = image index, name = file name
+  Eigen::Matrix3d k = Eigen::Matrix3d::Identity();  // pinhole matrix of the keypoints
   std::vector<PairReport> pairs;   // every pair tried
   std::vector<int> features_per_image;
   double features_s = 0.0, matching_s = 0.0, relative_pose_s = 0.0;
@@ -97,8 +102,23 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
                                                const std::vector<std::string>& names, const Eigen::Matrix3d& k,
                                                const ImagePipelineOptions& options);
 
+// Relative pose of images (image1, image2) from matched keypoints (pixels of
+// the images with pinhole matrix k), with the inlier points kept in
+// normalised coordinates.
+PairReport EstimatePair(int image1, int image2, const std::vector<Eigen::Vector2d>& points1,
+                        const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k,
+                        const RelativePoseOptions& options);
+
 // The edge of one successful pair (i, j).
 RelativeRotation EdgeFromPair(const PairReport& pair);
+
+// The correspondences of the pairs that gave an edge of result.graph, for
+// RefineRotationsWithCorrespondences. Every edge, including those the
+// averaging down-weighted as outliers: the averaging judges an edge by its
+// covariance, and a covariance that is too confident (the pair's cost is a
+// long curved valley) makes a correct pair look like an outlier there; the
+// refinement judges each edge by its own matches.
+std::vector<EdgeCorrespondences> CorrespondencesOfEdges(const ImagePipelineResult& result);
 
 }  // namespace rotation_averaging
 
