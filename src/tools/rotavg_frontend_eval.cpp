@@ -40,7 +40,7 @@ using rotation_averaging::Median;
 namespace {
 
 const std::vector<ra::LossType>& kLosses = ra::PaperTableLosses();
-const char* const kRefinedLabel = "magsac + covariance, then refined on the correspondences (rotavg images)";
+const char* const kRefinedLabel = "magsac + covariance, then refined on the correspondences (rotavg images --refine)";
 const std::vector<ra::EdgeWeighting>& kWeightings = ra::PaperTableWeightings();
 
 struct Scene {

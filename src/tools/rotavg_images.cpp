@@ -18,18 +18,18 @@ using namespace rotation_averaging_cli;  // NOLINT: the tool's own helpers
 const char* kUsage = R"(usage:
   rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
                [--pairs exhaustive|sequential:N|list:FILE] [--covariance marginal|conditional] [--graph-out graph.txt]
-               [--output orientations.csv] [--gt PATH [--gt-format F]] [--verbose] [--json] [--no-refine]
+               [--output orientations.csv] [--gt PATH [--gt-format F]] [--verbose] [--json] [--refine]
                [the averaging options of rotavg solve: --solver --loss --weighting --sigma-max --normalization
                 --no-gnc --max-iterations]
-      features, matching, relative poses with rotation covariances, then averaging, then a refinement of
-      the orientations on every pair's inlier correspondences (--no-refine: the averaging's orientations);
-      prints per-stage timings and per-pair statistics; --graph-out writes the view graph for `rotavg solve`
+      features, matching, relative poses with rotation covariances, then averaging (--refine: then the
+      orientations refined on every pair's inlier correspondences); prints per-stage timings and per-pair
+      statistics; --graph-out writes the view graph for `rotavg solve`
 )";
 
 int Images(int argc, char** argv) {
   Args args;
   std::string error;
-  if (!ParseArgs(argc, argv, 1, {"--no-gnc", "--json", "--verbose", "--no-refine"}, &args, &error)) return Fail(error);
+  if (!ParseArgs(argc, argv, 1, {"--no-gnc", "--json", "--verbose", "--refine"}, &args, &error)) return Fail(error);
   if (!CheckKnown(args,
                   Concat({"--images", "--intrinsics", "--downsample", "--features", "--max-features", "--pairs",
                           "--covariance", "--graph-out", "--output", "--gt", "--gt-format"},
@@ -86,7 +86,7 @@ int Images(int argc, char** argv) {
   ra::RotationAveragingSummary summary;
   const bool ok = ra::SolveRotationAveraging(front.graph, options, &orientations, &summary);
   std::cout << "averaging: " << summary.Report() << std::endl;
-  if (!args.Has("--no-refine")) {
+  if (args.Has("--refine")) {
     ra::CorrespondenceRefinementSummary refinement;
     ra::RefineRotationsWithCorrespondences(ra::CorrespondencesOfEdges(front), ra::CorrespondenceRefinementOptions(),
                                            &orientations, &refinement);
