@@ -234,10 +234,9 @@ std::vector<EdgeCorrespondences> CorrespondencesOfEdges(const ImagePipelineResul
   std::vector<EdgeCorrespondences> out;
   for (const PairReport& p : result.pairs) {
     if (!p.pose.success || p.inlier_points1.empty()) continue;
-    const ViewId a = static_cast<ViewId>(p.image1), b = static_cast<ViewId>(p.image2);
     EdgeCorrespondences e;
-    e.view1 = a;
-    e.view2 = b;
+    e.view1 = static_cast<ViewId>(p.image1);
+    e.view2 = static_cast<ViewId>(p.image2);
     e.points1 = p.inlier_points1;
     e.points2 = p.inlier_points2;
     e.translation = p.pose.translation;

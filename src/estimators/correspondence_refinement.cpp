@@ -7,8 +7,9 @@
 #include <chrono>
 #include <cmath>
 #include <map>
-#include <numeric>
 #include <sstream>
+
+#include "rotation_averaging/geometry/epipolar.h"
 
 namespace rotation_averaging {
 namespace {
@@ -23,13 +24,8 @@ struct WhitenedSampson {
   bool operator()(const T* qi, const T* qj, const T* t, T* residual) const {
     const Eigen::Map<const Eigen::Quaternion<T>> q1(qi), q2(qj);
     const Eigen::Matrix<T, 3, 3> r21 = q2.toRotationMatrix() * q1.toRotationMatrix().transpose();
-    Eigen::Matrix<T, 3, 3> t_hat;
-    t_hat << T(0), -t[2], t[1], t[2], T(0), -t[0], -t[1], t[0], T(0);
-    const Eigen::Matrix<T, 3, 3> e = t_hat * r21;
     const Eigen::Matrix<T, 3, 1> n1(T(x1_.x()), T(x1_.y()), T(1)), n2(T(x2_.x()), T(x2_.y()), T(1));
-    const Eigen::Matrix<T, 3, 1> en1 = e * n1, etn2 = e.transpose() * n2;
-    const T denominator = en1[0] * en1[0] + en1[1] * en1[1] + etn2[0] * etn2[0] + etn2[1] * etn2[1];
-    residual[0] = T(inverse_sigma_) * n2.dot(en1) / sqrt(denominator + T(1e-300));
+    residual[0] = T(inverse_sigma_) * SampsonError<T>(CrossMatrix(t) * r21, n1, n2);
     return true;
   }
 
@@ -66,14 +62,10 @@ Eigen::Vector3d StartDirection(const EdgeCorrespondences& e, const Eigen::Matrix
 // Fraction of the correspondences whose whitened Sampson error under
 // (r21, t) is within `scale`.
 double FractionWithin(const EdgeCorrespondences& e, const Eigen::Matrix3d& r21, const Eigen::Vector3d& t, double scale) {
-  Eigen::Matrix3d t_hat;
-  t_hat << 0.0, -t[2], t[1], t[2], 0.0, -t[0], -t[1], t[0], 0.0;
-  const Eigen::Matrix3d essential = t_hat * r21;
+  const Eigen::Matrix3d essential = CrossMatrix(t.data()) * r21;
   int within = 0;
   for (std::size_t k = 0; k < e.points1.size(); ++k) {
-    const Eigen::Vector3d n1 = e.points1[k].homogeneous(), n2 = e.points2[k].homogeneous();
-    const Eigen::Vector3d en1 = essential * n1, etn2 = essential.transpose() * n2;
-    const double sampson = n2.dot(en1) / std::sqrt(en1.head<2>().squaredNorm() + etn2.head<2>().squaredNorm() + 1e-300);
+    const double sampson = SampsonError<double>(essential, e.points1[k].homogeneous(), e.points2[k].homogeneous());
     within += std::abs(sampson) <= scale * e.sigma;
   }
   return e.points1.empty() ? 0.0 : static_cast<double>(within) / e.points1.size();
@@ -83,19 +75,6 @@ ViewId Root(std::map<ViewId, ViewId>* parent, ViewId v) {
   while ((*parent)[v] != v) v = (*parent)[v] = (*parent)[(*parent)[v]];
   return v;
 }
-
-}  // namespace
-
-std::string CorrespondenceRefinementSummary::Report() const {
-  std::ostringstream out;
-  out << "refined on the correspondences: " << views << " views, " << edges_used << " edges ("
-      << edges_contradicted << " contradicted by the first pass, " << edges_skipped << " unusable), " << correspondences << " correspondences, cost " << initial_cost << " -> "
-      << final_cost << " (last pass), " << passes << " passes, " << iterations << " iterations, " << time_s << " s" << (converged ? "" : " (not converged)");
-  if (!status.empty()) out << ": " << status;
-  return out.str();
-}
-
-namespace {
 
 // One solve over the edges that pass the checks and agree with `orientations`
 // (fraction `gate`, 0: every edge). With `only_if_dropped`, solves only if the
@@ -203,6 +182,16 @@ bool Pass(const std::vector<EdgeCorrespondences>& edges, const CorrespondenceRef
 }
 
 }  // namespace
+
+std::string CorrespondenceRefinementSummary::Report() const {
+  std::ostringstream out;
+  out << "refined on the correspondences: " << views << " views, " << edges_used << " edges (" << edges_contradicted
+      << " contradicted by the first pass, " << edges_skipped << " unusable), " << correspondences
+      << " correspondences, cost " << initial_cost << " -> " << final_cost << " (last pass), " << passes << " passes, "
+      << iterations << " iterations, " << time_s << " s" << (converged ? "" : " (not converged)");
+  if (!status.empty()) out << ": " << status;
+  return out.str();
+}
 
 bool RefineRotationsWithCorrespondences(const std::vector<EdgeCorrespondences>& edges,
                                         const CorrespondenceRefinementOptions& options,

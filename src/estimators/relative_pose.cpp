@@ -9,14 +9,14 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 
+#include "rotation_averaging/geometry/epipolar.h"
 #include "rotation_averaging/geometry/so3.h"
 
 namespace rotation_averaging {
 namespace {
 
 // Sampson error of one correspondence in pixels, for R = Exp(omega) R_hat and
-// unit t: with F = K2^-T [t]x R K1^-1 and pixel points x1, x2,
-//   r = x2^T F x1 / sqrt((F x1)_0^2 + (F x1)_1^2 + (F^T x2)_0^2 + (F^T x2)_1^2).
+// unit t: F = K2^-T [t]x R K1^-1 and pixel points x1, x2.
 struct SampsonResidual {
   SampsonResidual(const Eigen::Matrix3d& rotation_hat, const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
                   const Eigen::Vector2d& p1, const Eigen::Vector2d& p2)
@@ -30,15 +30,10 @@ struct SampsonResidual {
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 3; ++c) exp_omega(r, c) = rw[r + 3 * c];
     const Eigen::Matrix<T, 3, 3> rotation = exp_omega * rotation_hat_.cast<T>();
-    Eigen::Matrix<T, 3, 3> t_hat;
-    t_hat << T(0), -t[2], t[1], t[2], T(0), -t[0], -t[1], t[0], T(0);
-    const Eigen::Matrix<T, 3, 3> f = k2_inv_t_.cast<T>() * t_hat * rotation * k1_inv_.cast<T>();
+    const Eigen::Matrix<T, 3, 3> f = k2_inv_t_.cast<T>() * CrossMatrix(t) * rotation * k1_inv_.cast<T>();
     const Eigen::Matrix<T, 3, 1> x1(T(p1_.x()), T(p1_.y()), T(1));
     const Eigen::Matrix<T, 3, 1> x2(T(p2_.x()), T(p2_.y()), T(1));
-    const Eigen::Matrix<T, 3, 1> fx1 = f * x1;
-    const Eigen::Matrix<T, 3, 1> ftx2 = f.transpose() * x2;
-    const T denominator = fx1[0] * fx1[0] + fx1[1] * fx1[1] + ftx2[0] * ftx2[0] + ftx2[1] * ftx2[1];
-    residual[0] = x2.dot(fx1) / sqrt(denominator + T(1e-300));
+    residual[0] = SampsonError(f, x1, x2);
     return true;
   }
 
@@ -47,9 +42,7 @@ struct SampsonResidual {
 };
 
 double SampsonPx(const Eigen::Matrix3d& f, const Eigen::Vector2d& p1, const Eigen::Vector2d& p2) {
-  const Eigen::Vector3d x1 = p1.homogeneous(), x2 = p2.homogeneous();
-  const Eigen::Vector3d fx1 = f * x1, ftx2 = f.transpose() * x2;
-  return x2.dot(fx1) / std::sqrt(fx1[0] * fx1[0] + fx1[1] * fx1[1] + ftx2[0] * ftx2[0] + ftx2[1] * ftx2[1] + 1e-300);
+  return SampsonError<double>(f, p1.homogeneous(), p2.homogeneous());
 }
 
 // True if the point seen along bearings b1, b2 triangulates in front of both
