@@ -129,10 +129,12 @@ TEST(RelativePose, DegenerateInputsFailWithAReason) {
   // Too few correspondences.
   std::vector<Eigen::Vector2d> few1(p1.begin(), p1.begin() + 10), few2(p2.begin(), p2.begin() + 10);
   EXPECT_EQ(EstimateRelativePoseWithCovariance(few1, few2, s.k, s.k).failure, TwoViewFailure::kTooFewMatches);
-  // Pure rotation: no parallax.
+  // Pure rotation without the rotation-only model: no parallax.
   s.translation.setZero();
   Observe(s, 0.3, 0.0, rng, &p1, &p2);
-  const RelativePoseResult pure = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+  RelativePoseOptions essential_only;
+  essential_only.rotation_model = false;
+  const RelativePoseResult pure = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k, essential_only);
   EXPECT_FALSE(pure.success);
   EXPECT_TRUE(pure.failure == TwoViewFailure::kPureRotation || pure.failure == TwoViewFailure::kTooFewInliers ||
               pure.failure == TwoViewFailure::kSingularInformation)
@@ -146,6 +148,79 @@ TEST(RelativePose, DegenerateInputsFailWithAReason) {
   EXPECT_FALSE(EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k).success);
   p2.push_back(p2.back());
   EXPECT_FALSE(EstimateRelativePoseWithCovariance(p1, p2, Eigen::Matrix3d::Zero(), s.k).success);
+}
+
+// A camera that turned on the spot: the essential matrix has no translation to
+// find, the rotation-only model holds and wins the model selection, with a
+// covariance that predicts its error.
+TEST(RelativePose, PureRotationIsEstimatedByTheRotationModel) {
+  std::mt19937 rng(21);
+  Scene s = MakeScene(0.8, rng);
+  s.translation.setZero();
+  double nees = 0.0;
+  const int runs = 40;
+  for (int run = 0; run < runs; ++run) {
+    std::vector<Eigen::Vector2d> p1, p2;
+    Observe(s, 0.5, 0.2, rng, &p1, &p2);
+    const RelativePoseResult r = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+    ASSERT_TRUE(r.success) << r.message;
+    ASSERT_EQ(r.model, TwoViewModel::kRotation) << "run " << run;
+    EXPECT_LT(RadToDeg(AngularDistanceRad(r.rotation, s.rotation)), 0.05);
+    EXPECT_TRUE(r.translation.isZero());
+    EXPECT_NEAR(r.sigma_px, 0.5, 0.1);  // per image, as for the essential model
+    EXPECT_GT(r.inliers.size(), 200u);  // of the 240 or so that are not outliers
+    const Eigen::Vector3d e = LogSO3(r.rotation * s.rotation.transpose());
+    nees += e.dot(r.covariance.inverse() * e);
+  }
+  nees /= runs;
+  EXPECT_GT(nees, 1.5);  // 3 for a calibrated covariance
+  EXPECT_LT(nees, 5.0);
+}
+
+// With parallax the general model wins, even where a homography explains
+// most of the points (a slanted plane).
+TEST(RelativePose, ParallaxKeepsTheEssentialModel) {
+  for (const bool planar : {false, true}) {
+    std::mt19937 rng(22);
+    Scene s = MakeScene(0.8, rng);
+    if (planar) {
+      for (Eigen::Vector3d& p : s.points) p.z() = 5.0 + 0.1 * p.x();
+    }
+    std::vector<Eigen::Vector2d> p1, p2;
+    Observe(s, 0.3, 0.1, rng, &p1, &p2);
+    const RelativePoseResult r = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+    ASSERT_TRUE(r.success) << r.message;
+    EXPECT_EQ(r.model, TwoViewModel::kEssential) << "planar " << planar;
+    EXPECT_LT(RadToDeg(AngularDistanceRad(r.rotation, s.rotation)), 0.5);
+    if (planar) {
+      // Both models were fitted and scored; the general one scored lower.
+      ASSERT_TRUE(std::isfinite(r.gric_essential) && std::isfinite(r.gric_rotation));
+      EXPECT_LT(r.gric_essential, r.gric_rotation);
+    }
+  }
+}
+
+// A translation far below what the points' depths can reveal: the rotation
+// model is chosen, and its rotation is as good as the essential matrix's.
+TEST(RelativePose, NearPureRotationChoosesTheRotationModel) {
+  std::mt19937 rng(23);
+  Scene s = MakeScene(0.002, rng);  // 2 mm against depths of 4-8 m: 0.1 px of parallax
+  std::vector<Eigen::Vector2d> p1, p2;
+  Observe(s, 0.5, 0.1, rng, &p1, &p2);
+  const RelativePoseResult r = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+  ASSERT_TRUE(r.success) << r.message;
+  EXPECT_EQ(r.model, TwoViewModel::kRotation);
+  EXPECT_LT(RadToDeg(AngularDistanceRad(r.rotation, s.rotation)), 0.05);
+}
+
+TEST(RelativePose, RotationModelRejectsNoise) {
+  std::mt19937 rng(24);
+  Scene s = MakeScene(0.0, rng);
+  std::vector<Eigen::Vector2d> p1, p2;
+  Observe(s, 0.5, 0.0, rng, &p1, &p2);
+  std::uniform_real_distribution<double> u(0.0, 480.0);
+  for (auto& p : p2) p = Eigen::Vector2d(u(rng), u(rng));
+  EXPECT_FALSE(EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k).success);
 }
 
 }  // namespace

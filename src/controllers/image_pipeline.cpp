@@ -280,6 +280,7 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
     report.milliseconds = 1e3 * Seconds(start);
     if (report.pose.success) {
       if (report.pose.homography_inlier_ratio >= options.relative_pose.near_planar_report_ratio) ++result.near_planar_pairs;
+      if (report.pose.model == TwoViewModel::kRotation) ++result.rotation_model_pairs;
       std::string why;
       if (result.graph.AddEdge(EdgeFromPair(report), &why) == AddEdgeResult::kRejected) {
         report.pose.success = false;
@@ -342,6 +343,7 @@ std::string ImagePipelineResult::Report() const {
       << (n ? mean_features / n : 0.0) << "\npairs: " << pairs.size() << " tried, " << ok << " with a relative pose";
   for (const auto& [reason, count] : failures) out << "\n  rejected (" << reason << "): " << count;
   if (near_planar_pairs) out << "\n  kept, near-planar (homography explains >= 95% of the inliers): " << near_planar_pairs;
+  if (rotation_model_pairs) out << "\n  kept, rotation-only model (no measurable translation): " << rotation_model_pairs;
   out << "\ntime: features " << features_s << " s (" << (n ? 1e3 * features_s / n : 0.0) << " ms/image), matching "
       << matching_s << " s, relative pose + covariance " << relative_pose_s << " s ("
       << (pairs.empty() ? 0.0 : 1e3 * (matching_s + relative_pose_s) / pairs.size()) << " ms/pair)";

@@ -6,6 +6,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <random>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 
@@ -68,6 +69,7 @@ cv::Mat ToCv(const std::vector<Eigen::Vector2d>& points, const Eigen::Matrix3d& 
 
 constexpr int kMaxReselectionRounds = 4;
 constexpr int kHomographyIterations = 500;
+constexpr double kFarPointDistance = 1e9;  // in baselines: no point is too far for cheirality
 
 RelativePoseResult Fail(TwoViewFailure failure, const std::string& message) {
   RelativePoseResult r;
@@ -81,6 +83,10 @@ RelativePoseResult Fail(TwoViewFailure failure, const std::string& message) {
 
 const char* RotationCovarianceModelName(RotationCovarianceModel model) {
   return model == RotationCovarianceModel::kConditional ? "conditional" : "marginal";
+}
+
+const char* TwoViewModelName(TwoViewModel model) {
+  return model == TwoViewModel::kRotation ? "rotation" : "essential";
 }
 
 bool ParseRotationCovarianceModel(const std::string& text, RotationCovarianceModel* model) {
@@ -106,12 +112,29 @@ const char* TwoViewFailureName(TwoViewFailure failure) {
 
 namespace {
 
+// The essential matrix of the robust estimation, as a fundamental matrix in
+// pixels, and its inliers before the cheirality test: the general-motion
+// model that the rotation-only model competes with, even when the pose could
+// not be recovered from it.
+struct EssentialFit {
+  bool found = false;
+  Eigen::Matrix3d f_px = Eigen::Matrix3d::Zero();
+  std::vector<int> inliers;
+};
+
+Eigen::Matrix3d CvToEigen3(const cv::Mat& m) {
+  Eigen::Matrix3d out;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) out(r, c) = m.at<double>(r, c);
+  return out;
+}
+
 // One robust estimation (inlier threshold `threshold_px`), refinement and
 // covariance; the inputs are checked by the caller.
 RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& points1,
                                        const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
                                        const Eigen::Matrix3d& k2, double threshold_px,
-                                       const RelativePoseOptions& options) {
+                                       const RelativePoseOptions& options, EssentialFit* fit = nullptr) {
   const int n = static_cast<int>(points1.size());
   const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
   const double focal = 0.25 * (k1(0, 0) + k1(1, 1) + k2(0, 0) + k2(1, 1));
@@ -128,10 +151,29 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
   }
   if (essential.rows < 3 || essential.cols != 3) return Fail(TwoViewFailure::kEssentialFailed, "no essential matrix");
   essential = essential.rowRange(0, 3).clone();
+  if (fit) {
+    fit->found = true;
+    fit->f_px = k2_inv.transpose() * CvToEigen3(essential) * k1_inv;
+    fit->inliers.clear();
+    for (int i = 0; i < n; ++i)
+      if (mask.at<unsigned char>(i)) fit->inliers.push_back(i);
+  }
   cv::Mat r_cv, t_cv;
   int in_front = 0;
   try {
+    const cv::Mat ransac_mask = mask.clone();
     in_front = cv::recoverPose(essential, n1, n2, cv::Mat::eye(3, 3, CV_64F), r_cv, t_cv, mask);
+    if (in_front < options.min_inliers) {
+      // recoverPose also drops points farther than 50 baselines, which takes
+      // every point of a short-baseline pair (a step of 0.1 m in front of a
+      // wall 6 m away) out of the inliers. Such a pair is decided with its far
+      // points; the others keep the limit, which also rejects the twisted-pair
+      // solution of a plane (it puts the plane's points near infinity).
+      mask = ransac_mask;
+      cv::Mat triangulated;
+      in_front = cv::recoverPose(essential, n1, n2, cv::Mat::eye(3, 3, CV_64F), r_cv, t_cv, kFarPointDistance, mask,
+                                 triangulated);
+    }
   } catch (const cv::Exception& e) {
     return Fail(TwoViewFailure::kEssentialFailed, std::string("OpenCV: ") + e.what());
   }
@@ -315,22 +357,210 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
   return result;
 }
 
-}  // namespace
 
-RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::Vector2d>& points1,
-                                                      const std::vector<Eigen::Vector2d>& points2,
-                                                      const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
-                                                      const RelativePoseOptions& options) {
-  const int n = static_cast<int>(std::min(points1.size(), points2.size()));
-  if (points1.size() != points2.size()) {
-    return Fail(TwoViewFailure::kTooFewMatches, "point lists differ in length");
-  }
-  if (n < std::max(options.min_inliers, 5)) {
-    return Fail(TwoViewFailure::kTooFewMatches, std::to_string(n) + " correspondences");
-  }
+// The rotation R minimising sum |b2 - R b1|^2 over unit bearings (Kabsch).
+Eigen::Matrix3d FitRotation(const std::vector<Eigen::Vector3d>& b1, const std::vector<Eigen::Vector3d>& b2,
+                            const std::vector<int>& subset) {
+  Eigen::Matrix3d m = Eigen::Matrix3d::Zero();
+  for (int i : subset) m += b2[i] * b1[i].transpose();
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(m, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d d = Eigen::Matrix3d::Identity();
+  d(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0.0 ? -1.0 : 1.0;
+  return svd.matrixU() * d * svd.matrixV().transpose();
+}
+
+// Transfer error of the rotation-only model in image 2, pixels: K2 R b1
+// projected minus p2; false if R b1 points behind camera 2.
+bool TransferError(const Eigen::Matrix3d& k2, const Eigen::Matrix3d& rotation, const Eigen::Vector3d& b1,
+                   const Eigen::Vector2d& p2, Eigen::Vector2d* error) {
+  const Eigen::Vector3d u = k2 * (rotation * b1);
+  if (!(u.z() > 0.0)) return false;
+  *error = u.head<2>() / u.z() - p2;
+  return true;
+}
+
+// sqrt of the 99% quantile of chi^2 with 2 degrees of freedom: the inlier
+// radius of a 2-d error in units of its per-coordinate sigma.
+constexpr double kChi2Radius99 = 3.035;
+constexpr int kRotationRefineIterations = 20;
+
+// The rotation-only model x2 ~ K2 R K1^-1 x1 (see the header): 2-point RANSAC
+// with local optimisation, then Gauss-Newton on the transfer errors of the
+// inliers, re-selected at the 99% radius of their measured noise.
+RelativePoseResult EstimateRotationOnly(const std::vector<Eigen::Vector2d>& points1,
+                                        const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
+                                        const Eigen::Matrix3d& k2, const RelativePoseOptions& options) {
+  const int n = static_cast<int>(points1.size());
   const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
-  if (!k1_inv.allFinite() || !k2_inv.allFinite()) return Fail(TwoViewFailure::kEssentialFailed, "singular intrinsics");
-  RelativePoseResult first = EstimateAtThreshold(points1, points2, k1, k2, options.ransac_threshold_px, options);
+  std::vector<Eigen::Vector3d> b1(n), b2(n);
+  for (int i = 0; i < n; ++i) {
+    b1[i] = (k1_inv * points1[i].homogeneous()).normalized();
+    b2[i] = (k2_inv * points2[i].homogeneous()).normalized();
+  }
+  auto inliers_of = [&](const Eigen::Matrix3d& rotation, double radius_px) {
+    std::vector<int> in;
+    Eigen::Vector2d e;
+    for (int i = 0; i < n; ++i) {
+      if (TransferError(k2, rotation, b1[i], points2[i], &e) && e.norm() < radius_px) in.push_back(i);
+    }
+    return in;
+  };
+  // A fixed seed: the same pair gives the same model on every run and thread.
+  std::mt19937 rng(0x5eedu + static_cast<unsigned>(n));
+  std::uniform_int_distribution<int> pick(0, n - 1);
+  std::vector<int> best;
+  Eigen::Matrix3d best_rotation = Eigen::Matrix3d::Identity();
+  const double log_failure = std::log(1.0 - options.ransac_confidence);
+  int needed = options.ransac_max_iterations;
+  for (int it = 0; it < needed && it < options.ransac_max_iterations; ++it) {
+    const int i = pick(rng), j = pick(rng);
+    // Two bearings nearly along one line do not fix the rotation about it.
+    if (i == j || b1[i].cross(b1[j]).norm() < 1e-3 || b2[i].cross(b2[j]).norm() < 1e-3) continue;
+    Eigen::Matrix3d rotation = FitRotation(b1, b2, {i, j});
+    std::vector<int> in = inliers_of(rotation, options.ransac_threshold_px);
+    if (in.size() <= best.size()) continue;
+    // Local optimisation: refit on the support until it stops growing.
+    for (int lo = 0; lo < 3; ++lo) {
+      const Eigen::Matrix3d refit = FitRotation(b1, b2, in);
+      std::vector<int> grown = inliers_of(refit, options.ransac_threshold_px);
+      if (grown.size() <= in.size()) break;
+      in.swap(grown);
+      rotation = refit;
+    }
+    best.swap(in);
+    best_rotation = rotation;
+    const double w = static_cast<double>(best.size()) / n;
+    const double miss = std::log(std::max(1e-12, 1.0 - w * w));
+    needed = miss < 0.0 ? static_cast<int>(std::ceil(log_failure / miss)) : options.ransac_max_iterations;
+  }
+  if (static_cast<int>(best.size()) < options.min_inliers) {
+    return Fail(TwoViewFailure::kTooFewInliers, std::to_string(best.size()) + " rotation-model inliers");
+  }
+
+  // Gauss-Newton on omega, R = Exp(omega) R_hat, over the inliers; the
+  // inliers are re-selected from all correspondences after each solve.
+  Eigen::Matrix3d rotation = best_rotation;
+  std::vector<int> inliers = best;
+  Eigen::Matrix3d information = Eigen::Matrix3d::Zero();
+  double sum_squares = 0.0;
+  int iterations = 0;
+  for (int round = 0; round < kMaxReselectionRounds; ++round) {
+    for (int it = 0; it < kRotationRefineIterations; ++it, ++iterations) {
+      Eigen::Matrix3d jtj = Eigen::Matrix3d::Zero();
+      Eigen::Vector3d jte = Eigen::Vector3d::Zero();
+      sum_squares = 0.0;
+      for (int i : inliers) {
+        const Eigen::Vector3d x = rotation * b1[i];
+        const Eigen::Vector3d u = k2 * x;
+        if (!(u.z() > 0.0)) continue;
+        const Eigen::Vector2d e = u.head<2>() / u.z() - points2[i];
+        Eigen::Matrix<double, 2, 3> d_proj;
+        d_proj << 1.0 / u.z(), 0.0, -u.x() / (u.z() * u.z()), 0.0, 1.0 / u.z(), -u.y() / (u.z() * u.z());
+        const Eigen::Matrix<double, 2, 3> jac = d_proj * k2 * -Hat(x);  // d/d omega of Exp(omega) x = -[x]x
+        jtj += jac.transpose() * jac;
+        jte += jac.transpose() * e;
+        sum_squares += e.squaredNorm();
+      }
+      information = jtj;
+      const Eigen::Vector3d step = jtj.ldlt().solve(-jte);
+      if (!step.allFinite()) return Fail(TwoViewFailure::kRefinementFailed, "rotation-model step is not finite");
+      rotation = ExpSO3(step) * rotation;
+      if (step.norm() < 1e-12) break;
+    }
+    std::vector<double> norms;
+    norms.reserve(inliers.size());
+    Eigen::Vector2d e;
+    for (int i : inliers) norms.push_back(TransferError(k2, rotation, b1[i], points2[i], &e) ? e.norm() : INFINITY);
+    std::nth_element(norms.begin(), norms.begin() + norms.size() / 2, norms.end());
+    // The median norm of a 2-d Gaussian error is sigma sqrt(2 ln 2).
+    const double sigma = norms[norms.size() / 2] / std::sqrt(2.0 * std::log(2.0));
+    std::vector<int> selected = inliers_of(rotation, std::max(1e-3, kChi2Radius99 * sigma));
+    if (static_cast<int>(selected.size()) < options.min_inliers) {
+      return Fail(TwoViewFailure::kTooFewInliers, std::to_string(selected.size()) + " rotation-model inliers after refinement");
+    }
+    const bool settled = selected == inliers;
+    inliers.swap(selected);
+    if (settled) break;
+  }
+  const int m = static_cast<int>(inliers.size());
+  const double sigma2 = sum_squares / std::max(1, 2 * m - 3);  // per coordinate of the transfer error
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(information);
+  const double min_eig = eig.eigenvalues().minCoeff(), max_eig = eig.eigenvalues().maxCoeff();
+  if (!(min_eig > 0.0) || max_eig / min_eig > options.max_condition_number) {
+    return Fail(TwoViewFailure::kSingularInformation, "rotation-model J^T J condition number " +
+                                                          std::to_string(min_eig > 0.0 ? max_eig / min_eig : INFINITY));
+  }
+  const Eigen::Matrix3d information_inv =
+      eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+  RelativePoseResult result;
+  result.success = true;
+  result.model = TwoViewModel::kRotation;
+  result.rotation = ProjectToSO3(rotation);
+  result.translation.setZero();
+  result.inliers = std::move(inliers);
+  // The transfer error carries the noise of both images: per image, and in
+  // the units of the essential model's Sampson error, sigma is 1/sqrt(2) of it.
+  result.sigma_px = std::sqrt(0.5 * sigma2);
+  result.refine_iterations = iterations;
+  result.ransac_threshold_px = options.ransac_threshold_px;
+  result.covariance_paper = information_inv;
+  result.covariance_marginal = sigma2 * information_inv;
+  result.covariance_marginal = 0.5 * (result.covariance_marginal + result.covariance_marginal.transpose()).eval();
+  result.covariance_conditional = result.covariance_marginal;  // no translation to condition on
+  result.covariance = result.covariance_marginal;
+  return result;
+}
+
+// Torr's Geometric Robust Information Criterion of a model with manifold
+// dimension d and k parameters, from squared residuals in units of the noise
+// (r = 4 data dimensions per correspondence, lambda1 = ln r, lambda2 = ln rn,
+// residuals capped at lambda3 (r - d) with lambda3 = 2).
+double Gric(const std::vector<double>& normalised_squares, int d, int k) {
+  const double r = 4.0, n = static_cast<double>(normalised_squares.size());
+  double sum = 0.0;
+  for (double e2 : normalised_squares) sum += std::min(e2, 2.0 * (r - d));
+  return sum + std::log(r) * d * n + std::log(r * n) * k;
+}
+
+// Scores both models on the correspondences either counts as an inlier, in
+// units of the pair's noise measured under the general-motion model f_px:
+// it fits a pure rotation as well as a general motion, so that sigma holds in
+// either case.
+void SelectModel(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                 const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2, const Eigen::Matrix3d& f_px,
+                 const std::vector<int>& essential_inliers, double sigma_px, const RelativePoseResult& rotation,
+                 double* gric_essential, double* gric_rotation) {
+  std::vector<int> both = essential_inliers;
+  both.insert(both.end(), rotation.inliers.begin(), rotation.inliers.end());
+  std::sort(both.begin(), both.end());
+  both.erase(std::unique(both.begin(), both.end()), both.end());
+  const Eigen::Matrix3d k1_inv = k1.inverse();
+  const double sigma2 = std::max(1e-12, sigma_px * sigma_px);
+  std::vector<double> e_squares, r_squares;
+  for (int i : both) {
+    const double s = SampsonPx(f_px, points1[i], points2[i]);
+    e_squares.push_back(s * s / sigma2);
+    Eigen::Vector2d e;
+    const bool front = TransferError(k2, rotation.rotation, (k1_inv * points1[i].homogeneous()).normalized(),
+                                     points2[i], &e);
+    r_squares.push_back(front ? 0.5 * e.squaredNorm() / sigma2 : INFINITY);
+  }
+  *gric_essential = Gric(e_squares, 3, 5);
+  *gric_rotation = Gric(r_squares, 2, 3);
+}
+
+// Below this share of the essential-matrix inliers explained by a homography,
+// no rotation (a special homography) can explain enough of them to win.
+constexpr double kRotationModelMinHomographyRatio = 0.5;
+// The essential-matrix model at the first threshold, then again at the
+// pair's own noise level; the inputs are checked by the caller.
+RelativePoseResult EstimateEssential(const std::vector<Eigen::Vector2d>& points1,
+                                     const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
+                                     const Eigen::Matrix3d& k2, const RelativePoseOptions& options,
+                                     EssentialFit* fit) {
+  const int n = static_cast<int>(points1.size());
+  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+  RelativePoseResult first = EstimateAtThreshold(points1, points2, k1, k2, options.ransac_threshold_px, options, fit);
   if (!first.success || !(options.adaptive_threshold_sigmas > 0.0)) return first;
   // A threshold far above the pixel noise lets wrong matches that happen to
   // lie near their epipolar lines (repeated structure) vote, and a few of
@@ -357,6 +587,53 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
   if (!second.success) return first;
   for (int& i : second.inliers) i = candidates[i];
   return second;
+}
+
+}  // namespace
+
+RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::Vector2d>& points1,
+                                                      const std::vector<Eigen::Vector2d>& points2,
+                                                      const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
+                                                      const RelativePoseOptions& options) {
+  const int n = static_cast<int>(std::min(points1.size(), points2.size()));
+  if (points1.size() != points2.size()) {
+    return Fail(TwoViewFailure::kTooFewMatches, "point lists differ in length");
+  }
+  if (n < std::max(options.min_inliers, 5)) {
+    return Fail(TwoViewFailure::kTooFewMatches, std::to_string(n) + " correspondences");
+  }
+  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+  if (!k1_inv.allFinite() || !k2_inv.allFinite()) return Fail(TwoViewFailure::kEssentialFailed, "singular intrinsics");
+  EssentialFit fit;
+  RelativePoseResult essential = EstimateEssential(points1, points2, k1, k2, options, &fit);
+  if (!options.rotation_model) return essential;
+  // A pair the user rejects as near-planar stays rejected: a rotation is a
+  // homography too.
+  if (!essential.success && (essential.failure == TwoViewFailure::kNearPlanar || !fit.found)) return essential;
+  if (essential.success && !(essential.homography_inlier_ratio >= kRotationModelMinHomographyRatio)) return essential;
+  RelativePoseResult rotation = EstimateRotationOnly(points1, points2, k1, k2, options);
+  if (!rotation.success) return essential;
+  double gric_essential = 0.0, gric_rotation = 0.0;
+  if (essential.success) {
+    SelectModel(points1, points2, k1, k2, k2.inverse().transpose() * Hat(essential.translation) * essential.rotation * k1.inverse(),
+                essential.inliers, essential.sigma_px, rotation, &gric_essential, &gric_rotation);
+  } else {
+    // The pose could not be recovered from the essential matrix (no
+    // parallax, too few points in front, singular): its robust fit still
+    // measures the noise and competes as the general-motion model.
+    std::vector<double> absolute;
+    for (int i : fit.inliers) absolute.push_back(std::abs(SampsonPx(fit.f_px, points1[i], points2[i])));
+    if (absolute.empty()) return essential;
+    std::nth_element(absolute.begin(), absolute.begin() + absolute.size() / 2, absolute.end());
+    SelectModel(points1, points2, k1, k2, fit.f_px, fit.inliers, 1.4826 * absolute[absolute.size() / 2], rotation,
+                &gric_essential, &gric_rotation);
+  }
+  RelativePoseResult& chosen = gric_rotation < gric_essential ? rotation : essential;
+  chosen.gric_essential = gric_essential;
+  chosen.gric_rotation = gric_rotation;
+  if (essential.success) chosen.homography_inlier_ratio = essential.homography_inlier_ratio;
+  chosen.median_parallax_deg = essential.median_parallax_deg;
+  return chosen;
 }
 
 }  // namespace rotation_averaging

@@ -19,17 +19,19 @@ const char* kUsage = R"(usage:
   rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
                [--pairs exhaustive|sequential:N|list:FILE] [--covariance marginal|conditional] [--graph-out graph.txt]
                [--output orientations.csv] [--gt PATH [--gt-format F]] [--verbose] [--json] [--refine]
+               [--no-rotation-model]
                [the averaging options of rotavg solve: --solver --loss --weighting --sigma-max --normalization
                 --no-gnc --max-iterations]
       features, matching, relative poses with rotation covariances, then averaging (--refine: then the
       orientations refined on every pair's inlier correspondences); prints per-stage timings and per-pair
-      statistics; --graph-out writes the view graph for `rotavg solve`
+      statistics; --graph-out writes the view graph for `rotavg solve`; --no-rotation-model: every pair
+      through the essential matrix (pairs without parallax fail instead of using the rotation-only model)
 )";
 
 int Images(int argc, char** argv) {
   Args args;
   std::string error;
-  if (!ParseArgs(argc, argv, 1, {"--no-gnc", "--json", "--verbose", "--refine"}, &args, &error)) return Fail(error);
+  if (!ParseArgs(argc, argv, 1, {"--no-gnc", "--json", "--verbose", "--refine", "--no-rotation-model"}, &args, &error)) return Fail(error);
   if (!CheckKnown(args,
                   Concat({"--images", "--intrinsics", "--downsample", "--features", "--max-features", "--pairs",
                           "--covariance", "--graph-out", "--output", "--gt", "--gt-format"},
@@ -52,6 +54,7 @@ int Images(int argc, char** argv) {
   if (!ra::ParseRotationCovarianceModel(args.Get("--covariance", "marginal"), &pipeline.relative_pose.covariance_model)) {
     return Fail("--covariance must be marginal or conditional");
   }
+  pipeline.relative_pose.rotation_model = !args.Has("--no-rotation-model");
   ra::RotationAveragingOptions options;
   if (!ParseAveragingOptions(args, &options, &error)) return Fail(error);
   const std::string output = args.Get("--output");
@@ -66,7 +69,7 @@ int Images(int argc, char** argv) {
   const ra::ImagePipelineResult front = ra::BuildViewGraphFromImages(images, k, pipeline);
   std::cout << front.Report() << "\n";
   const bool verbose = args.Has("--verbose");
-  std::cout << "per pair (image1 image2: matches, inliers, sigma px, parallax deg, homography inlier share, ms, result):\n";
+  std::cout << "per pair (image1 image2: matches, inliers, sigma px, parallax deg, homography inlier share, ms, model or failure):\n";
   int shown = 0;
   for (const ra::PairReport& p : front.pairs) {
     if (!verbose && shown >= 20) break;
@@ -74,7 +77,7 @@ int Images(int argc, char** argv) {
     std::cout << "  " << front.graph.FindView(p.image1)->name << " " << front.graph.FindView(p.image2)->name << ": "
               << p.matches << ", " << p.pose.inliers.size() << ", " << std::setprecision(3) << p.pose.sigma_px << ", "
               << p.pose.median_parallax_deg << ", " << p.pose.homography_inlier_ratio << ", " << p.milliseconds << ", "
-              << (p.pose.success ? "ok" : std::string(ra::TwoViewFailureName(p.pose.failure)) + " (" + p.pose.message + ")")
+              << (p.pose.success ? std::string(ra::TwoViewModelName(p.pose.model)) : std::string(ra::TwoViewFailureName(p.pose.failure)) + " (" + p.pose.message + ")")
               << "\n";
   }
   if (!verbose && front.pairs.size() > 20) std::cout << "  ... " << front.pairs.size() - 20 << " more (--verbose)\n";

@@ -66,6 +66,7 @@ struct ImagePipelineResult {
   double features_s = 0.0, matching_s = 0.0, relative_pose_s = 0.0;
   std::map<std::string, int> failures;  // reason -> count
   int near_planar_pairs = 0;            // kept pairs a homography explains (see RelativePoseOptions)
+  int rotation_model_pairs = 0;         // kept pairs whose rotation comes from the rotation-only model
   std::vector<std::string> errors;      // images that could not be read
   std::string Report() const;
 };

@@ -18,10 +18,24 @@
 //   conditional (the paper's code, t held fixed):  C = (J_w^T J_w)^-1
 //   marginal over t (Schur complement):           C = [(J^T J)^-1]_ww
 // each times sigma^2 to be in rad^2 (the paper leaves it unscaled).
+//
+// Model selection: a camera that turned without moving (or whose baseline is
+// negligible against the depth) sees x2 ~ K2 R K1^-1 x1, a homography with
+// three parameters. The translation is then unobservable and the essential
+// matrix ill-conditioned, yet R is better determined than ever. When the
+// essential matrix fails, or a homography explains at least half of its
+// inliers (a rotation is a homography, so it can explain no more), R is also
+// estimated from the rotation-only model (2-point RANSAC, Gauss-Newton on the
+// transfer error in pixels, covariance sigma^2 (J^T J)^-1 in the same left
+// perturbation of R_21), and Torr's GRIC picks the model: the sum of robust
+// squared residuals (Sampson for E, half the squared transfer error for R,
+// both in units of the pair's noise) plus a penalty for the model's
+// dimension and parameters. `model` says which one the pose comes from.
 #ifndef ROTATION_AVERAGING_ESTIMATORS_RELATIVE_POSE_H_
 #define ROTATION_AVERAGING_ESTIMATORS_RELATIVE_POSE_H_
 
 #include <Eigen/Core>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -45,6 +59,12 @@ enum class TwoViewFailure {
   kSingularInformation  // J^T J (nearly) singular: the rotation is not constrained
 };
 const char* TwoViewFailureName(TwoViewFailure failure);
+
+enum class TwoViewModel {
+  kEssential,  // general motion: essential matrix, R and unit t
+  kRotation,   // rotation only (pure or near-pure rotation): R, no t
+};
+const char* TwoViewModelName(TwoViewModel model);
 
 struct RelativePoseOptions {
   // MAGSAC++ inlier threshold of the first robust estimation, pixels: an
@@ -73,6 +93,9 @@ struct RelativePoseOptions {
   int refine_max_iterations = 50;      // Ceres iterations of the Sampson refinement
   double max_condition_number = 1e10;  // of J^T J; larger: rejected as singular
   RotationCovarianceModel covariance_model = RotationCovarianceModel::kMarginal;
+  // Model selection with the rotation-only homography (see above). Off: pairs
+  // without parallax fail with kPureRotation.
+  bool rotation_model = true;
 };
 
 struct RelativePoseResult {
@@ -80,7 +103,7 @@ struct RelativePoseResult {
   TwoViewFailure failure = TwoViewFailure::kNone;
   std::string message;
   Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();  // R_21 (refined)
-  Eigen::Vector3d translation = Eigen::Vector3d::Zero();   // unit t_21
+  Eigen::Vector3d translation = Eigen::Vector3d::Zero();   // unit t_21; zero for the rotation model
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();  // of omega, rad^2, per covariance_model
   Eigen::Matrix3d covariance_marginal = Eigen::Matrix3d::Identity();     // rad^2
   Eigen::Matrix3d covariance_conditional = Eigen::Matrix3d::Identity();  // rad^2
@@ -93,6 +116,10 @@ struct RelativePoseResult {
   std::vector<int> inliers;           // indices into the input correspondences
   double ransac_threshold_px = 0.0;   // inlier threshold of the robust estimation that gave this pose
   int refine_iterations = 0;
+  TwoViewModel model = TwoViewModel::kEssential;
+  // GRIC scores of the two models when both were fitted (lower wins), else NaN.
+  double gric_essential = std::numeric_limits<double>::quiet_NaN();
+  double gric_rotation = std::numeric_limits<double>::quiet_NaN();
 
   // The view-graph edge (1, 2) this pose measures: R_12 = R_21^T. `covariance`
   // is already that of the edge's right perturbation (see above).
