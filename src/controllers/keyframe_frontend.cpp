@@ -6,6 +6,7 @@
 #include <set>
 
 #include "rotation_averaging/geometry/so3.h"
+#include "rotation_averaging/util/parallel_for.h"
 
 namespace rotation_averaging {
 namespace {
@@ -29,33 +30,48 @@ struct KeyframeFrontend::Keyframe {
 KeyframeFrontend::KeyframeFrontend(const KeyframeFrontendOptions& options) : options_(options) {}
 KeyframeFrontend::~KeyframeFrontend() = default;
 
-bool KeyframeFrontend::Relate(const Keyframe& a, const Keyframe& b, EdgeSource source, KeyframeRelativeRotation* out) {
+std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const std::vector<PairTask>& tasks,
+                                                                         const Keyframe& newer) {
   const auto start = Clock::now();
-  const std::vector<std::pair<int, int>> matches =
-      MatchFeatures(a.features, *a.index, b.features, *b.index, options_.matching);
-  std::vector<Eigen::Vector2d> pa, pb;
-  pa.reserve(matches.size());
-  pb.reserve(matches.size());
-  for (const auto& [i, j] : matches) {
-    pa.push_back(a.features.keypoints_px[i]);
-    pb.push_back(b.features.keypoints_px[j]);
+  std::vector<PairOutcome> outcomes(tasks.size());
+  ParallelFor(static_cast<int>(tasks.size()), ResolveThreadCount(options_.num_threads), [&](int t) {
+    const Keyframe& a = *keyframes_[tasks[t].older];
+    const std::vector<std::pair<int, int>> matches =
+        MatchFeatures(a.features, *a.index, newer.features, *newer.index, options_.matching);
+    std::vector<Eigen::Vector2d> pa, pb;
+    pa.reserve(matches.size());
+    pb.reserve(matches.size());
+    for (const auto& [i, j] : matches) {
+      pa.push_back(a.features.keypoints_px[i]);
+      pb.push_back(newer.features.keypoints_px[j]);
+    }
+    const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, a.k, newer.k, options_.relative_pose);
+    PairOutcome& out = outcomes[t];
+    if (!pose.success) {
+      out.failure = TwoViewFailureName(pose.failure);
+      return;
+    }
+    // The pose maps a's camera to the newer one's; the edge is (a, newer).
+    out.success = true;
+    out.rotation_model = pose.model == TwoViewModel::kRotation;
+    out.edge.keyframe1 = a.key;
+    out.edge.keyframe2 = newer.key;
+    out.edge.rotation = pose.EdgeRotation();
+    out.edge.has_covariance = true;
+    out.edge.covariance = pose.covariance;
+    out.edge.num_inliers = static_cast<int>(pose.inliers.size());
+    out.edge.source = tasks[t].source;
+  });
+  for (const PairOutcome& o : outcomes) {
+    if (o.success) {
+      stats_.rotation_model_edges += o.rotation_model;
+    } else {
+      ++stats_.failed_pairs;
+      ++stats_.failures[o.failure];
+    }
   }
-  const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, a.k, b.k, options_.relative_pose);
   stats_.pairs_s += Seconds(start);
-  if (!pose.success) {
-    ++stats_.failed_pairs;
-    ++stats_.failures[TwoViewFailureName(pose.failure)];
-    return false;
-  }
-  // The pose maps a's camera to b's; the edge is (a, b).
-  out->keyframe1 = a.key;
-  out->keyframe2 = b.key;
-  out->rotation = pose.EdgeRotation();
-  out->has_covariance = true;
-  out->covariance = pose.covariance;
-  out->num_inliers = static_cast<int>(pose.inliers.size());
-  out->source = source;
-  return true;
+  return outcomes;
 }
 
 bool KeyframeFrontend::ChainRotation(int a, int b, Eigen::Matrix3d* r_ab) const {
@@ -130,20 +146,13 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   }
 
   std::set<int> related;
+  std::vector<PairTask> tasks;
   // Sequential: the previous keyframe of this camera.
   const std::vector<int>& same = by_camera_[key.frame_id];
   kf->camera_position = static_cast<int>(same.size());
-  if (!same.empty()) {
-    KeyframeRelativeRotation e;
-    if (Relate(*keyframes_[same.back()], *kf, EdgeSource::kSequential, &e)) {
-      edges.push_back(e);
-      ++stats_.sequential_edges;
-      kf->has_sequential = true;
-      kf->sequential_rotation = e.rotation;
-      kf->sequential_covariance = e.covariance;
-    }
-    related.insert(same.back());
-  }
+  const int window = std::min(std::max(1, options_.covisibility_window), static_cast<int>(same.size()));
+  for (int r = 1; r <= window; ++r) related.insert(same[same.size() - r]);
+  if (!same.empty()) tasks.push_back({same.back(), EdgeSource::kSequential});
   // Rig: the other cameras' keyframes of the same capture.
   const std::int64_t tolerance_ns = static_cast<std::int64_t>(options_.rig_stamp_tolerance_s * 1e9);
   for (const auto& [camera, indices] : by_camera_) {
@@ -151,17 +160,45 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     for (auto it = indices.rbegin(); it != indices.rend(); ++it) {
       const Keyframe& other = *keyframes_[*it];
       if (std::llabs(other.key.stamp_ns - key.stamp_ns) <= tolerance_ns) {
-        KeyframeRelativeRotation e;
         // Two cameras with known extrinsics need no image edge.
-        const bool calibrated = rig_calibrated_.count(camera) && rig_calibrated_.count(key.frame_id);
-        if (calibrated) ++stats_.rig_pairs_skipped;
-        if (!calibrated && Relate(other, *kf, EdgeSource::kRig, &e)) {
-          edges.push_back(e);
-          ++stats_.rig_edges;
+        if (rig_calibrated_.count(camera) && rig_calibrated_.count(key.frame_id)) {
+          ++stats_.rig_pairs_skipped;
+        } else {
+          tasks.push_back({*it, EdgeSource::kRig});
         }
         related.insert(*it);
       }
       if (other.key.stamp_ns < key.stamp_ns - tolerance_ns) break;  // older captures of that camera
+    }
+  }
+  std::vector<PairOutcome> outcomes = VerifyPairs(tasks, *kf);
+  if (!same.empty() && !outcomes[0].success && window > 1) {
+    // The previous pair failed: the newest older keyframe of the window that
+    // verifies keeps the chain whole.
+    std::vector<PairTask> fallback;
+    for (int r = 2; r <= window; ++r) fallback.push_back({same[same.size() - r], EdgeSource::kSequential});
+    const std::vector<PairOutcome> verified = VerifyPairs(fallback, *kf);
+    for (std::size_t f = 0; f < fallback.size(); ++f) {
+      if (!verified[f].success) continue;
+      tasks.push_back(fallback[f]);
+      outcomes.push_back(verified[f]);
+      ++stats_.chain_bridged;
+      break;
+    }
+  }
+  for (std::size_t t = 0; t < tasks.size(); ++t) {
+    if (!outcomes[t].success) continue;
+    const KeyframeRelativeRotation& e = outcomes[t].edge;
+    edges.push_back(e);
+    if (tasks[t].source == EdgeSource::kRig) {
+      ++stats_.rig_edges;
+      continue;
+    }
+    ++stats_.sequential_edges;
+    if (tasks[t].older == same.back()) {  // the previous keyframe: the chain loop closures are checked along
+      kf->has_sequential = true;
+      kf->sequential_rotation = e.rotation;
+      kf->sequential_covariance = e.covariance;
     }
   }
   // Loop closures: vote with a sample of descriptors, verify the best.
@@ -181,29 +218,35 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
         d.row(static_cast<int>(static_cast<long long>(r) * d.rows / options_.retrieval_sample)).copyTo(sample.row(r));
       }
     }
-    std::vector<std::pair<int, int>> votes;  // (votes, keyframe index)
-    for (int i = 0; i < static_cast<int>(keyframes_.size()); ++i) {
-      if (related.count(i) || recent.count(i) || keyframes_[i]->features.keypoints_px.size() < 20) continue;
+    std::vector<int> counts(keyframes_.size(), 0);
+    ParallelFor(static_cast<int>(keyframes_.size()), ResolveThreadCount(options_.num_threads), [&](int i) {
+      if (related.count(i) || recent.count(i) || keyframes_[i]->features.keypoints_px.size() < 20) return;
       const std::vector<int> nn = keyframes_[i]->index->RatioMatches(sample, options_.matching.ratio);
-      const int count = static_cast<int>(std::count_if(nn.begin(), nn.end(), [](int j) { return j >= 0; }));
-      if (count >= options_.min_retrieval_votes) votes.emplace_back(count, i);
+      counts[i] = static_cast<int>(std::count_if(nn.begin(), nn.end(), [](int j) { return j >= 0; }));
+    });
+    std::vector<std::pair<int, int>> votes;  // (votes, keyframe index)
+    for (int i = 0; i < static_cast<int>(counts.size()); ++i) {
+      if (counts[i] >= options_.min_retrieval_votes) votes.emplace_back(counts[i], i);
     }
     std::sort(votes.rbegin(), votes.rend());
     stats_.retrieval_s += Seconds(retrieval_start);
+    std::vector<PairTask> candidates;
+    for (int c = 0; c < options_.max_loop_candidates && c < static_cast<int>(votes.size()); ++c) {
+      candidates.push_back({votes[c].second, EdgeSource::kLoopClosure});
+    }
+    stats_.loop_candidates_tried += candidates.size();
+    const std::vector<PairOutcome> verified = VerifyPairs(candidates, *kf);
     std::vector<KeyframeRelativeRotation> loops;
     std::vector<int> old_ends;
-    for (int c = 0; c < options_.max_loop_candidates && c < static_cast<int>(votes.size()); ++c) {
-      ++stats_.loop_candidates_tried;
-      KeyframeRelativeRotation e;
-      if (Relate(*keyframes_[votes[c].second], *kf, EdgeSource::kLoopClosure, &e)) {
-        if (e.num_inliers < options_.min_loop_inliers) {
-          ++stats_.failed_pairs;
-          ++stats_.failures["loop_too_few_inliers"];
-          continue;
-        }
-        loops.push_back(e);
-        old_ends.push_back(votes[c].second);
+    for (std::size_t c = 0; c < candidates.size(); ++c) {
+      if (!verified[c].success) continue;
+      if (verified[c].edge.num_inliers < options_.min_loop_inliers) {
+        ++stats_.failed_pairs;
+        ++stats_.failures["loop_too_few_inliers"];
+        continue;
       }
+      loops.push_back(verified[c].edge);
+      old_ends.push_back(candidates[c].older);
     }
     FilterInconsistentLoops(&loops, old_ends);
     for (const KeyframeRelativeRotation& e : loops) {

@@ -192,6 +192,9 @@ std::string ReplayResult::Summary() const {
     out << "front end per keyframe: features " << 1e3 * frontend_features_s / keyframe_images << " ms, retrieval "
         << 1e3 * frontend_retrieval_s / keyframe_images << " ms, pair verification "
         << 1e3 * frontend_pairs_s / keyframe_images << " ms\n";
+    out << "two-view pairs: " << frontend_failed_pairs << " failed, " << frontend_chain_bridged
+        << " failed previous pairs bridged by an older keyframe, " << frontend_rotation_model_edges
+        << " edges from the rotation-only model\n";
   }
   if (damaged_messages > 0) out << "damaged messages dropped: " << damaged_messages << "\n";
   if (!rig_cameras.empty()) {
@@ -521,6 +524,9 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
     result.frontend_features_s = f->Stats().features_s;
     result.frontend_retrieval_s = f->Stats().retrieval_s;
     result.frontend_pairs_s = f->Stats().pairs_s;
+    result.frontend_failed_pairs = f->Stats().failed_pairs;
+    result.frontend_rotation_model_edges = f->Stats().rotation_model_edges;
+    result.frontend_chain_bridged = f->Stats().chain_bridged;
   }
   result.absorbed_by_rig = pipeline_stats.absorbed_by_rig;
   for (const auto& [camera, rig] : pipeline.Rig().RigCameras()) result.rig_cameras.push_back(camera + " in " + rig.first);

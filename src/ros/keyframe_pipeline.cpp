@@ -95,6 +95,8 @@ PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std
   c.rig.stamp_tolerance_s = f.rig_stamp_tolerance_s;
   c.rig.enabled = Param(params, "use_rig_extrinsics", c.rig.enabled);
   c.rig.rig_frame = Param(params, "rig_frame", c.rig.rig_frame);
+  f.covisibility_window = std::max(1, Param(params, "covisibility_window", f.covisibility_window));
+  f.num_threads = std::max(0, Param(params, "num_threads", f.num_threads));
   f.max_loop_candidates = Param(params, "max_loop_candidates", f.max_loop_candidates);
   f.min_loop_inliers = Param(params, "min_loop_inliers", f.min_loop_inliers);
   f.retrieval_sample = Param(params, "retrieval_sample", f.retrieval_sample);

@@ -155,13 +155,21 @@ Eigen::Matrix3d RigScene::WorldToCamera(int capture, int camera) const {
   return cameras_.at(camera).camera_from_rig * WorldToRig(capture);
 }
 
+Eigen::Vector3d RigScene::CameraCentre(int capture, int camera) const {
+  return RigPosition(capture) + WorldToRig(capture).transpose() * cameras_[camera].position_in_rig;
+}
+
 cv::Mat RigScene::Render(int capture, int camera) const {
-  const Eigen::Matrix3d world_to_camera = WorldToCamera(capture, camera);
+  return RenderView(WorldToCamera(capture, camera), CameraCentre(capture, camera),
+                    options_.seed * 7919 + static_cast<std::uint64_t>(capture) * 104729 + camera * 15485863);
+}
+
+cv::Mat RigScene::RenderView(const Eigen::Matrix3d& world_to_camera, const Eigen::Vector3d& centre,
+                             std::uint64_t noise_seed) const {
   const Eigen::Matrix3d camera_to_world = world_to_camera.transpose();
-  const Eigen::Vector3d centre = RigPosition(capture) + WorldToRig(capture).transpose() * cameras_[camera].position_in_rig;
   const double cx = 0.5 * options_.width, cy = 0.5 * options_.height, f = options_.focal_px;
   cv::Mat image(options_.height, options_.width, CV_8UC1);
-  cv::RNG rng(options_.seed * 7919 + static_cast<std::uint64_t>(capture) * 104729 + camera * 15485863);
+  cv::RNG rng(noise_seed);
   for (int y = 0; y < options_.height; ++y) {
     std::uint8_t* row = image.ptr<std::uint8_t>(y);
     for (int x = 0; x < options_.width; ++x) {

@@ -44,6 +44,9 @@ struct ReplayResult {
   std::map<std::string, std::size_t> edges_by_source;
   std::size_t keyframe_images = 0, rejected_images = 0, rejected_messages = 0;
   double frontend_features_s = 0.0, frontend_retrieval_s = 0.0, frontend_pairs_s = 0.0;
+  // Two-view pairs of the front end: failed, edges from the rotation-only
+  // model, and failed previous pairs bridged by an older keyframe.
+  std::uint64_t frontend_failed_pairs = 0, frontend_rotation_model_edges = 0, frontend_chain_bridged = 0;
   std::size_t solves = 0;
   double final_cost = 0.0;
   bool have_scores = false;

@@ -68,6 +68,12 @@ class RigScene {
   // 8-bit grey image of a camera at a capture, with noise (deterministic
   // for a given seed, capture and camera).
   cv::Mat Render(int capture, int camera) const;
+  // Position (world frame) of a camera at a capture.
+  Eigen::Vector3d CameraCentre(int capture, int camera) const;
+  // The room seen by any pinhole camera with the scene's intrinsics, from
+  // `centre` (world frame), with noise drawn from `noise_seed`.
+  cv::Mat RenderView(const Eigen::Matrix3d& world_to_camera, const Eigen::Vector3d& centre,
+                     std::uint64_t noise_seed) const;
 
  private:
   struct Surface;
