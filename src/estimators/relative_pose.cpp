@@ -46,6 +46,19 @@ double SampsonPx(const Eigen::Matrix3d& f, const Eigen::Vector2d& p1, const Eige
   return SampsonError<double>(f, p1.homogeneous(), p2.homogeneous());
 }
 
+// The fundamental matrix in pixels of the pose (R, t): K2^-T [t]x R K1^-1.
+Eigen::Matrix3d FundamentalPx(const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                              const Eigen::Matrix3d& rotation, const Eigen::Vector3d& t) {
+  return k2_inv.transpose() * Hat(t) * rotation * k1_inv;
+}
+
+// Standard deviation of Gaussian residuals from their absolute values
+// (1.4826 x the median: robust to the outliers among them); reorders them.
+double RobustSigma(std::vector<double>* absolute) {
+  std::nth_element(absolute->begin(), absolute->begin() + absolute->size() / 2, absolute->end());
+  return 1.4826 * (*absolute)[absolute->size() / 2];
+}
+
 // True if the point seen along bearings b1, b2 triangulates in front of both
 // cameras (least-squares depths of lambda2 b2 = lambda1 R b1 + t).
 bool InFront(const Eigen::Matrix3d& rotation, const Eigen::Vector3d& t, const Eigen::Vector3d& b1,
@@ -277,7 +290,7 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
     t = Eigen::Vector3d(tv[0], tv[1], tv[2]).normalized();
 
     // Re-select.
-    const Eigen::Matrix3d f = k2_inv.transpose() * Hat(t) * rotation * k1_inv;
+    const Eigen::Matrix3d f = FundamentalPx(k1_inv, k2_inv, rotation, t);
     std::vector<double> residual(n), absolute;
     absolute.reserve(n);
     for (int i = 0; i < n; ++i) {
@@ -286,8 +299,7 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
     }
     std::vector<double> inlier_abs;
     for (int i : inliers) inlier_abs.push_back(absolute[i]);
-    std::nth_element(inlier_abs.begin(), inlier_abs.begin() + inlier_abs.size() / 2, inlier_abs.end());
-    const double sigma = 1.4826 * inlier_abs[inlier_abs.size() / 2];
+    const double sigma = RobustSigma(&inlier_abs);
     std::vector<int> selected;
     for (int i = 0; i < n; ++i) {
       if (absolute[i] > 3.0 * sigma) continue;
@@ -356,7 +368,6 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
                                                                                        : result.covariance_marginal;
   return result;
 }
-
 
 // The rotation R minimising sum |b2 - R b1|^2 over unit bearings (Kabsch).
 Eigen::Matrix3d FitRotation(const std::vector<Eigen::Vector3d>& b1, const std::vector<Eigen::Vector3d>& b2,
@@ -552,6 +563,7 @@ void SelectModel(const std::vector<Eigen::Vector2d>& points1, const std::vector<
 // Below this share of the essential-matrix inliers explained by a homography,
 // no rotation (a special homography) can explain enough of them to win.
 constexpr double kRotationModelMinHomographyRatio = 0.5;
+
 // The essential-matrix model at the first threshold, then again at the
 // pair's own noise level; the inputs are checked by the caller.
 RelativePoseResult EstimateEssential(const std::vector<Eigen::Vector2d>& points1,
@@ -573,7 +585,7 @@ RelativePoseResult EstimateEssential(const std::vector<Eigen::Vector2d>& points1
   // Only the correspondences within the first threshold of the first model
   // take part: the others cannot be inliers of a model this close to it, and
   // without them the robust estimation stops after far fewer samples.
-  const Eigen::Matrix3d f = k2_inv.transpose() * Hat(first.translation) * first.rotation * k1_inv;
+  const Eigen::Matrix3d f = FundamentalPx(k1_inv, k2_inv, first.rotation, first.translation);
   std::vector<int> candidates;
   std::vector<Eigen::Vector2d> q1, q2;
   for (int i = 0; i < n; ++i) {
@@ -615,7 +627,7 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
   if (!rotation.success) return essential;
   double gric_essential = 0.0, gric_rotation = 0.0;
   if (essential.success) {
-    SelectModel(points1, points2, k1, k2, k2.inverse().transpose() * Hat(essential.translation) * essential.rotation * k1.inverse(),
+    SelectModel(points1, points2, k1, k2, FundamentalPx(k1_inv, k2_inv, essential.rotation, essential.translation),
                 essential.inliers, essential.sigma_px, rotation, &gric_essential, &gric_rotation);
   } else {
     // The pose could not be recovered from the essential matrix (no
@@ -624,9 +636,8 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
     std::vector<double> absolute;
     for (int i : fit.inliers) absolute.push_back(std::abs(SampsonPx(fit.f_px, points1[i], points2[i])));
     if (absolute.empty()) return essential;
-    std::nth_element(absolute.begin(), absolute.begin() + absolute.size() / 2, absolute.end());
-    SelectModel(points1, points2, k1, k2, fit.f_px, fit.inliers, 1.4826 * absolute[absolute.size() / 2], rotation,
-                &gric_essential, &gric_rotation);
+    SelectModel(points1, points2, k1, k2, fit.f_px, fit.inliers, RobustSigma(&absolute), rotation, &gric_essential,
+                &gric_rotation);
   }
   RelativePoseResult& chosen = gric_rotation < gric_essential ? rotation : essential;
   chosen.gric_essential = gric_essential;
