@@ -18,6 +18,8 @@ PACKAGES=(
   clang libclang-rt-14-dev  # libFuzzer targets (scripts/fuzz.sh); the fuzzer runtime is only a Recommends of clang
   pybind11-dev python3-numpy python3-pytest  # Python bindings and their tests
   libopenblas0-pthread  # BLAS for CHOLMOD's supernodal solves, thread-safe (see CMakeLists.txt)
+  libfaiss-dev  # k-means and nearest-word search of the loop-closure vocabulary
+  opencv-doc    # OpenCV's example photographs: what the default vocabulary is trained on
 )
 missing=()
 for p in "${PACKAGES[@]}"; do
@@ -31,6 +33,19 @@ if [ "${#missing[@]}" -gt 0 ]; then
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${missing[@]}" >/dev/null
 fi
 
-cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release -DPYTHON_EXECUTABLE=/usr/bin/python3 >/dev/null
+# Some container images keep dpkg from unpacking /usr/share/doc: then the
+# photographs come from opencv-doc's package file instead.
+IMAGES=/usr/share/doc/opencv-doc/examples/data
+if [ ! -d "$IMAGES" ]; then
+  mkdir -p build/opencv-doc
+  if [ ! -d build/opencv-doc/usr/share/doc/opencv-doc/examples/data ]; then
+    (cd build/opencv-doc && apt-get download opencv-doc >/dev/null && dpkg-deb -x opencv-doc_*.deb . && rm -f opencv-doc_*.deb)
+  fi
+  IMAGES=$(pwd)/build/opencv-doc/usr/share/doc/opencv-doc/examples/data
+fi
+
+cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release -DPYTHON_EXECUTABLE=/usr/bin/python3 \
+  -DROTAVG_VOCABULARY_IMAGES="$IMAGES" >/dev/null
 cmake --build build
+cmake --build build --target vocabulary  # once: the default vocabulary of loop-closure retrieval
 echo "setup: built into $(pwd)/build (tools in build/devel/lib/rotation_averaging)"

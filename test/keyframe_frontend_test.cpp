@@ -11,6 +11,7 @@
 
 #include "rotation_averaging/controllers/image_pipeline.h"
 #include "rotation_averaging/eval/rotation_evaluation.h"
+#include "rotation_averaging/features/vocabulary.h"
 #include "rotation_averaging/geometry/so3.h"
 #include "rotation_averaging/io/orientation_io.h"
 #include "rotation_averaging/scene/rig_scene.h"
@@ -200,39 +201,113 @@ TEST(KeyframeFrontend, AFailedPairDoesNotCutTheChain) {
   EXPECT_EQ(Components(Feed(&no_window, seq), members), 2);
 }
 
+// A small vocabulary trained on views of a room with other textures (the
+// front end never sees those images).
+std::shared_ptr<const Vocabulary> TestVocabulary() {
+  static const std::shared_ptr<const Vocabulary> vocabulary = [] {
+    RigSceneOptions o;
+    o.seed = 11;
+    o.num_cameras = 1;
+    o.num_captures = 12;
+    o.WithWidth(480);
+    const RigScene scene(o);
+    FeatureOptions f;
+    f.max_features = 800;
+    std::vector<cv::Mat> descriptors;
+    for (int c = 0; c < o.num_captures; ++c) descriptors.push_back(ExtractFeatures(scene.Render(c, 0), f).descriptors);
+    VocabularyOptions options;
+    options.words = 256;
+    std::string error;
+    std::shared_ptr<const Vocabulary> v = Vocabulary::Train(descriptors, options, &error);
+    EXPECT_TRUE(v) << error;
+    return v;
+  }();
+  return vocabulary;
+}
+
+// Three laps round the room: retrieval by vocabulary finds loop closures on
+// the second and third laps, none of them wrong, while keyframes that left
+// the recent window hold only their compact features.
+TEST(KeyframeFrontend, VocabularyClosesLoopsOnEveryLapWithCompactKeyframes) {
+  constexpr int kPerLap = 16;
+  RigSceneOptions o;
+  o.num_cameras = 1;
+  o.laps = 3;
+  o.num_captures = 3 * kPerLap;
+  o.WithWidth(480);
+  const RigScene scene(o);
+  RenderedSequence seq;
+  seq.k = scene.Intrinsics();
+  std::set<int> members;
+  for (int c = 0; c < o.num_captures; ++c) {
+    seq.world_to_camera.push_back(scene.WorldToCamera(c, 0));
+    seq.images.push_back(scene.Render(c, 0));
+    members.insert(c);
+  }
+  KeyframeFrontendOptions options;
+  options.features.max_features = 600;
+  options.compact_features = 300;
+  options.vocabulary = TestVocabulary();
+  KeyframeFrontend frontend(options);
+  ASSERT_TRUE(frontend.UsesVocabulary());
+  const std::vector<KeyframeRelativeRotation> edges = Feed(&frontend, seq);
+  std::map<int, int> loops_per_lap;  // by the lap of the newer keyframe
+  for (const KeyframeRelativeRotation& e : edges) {
+    // 480 pixels wide, 22.5 deg between keyframes, loops matched on 300
+    // features: a few edges err up to 0.7 deg, none is wrong.
+    EXPECT_LT(EdgeErrorDeg(seq, e), 1.0) << Index(e.keyframe1) << "-" << Index(e.keyframe2);
+    if (e.source == EdgeSource::kLoopClosure) ++loops_per_lap[Index(e.keyframe2) / kPerLap];
+  }
+  EXPECT_GT(loops_per_lap[1], 0);
+  EXPECT_GT(loops_per_lap[2], 0);
+  EXPECT_EQ(Components(edges, members), 1);
+  const KeyframeFrontendStats& stats = frontend.Stats();
+  EXPECT_EQ(stats.compacted_keyframes, static_cast<std::uint64_t>(o.num_captures - options.covisibility_window));
+  EXPECT_LE(stats.compact_bytes / stats.compacted_keyframes, 200u * 1024u);
+  EXPECT_LT(stats.keyframe_bytes, o.num_captures * 200u * 1024u);
+}
+
+// The edges of the rendered rig's loop with `threads` threads.
+std::vector<KeyframeRelativeRotation> RigEdges(const RigScene& scene, int threads, bool vocabulary) {
+  KeyframeFrontendOptions options;
+  options.num_threads = threads;
+  options.features.max_features = 600;
+  if (vocabulary) options.vocabulary = TestVocabulary();
+  KeyframeFrontend frontend(options);
+  std::vector<KeyframeRelativeRotation> edges;
+  for (int c = 0; c < scene.Options().num_captures; ++c) {
+    for (int cam = 0; cam < scene.Options().num_cameras; ++cam) {
+      const KeyframeKey key{scene.Cameras()[cam].frame_id, (c + 1) * 1'000'000'000LL};
+      for (const KeyframeRelativeRotation& e : frontend.AddKeyframe(key, scene.Render(c, cam), scene.Intrinsics())) {
+        edges.push_back(e);
+      }
+    }
+  }
+  return edges;
+}
+
 // Verification and retrieval run on a thread pool; the edges must not depend
-// on how many threads there are.
+// on how many threads there are, whether retrieval votes or uses the
+// vocabulary (where compact keyframes get temporary indices).
 TEST(KeyframeFrontend, EdgesDoNotDependOnTheThreadCount) {
   RigSceneOptions scene_options;
   scene_options.num_captures = 16;  // revisits after a full circle: retrieval has candidates
   scene_options.WithWidth(480);
   const RigScene scene(scene_options);
-  std::vector<std::vector<KeyframeRelativeRotation>> runs;
-  for (const int threads : {1, 3}) {
-    KeyframeFrontendOptions options;
-    options.num_threads = threads;
-    options.features.max_features = 600;
-    KeyframeFrontend frontend(options);
-    runs.emplace_back();
-    for (int c = 0; c < scene_options.num_captures; ++c) {
-      for (int cam = 0; cam < scene_options.num_cameras; ++cam) {
-        const KeyframeKey key{scene.Cameras()[cam].frame_id, (c + 1) * 1'000'000'000LL};
-        for (const KeyframeRelativeRotation& e : frontend.AddKeyframe(key, scene.Render(c, cam), scene.Intrinsics())) {
-          runs.back().push_back(e);
-        }
-      }
+  for (const bool vocabulary : {false, true}) {
+    const std::vector<KeyframeRelativeRotation> one = RigEdges(scene, 1, vocabulary);
+    const std::vector<KeyframeRelativeRotation> three = RigEdges(scene, 3, vocabulary);
+    ASSERT_EQ(one.size(), three.size());
+    ASSERT_GT(one.size(), 20u);
+    for (std::size_t i = 0; i < one.size(); ++i) {
+      const KeyframeRelativeRotation &a = one[i], &b = three[i];
+      EXPECT_EQ(OnlineAverager::KeyframeName(a.keyframe1), OnlineAverager::KeyframeName(b.keyframe1));
+      EXPECT_EQ(OnlineAverager::KeyframeName(a.keyframe2), OnlineAverager::KeyframeName(b.keyframe2));
+      EXPECT_TRUE(a.rotation == b.rotation) << "edge " << i << (vocabulary ? " (vocabulary)" : " (voting)");
+      EXPECT_TRUE(a.covariance == b.covariance) << "edge " << i;
+      EXPECT_EQ(a.num_inliers, b.num_inliers);
+      EXPECT_EQ(a.source, b.source);
     }
-  }
-  ASSERT_EQ(runs[0].size(), runs[1].size());
-  ASSERT_GT(runs[0].size(), 20u);
-  for (std::size_t i = 0; i < runs[0].size(); ++i) {
-    const KeyframeRelativeRotation &a = runs[0][i], &b = runs[1][i];
-    EXPECT_EQ(OnlineAverager::KeyframeName(a.keyframe1), OnlineAverager::KeyframeName(b.keyframe1));
-    EXPECT_EQ(OnlineAverager::KeyframeName(a.keyframe2), OnlineAverager::KeyframeName(b.keyframe2));
-    EXPECT_TRUE(a.rotation == b.rotation) << "edge " << i;
-    EXPECT_TRUE(a.covariance == b.covariance) << "edge " << i;
-    EXPECT_EQ(a.num_inliers, b.num_inliers);
-    EXPECT_EQ(a.source, b.source);
   }
 }
 

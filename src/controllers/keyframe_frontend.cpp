@@ -22,27 +22,46 @@ struct KeyframeFrontend::Keyframe {
   bool has_sequential = false;           // sequential edge from the previous keyframe of its camera
   Eigen::Matrix3d sequential_rotation;   // R_prev,this
   Eigen::Matrix3d sequential_covariance;
-  ImageFeatures features;
-  std::unique_ptr<FeatureIndex> index;
+  ImageFeatures features;              // all of them, or the compact set once out of the recent window
+  std::unique_ptr<FeatureIndex> index;  // null once compact
+  bool compact = false;
+  BowVector bow;                        // with a vocabulary
   Eigen::Matrix3d k;  // intrinsics of the (resized) image the features come from
 };
 
-KeyframeFrontend::KeyframeFrontend(const KeyframeFrontendOptions& options) : options_(options) {}
+KeyframeFrontend::KeyframeFrontend(const KeyframeFrontendOptions& options) : options_(options) {
+  // A SIFT vocabulary describes SIFT descriptors only.
+  if (options_.vocabulary && (options_.features.type != FeatureType::kSift || options_.vocabulary->Dimension() != 128)) {
+    options_.vocabulary.reset();
+  }
+  if (options_.vocabulary) inverted_index_ = std::make_unique<InvertedIndex>(options_.vocabulary->NumWords());
+}
 KeyframeFrontend::~KeyframeFrontend() = default;
 
 std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const std::vector<PairTask>& tasks,
                                                                          const Keyframe& newer) {
   const auto start = Clock::now();
   std::vector<PairOutcome> outcomes(tasks.size());
+  // Compact keyframes get a temporary index, built here on one thread: FLANN
+  // draws its trees from the global std::rand, which threads would race for.
+  std::vector<ImageFeatures> matchable(tasks.size());
+  std::vector<std::unique_ptr<FeatureIndex>> temporary(tasks.size());
+  for (std::size_t t = 0; t < tasks.size(); ++t) {
+    const Keyframe& a = *keyframes_[tasks[t].older];
+    if (!a.compact) continue;
+    matchable[t] = MatchableFeatures(a.features);
+    temporary[t] = std::make_unique<FeatureIndex>(matchable[t]);
+  }
   ParallelFor(static_cast<int>(tasks.size()), ResolveThreadCount(options_.num_threads), [&](int t) {
     const Keyframe& a = *keyframes_[tasks[t].older];
+    const ImageFeatures& a_features = a.compact ? matchable[t] : a.features;
     const std::vector<std::pair<int, int>> matches =
-        MatchFeatures(a.features, *a.index, newer.features, *newer.index, options_.matching);
+        MatchFeatures(a_features, a.compact ? *temporary[t] : *a.index, newer.features, *newer.index, options_.matching);
     std::vector<Eigen::Vector2d> pa, pb;
     pa.reserve(matches.size());
     pb.reserve(matches.size());
     for (const auto& [i, j] : matches) {
-      pa.push_back(a.features.keypoints_px[i]);
+      pa.push_back(a_features.keypoints_px[i]);
       pb.push_back(newer.features.keypoints_px[j]);
     }
     const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, a.k, newer.k, options_.relative_pose);
@@ -137,7 +156,10 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   kf->index = std::make_unique<FeatureIndex>(kf->features);
   const double s = options_.features.downsample > 0.0 ? options_.features.downsample : 1.0;
   kf->k = ScaleIntrinsics(k, s);
-  stats_.features_s += Seconds(start);
+  stats_.last_features_s = Seconds(start);
+  stats_.features_s += stats_.last_features_s;
+  stats_.last_retrieval_s = stats_.last_pairs_s = 0.0;
+  const double pairs_before = stats_.pairs_s;
   ++stats_.keyframes;
   if (kf->features.keypoints_px.size() < 20) {
     keyframes_.push_back(std::move(kf));
@@ -201,39 +223,21 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
       kf->sequential_covariance = e.covariance;
     }
   }
-  // Loop closures: vote with a sample of descriptors, verify the best.
+  // Loop closures: retrieve candidates, verify them.
   if (options_.max_loop_candidates > 0) {
     const auto retrieval_start = Clock::now();
-    std::set<int> recent;
+    if (options_.vocabulary) kf->bow = options_.vocabulary->Describe(kf->features.descriptors);
+    std::set<int> excluded = related;
     for (int r = 0; r < options_.loop_exclude_recent && r < static_cast<int>(same.size()); ++r) {
-      recent.insert(same[same.size() - 1 - r]);
+      excluded.insert(same[same.size() - 1 - r]);
     }
-    const cv::Mat& d = kf->features.descriptors;
-    cv::Mat sample;
-    if (d.rows <= options_.retrieval_sample) {
-      sample = d;
-    } else {
-      sample.create(options_.retrieval_sample, d.cols, d.type());
-      for (int r = 0; r < options_.retrieval_sample; ++r) {
-        d.row(static_cast<int>(static_cast<long long>(r) * d.rows / options_.retrieval_sample)).copyTo(sample.row(r));
-      }
-    }
-    std::vector<int> counts(keyframes_.size(), 0);
-    ParallelFor(static_cast<int>(keyframes_.size()), ResolveThreadCount(options_.num_threads), [&](int i) {
-      if (related.count(i) || recent.count(i) || keyframes_[i]->features.keypoints_px.size() < 20) return;
-      const std::vector<int> nn = keyframes_[i]->index->RatioMatches(sample, options_.matching.ratio);
-      counts[i] = static_cast<int>(std::count_if(nn.begin(), nn.end(), [](int j) { return j >= 0; }));
-    });
-    std::vector<std::pair<int, int>> votes;  // (votes, keyframe index)
-    for (int i = 0; i < static_cast<int>(counts.size()); ++i) {
-      if (counts[i] >= options_.min_retrieval_votes) votes.emplace_back(counts[i], i);
-    }
-    std::sort(votes.rbegin(), votes.rend());
-    stats_.retrieval_s += Seconds(retrieval_start);
+    const std::vector<int> retrieved = options_.vocabulary
+                                           ? RetrieveByVocabulary(*kf, excluded, same.empty() ? -1 : same.back())
+                                           : RetrieveByVoting(*kf, excluded);
+    stats_.last_retrieval_s = Seconds(retrieval_start);
+    stats_.retrieval_s += stats_.last_retrieval_s;
     std::vector<PairTask> candidates;
-    for (int c = 0; c < options_.max_loop_candidates && c < static_cast<int>(votes.size()); ++c) {
-      candidates.push_back({votes[c].second, EdgeSource::kLoopClosure});
-    }
+    for (int c : retrieved) candidates.push_back({c, EdgeSource::kLoopClosure});
     stats_.loop_candidates_tried += candidates.size();
     const std::vector<PairOutcome> verified = VerifyPairs(candidates, *kf);
     std::vector<KeyframeRelativeRotation> loops;
@@ -254,9 +258,85 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
       ++stats_.loop_closure_edges;
     }
   }
+  if (inverted_index_) inverted_index_->Add(static_cast<int>(keyframes_.size()), kf->bow);
+  stats_.keyframe_bytes += KeyframeBytes(*kf);
   keyframes_.push_back(std::move(kf));
-  by_camera_[key.frame_id].push_back(static_cast<int>(keyframes_.size()) - 1);
+  std::vector<int>& chain = by_camera_[key.frame_id];
+  chain.push_back(static_cast<int>(keyframes_.size()) - 1);
+  // The keyframe leaving this camera's recent window: rig, sequential and
+  // bridging pairs only reach into the window, loop closures need less.
+  const int recent = std::max(1, options_.covisibility_window);
+  if (options_.vocabulary && static_cast<int>(chain.size()) > recent) {
+    Compact(keyframes_[chain[chain.size() - 1 - recent]].get());
+  }
+  stats_.last_pairs_s = stats_.pairs_s - pairs_before;
   return edges;
+}
+
+std::string KeyframeFrontend::RetrievalName() const {
+  return options_.vocabulary
+             ? "vocabulary of " + std::to_string(options_.vocabulary->NumWords()) + " words (inverted index)"
+             : "voting over every keyframe (no vocabulary)";
+}
+
+std::size_t KeyframeFrontend::KeyframeBytes(const Keyframe& keyframe) const {
+  // The bag of words, and its entries in the inverted index.
+  return FeatureMemoryBytes(keyframe.features) + 2 * keyframe.bow.size() * sizeof(std::pair<int, float>);
+}
+
+void KeyframeFrontend::Compact(Keyframe* keyframe) {
+  if (keyframe->compact) return;
+  stats_.keyframe_bytes -= KeyframeBytes(*keyframe);
+  keyframe->features = CompactFeatures(keyframe->features, options_.compact_features);
+  keyframe->index.reset();
+  keyframe->compact = true;
+  stats_.keyframe_bytes += KeyframeBytes(*keyframe);
+  stats_.compact_bytes += KeyframeBytes(*keyframe);
+  ++stats_.compacted_keyframes;
+}
+
+std::vector<int> KeyframeFrontend::RetrieveByVocabulary(const Keyframe& kf, const std::set<int>& excluded,
+                                                        int previous) {
+  double min_score = 0.0;
+  if (previous >= 0 && options_.min_retrieval_score_ratio > 0.0) {
+    min_score = options_.min_retrieval_score_ratio * BowScore(kf.bow, keyframes_[previous]->bow);
+  }
+  const std::vector<std::pair<double, int>> hits =
+      inverted_index_->Query(kf.bow, options_.max_loop_candidates, min_score, [&](int id) {
+        return excluded.count(id) > 0 || keyframes_[id]->features.keypoints_px.size() < 20;
+      });
+  std::vector<int> out;
+  for (const auto& [score, id] : hits) out.push_back(id);
+  return out;
+}
+
+std::vector<int> KeyframeFrontend::RetrieveByVoting(const Keyframe& kf, const std::set<int>& excluded) {
+  const cv::Mat& d = kf.features.descriptors;
+  cv::Mat sample;
+  if (d.rows <= options_.retrieval_sample) {
+    sample = d;
+  } else {
+    sample.create(options_.retrieval_sample, d.cols, d.type());
+    for (int r = 0; r < options_.retrieval_sample; ++r) {
+      d.row(static_cast<int>(static_cast<long long>(r) * d.rows / options_.retrieval_sample)).copyTo(sample.row(r));
+    }
+  }
+  std::vector<int> counts(keyframes_.size(), 0);
+  ParallelFor(static_cast<int>(keyframes_.size()), ResolveThreadCount(options_.num_threads), [&](int i) {
+    if (excluded.count(i) || keyframes_[i]->features.keypoints_px.size() < 20) return;
+    const std::vector<int> nn = keyframes_[i]->index->RatioMatches(sample, options_.matching.ratio);
+    counts[i] = static_cast<int>(std::count_if(nn.begin(), nn.end(), [](int j) { return j >= 0; }));
+  });
+  std::vector<std::pair<int, int>> votes;  // (votes, keyframe index)
+  for (int i = 0; i < static_cast<int>(counts.size()); ++i) {
+    if (counts[i] >= options_.min_retrieval_votes) votes.emplace_back(counts[i], i);
+  }
+  std::sort(votes.rbegin(), votes.rend());
+  std::vector<int> out;
+  for (int c = 0; c < options_.max_loop_candidates && c < static_cast<int>(votes.size()); ++c) {
+    out.push_back(votes[c].second);
+  }
+  return out;
 }
 
 }  // namespace rotation_averaging

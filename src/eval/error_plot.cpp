@@ -192,4 +192,46 @@ bool WriteCdfPlot(const std::string& path, const std::string& title, const std::
   return Write(path, canvas, error);
 }
 
+bool WriteLinePlot(const std::string& path, const std::string& title, const std::string& x_label,
+                   const std::string& y_label, const std::vector<LineSeries>& series, std::string* error) {
+  std::vector<double> ys;
+  double x_max = 0.0;
+  for (const LineSeries& s : series) {
+    for (std::size_t i = 0; i < s.x.size() && i < s.y.size(); ++i) {
+      if (!std::isfinite(s.x[i]) || !std::isfinite(s.y[i])) continue;
+      ys.push_back(s.y[i]);
+      x_max = std::max(x_max, s.x[i]);
+    }
+  }
+  if (ys.empty()) {
+    if (error) *error = "no finite points to plot";
+    return false;
+  }
+  std::sort(ys.begin(), ys.end());
+  const double y99 = ys[std::min(ys.size() - 1, static_cast<std::size_t>(0.99 * ys.size()))];
+  const int width = kMarginLeft + kPanelWidth + 60, height = kMarginTop + kPanelHeight + kMarginBottom + 40;
+  cv::Mat canvas(height, width, CV_8UC3, cv::Scalar(255, 255, 255));
+  cv::putText(canvas, title, cv::Point(20, 28), cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  Panel panel{cv::Rect(kMarginLeft, kMarginTop + 30, kPanelWidth, kPanelHeight), NiceCeiling(x_max),
+              NiceCeiling(y99 * 1.05)};
+  DrawAxes(&canvas, panel, x_label, y_label, "");
+  int legend_y = panel.area.y + 18;
+  for (std::size_t k = 0; k < series.size(); ++k) {
+    const LineSeries& s = series[k];
+    bool have_previous = false;
+    cv::Point previous;
+    for (std::size_t i = 0; i < s.x.size() && i < s.y.size(); ++i) {
+      if (!std::isfinite(s.x[i]) || !std::isfinite(s.y[i])) continue;
+      const cv::Point at = panel.Map(s.x[i], s.y[i]);
+      if (have_previous) cv::line(canvas, previous, at, Colour(k), 1, cv::LINE_AA);
+      previous = at;
+      have_previous = true;
+    }
+    cv::putText(canvas, s.label, cv::Point(panel.area.x + 10, legend_y), cv::FONT_HERSHEY_SIMPLEX, 0.45, Colour(k), 1,
+                cv::LINE_AA);
+    legend_y += 18;
+  }
+  return Write(path, canvas, error);
+}
+
 }  // namespace rotation_averaging

@@ -50,8 +50,51 @@ ImageFeatures ExtractFeatures(const cv::Mat& image, const FeatureOptions& option
   std::vector<cv::KeyPoint> keypoints;
   detector->detectAndCompute(grey, cv::noArray(), keypoints, out.descriptors);
   out.keypoints_px.reserve(keypoints.size());
-  for (const cv::KeyPoint& k : keypoints) out.keypoints_px.emplace_back(k.pt.x, k.pt.y);
+  out.strength.reserve(keypoints.size());
+  for (const cv::KeyPoint& k : keypoints) {
+    out.keypoints_px.emplace_back(k.pt.x, k.pt.y);
+    out.strength.push_back(k.response);
+  }
   return out;
+}
+
+ImageFeatures CompactFeatures(const ImageFeatures& features, int max_features) {
+  ImageFeatures out;
+  out.type = features.type;
+  out.width = features.width;
+  out.height = features.height;
+  const int n = static_cast<int>(features.keypoints_px.size());
+  std::vector<int> keep(n);
+  for (int i = 0; i < n; ++i) keep[i] = i;
+  if (n > max_features && static_cast<int>(features.strength.size()) == n) {
+    // The strongest, ties by index; then back in the original order.
+    std::stable_sort(keep.begin(), keep.end(),
+                     [&](int a, int b) { return features.strength[a] > features.strength[b]; });
+    keep.resize(std::max(0, max_features));
+    std::sort(keep.begin(), keep.end());
+  } else if (n > max_features) {
+    keep.resize(std::max(0, max_features));
+  }
+  const int type = features.type == FeatureType::kSift ? CV_8U : features.descriptors.type();
+  if (!features.descriptors.empty()) out.descriptors.create(static_cast<int>(keep.size()), features.descriptors.cols, type);
+  for (std::size_t r = 0; r < keep.size(); ++r) {
+    out.keypoints_px.push_back(features.keypoints_px[keep[r]]);
+    if (static_cast<int>(features.strength.size()) == n) out.strength.push_back(features.strength[keep[r]]);
+    if (!features.descriptors.empty()) features.descriptors.row(keep[r]).convertTo(out.descriptors.row(static_cast<int>(r)), type);
+  }
+  return out;
+}
+
+ImageFeatures MatchableFeatures(const ImageFeatures& features) {
+  if (features.type != FeatureType::kSift || features.descriptors.type() == CV_32F) return features;
+  ImageFeatures out = features;
+  features.descriptors.convertTo(out.descriptors, CV_32F);
+  return out;
+}
+
+std::size_t FeatureMemoryBytes(const ImageFeatures& features) {
+  return features.keypoints_px.capacity() * sizeof(Eigen::Vector2d) + features.strength.capacity() * sizeof(float) +
+         features.descriptors.total() * features.descriptors.elemSize();
 }
 
 namespace {

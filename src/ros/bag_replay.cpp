@@ -192,9 +192,39 @@ std::string ReplayResult::Summary() const {
     out << "front end per keyframe: features " << 1e3 * frontend_features_s / keyframe_images << " ms, retrieval "
         << 1e3 * frontend_retrieval_s / keyframe_images << " ms, pair verification "
         << 1e3 * frontend_pairs_s / keyframe_images << " ms\n";
-    out << "two-view pairs: " << frontend_failed_pairs << " failed, " << frontend_chain_bridged
+    out << "two-view pairs: " << frontend_failed_pairs << " failed";
+    if (!frontend_failures.empty()) {
+      out << " (";
+      bool first = true;
+      for (const auto& [why, n] : frontend_failures) {
+        out << (first ? "" : ", ") << why << " " << n;
+        first = false;
+      }
+      out << ")";
+    }
+    out << ", " << frontend_chain_bridged
         << " failed previous pairs bridged by an older keyframe, " << frontend_rotation_model_edges
         << " edges from the rotation-only model\n";
+    out << "loop closures: " << loop_closure_edges << " edges from " << loop_candidates
+        << " verified candidates; retrieval: " << retrieval << "\n";
+    out << "front-end memory: " << frontend_bytes / 1048576.0 << " MiB of features and retrieval data for "
+        << keyframe_images << " keyframes";
+    if (compacted_keyframes > 0) {
+      out << " (" << compacted_keyframes << " compact, " << compact_bytes / 1024.0 / compacted_keyframes
+          << " KB each)";
+    }
+    out << "\n";
+    const std::size_t n = frontend_cost.size();
+    if (n >= 300) {
+      auto mean = [this](std::size_t from, std::size_t to) {
+        double sum = 0.0;
+        for (std::size_t k = from; k < to; ++k) sum += frontend_cost[k].total_ms;
+        return sum / static_cast<double>(to - from);
+      };
+      const double early = mean(100, 200), late = mean(n - 100, n);
+      out << "front-end cost per keyframe: keyframes 100-200 " << early << " ms, last 100 " << late << " ms ("
+          << late / early << "x)\n";
+    }
   }
   if (damaged_messages > 0) out << "damaged messages dropped: " << damaged_messages << "\n";
   if (!rig_cameras.empty()) {
@@ -220,6 +250,8 @@ std::string ReplayResult::Summary() const {
   out << "outputs:\n  " << orientations_csv << "\n  " << graph_file << "\n  " << output_bag;
   if (!scores_file.empty()) out << "\n  " << scores_file;
   if (!plot_png.empty()) out << "\n  " << plot_png;
+  if (!frontend_cost_csv.empty()) out << "\n  " << frontend_cost_csv;
+  if (!frontend_cost_png.empty()) out << "\n  " << frontend_cost_png;
   for (const std::string& w : warnings) out << "\nwarning: " << w;
   return out.str();
 }
@@ -417,7 +449,17 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
     if (!ok) return warn("image on " + stream.image_topic + " at " + std::to_string(time.toSec()) + " dropped: " + why);
     bool loop_closure = false;
     std::vector<std::string> warnings;
+    const auto frontend_start = std::chrono::steady_clock::now();
     if (pipeline.ProcessKeyframe(keyframe, &loop_closure, &warnings) > 0) dirty = true;
+    if (const KeyframeFrontend* f = pipeline.Frontend()) {
+      const KeyframeFrontendStats& fs = f->Stats();
+      ReplayResult::KeyframeCost cost;
+      cost.features_ms = 1e3 * fs.last_features_s;
+      cost.retrieval_ms = 1e3 * fs.last_retrieval_s;
+      cost.pairs_ms = 1e3 * fs.last_pairs_s;
+      cost.total_ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - frontend_start).count();
+      result.frontend_cost.push_back(cost);
+    }
     for (const std::string& w : warnings) warn(w);
     if (loop_closure && config.averager.solve_early_on_loop_closure) solve(time);
   };
@@ -527,6 +569,41 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
     result.frontend_failed_pairs = f->Stats().failed_pairs;
     result.frontend_rotation_model_edges = f->Stats().rotation_model_edges;
     result.frontend_chain_bridged = f->Stats().chain_bridged;
+    result.loop_candidates = f->Stats().loop_candidates_tried;
+    result.loop_closure_edges = f->Stats().loop_closure_edges;
+    result.frontend_bytes = f->Stats().keyframe_bytes;
+    result.compacted_keyframes = f->Stats().compacted_keyframes;
+    result.compact_bytes = f->Stats().compact_bytes;
+    result.frontend_failures = f->Stats().failures;
+    result.retrieval = f->RetrievalName();
+  }
+  if (!result.frontend_cost.empty()) {
+    result.frontend_cost_csv = options.output_dir + "/frontend_cost.csv";
+    std::ofstream csv(result.frontend_cost_csv);
+    csv << "keyframe,features_ms,retrieval_ms,pairs_ms,total_ms\n";
+    LineSeries total{"front end, all (mean of 20)", {}, {}}, retrieval{"retrieval (mean of 20)", {}, {}};
+    double sum_total = 0.0, sum_retrieval = 0.0;
+    for (std::size_t k = 0; k < result.frontend_cost.size(); ++k) {
+      const ReplayResult::KeyframeCost& c = result.frontend_cost[k];
+      csv << k + 1 << "," << c.features_ms << "," << c.retrieval_ms << "," << c.pairs_ms << "," << c.total_ms << "\n";
+      // Means over 20 keyframes: single keyframes with a loop closure to
+      // verify are several times the others.
+      sum_total += c.total_ms;
+      sum_retrieval += c.retrieval_ms;
+      if ((k + 1) % 20 == 0) {
+        total.x.push_back(static_cast<double>(k + 1));
+        total.y.push_back(sum_total / 20);
+        retrieval.x.push_back(static_cast<double>(k + 1));
+        retrieval.y.push_back(sum_retrieval / 20);
+        sum_total = sum_retrieval = 0.0;
+      }
+    }
+    if (!csv) return fail("cannot write " + result.frontend_cost_csv);
+    result.frontend_cost_png = options.output_dir + "/frontend_cost.png";
+    if (!WriteLinePlot(result.frontend_cost_png, "front-end wall time per keyframe against the keyframe count",
+                       "keyframes", "ms per keyframe", {total, retrieval}, &error)) {
+      result.frontend_cost_png.clear();  // fewer than 20 keyframes: nothing to draw
+    }
   }
   result.absorbed_by_rig = pipeline_stats.absorbed_by_rig;
   for (const auto& [camera, rig] : pipeline.Rig().RigCameras()) result.rig_cameras.push_back(camera + " in " + rig.first);

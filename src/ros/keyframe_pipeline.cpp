@@ -32,6 +32,14 @@ std::size_t PositiveSize(const ParameterSource& params, const std::string& name,
 
 }  // namespace
 
+std::string DefaultVocabularyPath() {
+#ifdef ROTAVG_DEFAULT_VOCABULARY
+  return ROTAVG_DEFAULT_VOCABULARY;
+#else
+  return "";
+#endif
+}
+
 std::string KeyframeFrameName(const std::string& format, const KeyframeKey& key) {
   return Replace(Replace(format, "{frame_id}", key.frame_id), "{stamp_ns}", std::to_string(key.stamp_ns));
 }
@@ -100,6 +108,24 @@ PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std
   f.max_loop_candidates = Param(params, "max_loop_candidates", f.max_loop_candidates);
   f.min_loop_inliers = Param(params, "min_loop_inliers", f.min_loop_inliers);
   f.retrieval_sample = Param(params, "retrieval_sample", f.retrieval_sample);
+  f.compact_features = std::max(20, Param(params, "compact_features", f.compact_features));
+  f.min_retrieval_score_ratio = std::max(0.0, Param(params, "min_retrieval_score_ratio", f.min_retrieval_score_ratio));
+  c.vocabulary = Param(params, "vocabulary", c.vocabulary);
+  if (c.vocabulary == "default") c.vocabulary = DefaultVocabularyPath();
+  if (!c.image_topics.empty() && f.max_loop_candidates > 0) {
+    const std::string linear = ": loop-closure candidates are searched for in every keyframe, a cost that grows with the map";
+    if (c.vocabulary.empty() || c.vocabulary == "none") {
+      c.vocabulary.clear();
+      warn("no vocabulary set" + linear + " (train one with `rotavg vocabulary`, see README)");
+    } else if (f.features.type != FeatureType::kSift) {
+      warn("the vocabulary describes SIFT, not " + features + linear);
+    } else {
+      std::string error;
+      std::shared_ptr<const Vocabulary> vocabulary = Vocabulary::Load(c.vocabulary, &error);
+      if (vocabulary) f.vocabulary = vocabulary;
+      else warn("vocabulary not loaded (" + error + ")" + linear);
+    }
+  }
   c.max_image_queue = PositiveSize(params, "max_image_queue", 8, 1);
   c.markers = Param(params, "markers", c.markers);
   c.marker_spacing_m = Param(params, "marker_spacing", c.marker_spacing_m);
@@ -244,7 +270,13 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   std::lock_guard<std::mutex> lock(mutex_);
   ++stats_.processed_images;
   stats_.edges_from_images += added;
+  frontend_stats_ = frontend_->Stats();
   return added;
+}
+
+KeyframeFrontendStats KeyframePipeline::FrontendStats() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return frontend_stats_;
 }
 
 Orientations KeyframePipeline::OrientationsMsg(const OnlineSolution& solution, const ros::Time& stamp) const {

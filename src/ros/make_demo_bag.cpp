@@ -1,7 +1,7 @@
 // rotation_averaging_make_demo_bag: renders the synthetic rig of
 // scene/rig_scene.h into a bag the node and the replay tool can use.
 //
-//   rotation_averaging_make_demo_bag --output demo.bag [--captures 60] [--cameras 2]
+//   rotation_averaging_make_demo_bag --output demo.bag [--captures 60] [--cameras 2] [--laps 1]
 //       [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]
 //       [--gt-csv ground_truth.csv]
 //
@@ -22,7 +22,7 @@ namespace {
 
 int Usage(const std::string& why) {
   if (!why.empty()) std::cerr << "rotation_averaging_make_demo_bag: " << why << "\n";
-  std::cerr << "usage: rotation_averaging_make_demo_bag --output demo.bag [--captures 60] [--cameras 2]\n"
+  std::cerr << "usage: rotation_averaging_make_demo_bag --output demo.bag [--captures 60] [--cameras 2] [--laps 1]\n"
                "           [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]\n"
                "           [--gt-csv ground_truth.csv]\n";
   return 2;
@@ -52,6 +52,8 @@ int main(int argc, char** argv) {
       compressed = true;
     } else if (a == "--captures" && number(&v) && v >= 4) {
       options.num_captures = static_cast<int>(v);
+    } else if (a == "--laps" && number(&v) && v >= 1) {
+      options.laps = static_cast<int>(v);
     } else if (a == "--cameras" && number(&v) && v >= 1 && v <= 4) {
       options.num_cameras = static_cast<int>(v);
     } else if (a == "--width" && number(&v) && v >= 64) {

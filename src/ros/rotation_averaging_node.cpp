@@ -9,6 +9,7 @@
 #include <dynamic_reconfigure/server.h>
 #include <image_transport/camera_common.h>
 #include <image_transport/image_transport.h>
+#include <ros/callback_queue.h>
 #include <ros/ros.h>
 #include <sensor_msgs/CompressedImage.h>
 #include <std_srvs/Trigger.h>
@@ -141,10 +142,14 @@ class RotationAveragingNode {
 
  private:
   // Keyframe images: every image on the configured topics is a keyframe.
-  void SetUpImages(ros::NodeHandle& nh) {
+  // Their callbacks (decoding, validation) run on a spinner thread of their
+  // own, so that images never delay relative poses on the main thread.
+  void SetUpImages(const ros::NodeHandle& node) {
     const PipelineConfig& config = pipeline_->Config();
     if (config.image_topics.empty()) return;
     max_image_queue_ = config.max_image_queue;
+    ros::NodeHandle nh(node);
+    nh.setCallbackQueue(&image_callbacks_);
     image_transport_ = std::make_unique<image_transport::ImageTransport>(nh);
     // Compressed images are decoded here (Debian ships no compressed
     // image_transport plugin); camera_info is then taken from its own topic.
@@ -168,6 +173,8 @@ class RotationAveragingNode {
     }
     images_running_ = true;
     image_worker_ = std::thread(&RotationAveragingNode::ImageWorker, this);
+    image_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &image_callbacks_);
+    image_spinner_->start();
   }
 
   void OnImage(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info) {
@@ -202,13 +209,15 @@ class RotationAveragingNode {
     Enqueue(std::move(keyframe));
   }
 
-  // Queues a decoded keyframe for the front-end worker (bounded).
+  // Queues a decoded keyframe for the front-end worker. The queue is bounded:
+  // with images faster than the front end, the excess is dropped and counted
+  // instead of the node falling ever further behind.
   void Enqueue(PendingKeyframe keyframe) {
     bool queued = false;
     {
       std::lock_guard<std::mutex> lock(image_mutex_);
       if (image_queue_.size() < max_image_queue_) {
-        image_queue_.push_back(std::move(keyframe));
+        image_queue_.push_back({std::move(keyframe), ros::WallTime::now()});
         queued = true;
       }
     }
@@ -225,7 +234,7 @@ class RotationAveragingNode {
 
   void ImageWorker() {
     while (true) {
-      PendingKeyframe next;
+      QueuedKeyframe next;
       {
         std::unique_lock<std::mutex> lock(image_mutex_);
         image_wake_.wait(lock, [this] { return !images_running_ || !image_queue_.empty(); });
@@ -233,9 +242,14 @@ class RotationAveragingNode {
         next = std::move(image_queue_.front());
         image_queue_.pop_front();
       }
+      const ros::WallTime start = ros::WallTime::now();
       std::vector<std::string> warnings;
-      pipeline_->ProcessKeyframe(next, nullptr, &warnings);
+      pipeline_->ProcessKeyframe(next.keyframe, nullptr, &warnings);
       for (const std::string& w : warnings) ROS_WARN_THROTTLE(5.0, "%s", w.c_str());
+      const ros::WallTime end = ros::WallTime::now();
+      std::lock_guard<std::mutex> lock(mutex_);
+      latency_.Add((end - next.received).toSec());
+      frontend_time_.Add((end - start).toSec());
     }
   }
 
@@ -358,10 +372,18 @@ class RotationAveragingNode {
     const OnlineAveragerStats s = averager_->Stats();
     const PipelineStats p = pipeline_->Stats();
     std::uint64_t dropped_images = 0, images_without_info = 0;
+    RecentTimes latency, frontend_time;
     {
       std::lock_guard<std::mutex> lock(mutex_);
       dropped_images = dropped_images_;
       images_without_info = images_without_info_;
+      latency = latency_;
+      frontend_time = frontend_time_;
+    }
+    std::size_t image_queue = 0;
+    {
+      std::lock_guard<std::mutex> lock(image_mutex_);
+      image_queue = image_queue_.size();
     }
     const double period = averager_->SolvePeriod();
     if (s.failed_solves > 0 && s.solves == s.failed_solves) {
@@ -370,6 +392,9 @@ class RotationAveragingNode {
       status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "solve time exceeds the solve period");
     } else if (s.dropped_queue_full + s.dropped_cap > 0) {
       status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "input dropped (queue full or caps reached)");
+    } else if (dropped_images > 0) {
+      status.summary(diagnostic_msgs::DiagnosticStatus::WARN,
+                     "keyframe images dropped: they come faster than the front end processes them");
     } else {
       status.summary(diagnostic_msgs::DiagnosticStatus::OK, "ok");
     }
@@ -395,6 +420,19 @@ class RotationAveragingNode {
     status.add("measurements absorbed by rig extrinsics", p.absorbed_by_rig);
     status.add("rejected images", p.rejected_images + images_without_info);
     status.add("dropped images (queue full)", dropped_images);
+    if (pipeline_->HasFrontend()) {
+      // Latency: from an image's arrival to its edges entering the graph.
+      status.add("image queue (keyframes waiting)", image_queue);
+      status.add("image queue capacity", max_image_queue_);
+      status.add("front-end latency per keyframe, last (ms)", 1e3 * latency.last);
+      status.add("front-end latency per keyframe, mean of the last 50 (ms)", 1e3 * latency.Mean());
+      status.add("front-end time per keyframe, mean of the last 50 (ms)", 1e3 * frontend_time.Mean());
+      const KeyframeFrontendStats f = pipeline_->FrontendStats();
+      status.add("loop-closure retrieval", pipeline_->Frontend()->RetrievalName());
+      status.add("front-end memory of keyframes (MiB)", f.keyframe_bytes / 1048576.0);
+      status.add("loop-closure edges", f.loop_closure_edges);
+      status.add("failed two-view pairs", f.failed_pairs);
+    }
     status.add("dropped (queue full)", s.dropped_queue_full);
     status.add("dropped (caps)", s.dropped_cap);
     status.add("queued measurements", s.queued);
@@ -434,9 +472,31 @@ class RotationAveragingNode {
   std::vector<image_transport::CameraSubscriber> camera_subs_;
   std::vector<ros::Subscriber> compressed_subs_, info_subs_;
   std::map<std::string, sensor_msgs::CameraInfoConstPtr> camera_infos_;  // by image topic (compressed mode)
+  // Means of the last 50 keyframes (diagnostics), under mutex_.
+  struct RecentTimes {
+    double last = 0.0;
+    std::deque<double> window;
+    void Add(double t) {
+      last = t;
+      window.push_back(t);
+      if (window.size() > 50) window.pop_front();
+    }
+    double Mean() const {
+      double sum = 0.0;
+      for (double t : window) sum += t;
+      return window.empty() ? 0.0 : sum / static_cast<double>(window.size());
+    }
+  };
+  RecentTimes latency_, frontend_time_;
+  struct QueuedKeyframe {
+    PendingKeyframe keyframe;
+    ros::WallTime received;
+  };
+  ros::CallbackQueue image_callbacks_;
+  std::unique_ptr<ros::AsyncSpinner> image_spinner_;
   std::mutex image_mutex_;
   std::condition_variable image_wake_;
-  std::deque<PendingKeyframe> image_queue_;
+  std::deque<QueuedKeyframe> image_queue_;
   std::size_t max_image_queue_ = 8;
   std::uint64_t cap_drops_warned_ = 0;  // worker thread only
   bool images_running_ = false;

@@ -132,15 +132,22 @@ Eigen::Matrix3d RigScene::Intrinsics() const {
   return k;
 }
 
+double RigScene::Phase(int capture) const {
+  return 2.0 * kPi * std::max(1, options_.laps) * capture / std::max(1, options_.num_captures);
+}
+
 Eigen::Vector3d RigScene::RigPosition(int capture) const {
-  const double phase = 2.0 * kPi * capture / std::max(1, options_.num_captures);
-  return Eigen::Vector3d(options_.path_radius_m * std::cos(phase), options_.path_radius_m * std::sin(phase),
+  const double phase = Phase(capture);
+  const int lap = static_cast<int>(std::floor(phase / (2.0 * kPi) + 1e-9));
+  // The capture after the last closes the last lap where it started.
+  const double radius = options_.path_radius_m + options_.lap_radius_step_m * std::clamp(lap, 0, std::max(1, options_.laps) - 1);
+  return Eigen::Vector3d(radius * std::cos(phase), radius * std::sin(phase),
                          options_.camera_height_m + 0.05 * std::sin(3.0 * phase));
 }
 
 Eigen::Matrix3d RigScene::WorldToRig(int capture) const {
   // Heading along the counter-clockwise circle (tangent), plus wobble.
-  const double phase = 2.0 * kPi * capture / std::max(1, options_.num_captures);
+  const double phase = Phase(capture);
   const double yaw = phase + 0.5 * kPi;
   const double wobble = DegToRad(options_.wobble_deg);
   const double pitch = wobble * std::sin(2.0 * phase), roll = wobble * std::cos(3.0 * phase);

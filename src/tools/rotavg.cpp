@@ -6,6 +6,7 @@
 //                [--gt PATH [--gt-format ...]] --output orientations.csv
 //   rotavg eval --estimate orientations.csv --gt PATH [--gt-format auto|csv|strecha|colmap|chain] [--json]
 //   rotavg images ...  runs rotavg_images (beside this program) with the same arguments
+//   rotavg vocabulary ...  runs rotavg_vocabulary likewise
 //
 // This program links the core library only (no OpenCV, no ROS), so that it
 // starts in milliseconds; the image front end lives in rotavg_images.
@@ -49,6 +50,9 @@ const char* kUsage = R"(usage:
                [--output orientations.csv] [--gt PATH] [--verbose] [all averaging options of solve]
       features, matching, relative poses with rotation covariances, then averaging; prints per-stage
       timings and per-pair statistics; --graph-out writes the view graph for `rotavg solve`
+  rotavg vocabulary --output FILE [--words N] [--max-features N] [--max-size PX] DIR|IMAGE...
+      trains the visual vocabulary of the keyframe front end's loop-closure retrieval (k-means on SIFT
+      descriptors, faiss) on the images of the given folders
   rotavg demo [--views N] [--noise-deg D] [--outlier-ratio R] [--seed S]
       built-in synthetic graph with ground truth (default 500 views, 3 deg noise varying 5x from
       edge to edge, 20% outlier edges): solves it with the squared loss, the L1-IRLS baseline and
@@ -151,12 +155,12 @@ int Demo(int argc, char** argv) {
   return 0;
 }
 
-// Replaces this process by rotavg_images from the same folder, passing the
-// arguments after "images".
-int RunImages(int argc, char** argv) {
+// Replaces this process by `name` (rotavg_images, rotavg_vocabulary) from the
+// same folder, passing the arguments after the command.
+int RunProgram(const char* name, int argc, char** argv) {
   std::error_code ec;
   const std::filesystem::path self = std::filesystem::read_symlink("/proc/self/exe", ec);
-  const std::filesystem::path program = (ec ? std::filesystem::path(argv[0]) : self).parent_path() / "rotavg_images";
+  const std::filesystem::path program = (ec ? std::filesystem::path(argv[0]) : self).parent_path() / name;
   std::vector<char*> args;
   const std::string program_text = program.string();
   args.push_back(const_cast<char*>(program_text.c_str()));
@@ -178,7 +182,8 @@ int main(int argc, char** argv) {
     if (command == "solve") return Solve(argc, argv);
     if (command == "eval") return EvalCommand(argc, argv);
     if (command == "demo") return Demo(argc, argv);
-    if (command == "images") return RunImages(argc, argv);
+    if (command == "images") return RunProgram("rotavg_images", argc, argv);
+    if (command == "vocabulary") return RunProgram("rotavg_vocabulary", argc, argv);
   } catch (const std::exception& e) {
     return Fail(e.what());
   }

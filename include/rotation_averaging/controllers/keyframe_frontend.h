@@ -8,10 +8,14 @@
 //    (rig edges),
 //  * up to `max_loop_candidates` older keyframes found by image retrieval
 //    (loop-closure edges), each verified by a relative pose.
-// Retrieval: a fixed sample of the new keyframe's descriptors is matched
-// (ratio test) against every older keyframe's nearest-neighbour index outside
-// the recent window; the keyframes with the most matches are verified.
-// Cost per keyframe grows linearly with the number of keyframes.
+// Retrieval with a vocabulary (features/vocabulary.h): the keyframes whose
+// tf-idf bag of words scores highest against the new one's in an inverted
+// index. Its cost hardly grows with the map, and keyframes that have left the
+// recent window keep only their `compact_features` strongest features (byte
+// descriptors), about 150 KB each. Without a vocabulary: a fixed sample of
+// the new keyframe's descriptors is matched against every older keyframe's
+// nearest-neighbour index, whose cost and memory grow with the map (every
+// keyframe keeps all its features and an index).
 // Pair verification and retrieval run on `num_threads` threads; the edges and
 // their order do not depend on the thread count.
 #ifndef ROTATION_AVERAGING_CONTROLLERS_KEYFRAME_FRONTEND_H_
@@ -26,6 +30,7 @@
 #include "rotation_averaging/controllers/online_averager.h"
 #include "rotation_averaging/estimators/relative_pose.h"
 #include "rotation_averaging/features/features.h"
+#include "rotation_averaging/features/vocabulary.h"
 
 namespace rotation_averaging {
 
@@ -46,8 +51,14 @@ struct KeyframeFrontendOptions {
   int num_threads = 0;                  // pair verification and retrieval; 0: the machine's cores
   int max_loop_candidates = 3;          // verified per keyframe
   int loop_exclude_recent = 5;          // keyframes of the same camera too recent to be loop closures
-  int retrieval_sample = 300;           // descriptors of the new keyframe used for voting
-  int min_retrieval_votes = 15;         // candidates with fewer votes are not verified
+  // Retrieval by vocabulary (null: by voting, linear in the map; see above).
+  std::shared_ptr<const Vocabulary> vocabulary;
+  int compact_features = 1000;          // kept per keyframe beyond the recent window (vocabulary only)
+  // Candidates must score at least this fraction of the new keyframe's score
+  // with its previous keyframe (a view it certainly overlaps).
+  double min_retrieval_score_ratio = 0.0;
+  int retrieval_sample = 300;           // voting: descriptors of the new keyframe used
+  int min_retrieval_votes = 15;         // voting: candidates with fewer votes are not verified
   // Loop closures need more evidence than sequential edges: repetitive
   // structure makes wrong but geometrically consistent pairs with few
   // inliers. On castle-P19 (1/4 scale) the loop pairs with <= 42 inliers
@@ -73,6 +84,12 @@ struct KeyframeFrontendStats {
   std::uint64_t failed_pairs = 0;
   std::map<std::string, std::uint64_t> failures;  // two-view failure reason -> count
   double features_s = 0.0, retrieval_s = 0.0, pairs_s = 0.0;  // wall time
+  double last_features_s = 0.0, last_retrieval_s = 0.0, last_pairs_s = 0.0;  // of the latest keyframe
+  std::uint64_t compacted_keyframes = 0;
+  // Features and retrieval data held (bag of words and its postings; not the
+  // nearest-neighbour indices of the recent window), and of that, by the
+  // compact keyframes.
+  std::size_t keyframe_bytes = 0, compact_bytes = 0;
 };
 
 class KeyframeFrontend {
@@ -90,6 +107,9 @@ class KeyframeFrontend {
   // such cameras in one capture are not matched (the rig model relates them).
   void SetRigCalibrated(const std::string& camera_frame) { rig_calibrated_.insert(camera_frame); }
   std::size_t NumKeyframes() const { return keyframes_.size(); }
+  bool UsesVocabulary() const { return options_.vocabulary != nullptr; }
+  // "vocabulary of N words (inverted index)" or "voting over every keyframe (no vocabulary)".
+  std::string RetrievalName() const;
 
  private:
   struct Keyframe;
@@ -101,6 +121,13 @@ class KeyframeFrontend {
     int older = 0;  // index into keyframes_ (the edge's first keyframe)
     EdgeSource source = EdgeSource::kSequential;
   };
+  // Keeps only what loop-closure verification needs of a keyframe that left
+  // the recent window.
+  void Compact(Keyframe* keyframe);
+  // Loop-closure candidates of `kf` among keyframes outside `excluded`.
+  std::vector<int> RetrieveByVocabulary(const Keyframe& kf, const std::set<int>& excluded, int previous);
+  std::vector<int> RetrieveByVoting(const Keyframe& kf, const std::set<int>& excluded);
+  std::size_t KeyframeBytes(const Keyframe& keyframe) const;
   struct PairOutcome {
     bool success = false;
     KeyframeRelativeRotation edge;
@@ -116,6 +143,7 @@ class KeyframeFrontend {
   std::map<std::string, std::vector<int>> by_camera_;  // indices into keyframes_, in arrival order
   KeyframeFrontendStats stats_;
   std::set<std::string> rig_calibrated_;
+  std::unique_ptr<InvertedIndex> inverted_index_;  // with a vocabulary
 };
 
 }  // namespace rotation_averaging

@@ -33,6 +33,15 @@ struct CdfSeries {
 bool WriteCdfPlot(const std::string& path, const std::string& title, const std::vector<CdfSeries>& series,
                   std::size_t num_views, double x_max_deg, std::string* error);
 
+// One panel of lines, y against x (e.g. the front end's cost per keyframe
+// against the keyframe count). The y axis is scaled to the 99th percentile.
+struct LineSeries {
+  std::string label;
+  std::vector<double> x, y;  // same length
+};
+bool WriteLinePlot(const std::string& path, const std::string& title, const std::string& x_label,
+                   const std::string& y_label, const std::vector<LineSeries>& series, std::string* error);
+
 }  // namespace rotation_averaging
 
 #endif  // ROTATION_AVERAGING_EVAL_ERROR_PLOT_H_

@@ -27,6 +27,7 @@ struct FeatureOptions {
 
 struct ImageFeatures {
   std::vector<Eigen::Vector2d> keypoints_px;  // in the (possibly resized) image
+  std::vector<float> strength;                // detector response per keypoint (stronger first to keep)
   cv::Mat descriptors;                        // one row per keypoint (CV_32F SIFT, CV_8U ORB)
   FeatureType type = FeatureType::kSift;
   int width = 0, height = 0;                  // of the image features were detected in
@@ -62,6 +63,17 @@ std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const Ima
 std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const FeatureIndex& index_a,
                                                const ImageFeatures& b, const FeatureIndex& index_b,
                                                const MatchOptions& options = MatchOptions());
+
+// The `max_features` strongest features, in their original order, with SIFT
+// descriptors stored as bytes (OpenCV's SIFT values are whole numbers in
+// [0, 255], so nothing is lost): what a keyframe keeps for verification once
+// it leaves the recent window. Returns the input unchanged but for the byte
+// descriptors when it has no more features than that.
+ImageFeatures CompactFeatures(const ImageFeatures& features, int max_features);
+// Float descriptors for matching (a copy only when they are bytes of SIFT).
+ImageFeatures MatchableFeatures(const ImageFeatures& features);
+// Bytes held by the keypoints, strengths and descriptors.
+std::size_t FeatureMemoryBytes(const ImageFeatures& features);
 
 // Intrinsics of an image resized by `downsample` (pixel centres preserved).
 Eigen::Matrix3d ScaleIntrinsics(const Eigen::Matrix3d& k, double downsample);

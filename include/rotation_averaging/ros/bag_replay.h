@@ -47,6 +47,19 @@ struct ReplayResult {
   // Two-view pairs of the front end: failed, edges from the rotation-only
   // model, and failed previous pairs bridged by an older keyframe.
   std::uint64_t frontend_failed_pairs = 0, frontend_rotation_model_edges = 0, frontend_chain_bridged = 0;
+  std::map<std::string, std::uint64_t> frontend_failures;  // two-view failure reason -> count
+  std::string retrieval;  // how loop-closure candidates were found
+  std::uint64_t loop_candidates = 0, loop_closure_edges = 0;
+  // Front-end wall time per keyframe (ms) in arrival order: features,
+  // retrieval, pair verification, and all of ProcessKeyframe.
+  struct KeyframeCost {
+    double features_ms = 0.0, retrieval_ms = 0.0, pairs_ms = 0.0, total_ms = 0.0;
+  };
+  std::vector<KeyframeCost> frontend_cost;
+  std::size_t frontend_bytes = 0;             // features and retrieval data held at the end
+  std::size_t compact_bytes = 0;              // of that, by the compact keyframes
+  std::uint64_t compacted_keyframes = 0;      // keyframes holding only their compact features
+  std::string frontend_cost_csv, frontend_cost_png;
   std::size_t solves = 0;
   double final_cost = 0.0;
   bool have_scores = false;

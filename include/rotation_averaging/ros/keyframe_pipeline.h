@@ -54,7 +54,10 @@ struct PipelineConfig {
   OnlineAveragerOptions averager;
   std::vector<std::string> image_topics;
   std::string image_transport = "raw";  // raw or compressed
-  KeyframeFrontendOptions frontend;
+  KeyframeFrontendOptions frontend;    // frontend.vocabulary: loaded from `vocabulary`
+  // File of `rotavg vocabulary`; "default": DefaultVocabularyPath(); "" or
+  // "none": no vocabulary (retrieval by voting, linear in the map).
+  std::string vocabulary = "default";
   std::size_t max_image_queue = 8;
   RigModelOptions rig;  // use_rig_extrinsics, rig_frame, rig_stamp_tolerance
   // rviz markers: orientations carry no positions, so each camera (or rig)
@@ -143,6 +146,9 @@ class KeyframePipeline {
   void ForgetLatestStamps();  // after a reset
 
   PipelineStats Stats() const;
+  // The front end's counters as of its latest keyframe; safe to call while
+  // another thread runs ProcessKeyframe.
+  KeyframeFrontendStats FrontendStats() const;
 
  private:
   bool Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
@@ -156,11 +162,16 @@ class KeyframePipeline {
   std::unique_ptr<OnlineAverager> averager_;
   std::unique_ptr<KeyframeFrontend> frontend_;
   RigModel rig_;
-  mutable std::mutex mutex_;  // stats_, last_image_stamp_, last_latest_stamp_
+  mutable std::mutex mutex_;  // stats_, frontend_stats_, last_image_stamp_, last_latest_stamp_
   PipelineStats stats_;
+  KeyframeFrontendStats frontend_stats_;
   std::map<std::string, std::int64_t> last_image_stamp_;
   std::map<std::string, ros::Time> last_latest_stamp_;
 };
+
+// The vocabulary the build trains (target `vocabulary`, run by
+// scripts/setup.sh) in the package's share folder of the devel space.
+std::string DefaultVocabularyPath();
 
 // "{frame_id}" and "{stamp_ns}" in a frame name pattern.
 std::string KeyframeFrameName(const std::string& format, const KeyframeKey& key);

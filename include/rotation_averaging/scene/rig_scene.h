@@ -5,8 +5,8 @@
 // World frame: z up, the room spans [-half_extent, half_extent]^2 x [0, height]
 // with a textured pillar in the middle and two crates near the walls. The rig
 // (body frame x forward, y left, z up) drives once around a circle about the
-// room's centre, heading along the path with a small pitch and roll wobble,
-// and ends where it started, so a front end can close the loop. Each camera
+// room's centre (or `laps` times), heading along the path with a small pitch
+// and roll wobble, and ends where it started, so a front end can close the loop. Each camera
 // (optical frame: z forward, x right, y down) looks along one rig axis:
 // front, left, back, right.
 #ifndef ROTATION_AVERAGING_SCENE_RIG_SCENE_H_
@@ -27,6 +27,11 @@ struct RigSceneOptions {
   int width = 640, height = 480;  // pixels
   double focal_px = 420.0;        // pinhole focal length, principal point at the image centre
   double path_radius_m = 1.8;
+  // Times the rig drives round the circle over all captures; each lap after
+  // the first runs `lap_radius_step_m` farther out, so later laps pass the
+  // same places from slightly different positions.
+  int laps = 1;
+  double lap_radius_step_m = 0.1;
   double camera_height_m = 1.4;
   double wobble_deg = 4.0;        // amplitude of the pitch and roll wobble
   double noise_grey = 2.0;        // standard deviation of the image noise, grey levels
@@ -77,6 +82,7 @@ class RigScene {
 
  private:
   struct Surface;
+  double Phase(int capture) const;  // angle along the circle, radians (grows by 2 pi per lap)
   RigSceneOptions options_;
   std::vector<RigCamera> cameras_;
   std::vector<Surface> surfaces_;

@@ -1,0 +1,168 @@
+#include "rotation_averaging/features/vocabulary.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <cstring>
+#include <limits>
+#include <random>
+#include <set>
+
+#include "rotation_averaging/features/features.h"
+#include "rotation_averaging/scene/rig_scene.h"
+
+namespace rotation_averaging {
+namespace {
+
+namespace fs = std::filesystem;
+
+// Descriptors of rendered views of a room with textures of `seed`.
+std::vector<cv::Mat> RenderedDescriptors(std::uint64_t seed, int captures, int step) {
+  RigSceneOptions o;
+  o.seed = seed;
+  o.num_captures = captures * step;
+  const RigScene scene(o);
+  FeatureOptions f;
+  f.max_features = 800;
+  std::vector<cv::Mat> out;
+  for (int c = 0; c < captures; ++c) out.push_back(ExtractFeatures(scene.Render(c * step, 0), f).descriptors);
+  return out;
+}
+
+TEST(VocabularyTest, TrainsAssignsAndRoundTripsThroughItsFile) {
+  const std::vector<cv::Mat> training = RenderedDescriptors(7, 6, 10);
+  VocabularyOptions options;
+  options.words = 64;
+  std::string error;
+  const std::unique_ptr<Vocabulary> v = Vocabulary::Train(training, options, &error);
+  ASSERT_TRUE(v) << error;
+  EXPECT_EQ(v->NumWords(), 64);
+  EXPECT_EQ(v->Dimension(), 128);
+  EXPECT_EQ(v->TrainingImages(), 6);
+  const std::vector<int> words = v->Assign(training[0]);
+  ASSERT_EQ(static_cast<int>(words.size()), training[0].rows);
+  std::set<int> distinct(words.begin(), words.end());
+  EXPECT_GT(distinct.size(), 20u);  // the descriptors spread over the words
+  for (int w : words) EXPECT_TRUE(w >= 0 && w < 64);
+  // Byte descriptors (compact keyframes) give the same words.
+  cv::Mat bytes;
+  training[0].convertTo(bytes, CV_8U);
+  EXPECT_EQ(v->Assign(bytes), words);
+
+  const BowVector bow = v->Describe(training[0]);
+  double sum = 0.0;
+  for (std::size_t k = 0; k < bow.size(); ++k) {
+    sum += bow[k].second;
+    if (k > 0) EXPECT_LT(bow[k - 1].first, bow[k].first);
+  }
+  EXPECT_NEAR(sum, 1.0, 1e-5);
+  EXPECT_NEAR(BowScore(bow, bow), 1.0, 1e-5);
+
+  const std::string path = (fs::temp_directory_path() / "rotavg_vocabulary_test.vocab").string();
+  ASSERT_TRUE(v->Save(path, &error)) << error;
+  const std::unique_ptr<Vocabulary> loaded = Vocabulary::Load(path, &error);
+  ASSERT_TRUE(loaded) << error;
+  EXPECT_EQ(loaded->Assign(training[3]), v->Assign(training[3]));
+  EXPECT_EQ(loaded->TrainingImages(), 6);
+  fs::remove(path);
+}
+
+TEST(VocabularyTest, TooFewDescriptorsAndMalformedFilesFailWithAMessage) {
+  std::string error;
+  VocabularyOptions options;
+  options.words = 5000;
+  EXPECT_FALSE(Vocabulary::Train(RenderedDescriptors(7, 1, 1), options, &error));
+  EXPECT_NE(error.find("training descriptors"), std::string::npos) << error;
+
+  const std::string path = (fs::temp_directory_path() / "rotavg_bad.vocab").string();
+  auto write = [&](const std::string& bytes) {
+    std::ofstream out(path, std::ios::binary);
+    out << bytes;
+  };
+  write("not a vocabulary");
+  EXPECT_FALSE(Vocabulary::Load(path, &error));
+  EXPECT_NE(error.find("not a vocabulary file"), std::string::npos) << error;
+  // A valid header promising more than the file holds.
+  std::string header = "ROTAVGVOC2";
+  const std::int32_t dimension = 128, cells = 1, words = 16, images = 3;
+  for (std::int32_t value : {dimension, cells, words, images}) header.append(reinterpret_cast<const char*>(&value), 4);
+  write(header + std::string(100, '\0'));
+  EXPECT_FALSE(Vocabulary::Load(path, &error));
+  EXPECT_NE(error.find("truncated"), std::string::npos) << error;
+  // A NaN centroid.
+  std::string data(128 * 4, '\0');
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  std::memcpy(&data[0], &nan, 4);
+  data.append(reinterpret_cast<const char*>(&words), 4);
+  data.append(std::string(16 * 128 * 4 + 16 * 4, '\0'));
+  write(header + data);
+  EXPECT_FALSE(Vocabulary::Load(path, &error));
+  EXPECT_NE(error.find("not finite"), std::string::npos) << error;
+  EXPECT_FALSE(Vocabulary::Load(path + ".missing", &error));
+  fs::remove(path);
+}
+
+TEST(VocabularyTest, InvertedIndexRanksByL1ScoreAndAgreesWithTheDirectScore) {
+  // Views of one room, trained on another room's textures: a view scores
+  // highest against the views closest to it on the path.
+  const std::vector<cv::Mat> training = RenderedDescriptors(11, 8, 7);
+  VocabularyOptions options;
+  options.words = 128;
+  std::string error;
+  const std::unique_ptr<Vocabulary> v = Vocabulary::Train(training, options, &error);
+  ASSERT_TRUE(v) << error;
+  const std::vector<cv::Mat> views = RenderedDescriptors(3, 40, 1);  // 40 consecutive captures
+  InvertedIndex index(v->NumWords());
+  std::vector<BowVector> bows;
+  for (int i = 0; i < 40; i += 2) {  // even captures indexed, id = capture
+    bows.push_back(v->Describe(views[i]));
+    index.Add(i, bows.back());
+  }
+  EXPECT_EQ(index.NumEntries(), 20u);
+  EXPECT_GT(index.MemoryBytes(), 0u);
+  const BowVector query = v->Describe(views[21]);
+  const auto all = index.Query(query, 40, 0.0, nullptr);
+  ASSERT_FALSE(all.empty());
+  for (std::size_t k = 0; k < all.size(); ++k) {
+    EXPECT_NEAR(all[k].first, BowScore(query, bows[all[k].second / 2]), 1e-5);
+    if (k > 0) EXPECT_GE(all[k - 1].first, all[k].first);
+  }
+  // The two captures either side of the query's are the best.
+  const auto best = index.Query(query, 2, 0.0, nullptr);
+  ASSERT_EQ(best.size(), 2u);
+  EXPECT_EQ(std::min(best[0].second, best[1].second), 20);
+  EXPECT_EQ(std::max(best[0].second, best[1].second), 22);
+  // Skipped entries and a score floor.
+  const auto skipped = index.Query(query, 3, 0.0, [&](int id) { return id == best[0].second; });
+  EXPECT_EQ(skipped[0].second, best[1].second);
+  EXPECT_TRUE(index.Query(query, 3, 1.01, nullptr).empty());
+}
+
+TEST(VocabularyTest, CompactFeaturesKeepTheStrongestAsBytesWithoutLoss) {
+  const RigScene scene(RigSceneOptions{});
+  FeatureOptions f;
+  f.max_features = 1500;
+  const ImageFeatures full = ExtractFeatures(scene.Render(0, 0), f);
+  ASSERT_GT(full.keypoints_px.size(), 600u);
+  ASSERT_EQ(full.strength.size(), full.keypoints_px.size());
+  const ImageFeatures compact = CompactFeatures(full, 500);
+  ASSERT_EQ(compact.keypoints_px.size(), 500u);
+  EXPECT_EQ(compact.descriptors.type(), CV_8U);
+  // The weakest kept is at least as strong as the strongest dropped.
+  std::vector<float> sorted = full.strength;
+  std::sort(sorted.rbegin(), sorted.rend());
+  const float weakest = *std::min_element(compact.strength.begin(), compact.strength.end());
+  EXPECT_GE(weakest, sorted[500]);
+  // Kept in their order, and as bytes equal to their SIFT floats (OpenCV's
+  // are whole numbers up to 255).
+  const ImageFeatures all = CompactFeatures(full, 100000);
+  ASSERT_EQ(all.keypoints_px, full.keypoints_px);
+  const ImageFeatures matchable = MatchableFeatures(all);
+  EXPECT_EQ(matchable.descriptors.type(), CV_32F);
+  EXPECT_EQ(cv::norm(full.descriptors, matchable.descriptors, cv::NORM_INF), 0.0);
+  EXPECT_LT(FeatureMemoryBytes(compact), FeatureMemoryBytes(full) / 3);
+}
+
+}  // namespace
+}  // namespace rotation_averaging
