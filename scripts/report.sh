@@ -12,9 +12,10 @@
 #   plots/cdf_*.png    calibration, the loss x weighting table, CDF plots, speed
 #   node_benchmark.md  the running node: latency and message rate
 #   replay.md          bag replay of the demo and castle-P19
+#   long_run.md        the keyframe front end over 800 keyframes and three laps
 # results/README.md is the written summary of these files.
 #
-#   bash scripts/report.sh            about 13 minutes on 2 cores (1,000,000 views alone: 3-4, beside the front end)
+#   bash scripts/report.sh            about 25 minutes on 2 cores (1,000,000 views alone: 3-4, beside the front end)
 #   bash scripts/report.sh --quick    under 3 minutes; small sizes, written to build/report_quick/
 #                                     (CI runs it so the report code never rots)
 # Real data comes from ../shared/data (ROTAVG_DATA_DIR to override); parts that
@@ -66,4 +67,6 @@ step "node"
 bash scripts/benchmark_node.sh > /dev/null
 step "bag replay"
 bash scripts/benchmark_replay.sh > /dev/null
+step "long image runs"
+bash scripts/benchmark_long_run.sh > /dev/null
 step "done: results/*.md and results/plots/ regenerated; summary in results/README.md"

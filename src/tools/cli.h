@@ -125,6 +125,20 @@ inline int WriteAndScore(const Args& args, const ra::NamedOrientations& named) {
   return 0;
 }
 
+// main() of a program with one command (rotavg_images, rotavg_vocabulary):
+// no arguments or --help print the usage; an exception becomes a message.
+inline int RunCommand(int argc, char** argv, const char* usage, int (*command)(int, char**)) {
+  if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
+    std::cout << usage;
+    return argc < 2 ? 2 : 0;
+  }
+  try {
+    return command(argc, argv);
+  } catch (const std::exception& e) {
+    return Fail(e.what());
+  }
+}
+
 }  // namespace rotation_averaging_cli
 
 #endif  // ROTATION_AVERAGING_TOOLS_CLI_H_
