@@ -126,6 +126,18 @@ class RotationAveragingNode {
   }
 
   ~RotationAveragingNode() {
+    // Image callbacks run on their own spinner and queue: stop the spinner
+    // and unsubscribe before the queue (a member declared after the
+    // subscribers, so destroyed before them) goes away; a subscriber torn
+    // down after its queue locks a destroyed mutex.
+    if (image_spinner_) image_spinner_->stop();
+    image_spinner_.reset();
+    camera_subs_.clear();
+    compressed_subs_.clear();
+    info_subs_.clear();
+    image_transport_.reset();
+    image_callbacks_.disable();
+    image_callbacks_.clear();
     {
       std::lock_guard<std::mutex> lock(image_mutex_);
       images_running_ = false;

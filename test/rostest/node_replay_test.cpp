@@ -1,16 +1,22 @@
 // rosbag play --clock of a rendered rig bag into the live node gives the same
-// orientations as rotation_averaging_replay on that bag.
+// view graph as rotation_averaging_replay on that bag, and the same
+// orientations up to where warm-started solves settle.
 #include <gtest/gtest.h>
 #include <ros/ros.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cstdio>
 #include <cstdlib>
+#include <map>
 #include <mutex>
+#include <tuple>
 
 #include "rotation_averaging/Orientations.h"
+#include "rotation_averaging/SaveGraph.h"
 #include "rotation_averaging/geometry/so3.h"
+#include "rotation_averaging/io/graph_io.h"
 #include "rotation_averaging/io/orientation_io.h"
 #include "rotation_averaging/ros/bag_replay.h"
 #include "rotation_averaging/ros/demo_bag.h"
@@ -84,13 +90,65 @@ TEST(NodeReplay, LiveNodeFedByRosbagPlayMatchesTheReplayTool) {
     }
   }
   ASSERT_EQ(live.size(), replayed.size());
+
+  // The front end is deterministic: the node's graph is the replay's, edge
+  // for edge (pair, source, inliers, rotation).
+  SaveGraph save;
+  save.request.path = dir + "/live_graph.txt";
+  ASSERT_TRUE(ros::service::call("/rotation_averaging/save_graph", save));
+  ASSERT_TRUE(save.response.success) << save.response.message;
+  // Keyed by the names of the two keyframes and the source; a pair may hold
+  // several edges (one per camera of a rig), sorted by inliers and rotation
+  // (the cameras' images of one capture reach the node in either order).
+  using EdgeKey = std::tuple<std::string, std::string, int>;
+  using Edges = std::map<EdgeKey, std::vector<RelativeRotation>>;
+  auto edges_of = [](const std::string& path, Edges* edges) {
+    ViewGraph graph;
+    const ReadReport report = ReadRotavgGraph(path, &graph);
+    ASSERT_TRUE(report.ok()) << path << ": " << report.error;
+    for (const RelativeRotation& e : graph.Edges()) {
+      RelativeRotation named = e;
+      std::string a = graph.FindView(e.view1)->name, b = graph.FindView(e.view2)->name;
+      if (b < a) {
+        std::swap(a, b);
+        named = e.Inverted();
+      }
+      (*edges)[{a, b, static_cast<int>(e.source)}].push_back(named);
+    }
+    for (auto& [key, list] : *edges) {
+      std::sort(list.begin(), list.end(), [](const RelativeRotation& x, const RelativeRotation& y) {
+        return std::make_pair(x.num_inliers, x.rotation(0, 1)) < std::make_pair(y.num_inliers, y.rotation(0, 1));
+      });
+    }
+  };
+  Edges live_edges, replay_edges;
+  edges_of(save.request.path, &live_edges);
+  edges_of(replay.graph_file, &replay_edges);
+  ASSERT_FALSE(replay_edges.empty());
+  EXPECT_EQ(live_edges.size(), replay_edges.size());
+  for (const auto& [key, edges] : replay_edges) {
+    const std::string pair = std::get<0>(key) + " - " + std::get<1>(key);
+    auto it = live_edges.find(key);
+    if (it == live_edges.end()) {
+      ADD_FAILURE() << "the node lacks the edge " << pair;
+      continue;
+    }
+    ASSERT_EQ(it->second.size(), edges.size()) << pair;
+    for (std::size_t i = 0; i < edges.size(); ++i) {
+      EXPECT_EQ(it->second[i].num_inliers, edges[i].num_inliers) << pair;
+      EXPECT_LT(RadToDeg(AngularDistanceRad(it->second[i].rotation, edges[i].rotation)), 1e-6) << pair;
+    }
+  }
+
   const EvaluationResult between = EvaluateOrientations(live, replayed);
   EXPECT_EQ(between.views_common, replayed.size());
   double worst = 0.0;
   for (const auto& [name, e] : between.errors_deg) worst = std::max(worst, e);
-  // Same graph, solved at slightly different moments (warm starts differ):
-  // the same minimum to well below the accuracy of the front end.
-  EXPECT_LT(worst, 0.05) << "median " << between.median_error_deg;
+  // Same graph, solved at other moments: each solve is warm-started from the
+  // one before and auto-scales the loss from its own first pass, so the two
+  // settle a few hundredths of a degree apart on a loaded machine; the graph
+  // check above is the exact one.
+  EXPECT_LT(worst, 0.1) << "median " << between.median_error_deg;
   std::printf("live node vs replay tool over %zu keyframes: median %.6f deg, max %.6f deg\n", between.views_common,
               between.median_error_deg, worst);
 }
