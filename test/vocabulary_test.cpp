@@ -4,6 +4,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <cstdio>
 #include <cstring>
 #include <limits>
 #include <random>
@@ -162,6 +163,62 @@ TEST(VocabularyTest, CompactFeaturesKeepTheStrongestAsBytesWithoutLoss) {
   EXPECT_EQ(matchable.descriptors.type(), CV_32F);
   EXPECT_EQ(cv::norm(full.descriptors, matchable.descriptors, cv::NORM_INF), 0.0);
   EXPECT_LT(FeatureMemoryBytes(compact), FeatureMemoryBytes(full) / 3);
+}
+
+// Matching within the vocabulary's branches (the newer view in its two
+// nearest) finds nearly every match of the full kd-tree search, and little
+// else, on two overlapping views of a room the vocabulary was not trained on.
+TEST(VocabularyTest, MatchingWithinBranchesFindsWhatTheFullSearchFinds) {
+  VocabularyOptions options;
+  options.words = 1024;
+  std::string error;
+  const std::unique_ptr<Vocabulary> v = Vocabulary::Train(RenderedDescriptors(7, 12, 5), options, &error);
+  ASSERT_TRUE(v) << error;
+  EXPECT_EQ(v->NumCells(), 32);
+  RigSceneOptions o;
+  o.num_captures = 40;
+  const RigScene scene(o);
+  FeatureOptions f;
+  f.max_features = 1500;
+  ImageFeatures a = ExtractFeatures(scene.Render(0, 0), f), b = ExtractFeatures(scene.Render(2, 0), f);
+  a.words = v->Assign(a.descriptors);
+  b.words = v->Assign(b.descriptors);
+  // A word's branch is its descriptor's nearest branch.
+  const std::vector<int> nearest = v->NearestCells(a.descriptors, 2);
+  ASSERT_EQ(nearest.size(), 2 * a.words.size());
+  std::vector<int> branch_a;
+  for (std::size_t i = 0; i < a.words.size(); ++i) {
+    branch_a.push_back(v->CellOf(a.words[i]));
+    EXPECT_EQ(branch_a.back(), nearest[2 * i]);
+    EXPECT_NE(nearest[2 * i], nearest[2 * i + 1]);
+  }
+  EXPECT_EQ(v->CellOf(-1), -1);
+  EXPECT_EQ(v->CellOf(v->NumWords()), -1);
+
+  // The compact set keeps its features' words.
+  const ImageFeatures compact = CompactFeatures(a, 1000);
+  ASSERT_EQ(compact.words.size(), compact.keypoints_px.size());
+  EXPECT_EQ(v->Assign(compact.descriptors), compact.words);
+
+  const std::vector<std::pair<int, int>> full = MatchFeatures(a, b);
+  const std::vector<std::pair<int, int>> grouped =
+      MatchFeaturesByGroup(a, branch_a, b, v->NearestCells(b.descriptors, 2));
+  ASSERT_GT(full.size(), 200u);
+  const std::set<std::pair<int, int>> in_full(full.begin(), full.end());
+  std::size_t common = 0;
+  for (const auto& m : grouped) common += in_full.count(m);
+  std::printf("full search %zu matches, within branches %zu, %zu in common\n", full.size(), grouped.size(), common);
+  EXPECT_GT(common, full.size() * 8 / 10);
+  EXPECT_GT(common, grouped.size() * 9 / 10);
+  // One branch per feature of b as well: fewer, still most.
+  std::vector<int> branch_b;
+  for (int w : b.words) branch_b.push_back(v->CellOf(w));
+  const std::vector<std::pair<int, int>> hard = MatchFeaturesByGroup(a, branch_a, b, branch_b);
+  EXPECT_LT(hard.size(), grouped.size());
+  EXPECT_GT(hard.size(), full.size() / 2);
+  // Groups that do not fit the features give no matches.
+  EXPECT_TRUE(MatchFeaturesByGroup(a, std::vector<int>(3, 0), b, branch_b).empty());
+  EXPECT_TRUE(MatchFeaturesByGroup(a, branch_a, b, std::vector<int>(b.words.size() + 1, 0)).empty());
 }
 
 }  // namespace

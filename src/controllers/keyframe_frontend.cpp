@@ -42,39 +42,68 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
                                                                          const Keyframe& newer) {
   const auto start = Clock::now();
   std::vector<PairOutcome> outcomes(tasks.size());
-  // Compact keyframes get a temporary index, built here on one thread: FLANN
-  // draws its trees from the global std::rand, which threads would race for.
+  // A compact keyframe is matched within the vocabulary's branches (no
+  // index to build); without branch matching it gets a temporary index,
+  // built here on one thread: FLANN draws its trees from the global
+  // std::rand, which threads would race for.
+  auto by_branch = [&](const Keyframe& a) {
+    return a.compact && options_.match_compact_by_vocabulary && options_.vocabulary &&
+           a.features.words.size() == a.features.keypoints_px.size() &&
+           newer.features.words.size() == newer.features.keypoints_px.size();
+  };
+  std::vector<int> newer_branches;  // its two nearest, for matches across a boundary
+  for (const PairTask& task : tasks) {
+    if (!by_branch(*keyframes_[task.older])) continue;
+    newer_branches = options_.vocabulary->NearestCells(newer.features.descriptors, 2);
+    break;
+  }
   std::vector<ImageFeatures> matchable(tasks.size());
   std::vector<std::unique_ptr<FeatureIndex>> temporary(tasks.size());
   for (std::size_t t = 0; t < tasks.size(); ++t) {
     const Keyframe& a = *keyframes_[tasks[t].older];
-    if (!a.compact) continue;
+    if (!a.compact || by_branch(a)) continue;
     matchable[t] = MatchableFeatures(a.features);
     temporary[t] = std::make_unique<FeatureIndex>(matchable[t]);
   }
   ParallelFor(static_cast<int>(tasks.size()), ResolveThreadCount(options_.num_threads), [&](int t) {
     const Keyframe& a = *keyframes_[tasks[t].older];
-    const ImageFeatures& a_features = a.compact ? matchable[t] : a.features;
-    const std::vector<std::pair<int, int>> matches =
-        MatchFeatures(a_features, a.compact ? *temporary[t] : *a.index, newer.features, *newer.index, options_.matching);
+    const ImageFeatures& a_features = a.compact && temporary[t] ? matchable[t] : a.features;
+    // A pair within one capture is estimated in the order of the camera
+    // frames, whichever image came first (see PairTask::newer_first).
+    const bool swap = tasks[t].newer_first && !a.compact;
+    std::vector<std::pair<int, int>> matches;
+    if (swap) {
+      matches = MatchFeatures(newer.features, *newer.index, a.features, *a.index, options_.matching);
+    } else if (by_branch(a)) {
+      std::vector<int> a_branches;
+      for (int w : a.features.words) a_branches.push_back(options_.vocabulary->CellOf(w));
+      matches = MatchFeaturesByGroup(a.features, a_branches, newer.features, newer_branches, options_.matching);
+    } else {
+      matches = MatchFeatures(a_features, a.compact ? *temporary[t] : *a.index, newer.features, *newer.index,
+                              options_.matching);
+    }
+    const Keyframe& first = swap ? newer : a;
+    const Keyframe& second = swap ? a : newer;
+    const ImageFeatures& first_features = swap ? newer.features : a_features;
     std::vector<Eigen::Vector2d> pa, pb;
     pa.reserve(matches.size());
     pb.reserve(matches.size());
     for (const auto& [i, j] : matches) {
-      pa.push_back(a_features.keypoints_px[i]);
-      pb.push_back(newer.features.keypoints_px[j]);
+      pa.push_back(first_features.keypoints_px[i]);
+      pb.push_back(second.features.keypoints_px[j]);
     }
-    const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, a.k, newer.k, options_.relative_pose);
+    const RelativePoseResult pose =
+        EstimateRelativePoseWithCovariance(pa, pb, first.k, second.k, options_.relative_pose);
     PairOutcome& out = outcomes[t];
     if (!pose.success) {
       out.failure = TwoViewFailureName(pose.failure);
       return;
     }
-    // The pose maps a's camera to the newer one's; the edge is (a, newer).
+    // The pose maps the first camera to the second; the edge is (first, second).
     out.success = true;
     out.rotation_model = pose.model == TwoViewModel::kRotation;
-    out.edge.keyframe1 = a.key;
-    out.edge.keyframe2 = newer.key;
+    out.edge.keyframe1 = first.key;
+    out.edge.keyframe2 = second.key;
     out.edge.rotation = pose.EdgeRotation();
     out.edge.has_covariance = true;
     out.edge.covariance = pose.covariance;
@@ -159,6 +188,14 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   stats_.last_features_s = Seconds(start);
   stats_.features_s += stats_.last_features_s;
   stats_.last_retrieval_s = stats_.last_pairs_s = 0.0;
+  if (options_.vocabulary) {
+    // Words first: retrieval scores them, and pairs with a compact keyframe
+    // are matched within the vocabulary's branches.
+    const auto words_start = Clock::now();
+    kf->features.words = options_.vocabulary->Assign(kf->features.descriptors);
+    kf->bow = options_.vocabulary->Describe(kf->features.words);
+    stats_.last_retrieval_s = Seconds(words_start);
+  }
   const double pairs_before = stats_.pairs_s;
   ++stats_.keyframes;
   if (kf->features.keypoints_px.size() < 20) {
@@ -167,6 +204,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     return edges;
   }
 
+  CompactDue(key.stamp_ns);
   std::set<int> related;
   std::vector<PairTask> tasks;
   // Sequential: the previous keyframe of this camera.
@@ -186,7 +224,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
         if (rig_calibrated_.count(camera) && rig_calibrated_.count(key.frame_id)) {
           ++stats_.rig_pairs_skipped;
         } else {
-          tasks.push_back({*it, EdgeSource::kRig});
+          tasks.push_back({*it, EdgeSource::kRig, key.frame_id < camera});
         }
         related.insert(*it);
       }
@@ -226,7 +264,6 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   // Loop closures: retrieve candidates, verify them.
   if (options_.max_loop_candidates > 0) {
     const auto retrieval_start = Clock::now();
-    if (options_.vocabulary) kf->bow = options_.vocabulary->Describe(kf->features.descriptors);
     std::set<int> excluded = related;
     for (int r = 0; r < options_.loop_exclude_recent && r < static_cast<int>(same.size()); ++r) {
       excluded.insert(same[same.size() - 1 - r]);
@@ -234,7 +271,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     const std::vector<int> retrieved = options_.vocabulary
                                            ? RetrieveByVocabulary(*kf, excluded, same.empty() ? -1 : same.back())
                                            : RetrieveByVoting(*kf, excluded);
-    stats_.last_retrieval_s = Seconds(retrieval_start);
+    stats_.last_retrieval_s += Seconds(retrieval_start);
     stats_.retrieval_s += stats_.last_retrieval_s;
     std::vector<PairTask> candidates;
     for (int c : retrieved) candidates.push_back({c, EdgeSource::kLoopClosure});
@@ -264,10 +301,12 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   std::vector<int>& chain = by_camera_[key.frame_id];
   chain.push_back(static_cast<int>(keyframes_.size()) - 1);
   // The keyframe leaving this camera's recent window: rig, sequential and
-  // bridging pairs only reach into the window, loop closures need less.
+  // bridging pairs only reach into the window, loop closures need less. It
+  // is compacted once a later capture arrives, so that every camera's image
+  // of this capture sees the same keyframes whatever order they came in.
   const int recent = std::max(1, options_.covisibility_window);
   if (options_.vocabulary && static_cast<int>(chain.size()) > recent) {
-    Compact(keyframes_[chain[chain.size() - 1 - recent]].get());
+    due_compaction_.push_back({chain[chain.size() - 1 - recent], key.stamp_ns});
   }
   stats_.last_pairs_s = stats_.pairs_s - pairs_before;
   return edges;
@@ -282,6 +321,19 @@ std::string KeyframeFrontend::RetrievalName() const {
 std::size_t KeyframeFrontend::KeyframeBytes(const Keyframe& keyframe) const {
   // The bag of words, and its entries in the inverted index.
   return FeatureMemoryBytes(keyframe.features) + 2 * keyframe.bow.size() * sizeof(std::pair<int, float>);
+}
+
+void KeyframeFrontend::CompactDue(std::int64_t stamp_ns) {
+  const std::int64_t tolerance_ns = static_cast<std::int64_t>(options_.rig_stamp_tolerance_s * 1e9);
+  std::vector<std::pair<int, std::int64_t>> later;
+  for (const auto& [index, capture_ns] : due_compaction_) {
+    if (capture_ns < stamp_ns - tolerance_ns) {
+      Compact(keyframes_[index].get());
+    } else {
+      later.emplace_back(index, capture_ns);
+    }
+  }
+  due_compaction_.swap(later);
 }
 
 void KeyframeFrontend::Compact(Keyframe* keyframe) {

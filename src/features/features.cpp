@@ -1,6 +1,8 @@
 #include "rotation_averaging/features/features.h"
 
 #include <algorithm>
+#include <limits>
+#include <map>
 #include <cstdlib>
 #include <opencv2/features2d.hpp>
 #include <opencv2/flann.hpp>
@@ -81,6 +83,7 @@ ImageFeatures CompactFeatures(const ImageFeatures& features, int max_features) {
     out.keypoints_px.push_back(features.keypoints_px[keep[r]]);
     if (static_cast<int>(features.strength.size()) == n) out.strength.push_back(features.strength[keep[r]]);
     if (!features.descriptors.empty()) features.descriptors.row(keep[r]).convertTo(out.descriptors.row(static_cast<int>(r)), type);
+    if (static_cast<int>(features.words.size()) == n) out.words.push_back(features.words[keep[r]]);
   }
   return out;
 }
@@ -94,7 +97,7 @@ ImageFeatures MatchableFeatures(const ImageFeatures& features) {
 
 std::size_t FeatureMemoryBytes(const ImageFeatures& features) {
   return features.keypoints_px.capacity() * sizeof(Eigen::Vector2d) + features.strength.capacity() * sizeof(float) +
-         features.descriptors.total() * features.descriptors.elemSize();
+         features.words.capacity() * sizeof(int) + features.descriptors.total() * features.descriptors.elemSize();
 }
 
 namespace {
@@ -157,6 +160,83 @@ std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const Fea
     const int j = ab[i];
     if (j < 0) continue;
     if (options.mutual && ba[j] != i) continue;
+    matches.emplace_back(i, j);
+  }
+  return matches;
+}
+
+std::vector<std::pair<int, int>> MatchFeaturesByGroup(const ImageFeatures& a, const std::vector<int>& group_a,
+                                                      const ImageFeatures& b, const std::vector<int>& groups_b,
+                                                      const MatchOptions& options) {
+  std::vector<std::pair<int, int>> matches;
+  const int na = a.descriptors.rows, nb = b.descriptors.rows;
+  if (na < 1 || nb < 2 || a.type != b.type || a.descriptors.cols != b.descriptors.cols ||
+      static_cast<int>(group_a.size()) != na || groups_b.empty() || groups_b.size() % nb != 0) {
+    return matches;
+  }
+  const std::size_t k = groups_b.size() / nb;
+  // Members of each group, in index order.
+  std::map<int, std::pair<std::vector<int>, std::vector<int>>> groups;
+  for (int i = 0; i < na; ++i) {
+    if (group_a[i] >= 0) groups[group_a[i]].first.push_back(i);
+  }
+  for (int j = 0; j < nb; ++j) {
+    for (std::size_t g = 0; g < k; ++g) {
+      const int group = groups_b[j * k + g];
+      if (group >= 0) groups[group].second.push_back(j);
+    }
+  }
+  const bool hamming = a.type == FeatureType::kOrb;
+  cv::Mat fa, fb;  // float rows for L2 (SIFT may be stored as bytes)
+  if (!hamming) {
+    a.descriptors.convertTo(fa, CV_32F);
+    b.descriptors.convertTo(fb, CV_32F);
+  }
+  const int dims = a.descriptors.cols;
+  auto distance = [&](int i, int j) -> double {
+    if (hamming) return cv::norm(a.descriptors.row(i), b.descriptors.row(j), cv::NORM_HAMMING);
+    const float* x = fa.ptr<float>(i);
+    const float* y = fb.ptr<float>(j);
+    float sum = 0.0f;
+    for (int d = 0; d < dims; ++d) {
+      const float diff = x[d] - y[d];
+      sum += diff * diff;
+    }
+    return sum;  // squared
+  };
+  // Best and second best distance seen by each feature, over every pair
+  // compared (a feature of b may be compared in several groups).
+  struct Best {
+    double d0 = std::numeric_limits<double>::infinity(), d1 = std::numeric_limits<double>::infinity();
+    int index = -1;
+    void Add(double d, int i) {
+      if (d < d0) {
+        d1 = d0;
+        d0 = d;
+        index = i;
+      } else if (d < d1) {
+        d1 = d;
+      }
+    }
+  };
+  std::vector<Best> best_a(na), best_b(nb);
+  for (const auto& [group, members] : groups) {
+    for (int i : members.first) {
+      for (int j : members.second) {
+        const double d = distance(i, j);
+        best_a[i].Add(d, j);
+        best_b[j].Add(d, i);
+      }
+    }
+  }
+  // The ratio test on squared distances for L2.
+  const double ratio = hamming ? options.ratio : options.ratio * options.ratio;
+  auto passes = [ratio](const Best& b) { return b.index >= 0 && b.d0 < ratio * b.d1; };
+  for (int i = 0; i < na; ++i) {
+    if (!passes(best_a[i])) continue;
+    const int j = best_a[i].index;
+    // The mutual check: i is j's best (j may have had only i to compare with).
+    if (options.mutual && best_b[j].index != i) continue;
     matches.emplace_back(i, j);
   }
   return matches;

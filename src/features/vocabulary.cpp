@@ -39,16 +39,16 @@ std::vector<float> KMeans(const float* points, std::size_t n, int d, int k, cons
   return clustering.centroids;
 }
 
-std::vector<Idx> Nearest(const faiss::IndexFlatL2& index, const float* points, std::size_t n) {
-  std::vector<Idx> labels(n);
-  std::vector<float> distances(n);
+std::vector<Idx> Nearest(const faiss::IndexFlatL2& index, const float* points, std::size_t n, int k = 1) {
+  std::vector<Idx> labels(n * k);
+  std::vector<float> distances(n * k);
   if (n == 0) return labels;
   // One OpenMP thread for faiss on this thread: the searches are a few
   // milliseconds, and an OpenMP team would keep spinning on the cores
   // afterwards, taking them from the front end's pair verification.
   const int threads = omp_get_max_threads();
   omp_set_num_threads(1);
-  index.search(static_cast<Idx>(n), points, 1, distances.data(), labels.data());
+  index.search(static_cast<Idx>(n), points, k, distances.data(), labels.data());
   omp_set_num_threads(threads);
   return labels;
 }
@@ -269,6 +269,22 @@ std::vector<int> Vocabulary::Assign(const cv::Mat& descriptors) const {
     }
   }
   return words;
+}
+
+int Vocabulary::CellOf(int word) const {
+  if (word < 0 || word >= NumWords()) return -1;
+  const std::vector<int>& first = impl_->first_word;
+  return static_cast<int>(std::upper_bound(first.begin(), first.end(), word) - first.begin()) - 1;
+}
+
+int Vocabulary::NumCells() const { return static_cast<int>(impl_->cells.size()); }
+
+std::vector<int> Vocabulary::NearestCells(const cv::Mat& descriptors, int k) const {
+  k = std::max(1, std::min(k, NumCells()));
+  if (descriptors.rows == 0 || descriptors.cols != impl_->dimension) return std::vector<int>();
+  const cv::Mat f = AsFloatRows(descriptors);
+  const std::vector<Idx> nearest = Nearest(*impl_->top, f.ptr<float>(), static_cast<std::size_t>(f.rows), k);
+  return std::vector<int>(nearest.begin(), nearest.end());
 }
 
 BowVector Vocabulary::Describe(const std::vector<int>& words) const {

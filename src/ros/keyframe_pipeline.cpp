@@ -109,6 +109,7 @@ PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std
   f.min_loop_inliers = Param(params, "min_loop_inliers", f.min_loop_inliers);
   f.retrieval_sample = Param(params, "retrieval_sample", f.retrieval_sample);
   f.compact_features = std::max(20, Param(params, "compact_features", f.compact_features));
+  f.match_compact_by_vocabulary = Param(params, "match_by_vocabulary", f.match_compact_by_vocabulary);
   f.min_retrieval_score_ratio = std::max(0.0, Param(params, "min_retrieval_score_ratio", f.min_retrieval_score_ratio));
   c.vocabulary = Param(params, "vocabulary", c.vocabulary);
   if (c.vocabulary == "default") c.vocabulary = DefaultVocabularyPath();

@@ -54,6 +54,10 @@ struct KeyframeFrontendOptions {
   // Retrieval by vocabulary (null: by voting, linear in the map; see above).
   std::shared_ptr<const Vocabulary> vocabulary;
   int compact_features = 1000;          // kept per keyframe beyond the recent window (vocabulary only)
+  // Pairs with a compact keyframe (loop closures) match features only within
+  // the same first-level branch of the vocabulary tree, as ORB-SLAM matches
+  // by vocabulary, instead of a kd-tree search over all of them.
+  bool match_compact_by_vocabulary = true;
   // Candidates must score at least this fraction of the new keyframe's score
   // with its previous keyframe (a view it certainly overlaps).
   double min_retrieval_score_ratio = 0.0;
@@ -120,10 +124,16 @@ class KeyframeFrontend {
   struct PairTask {
     int older = 0;  // index into keyframes_ (the edge's first keyframe)
     EdgeSource source = EdgeSource::kSequential;
+    // The new keyframe is the edge's first: two cameras of one capture are
+    // related in the order of their frame ids, not of their arrival.
+    bool newer_first = false;
   };
   // Keeps only what loop-closure verification needs of a keyframe that left
   // the recent window.
   void Compact(Keyframe* keyframe);
+  // Compacts the keyframes that left their window in a capture older than
+  // `stamp_ns` (beyond the rig tolerance).
+  void CompactDue(std::int64_t stamp_ns);
   // Loop-closure candidates of `kf` among keyframes outside `excluded`.
   std::vector<int> RetrieveByVocabulary(const Keyframe& kf, const std::set<int>& excluded, int previous);
   std::vector<int> RetrieveByVoting(const Keyframe& kf, const std::set<int>& excluded);
@@ -144,6 +154,8 @@ class KeyframeFrontend {
   KeyframeFrontendStats stats_;
   std::set<std::string> rig_calibrated_;
   std::unique_ptr<InvertedIndex> inverted_index_;  // with a vocabulary
+  // (keyframe, stamp of the capture that pushed it out of its window)
+  std::vector<std::pair<int, std::int64_t>> due_compaction_;
 };
 
 }  // namespace rotation_averaging

@@ -31,6 +31,8 @@ struct ImageFeatures {
   cv::Mat descriptors;                        // one row per keypoint (CV_32F SIFT, CV_8U ORB)
   FeatureType type = FeatureType::kSift;
   int width = 0, height = 0;                  // of the image features were detected in
+  // Vocabulary word of each keypoint (Vocabulary::Assign); empty without one.
+  std::vector<int> words;
 };
 
 // Detects and describes features in an 8-bit image (grey or colour).
@@ -63,6 +65,19 @@ std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const Ima
 std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const FeatureIndex& index_a,
                                                const ImageFeatures& b, const FeatureIndex& index_b,
                                                const MatchOptions& options = MatchOptions());
+
+// Matching confined to groups: feature i of `a` (in group group_a[i]) is
+// only compared with the features j of `b` that list that group among theirs
+// (groups_b holds k groups per feature, row-major, k = groups_b.size() /
+// b's features; negative: none), by exact L2 (SIFT) or Hamming (ORB)
+// distance, with the ratio test against the second best of those compared
+// and, if asked, the mutual check. With the branches of a vocabulary tree as
+// groups this is DBoW2's / ORB-SLAM's matching by vocabulary: no index to
+// build, a small fraction of the distances of a full search; giving b its
+// two nearest branches recovers most matches that fall across a boundary.
+std::vector<std::pair<int, int>> MatchFeaturesByGroup(const ImageFeatures& a, const std::vector<int>& group_a,
+                                                      const ImageFeatures& b, const std::vector<int>& groups_b,
+                                                      const MatchOptions& options = MatchOptions());
 
 // The `max_features` strongest features, in their original order, with SIFT
 // descriptors stored as bytes (OpenCV's SIFT values are whole numbers in

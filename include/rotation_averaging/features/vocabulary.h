@@ -54,6 +54,14 @@ class Vocabulary {
   // The nearest word of each descriptor row (CV_32F or CV_8U, Dimension()
   // columns). Deterministic; safe to call from several threads at once.
   std::vector<int> Assign(const cv::Mat& descriptors) const;
+  // The first-level branch of the tree a word belongs to, in [0, NumCells()):
+  // descriptors in different branches are far apart, so matching can be
+  // confined to each branch (MatchFeaturesByGroup). -1 for an unknown word.
+  int CellOf(int word) const;
+  int NumCells() const;
+  // The k nearest branches of each descriptor row, nearest first (rows x k,
+  // row-major; -1 where there are fewer branches).
+  std::vector<int> NearestCells(const cv::Mat& descriptors, int k) const;
   // The tf-idf vector of one image's descriptors.
   BowVector Describe(const cv::Mat& descriptors) const;
   BowVector Describe(const std::vector<int>& words) const;
