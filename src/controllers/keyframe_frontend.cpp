@@ -25,6 +25,7 @@ struct KeyframeFrontend::Keyframe {
   ImageFeatures features;              // all of them, or the compact set once out of the recent window
   std::unique_ptr<FeatureIndex> index;  // null once compact
   bool compact = false;
+  bool bridged = false;                 // its previous pair failed and an older one of the window verified
   BowVector bow;                        // with a vocabulary
   Eigen::Matrix3d k;  // intrinsics of the (resized) image the features come from
 };
@@ -110,16 +111,17 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
     out.edge.num_inliers = static_cast<int>(pose.inliers.size());
     out.edge.source = tasks[t].source;
   });
-  for (const PairOutcome& o : outcomes) {
-    if (o.success) {
-      stats_.rotation_model_edges += o.rotation_model;
-    } else {
-      ++stats_.failed_pairs;
-      ++stats_.failures[o.failure];
-    }
-  }
   stats_.pairs_s += Seconds(start);
   return outcomes;
+}
+
+void KeyframeFrontend::Count(const PairOutcome& outcome) {
+  if (outcome.success) {
+    stats_.rotation_model_edges += outcome.rotation_model;
+  } else {
+    ++stats_.failed_pairs;
+    ++stats_.failures[outcome.failure];
+  }
 }
 
 bool KeyframeFrontend::ChainRotation(int a, int b, Eigen::Matrix3d* r_ab) const {
@@ -231,18 +233,51 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
       if (other.key.stamp_ns < key.stamp_ns - tolerance_ns) break;  // older captures of that camera
     }
   }
-  std::vector<PairOutcome> outcomes = VerifyPairs(tasks, *kf);
-  if (!same.empty() && !outcomes[0].success && window > 1) {
+  // Loop-closure candidates: retrieval does not depend on this keyframe's
+  // pairs, so all of them are verified in one batch on the thread pool.
+  std::vector<PairTask> candidates;
+  if (options_.max_loop_candidates > 0) {
+    const auto retrieval_start = Clock::now();
+    std::set<int> excluded = related;
+    for (int r = 0; r < options_.loop_exclude_recent && r < static_cast<int>(same.size()); ++r) {
+      excluded.insert(same[same.size() - 1 - r]);
+    }
+    const std::vector<int> retrieved = options_.vocabulary
+                                           ? RetrieveByVocabulary(*kf, excluded, same.empty() ? -1 : same.back())
+                                           : RetrieveByVoting(*kf, excluded);
+    stats_.last_retrieval_s += Seconds(retrieval_start);
+    stats_.retrieval_s += stats_.last_retrieval_s;
+    for (int c : retrieved) candidates.push_back({c, EdgeSource::kLoopClosure});
+    stats_.loop_candidates_tried += candidates.size();
+  }
+  // Older keyframes of the window bridge a failed previous pair. Failures
+  // come in runs (a stretch of pure rotation, a blurred stretch): when the
+  // previous keyframe of this camera needed a bridge, they are verified in
+  // the same batch, which costs idle threads rather than a second round.
+  std::vector<PairTask> fallback;
+  for (int r = 2; r <= window; ++r) fallback.push_back({same[same.size() - r], EdgeSource::kSequential});
+  const bool speculate = !fallback.empty() && keyframes_[same.back()]->bridged;
+  std::vector<PairTask> batch = tasks;
+  batch.insert(batch.end(), candidates.begin(), candidates.end());
+  if (speculate) batch.insert(batch.end(), fallback.begin(), fallback.end());
+  const std::vector<PairOutcome> verified_batch = VerifyPairs(batch, *kf);
+  std::vector<PairOutcome> outcomes(verified_batch.begin(), verified_batch.begin() + tasks.size());
+  const std::vector<PairOutcome> verified_loops(verified_batch.begin() + tasks.size(),
+                                                verified_batch.begin() + tasks.size() + candidates.size());
+  for (const PairOutcome& o : outcomes) Count(o);
+  if (!same.empty() && !outcomes[0].success && !fallback.empty()) {
     // The previous pair failed: the newest older keyframe of the window that
     // verifies keeps the chain whole.
-    std::vector<PairTask> fallback;
-    for (int r = 2; r <= window; ++r) fallback.push_back({same[same.size() - r], EdgeSource::kSequential});
-    const std::vector<PairOutcome> verified = VerifyPairs(fallback, *kf);
+    const std::vector<PairOutcome> verified =
+        speculate ? std::vector<PairOutcome>(verified_batch.end() - fallback.size(), verified_batch.end())
+                  : VerifyPairs(fallback, *kf);
+    for (const PairOutcome& o : verified) Count(o);
     for (std::size_t f = 0; f < fallback.size(); ++f) {
       if (!verified[f].success) continue;
       tasks.push_back(fallback[f]);
       outcomes.push_back(verified[f]);
       ++stats_.chain_bridged;
+      kf->bridged = true;
       break;
     }
   }
@@ -261,39 +296,24 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
       kf->sequential_covariance = e.covariance;
     }
   }
-  // Loop closures: retrieve candidates, verify them.
-  if (options_.max_loop_candidates > 0) {
-    const auto retrieval_start = Clock::now();
-    std::set<int> excluded = related;
-    for (int r = 0; r < options_.loop_exclude_recent && r < static_cast<int>(same.size()); ++r) {
-      excluded.insert(same[same.size() - 1 - r]);
+  // Loop closures: enough inliers, and consistent with each other.
+  std::vector<KeyframeRelativeRotation> loops;
+  std::vector<int> old_ends;
+  for (std::size_t c = 0; c < candidates.size(); ++c) {
+    Count(verified_loops[c]);
+    if (!verified_loops[c].success) continue;
+    if (verified_loops[c].edge.num_inliers < options_.min_loop_inliers) {
+      ++stats_.failed_pairs;
+      ++stats_.failures["loop_too_few_inliers"];
+      continue;
     }
-    const std::vector<int> retrieved = options_.vocabulary
-                                           ? RetrieveByVocabulary(*kf, excluded, same.empty() ? -1 : same.back())
-                                           : RetrieveByVoting(*kf, excluded);
-    stats_.last_retrieval_s += Seconds(retrieval_start);
-    stats_.retrieval_s += stats_.last_retrieval_s;
-    std::vector<PairTask> candidates;
-    for (int c : retrieved) candidates.push_back({c, EdgeSource::kLoopClosure});
-    stats_.loop_candidates_tried += candidates.size();
-    const std::vector<PairOutcome> verified = VerifyPairs(candidates, *kf);
-    std::vector<KeyframeRelativeRotation> loops;
-    std::vector<int> old_ends;
-    for (std::size_t c = 0; c < candidates.size(); ++c) {
-      if (!verified[c].success) continue;
-      if (verified[c].edge.num_inliers < options_.min_loop_inliers) {
-        ++stats_.failed_pairs;
-        ++stats_.failures["loop_too_few_inliers"];
-        continue;
-      }
-      loops.push_back(verified[c].edge);
-      old_ends.push_back(candidates[c].older);
-    }
-    FilterInconsistentLoops(&loops, old_ends);
-    for (const KeyframeRelativeRotation& e : loops) {
-      edges.push_back(e);
-      ++stats_.loop_closure_edges;
-    }
+    loops.push_back(verified_loops[c].edge);
+    old_ends.push_back(candidates[c].older);
+  }
+  FilterInconsistentLoops(&loops, old_ends);
+  for (const KeyframeRelativeRotation& e : loops) {
+    edges.push_back(e);
+    ++stats_.loop_closure_edges;
   }
   if (inverted_index_) inverted_index_->Add(static_cast<int>(keyframes_.size()), kf->bow);
   stats_.keyframe_bytes += KeyframeBytes(*kf);

@@ -144,9 +144,11 @@ class KeyframeFrontend {
     bool rotation_model = false;
     std::string failure;
   };
-  // Verifies every task against `newer` (on the thread pool) and counts the
-  // failures; the outcomes are in task order.
+  // Verifies every task against `newer` (on the thread pool); the outcomes
+  // are in task order. Count adds an outcome whose result is used to the
+  // statistics (speculative ones are not counted when not needed).
   std::vector<PairOutcome> VerifyPairs(const std::vector<PairTask>& tasks, const Keyframe& newer);
+  void Count(const PairOutcome& outcome);
 
   KeyframeFrontendOptions options_;
   std::vector<std::unique_ptr<Keyframe>> keyframes_;
