@@ -12,12 +12,14 @@
 // tf-idf bag of words scores highest against the new one's in an inverted
 // index. Its cost hardly grows with the map, and keyframes that have left the
 // recent window keep only their `compact_features` strongest features (byte
-// descriptors), about 150 KB each. Without a vocabulary: a fixed sample of
+// descriptors and their words), about 165 KB each, and are matched within
+// the vocabulary tree's branches. Without a vocabulary: a fixed sample of
 // the new keyframe's descriptors is matched against every older keyframe's
 // nearest-neighbour index, whose cost and memory grow with the map (every
 // keyframe keeps all its features and an index).
 // Pair verification and retrieval run on `num_threads` threads; the edges and
-// their order do not depend on the thread count.
+// their order do not depend on the thread count, nor on the order in which
+// the cameras' images of one capture arrive.
 #ifndef ROTATION_AVERAGING_CONTROLLERS_KEYFRAME_FRONTEND_H_
 #define ROTATION_AVERAGING_CONTROLLERS_KEYFRAME_FRONTEND_H_
 
