@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstring>
 #include <limits>
+#include <map>
 #include <random>
 #include <set>
 
@@ -140,7 +141,55 @@ TEST(VocabularyTest, InvertedIndexRanksByL1ScoreAndAgreesWithTheDirectScore) {
   EXPECT_TRUE(index.Query(query, 3, 1.01, nullptr).empty());
 }
 
-TEST(VocabularyTest, CompactFeaturesKeepTheStrongestAsBytesWithoutLoss) {
+// Checks what CompactFeatures(full, max, priority) kept: in each cell of the
+// 4 x 4 grid, every kept feature is better (higher priority, then stronger)
+// than every dropped one, and the cells are filled evenly: each keeps all
+// its features or one of two consecutive counts.
+void ExpectCompactedByCell(const ImageFeatures& full, const ImageFeatures& compact,
+                           const std::vector<std::uint16_t>& priority) {
+  const int n = static_cast<int>(full.keypoints_px.size());
+  // A kept feature in the full set: same position (SIFT repeats a position
+  // with another orientation) and same descriptor.
+  std::map<std::pair<double, double>, std::vector<int>> at;
+  for (int i = 0; i < n; ++i) at[{full.keypoints_px[i].x(), full.keypoints_px[i].y()}].push_back(i);
+  cv::Mat descriptors;
+  compact.descriptors.convertTo(descriptors, full.descriptors.type());
+  std::vector<bool> kept(n, false);
+  for (int r = 0; r < static_cast<int>(compact.keypoints_px.size()); ++r) {
+    const Eigen::Vector2d& p = compact.keypoints_px[r];
+    int found = -1;
+    for (int i : at[{p.x(), p.y()}]) {
+      if (cv::norm(full.descriptors.row(i), descriptors.row(r), cv::NORM_INF) == 0.0) found = i;
+    }
+    ASSERT_GE(found, 0) << "kept feature " << r << " is not in the full set";
+    kept[found] = true;
+  }
+  auto cell = [&](int i) {
+    const Eigen::Vector2d& p = full.keypoints_px[i];
+    return std::min(3, static_cast<int>(p.y() * 4 / full.height)) * 4 +
+           std::min(3, static_cast<int>(p.x() * 4 / full.width));
+  };
+  auto score = [&](int i) { return std::make_pair(priority.empty() ? 0 : priority[i], full.strength[i]); };
+  std::map<int, std::pair<int, int>> counts;  // cell -> (kept, all)
+  for (int i = 0; i < n; ++i) {
+    ++counts[cell(i)].second;
+    if (!kept[i]) continue;
+    ++counts[cell(i)].first;
+    for (int j = 0; j < n; ++j) {
+      if (!kept[j] && cell(j) == cell(i)) EXPECT_GE(score(i), score(j)) << i << " kept, " << j << " dropped";
+    }
+  }
+  int fewest = n;  // of the cells that dropped some
+  for (const auto& [c, k] : counts) {
+    if (k.first < k.second) fewest = std::min(fewest, k.first);
+  }
+  for (const auto& [c, k] : counts) {
+    EXPECT_LE(std::min(k.second, fewest), k.first) << "cell " << c;
+    EXPECT_LE(k.first, fewest + 1) << "cell " << c;
+  }
+}
+
+TEST(VocabularyTest, CompactFeaturesKeepTheStrongestOfEveryCellAsBytesWithoutLoss) {
   const RigScene scene(RigSceneOptions{});
   FeatureOptions f;
   f.max_features = 1500;
@@ -150,11 +199,7 @@ TEST(VocabularyTest, CompactFeaturesKeepTheStrongestAsBytesWithoutLoss) {
   const ImageFeatures compact = CompactFeatures(full, 500);
   ASSERT_EQ(compact.keypoints_px.size(), 500u);
   EXPECT_EQ(compact.descriptors.type(), CV_8U);
-  // The weakest kept is at least as strong as the strongest dropped.
-  std::vector<float> sorted = full.strength;
-  std::sort(sorted.rbegin(), sorted.rend());
-  const float weakest = *std::min_element(compact.strength.begin(), compact.strength.end());
-  EXPECT_GE(weakest, sorted[500]);
+  ExpectCompactedByCell(full, compact, {});
   // Kept in their order, and as bytes equal to their SIFT floats (OpenCV's
   // are whole numbers up to 255).
   const ImageFeatures all = CompactFeatures(full, 100000);
@@ -163,6 +208,31 @@ TEST(VocabularyTest, CompactFeaturesKeepTheStrongestAsBytesWithoutLoss) {
   EXPECT_EQ(matchable.descriptors.type(), CV_32F);
   EXPECT_EQ(cv::norm(full.descriptors, matchable.descriptors, cv::NORM_INF), 0.0);
   EXPECT_LT(FeatureMemoryBytes(compact), FeatureMemoryBytes(full) / 3);
+}
+
+// A priority per feature (the front end's: inliers of verified pairs) comes
+// before strength within each cell.
+TEST(VocabularyTest, CompactFeaturesKeepTheFeaturesOfHighestPriorityFirst) {
+  const RigScene scene(RigSceneOptions{});
+  FeatureOptions f;
+  f.max_features = 1500;
+  const ImageFeatures full = ExtractFeatures(scene.Render(0, 0), f);
+  const int n = static_cast<int>(full.keypoints_px.size());
+  ASSERT_GT(n, 600);
+  // Priorities 0-2 unrelated to strength; the weakest third all get 2.
+  std::vector<float> sorted = full.strength;
+  std::sort(sorted.begin(), sorted.end());
+  std::vector<std::uint16_t> priority(n);
+  int weak_kept = 0;
+  for (int i = 0; i < n; ++i) priority[i] = full.strength[i] <= sorted[n / 3] ? 2 : (i * 7) % 2;
+  const ImageFeatures compact = CompactFeatures(full, 500, priority);
+  ASSERT_EQ(compact.keypoints_px.size(), 500u);
+  ExpectCompactedByCell(full, compact, priority);
+  for (float s : compact.strength) weak_kept += s <= sorted[n / 3];
+  EXPECT_GT(weak_kept, 250);  // without the priority the weakest would go first
+  // A priority of the wrong length is ignored.
+  EXPECT_EQ(CompactFeatures(full, 500, std::vector<std::uint16_t>(3, 1)).keypoints_px,
+            CompactFeatures(full, 500).keypoints_px);
 }
 
 // Matching within the vocabulary's branches (the newer view in its two

@@ -27,6 +27,9 @@ struct KeyframeFrontend::Keyframe {
   bool compact = false;
   bool bridged = false;                 // its previous pair failed and an older one of the window verified
   BowVector bow;                        // with a vocabulary
+  // Per feature: inliers of the verified pairs it took part in. Features
+  // seen again from other views are the ones a later revisit will match.
+  std::vector<std::uint16_t> inlier_hits;
   Eigen::Matrix3d k;  // intrinsics of the (resized) image the features come from
 };
 
@@ -109,10 +112,24 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
     out.edge.has_covariance = true;
     out.edge.covariance = pose.covariance;
     out.edge.num_inliers = static_cast<int>(pose.inliers.size());
+    out.inlier_features.reserve(pose.inliers.size());
+    for (int m : pose.inliers) {
+      const auto& [i, j] = matches[m];
+      out.inlier_features.emplace_back(swap ? j : i, swap ? i : j);
+    }
     out.edge.source = tasks[t].source;
   });
   stats_.pairs_s += Seconds(start);
   return outcomes;
+}
+
+void KeyframeFrontend::CountInliers(const PairTask& task, const PairOutcome& outcome, Keyframe* newer) {
+  Keyframe& older = *keyframes_[task.older];
+  const bool older_full = !older.compact && older.inlier_hits.size() == older.features.keypoints_px.size();
+  for (const auto& [i, j] : outcome.inlier_features) {
+    if (older_full && older.inlier_hits[i] < std::numeric_limits<std::uint16_t>::max()) ++older.inlier_hits[i];
+    if (newer->inlier_hits[j] < std::numeric_limits<std::uint16_t>::max()) ++newer->inlier_hits[j];
+  }
 }
 
 void KeyframeFrontend::Count(const PairOutcome& outcome) {
@@ -185,6 +202,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   const auto start = Clock::now();
   kf->features = ExtractFeatures(image, options_.features);
   kf->index = std::make_unique<FeatureIndex>(kf->features);
+  kf->inlier_hits.assign(kf->features.keypoints_px.size(), 0);
   const double s = options_.features.downsample > 0.0 ? options_.features.downsample : 1.0;
   kf->k = ScaleIntrinsics(k, s);
   stats_.last_features_s = Seconds(start);
@@ -285,6 +303,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     if (!outcomes[t].success) continue;
     const KeyframeRelativeRotation& e = outcomes[t].edge;
     edges.push_back(e);
+    CountInliers(tasks[t], outcomes[t], kf.get());
     if (tasks[t].source == EdgeSource::kRig) {
       ++stats_.rig_edges;
       continue;
@@ -302,7 +321,10 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   for (std::size_t c = 0; c < candidates.size(); ++c) {
     Count(verified_loops[c]);
     if (!verified_loops[c].success) continue;
-    if (verified_loops[c].edge.num_inliers < options_.min_loop_inliers) {
+    const double needed = keyframes_[candidates[c].older]->compact
+                              ? options_.compact_loop_inlier_fraction * options_.min_loop_inliers
+                              : options_.min_loop_inliers;
+    if (verified_loops[c].edge.num_inliers < needed) {
       ++stats_.failed_pairs;
       ++stats_.failures["loop_too_few_inliers"];
       continue;
@@ -314,6 +336,12 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   for (const KeyframeRelativeRotation& e : loops) {
     edges.push_back(e);
     ++stats_.loop_closure_edges;
+    for (std::size_t c = 0; c < candidates.size(); ++c) {
+      const KeyframeKey& k1 = keyframes_[candidates[c].older]->key;
+      if (k1.frame_id == e.keyframe1.frame_id && k1.stamp_ns == e.keyframe1.stamp_ns) {
+        CountInliers(candidates[c], verified_loops[c], kf.get());
+      }
+    }
   }
   if (inverted_index_) inverted_index_->Add(static_cast<int>(keyframes_.size()), kf->bow);
   stats_.keyframe_bytes += KeyframeBytes(*kf);
@@ -359,7 +387,9 @@ void KeyframeFrontend::CompactDue(std::int64_t stamp_ns) {
 void KeyframeFrontend::Compact(Keyframe* keyframe) {
   if (keyframe->compact) return;
   stats_.keyframe_bytes -= KeyframeBytes(*keyframe);
-  keyframe->features = CompactFeatures(keyframe->features, options_.compact_features);
+  keyframe->features = CompactFeatures(keyframe->features, options_.compact_features, keyframe->inlier_hits);
+  keyframe->inlier_hits.clear();
+  keyframe->inlier_hits.shrink_to_fit();
   keyframe->index.reset();
   keyframe->compact = true;
   stats_.keyframe_bytes += KeyframeBytes(*keyframe);

@@ -60,7 +60,13 @@ ImageFeatures ExtractFeatures(const cv::Mat& image, const FeatureOptions& option
   return out;
 }
 
-ImageFeatures CompactFeatures(const ImageFeatures& features, int max_features) {
+namespace {
+// Cells per side of the grid compaction spreads the kept features over.
+constexpr int kCompactGrid = 4;
+}  // namespace
+
+ImageFeatures CompactFeatures(const ImageFeatures& features, int max_features,
+                              const std::vector<std::uint16_t>& priority) {
   ImageFeatures out;
   out.type = features.type;
   out.width = features.width;
@@ -68,14 +74,36 @@ ImageFeatures CompactFeatures(const ImageFeatures& features, int max_features) {
   const int n = static_cast<int>(features.keypoints_px.size());
   std::vector<int> keep(n);
   for (int i = 0; i < n; ++i) keep[i] = i;
-  if (n > max_features && static_cast<int>(features.strength.size()) == n) {
-    // The strongest, ties by index; then back in the original order.
-    std::stable_sort(keep.begin(), keep.end(),
-                     [&](int a, int b) { return features.strength[a] > features.strength[b]; });
+  const bool strength = static_cast<int>(features.strength.size()) == n;
+  const bool prioritised = static_cast<int>(priority.size()) == n;
+  if (n > max_features) {
+    // Better: higher priority, then stronger, then lower index.
+    auto better = [&](int a, int b) {
+      if (prioritised && priority[a] != priority[b]) return priority[a] > priority[b];
+      if (strength && features.strength[a] != features.strength[b]) return features.strength[a] > features.strength[b];
+      return a < b;
+    };
+    // Rank within cells of a grid over the image, then take the best of
+    // every cell before the second best of any: features that the views
+    // seen so far matched cover the part of the image those views overlap,
+    // and a revisit from elsewhere needs the rest.
+    std::vector<int> rank(n, 0);
+    if (features.width > 0 && features.height > 0) {
+      std::vector<std::vector<int>> cells(kCompactGrid * kCompactGrid);
+      for (int i = 0; i < n; ++i) {
+        const Eigen::Vector2d& p = features.keypoints_px[i];
+        const int cx = std::clamp(static_cast<int>(p.x() * kCompactGrid / features.width), 0, kCompactGrid - 1);
+        const int cy = std::clamp(static_cast<int>(p.y() * kCompactGrid / features.height), 0, kCompactGrid - 1);
+        cells[cy * kCompactGrid + cx].push_back(i);
+      }
+      for (std::vector<int>& cell : cells) {
+        std::sort(cell.begin(), cell.end(), better);
+        for (std::size_t r = 0; r < cell.size(); ++r) rank[cell[r]] = static_cast<int>(r);
+      }
+    }
+    std::sort(keep.begin(), keep.end(), [&](int a, int b) { return rank[a] != rank[b] ? rank[a] < rank[b] : better(a, b); });
     keep.resize(std::max(0, max_features));
-    std::sort(keep.begin(), keep.end());
-  } else if (n > max_features) {
-    keep.resize(std::max(0, max_features));
+    std::sort(keep.begin(), keep.end());  // back in the original order
   }
   const int type = features.type == FeatureType::kSift ? CV_8U : features.descriptors.type();
   if (!features.descriptors.empty()) out.descriptors.create(static_cast<int>(keep.size()), features.descriptors.cols, type);

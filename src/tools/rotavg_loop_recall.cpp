@@ -133,6 +133,25 @@ int main(int argc, char** argv) {
             << " / " << correct.size() << "\n";
   std::cout << "correct verifiable pairs:";
   for (const auto& [a, b] : correct) std::cout << " (" << a << "," << b << ")";
+  // Inliers of a found loop against those the exhaustive search (all
+  // features of both images) gave the same pair: what a compact keyframe
+  // keeps.
+  std::map<std::pair<int, int>, int> exhaustive_inliers;
+  for (const Pair& p : all) exhaustive_inliers[{p.a, p.b}] = p.inliers;
+  std::vector<double> kept;
+  std::cout << "\ninliers of the found loops against the exhaustive search's:";
+  for (const Pair& p : found) {
+    const auto it = exhaustive_inliers.find({p.a, p.b});
+    if (it == exhaustive_inliers.end() || it->second <= 0) continue;
+    kept.push_back(static_cast<double>(p.inliers) / it->second);
+    std::cout << " (" << p.a << "," << p.b << ") " << p.inliers << "/" << it->second;
+  }
+  if (!kept.empty()) {
+    std::sort(kept.begin(), kept.end());
+    const std::size_t n = kept.size();
+    const double median = n % 2 ? kept[n / 2] : 0.5 * (kept[n / 2 - 1] + kept[n / 2]);
+    std::cout << "; median fraction " << median;
+  }
   std::cout << std::endl;
   return 0;
 }

@@ -55,7 +55,10 @@ struct KeyframeFrontendOptions {
   int loop_exclude_recent = 5;          // keyframes of the same camera too recent to be loop closures
   // Retrieval by vocabulary (null: by voting, linear in the map; see above).
   std::shared_ptr<const Vocabulary> vocabulary;
-  int compact_features = 1000;          // kept per keyframe beyond the recent window (vocabulary only)
+  // Features a keyframe keeps beyond the recent window (vocabulary only):
+  // first those that were inliers of the most verified pairs (seen from
+  // other views, they are what a revisit matches), then the strongest.
+  int compact_features = 1000;
   // Pairs with a compact keyframe (loop closures) match features only within
   // the same first-level branch of the vocabulary tree, as ORB-SLAM matches
   // by vocabulary, instead of a kd-tree search over all of them.
@@ -70,6 +73,11 @@ struct KeyframeFrontendOptions {
   // inliers. On castle-P19 (1/4 scale) the loop pairs with <= 42 inliers
   // erred 1.4-46 deg and those with >= 63 mostly 0.25-0.5 deg.
   int min_loop_inliers = 60;
+  // A compact keyframe keeps a part of the correspondences a loop pair would
+  // have with all of its features (about three quarters, median over the
+  // Strecha loop pairs in results/replay.md), so a loop closure to one needs
+  // this fraction of min_loop_inliers: the same evidence.
+  double compact_loop_inlier_fraction = 0.75;
   // Loop closures found for one keyframe check each other through the chain
   // of sequential edges between their old ends: R_a1b ~ R_a1a2 R_a2b. Two
   // loops agree when that prediction is within this angle (plus three
@@ -145,7 +153,10 @@ class KeyframeFrontend {
     KeyframeRelativeRotation edge;
     bool rotation_model = false;
     std::string failure;
+    std::vector<std::pair<int, int>> inlier_features;  // (older's feature, newer's feature)
   };
+  // Counts the inliers of a pair whose edge is used on both keyframes' features.
+  void CountInliers(const PairTask& task, const PairOutcome& outcome, Keyframe* newer);
   // Verifies every task against `newer` (on the thread pool); the outcomes
   // are in task order. Count adds an outcome whose result is used to the
   // statistics (speculative ones are not counted when not needed).

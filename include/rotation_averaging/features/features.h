@@ -79,12 +79,16 @@ std::vector<std::pair<int, int>> MatchFeaturesByGroup(const ImageFeatures& a, co
                                                       const ImageFeatures& b, const std::vector<int>& groups_b,
                                                       const MatchOptions& options = MatchOptions());
 
-// The `max_features` strongest features, in their original order, with SIFT
-// descriptors stored as bytes (OpenCV's SIFT values are whole numbers in
-// [0, 255], so nothing is lost): what a keyframe keeps for verification once
-// it leaves the recent window. Returns the input unchanged but for the byte
-// descriptors when it has no more features than that.
-ImageFeatures CompactFeatures(const ImageFeatures& features, int max_features);
+// What a keyframe keeps for verification once it leaves the recent window:
+// `max_features` features spread over a 4 x 4 grid of the image (the best of
+// every cell before the second best of any), the best being those of highest
+// priority (one value per feature; none: all equal), then the strongest;
+// kept in their original order, with SIFT descriptors stored as bytes
+// (OpenCV's SIFT values are whole numbers in [0, 255], so nothing is lost).
+// Returns the input unchanged but for the byte descriptors when it has no
+// more features than that.
+ImageFeatures CompactFeatures(const ImageFeatures& features, int max_features,
+                              const std::vector<std::uint16_t>& priority = {});
 // Float descriptors for matching (a copy only when they are bytes of SIFT).
 ImageFeatures MatchableFeatures(const ImageFeatures& features);
 // Bytes held by the keypoints, strengths and descriptors.
