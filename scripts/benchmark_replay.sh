@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Regenerates results/replay.md: rotation_averaging_replay on the demo bag
-# (rendered two-camera rig, 60 captures) and on castle-P19 turned into a bag
-# (one camera, images at a quarter of full width), with scores against ground
-# truth and the speed against real time (bags at one capture per second).
+# (rendered two-camera rig, 60 captures) and on the Strecha scenes turned into
+# bags (one camera, images at a quarter of full width), with scores against
+# ground truth, the speed against real time (bags at one capture per second)
+# and the loop-closure recall of the retrieval.
 #   bash scripts/benchmark_replay.sh        (about three minutes)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -18,21 +19,45 @@ DEMO=build/demo/demo_60.bag
 "$BIN/rotation_averaging_replay" --bag "$DEMO" --config config/demo.yaml --gt "$DEMO" --output-dir "$OUT/demo" \
   --no-progress > "$OUT/demo.txt"
 
-CASTLE_ROW=""
-if [ -d "$DATA/strecha/castle-P19" ]; then
-  C="$DATA/strecha/castle-P19"
+# Strecha scenes as bags (one camera, images at a quarter of full width):
+# castle-P19 replayed for the table, and every scene for loop-closure recall
+# of the retrieval against an exhaustive two-view search of the same images
+# (same resolution and two-view settings), with the vocabulary (defaults)
+# and with voting over every keyframe's full features (vocabulary: none).
+SCENES=()
+for s in castle-P19 entry-P10 fountain-P11; do
+  [ -d "$DATA/strecha/$s" ] && SCENES+=("$s")
+done
+for s in "${SCENES[@]}"; do
+  C="$DATA/strecha/$s"
   "$BIN/rotation_averaging_images_to_bag" --images "$C/images" --intrinsics "$C/images/K.txt" --gt "$C" \
-    --downsample 0.25 --output "$OUT/castle.bag" > /dev/null 2>&1
-  printf 'image_topics: ["/camera/image_raw"]\nfeatures: sift\nmax_features: 4000\n' > "$OUT/castle.yaml"
-  "$BIN/rotation_averaging_replay" --bag "$OUT/castle.bag" --config "$OUT/castle.yaml" --gt "$OUT/castle.bag" \
-    --output-dir "$OUT/castle" --no-progress > "$OUT/castle.txt"
-  # Loop-closure recall of the retrieval against an exhaustive two-view search
-  # of the same images (same resolution and two-view settings).
+    --downsample 0.25 --output "$OUT/$s.bag" > /dev/null 2>&1
+  printf 'image_topics: ["/camera/image_raw"]\nfeatures: sift\nmax_features: 4000\n' > "$OUT/$s.yaml"
+  { cat "$OUT/$s.yaml"; echo "vocabulary: none"; } > "$OUT/${s}_voting.yaml"
   "$BIN/rotavg" images --images "$C/images" --intrinsics "$C/images/K.txt" --downsample 0.25 --pairs exhaustive \
-    --graph-out "$OUT/castle_exhaustive_graph.txt" --output "$OUT/castle_exhaustive.csv" > /dev/null
-  "$BIN/rotavg_loop_recall" --exhaustive "$OUT/castle_exhaustive_graph.txt" --keyframes "$OUT/castle/graph.txt" \
-    --gt "$C" > "$OUT/castle_recall.txt"
-fi
+    --graph-out "$OUT/${s}_exhaustive_graph.txt" --output "$OUT/${s}_exhaustive.csv" > /dev/null
+  for mode in vocabulary voting; do
+    config="$OUT/$s.yaml"
+    [ "$mode" = voting ] && config="$OUT/${s}_voting.yaml"
+    "$BIN/rotation_averaging_replay" --bag "$OUT/$s.bag" --config "$config" --gt "$OUT/$s.bag" \
+      --output-dir "$OUT/${s}_$mode" --no-progress > "$OUT/${s}_$mode.txt"
+    "$BIN/rotavg_loop_recall" --exhaustive "$OUT/${s}_exhaustive_graph.txt" --keyframes "$OUT/${s}_$mode/graph.txt" \
+      --gt "$C" > "$OUT/${s}_${mode}_recall.txt"
+  done
+done
+
+recall_row() {  # scene
+  local v="$OUT/$1_vocabulary_recall.txt" w="$OUT/$1_voting_recall.txt"
+  local images pairs found_v found_w recall_v recall_w kept
+  images=$(ls "$DATA/strecha/$1/images" | grep -ci '\.jpg$\|\.png$')
+  pairs=$(sed -n 's/^loop pairs .*: \([0-9]*\), of them correct (< 2 deg): \([0-9]*\)$/\1 (\2 correct)/p' "$v")
+  found_v=$(sed -n 's/^found by retrieval: \(.*\)$/\1/p' "$v")
+  found_w=$(sed -n 's/^found by retrieval: \(.*\)$/\1/p' "$w")
+  recall_v=$(sed -n 's/^recall of the correct verifiable loop pairs: \(.*\)$/\1/p' "$v")
+  recall_w=$(sed -n 's/^recall of the correct verifiable loop pairs: \(.*\)$/\1/p' "$w")
+  kept=$(sed -n 's/.*median fraction \([0-9.]*\).*/\1/p' "$v")
+  echo "| $1 | $images | $pairs | $found_v | $recall_v | ${kept:--} | $found_w | $recall_w |"
+}
 
 row() {  # name, summary file
   local f="$2"
@@ -61,8 +86,8 @@ row() {  # name, summary file
   echo "| bag | keyframes | bag time (s) | wall (s) | speed-up | CPU (s) | peak MiB | median (deg) | AUC@2 | AUC@5 | AUC@10 |"
   echo "|---|---|---|---|---|---|---|---|---|---|---|"
   row "demo: rendered 2-camera rig, 640x480, 60 captures (config/demo.yaml)" "$OUT/demo.txt"
-  if [ -f "$OUT/castle.txt" ]; then
-    row "castle-P19 at 768x512 (one camera, 19 images)" "$OUT/castle.txt"
+  if [ -f "$OUT/castle-P19_vocabulary.txt" ]; then
+    row "castle-P19 at 768x512 (one camera, 19 images)" "$OUT/castle-P19_vocabulary.txt"
   fi
   echo
   echo "## Demo bag"
@@ -70,29 +95,46 @@ row() {  # name, summary file
   echo '```'
   cat "$OUT/demo.txt"
   echo '```'
-  if [ -f "$OUT/castle.txt" ]; then
+  if [ -f "$OUT/castle-P19_vocabulary.txt" ]; then
     echo
     echo "## castle-P19"
     echo
     echo "Made with \`rotation_averaging_images_to_bag --images castle-P19/images --intrinsics castle-P19/images/K.txt --gt castle-P19 --downsample 0.25\`."
     echo
     echo '```'
-    cat "$OUT/castle.txt"
+    cat "$OUT/castle-P19_vocabulary.txt"
     echo '```'
+  fi
+  if [ ${#SCENES[@]} -gt 0 ]; then
     echo
-    echo "### Loop-closure retrieval recall"
+    echo "## Loop-closure recall on the Strecha scenes played as sequences"
     echo
-    echo "The path returns to its start. Against an exhaustive two-view search of the same 19 images"
-    echo '(`rotavg images --pairs exhaustive --downsample 0.25`, then `rotavg_loop_recall`): pairs more'
-    echo "than 5 images apart that the search verifies with >= 60 inliers and whose rotation is within 2 deg"
-    echo "of ground truth, and how many of them the retrieval (3 candidates per keyframe) found:"
+    echo "Each scene's images in order as a bag, as castle-P19 above; each path returns towards its start."
+    echo 'Against an exhaustive two-view search of the same images (`rotavg images --pairs exhaustive'
+    echo '--downsample 0.25`, then `rotavg_loop_recall`): the loop pairs (more than 5 images apart) the search'
+    echo "verifies with >= 60 inliers, of them those within 2 deg of ground truth, and how many of them the"
+    echo "front end found, with the vocabulary (defaults: compact keyframes of 1000 features) and with voting"
+    echo "over every keyframe's full features (\`vocabulary: none\`: no memory bound, cost growing with the"
+    echo "map). \"inliers kept\": median over the loops found of their inliers against the exhaustive search's"
+    echo "for the same pair (a compact keyframe keeps part of its correspondences)."
     echo
-    echo '```'
-    cat "$OUT/castle_recall.txt"
-    echo '```'
+    echo "| scene | images | loop pairs verifiable | vocabulary: found | vocabulary: recall | inliers kept | voting: found | voting: recall |"
+    echo "|---|---|---|---|---|---|---|---|"
+    for s in "${SCENES[@]}"; do recall_row "$s"; done
+    for s in "${SCENES[@]}"; do
+      echo
+      echo "### $s"
+      echo
+      echo '```'
+      echo "vocabulary:"
+      cat "$OUT/${s}_vocabulary_recall.txt"
+      echo "voting:"
+      cat "$OUT/${s}_voting_recall.txt"
+      echo '```'
+    done
   else
     echo
-    echo "castle-P19 skipped: $DATA/strecha/castle-P19 is absent."
+    echo "The Strecha scenes were skipped: $DATA/strecha is absent."
   fi
 } > results/replay.md
 echo "wrote results/replay.md"

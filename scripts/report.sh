@@ -11,7 +11,7 @@
 #   loss_table.md      (full resolution and downsampled by 4): covariance
 #   plots/cdf_*.png    calibration, the loss x weighting table, CDF plots, speed
 #   node_benchmark.md  the running node: latency and message rate
-#   replay.md          bag replay of the demo and castle-P19
+#   replay.md          bag replay of the demo and the Strecha scenes, loop-closure recall
 #   long_run.md        the keyframe front end over 800 keyframes and three laps
 # results/README.md is the written summary of these files.
 #

@@ -13,6 +13,7 @@
 // related it with at least `min_inliers` inliers, and correct when its
 // rotation is within `max_error_deg` of the ground truth.
 #include <algorithm>
+#include <cstdio>
 #include <cstdlib>
 #include <iostream>
 #include <map>
@@ -150,7 +151,9 @@ int main(int argc, char** argv) {
     std::sort(kept.begin(), kept.end());
     const std::size_t n = kept.size();
     const double median = n % 2 ? kept[n / 2] : 0.5 * (kept[n / 2 - 1] + kept[n / 2]);
-    std::cout << "; median fraction " << median;
+    char text[32];
+    std::snprintf(text, sizeof(text), "%.2f", median);
+    std::cout << "; median fraction " << text;
   }
   std::cout << std::endl;
   return 0;
