@@ -397,10 +397,16 @@ constexpr int kRotationRefineIterations = 20;
 
 // The rotation-only model x2 ~ K2 R K1^-1 x1 (see the header): 2-point RANSAC
 // with local optimisation, then Gauss-Newton on the transfer errors of the
-// inliers, re-selected at the 99% radius of their measured noise.
+// inliers, re-selected at the 99% radius of their measured noise. A rotation
+// explaining fewer than `min_support` correspondences cannot win the model
+// selection, so the sampling stops once such a rotation would have been
+// found with the RANSAC confidence: where the camera moved, the rotations
+// explain few correspondences and the sampling would otherwise run to its
+// iteration cap.
 RelativePoseResult EstimateRotationOnly(const std::vector<Eigen::Vector2d>& points1,
                                         const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
-                                        const Eigen::Matrix3d& k2, const RelativePoseOptions& options) {
+                                        const Eigen::Matrix3d& k2, const RelativePoseOptions& options,
+                                        int min_support) {
   const int n = static_cast<int>(points1.size());
   const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
   std::vector<Eigen::Vector3d> b1(n), b2(n);
@@ -408,10 +414,14 @@ RelativePoseResult EstimateRotationOnly(const std::vector<Eigen::Vector2d>& poin
     b1[i] = (k1_inv * points1[i].homogeneous()).normalized();
     b2[i] = (k2_inv * points2[i].homogeneous()).normalized();
   }
-  auto inliers_of = [&](const Eigen::Matrix3d& rotation, double radius_px) {
+  // The inliers of a rotation; with `beat`, it gives up (returning what it
+  // has) as soon as it cannot find more than that many: a hypothesis with
+  // no more support than the best so far is discarded anyway.
+  auto inliers_of = [&](const Eigen::Matrix3d& rotation, double radius_px, std::size_t beat = 0) {
     std::vector<int> in;
     Eigen::Vector2d e;
     for (int i = 0; i < n; ++i) {
+      if (beat > 0 && in.size() + static_cast<std::size_t>(n - i) <= beat) break;
       if (TransferError(k2, rotation, b1[i], points2[i], &e) && e.norm() < radius_px) in.push_back(i);
     }
     return in;
@@ -422,13 +432,19 @@ RelativePoseResult EstimateRotationOnly(const std::vector<Eigen::Vector2d>& poin
   std::vector<int> best;
   Eigen::Matrix3d best_rotation = Eigen::Matrix3d::Identity();
   const double log_failure = std::log(1.0 - options.ransac_confidence);
-  int needed = options.ransac_max_iterations;
+  auto iterations_for = [&](std::size_t support) {
+    const double w = static_cast<double>(support) / n;
+    const double miss = std::log(std::max(1e-12, 1.0 - w * w));
+    return miss < 0.0 ? static_cast<int>(std::min<double>(std::ceil(log_failure / miss), options.ransac_max_iterations))
+                      : options.ransac_max_iterations;
+  };
+  int needed = iterations_for(static_cast<std::size_t>(std::clamp(min_support, 0, n)));
   for (int it = 0; it < needed && it < options.ransac_max_iterations; ++it) {
     const int i = pick(rng), j = pick(rng);
     // Two bearings nearly along one line do not fix the rotation about it.
     if (i == j || b1[i].cross(b1[j]).norm() < 1e-3 || b2[i].cross(b2[j]).norm() < 1e-3) continue;
     Eigen::Matrix3d rotation = FitRotation(b1, b2, {i, j});
-    std::vector<int> in = inliers_of(rotation, options.ransac_threshold_px);
+    std::vector<int> in = inliers_of(rotation, options.ransac_threshold_px, best.size());
     if (in.size() <= best.size()) continue;
     // Local optimisation: refit on the support until it stops growing.
     for (int lo = 0; lo < 3; ++lo) {
@@ -440,9 +456,7 @@ RelativePoseResult EstimateRotationOnly(const std::vector<Eigen::Vector2d>& poin
     }
     best.swap(in);
     best_rotation = rotation;
-    const double w = static_cast<double>(best.size()) / n;
-    const double miss = std::log(std::max(1e-12, 1.0 - w * w));
-    needed = miss < 0.0 ? static_cast<int>(std::ceil(log_failure / miss)) : options.ransac_max_iterations;
+    needed = std::min(needed, iterations_for(best.size()));
   }
   if (static_cast<int>(best.size()) < options.min_inliers) {
     return Fail(TwoViewFailure::kTooFewInliers, std::to_string(best.size()) + " rotation-model inliers");
@@ -623,7 +637,11 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
   // homography too.
   if (!essential.success && (essential.failure == TwoViewFailure::kNearPlanar || !fit.found)) return essential;
   if (essential.success && !(essential.homography_inlier_ratio >= kRotationModelMinHomographyRatio)) return essential;
-  RelativePoseResult rotation = EstimateRotationOnly(points1, points2, k1, k2, options);
+  // Half the general model's support, as for the homography share above.
+  const std::size_t general_support = essential.success ? essential.inliers.size() : fit.inliers.size();
+  RelativePoseResult rotation = EstimateRotationOnly(
+      points1, points2, k1, k2, options,
+      static_cast<int>(std::floor(kRotationModelMinHomographyRatio * static_cast<double>(general_support))));
   if (!rotation.success) return essential;
   double gric_essential = 0.0, gric_rotation = 0.0;
   if (essential.success) {
