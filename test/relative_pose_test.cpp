@@ -1,10 +1,12 @@
 #include "rotation_averaging/estimators/relative_pose.h"
 
+#include <ceres/jet.h>
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
 #include <random>
 
+#include "rotation_averaging/geometry/epipolar.h"
 #include "rotation_averaging/geometry/so3.h"
 
 namespace rotation_averaging {
@@ -49,6 +51,28 @@ void Observe(const Scene& s, double sigma_px, double outlier_ratio, std::mt19937
     } else {
       p2->emplace_back(u2.x() / u2.z() + noise(rng), u2.y() / u2.z() + noise(rng));
     }
+  }
+}
+
+// The refinement's closed-form derivative of the Sampson error against
+// automatic differentiation of the same formula, on fundamental matrices of
+// pixel scale and points near and far from their epipolar lines.
+TEST(RelativePose, SampsonGradientMatchesAutomaticDerivatives) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> pixel(0.0, 640.0), entry(-1.0, 1.0);
+  using Jet = ceres::Jet<double, 9>;
+  for (int trial = 0; trial < 200; ++trial) {
+    Eigen::Matrix3d f;
+    for (int i = 0; i < 9; ++i) f.data()[i] = entry(rng) * (i % 3 == 2 || i >= 6 ? 1e-2 : 1e-5);
+    const Eigen::Vector3d x1(pixel(rng), pixel(rng), 1.0), x2(pixel(rng), pixel(rng), 1.0);
+    Eigen::Matrix<Jet, 3, 3> f_jet;
+    for (int i = 0; i < 9; ++i) f_jet.data()[i] = Jet(f.data()[i], i);
+    const Jet expected = SampsonError<Jet>(f_jet, x1.cast<Jet>(), x2.cast<Jet>());
+    Eigen::Matrix3d gradient;
+    const double r = SampsonErrorAndGradient(f, x1, x2, &gradient);
+    EXPECT_NEAR(r, expected.a, 1e-9 * (1.0 + std::abs(expected.a)));
+    const double scale = expected.v.cwiseAbs().maxCoeff();
+    for (int i = 0; i < 9; ++i) EXPECT_NEAR(gradient.data()[i], expected.v[i], 1e-9 * scale) << "entry " << i;
   }
 }
 

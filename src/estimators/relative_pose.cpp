@@ -1,8 +1,5 @@
 #include "rotation_averaging/estimators/relative_pose.h"
 
-#include <ceres/ceres.h>
-#include <ceres/rotation.h>
-
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
@@ -16,32 +13,6 @@
 namespace rotation_averaging {
 namespace {
 
-// Sampson error of one correspondence in pixels, for R = Exp(omega) R_hat and
-// unit t: F = K2^-T [t]x R K1^-1 and pixel points x1, x2.
-struct SampsonResidual {
-  SampsonResidual(const Eigen::Matrix3d& rotation_hat, const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
-                  const Eigen::Vector2d& p1, const Eigen::Vector2d& p2)
-      : rotation_hat_(rotation_hat), k1_inv_(k1_inv), k2_inv_t_(k2_inv.transpose()), p1_(p1), p2_(p2) {}
-
-  template <typename T>
-  bool operator()(const T* omega, const T* t, T* residual) const {
-    T rw[9];
-    ceres::AngleAxisToRotationMatrix(omega, rw);  // column-major
-    Eigen::Matrix<T, 3, 3> exp_omega;
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) exp_omega(r, c) = rw[r + 3 * c];
-    const Eigen::Matrix<T, 3, 3> rotation = exp_omega * rotation_hat_.cast<T>();
-    const Eigen::Matrix<T, 3, 3> f = k2_inv_t_.cast<T>() * CrossMatrix(t) * rotation * k1_inv_.cast<T>();
-    const Eigen::Matrix<T, 3, 1> x1(T(p1_.x()), T(p1_.y()), T(1));
-    const Eigen::Matrix<T, 3, 1> x2(T(p2_.x()), T(p2_.y()), T(1));
-    residual[0] = SampsonError(f, x1, x2);
-    return true;
-  }
-
-  Eigen::Matrix3d rotation_hat_, k1_inv_, k2_inv_t_;
-  Eigen::Vector2d p1_, p2_;
-};
-
 double SampsonPx(const Eigen::Matrix3d& f, const Eigen::Vector2d& p1, const Eigen::Vector2d& p2) {
   return SampsonError<double>(f, p1.homogeneous(), p2.homogeneous());
 }
@@ -50,6 +21,107 @@ double SampsonPx(const Eigen::Matrix3d& f, const Eigen::Vector2d& p1, const Eige
 Eigen::Matrix3d FundamentalPx(const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
                               const Eigen::Matrix3d& rotation, const Eigen::Vector3d& t) {
   return k2_inv.transpose() * Hat(t) * rotation * k1_inv;
+}
+
+// The Sampson refinement moves the pose (R, t) by omega and beta:
+// R <- Exp(omega) R, t <- (t + B beta) / |t + B beta|, B an orthonormal basis
+// of the plane orthogonal to t. The marginal and conditional covariances of
+// omega do not depend on the choice of B.
+using Matrix5d = Eigen::Matrix<double, 5, 5>;
+using Vector5d = Eigen::Matrix<double, 5, 1>;
+
+Eigen::Matrix<double, 3, 2> TangentBasis(const Eigen::Vector3d& t) {
+  const Eigen::Vector3d other = std::abs(t.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+  Eigen::Matrix<double, 3, 2> basis;
+  basis.col(0) = t.cross(other).normalized();
+  basis.col(1) = t.cross(basis.col(0)).normalized();
+  return basis;
+}
+
+// Sum of squared Sampson errors (pixels) of the correspondences `indices`.
+double SampsonSumSquares(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                         const std::vector<int>& indices, const Eigen::Matrix3d& f) {
+  double sum = 0.0;
+  for (int i : indices) {
+    const double r = SampsonPx(f, points1[i], points2[i]);
+    sum += r * r;
+  }
+  return sum;
+}
+
+// Gauss-Newton normal equations J^T J, J^T r of the Sampson errors of
+// `indices` in (omega, beta) at (R, t), with closed-form derivatives: F is
+// linear in its perturbation, dF/domega_k = K2^-T [t]x [e_k]x R K1^-1 and
+// dF/dbeta_j = K2^-T [b_j]x R K1^-1, and dr/dF is SampsonErrorAndGradient.
+struct SampsonSystem {
+  Matrix5d jtj = Matrix5d::Zero();
+  Vector5d jtr = Vector5d::Zero();
+  double sum_squares = 0.0;
+};
+
+SampsonSystem BuildSampsonSystem(const std::vector<Eigen::Vector2d>& points1,
+                                 const std::vector<Eigen::Vector2d>& points2, const std::vector<int>& indices,
+                                 const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                                 const Eigen::Matrix3d& rotation, const Eigen::Vector3d& t,
+                                 const Eigen::Matrix<double, 3, 2>& basis) {
+  const Eigen::Matrix3d right = rotation * k1_inv, left = k2_inv.transpose();
+  const Eigen::Matrix3d left_t = left * Hat(t);
+  const Eigen::Matrix3d f = left_t * right;
+  Eigen::Matrix<double, 9, 5> df;
+  for (int k = 0; k < 3; ++k) {
+    const Eigen::Matrix3d d = left_t * Hat(Eigen::Vector3d::Unit(k)) * right;
+    df.col(k) = Eigen::Map<const Eigen::Matrix<double, 9, 1>>(d.data());
+  }
+  for (int j = 0; j < 2; ++j) {
+    const Eigen::Matrix3d d = left * Hat(basis.col(j)) * right;
+    df.col(3 + j) = Eigen::Map<const Eigen::Matrix<double, 9, 1>>(d.data());
+  }
+  SampsonSystem system;
+  Eigen::Matrix3d gradient;
+  for (int i : indices) {
+    const double r = SampsonErrorAndGradient(f, points1[i].homogeneous(), points2[i].homogeneous(), &gradient);
+    const Eigen::Matrix<double, 1, 5> j = Eigen::Map<const Eigen::Matrix<double, 1, 9>>(gradient.data()) * df;
+    system.jtj.noalias() += j.transpose() * j;
+    system.jtr.noalias() += r * j.transpose();
+    system.sum_squares += r * r;
+  }
+  return system;
+}
+
+// Levenberg-Marquardt on the Sampson errors of `indices` from (rotation, t)
+// (a trust region on the scaled diagonal, as Ceres' default, to relative
+// tolerances of 1e-12 on the cost and the step). Returns the iterations.
+int RefineSampson(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                  const std::vector<int>& indices, const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                  int max_iterations, Eigen::Matrix3d* rotation, Eigen::Vector3d* t) {
+  Eigen::Matrix<double, 3, 2> basis = TangentBasis(*t);
+  SampsonSystem system = BuildSampsonSystem(points1, points2, indices, k1_inv, k2_inv, *rotation, *t, basis);
+  double lambda = 1e-4;
+  int iterations = 0;
+  while (iterations < max_iterations) {
+    ++iterations;
+    Matrix5d damped = system.jtj;
+    damped.diagonal() += lambda * system.jtj.diagonal().cwiseMax(1e-6);
+    const Vector5d step = damped.ldlt().solve(-system.jtr);
+    if (!step.allFinite()) break;
+    const Eigen::Matrix3d rotation_new = ExpSO3(step.head<3>()) * *rotation;
+    const Eigen::Vector3d t_new = (*t + basis * step.tail<2>()).normalized();
+    const double cost_new =
+        SampsonSumSquares(points1, points2, indices, FundamentalPx(k1_inv, k2_inv, rotation_new, t_new));
+    if (!(cost_new < system.sum_squares)) {
+      lambda *= 10.0;
+      if (lambda > 1e16) break;
+      continue;
+    }
+    const double decrease = system.sum_squares - cost_new;
+    *rotation = rotation_new;
+    *t = t_new;
+    if (decrease <= 1e-12 * system.sum_squares || step.norm() <= 1e-12) break;
+    lambda = std::max(lambda / 10.0, 1e-16);
+    basis = TangentBasis(*t);
+    system = BuildSampsonSystem(points1, points2, indices, k1_inv, k2_inv, *rotation, *t, basis);
+  }
+  return iterations;
 }
 
 // Standard deviation of Gaussian residuals from their absolute values
@@ -256,38 +328,16 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
   // so after each refinement, inliers are re-selected from all correspondences
   // (|Sampson| < 3 sigma, sigma from the median absolute residual, in front of
   // both cameras) and the refinement repeated until the set settles.
-  double omega[3] = {0.0, 0.0, 0.0};
-  double tv[3] = {t.x(), t.y(), t.z()};
-  auto build = [&](ceres::Problem* problem, const Eigen::Matrix3d& r_hat) {
-    for (int i : inliers) {
-      problem->AddResidualBlock(new ceres::AutoDiffCostFunction<SampsonResidual, 1, 3, 3>(
-                                    new SampsonResidual(r_hat, k1_inv, k2_inv, points1[i], points2[i])),
-                                nullptr, omega, tv);
-    }
-    problem->SetManifold(tv, new ceres::SphereManifold<3>());
-  };
-  ceres::Solver::Summary summary;
   int refine_iterations = 0;
   for (int round = 0; round < kMaxReselectionRounds; ++round) {
-    omega[0] = omega[1] = omega[2] = 0.0;
-    ceres::Problem problem;
-    build(&problem, rotation);
-    ceres::Solver::Options solver_options;
-    solver_options.linear_solver_type = ceres::DENSE_QR;
-    solver_options.max_num_iterations = options.refine_max_iterations;
-    solver_options.function_tolerance = 1e-12;
-    solver_options.parameter_tolerance = 1e-12;
-    solver_options.logging_type = ceres::SILENT;
-    solver_options.num_threads = 1;
-    ceres::Solve(solver_options, &problem, &summary);
-    refine_iterations += static_cast<int>(summary.iterations.size());
-    const Eigen::Vector3d w(omega[0], omega[1], omega[2]);
-    if (!w.allFinite() || !std::isfinite(tv[0] + tv[1] + tv[2]) || w.norm() > 0.5) {
-      return Fail(TwoViewFailure::kRefinementFailed, "refinement moved the rotation by " +
-                                                         std::to_string(RadToDeg(w.norm())) + " deg or diverged");
+    const Eigen::Matrix3d rotation_before = rotation;
+    refine_iterations += RefineSampson(points1, points2, inliers, k1_inv, k2_inv, options.refine_max_iterations,
+                                       &rotation, &t);
+    const double moved = AngularDistanceRad(rotation, rotation_before);
+    if (!rotation.allFinite() || !t.allFinite() || !(moved <= 0.5)) {
+      return Fail(TwoViewFailure::kRefinementFailed,
+                  "refinement moved the rotation by " + std::to_string(RadToDeg(moved)) + " deg or diverged");
     }
-    rotation = ExpSO3(w) * rotation;
-    t = Eigen::Vector3d(tv[0], tv[1], tv[2]).normalized();
 
     // Re-select.
     const Eigen::Matrix3d f = FundamentalPx(k1_inv, k2_inv, rotation, t);
@@ -311,36 +361,18 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
     }
     const bool settled = selected == inliers;
     inliers.swap(selected);
-    tv[0] = t.x();
-    tv[1] = t.y();
-    tv[2] = t.z();
     if (settled) break;
   }
 
-  // 4. Jacobian at the optimum (omega = 0) w.r.t. omega (3) and the tangent of t (2).
-  omega[0] = omega[1] = omega[2] = 0.0;
-  tv[0] = t.x();
-  tv[1] = t.y();
-  tv[2] = t.z();
-  ceres::Problem problem;
-  build(&problem, rotation);
-  ceres::Problem::EvaluateOptions evaluate;
-  evaluate.parameter_blocks = {omega, tv};
-  std::vector<double> residuals;
-  ceres::CRSMatrix crs;
-  double cost = 0.0;
-  problem.Evaluate(evaluate, &cost, &residuals, nullptr, &crs);
-  Eigen::MatrixXd jacobian = Eigen::MatrixXd::Zero(crs.num_rows, crs.num_cols);
-  for (int r = 0; r < crs.num_rows; ++r)
-    for (int k = crs.rows[r]; k < crs.rows[r + 1]; ++k) jacobian(r, crs.cols[k]) = crs.values[k];
-  if (crs.num_cols != 5 || !jacobian.allFinite()) {
+  // 4. Jacobian at the optimum w.r.t. omega (3) and the tangent of t (2).
+  const SampsonSystem at_optimum =
+      BuildSampsonSystem(points1, points2, inliers, k1_inv, k2_inv, rotation, t, TangentBasis(t));
+  const Matrix5d& jtj = at_optimum.jtj;
+  if (!jtj.allFinite() || !std::isfinite(at_optimum.sum_squares)) {
     return Fail(TwoViewFailure::kRefinementFailed, "Jacobian is not finite");
   }
-  const int m = static_cast<int>(residuals.size());
-  double sum_squares = 0.0;
-  for (double r : residuals) sum_squares += r * r;
-  const double sigma2 = sum_squares / std::max(1, m - 5);
-  const Eigen::Matrix<double, 5, 5> jtj = jacobian.transpose() * jacobian;
+  const int m = static_cast<int>(inliers.size());
+  const double sigma2 = at_optimum.sum_squares / std::max(1, m - 5);
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 5, 5>> eig(jtj);
   const double min_eig = eig.eigenvalues().minCoeff(), max_eig = eig.eigenvalues().maxCoeff();
   if (!(min_eig > 0.0) || max_eig / min_eig > options.max_condition_number) {

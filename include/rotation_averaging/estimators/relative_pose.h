@@ -10,9 +10,9 @@
 // edge's right perturbation (geometry/so3.h): no frame change is needed.
 //
 // Pipeline: essential matrix by OpenCV's USAC MAGSAC++ on normalised
-// coordinates, cheirality by recoverPose, then Ceres refinement of R and t
-// (t on the unit sphere) minimising the Sampson error over the inliers, in
-// pixels; then the same again at a threshold scaled to the pair's measured
+// coordinates, cheirality by recoverPose, then Levenberg-Marquardt refinement
+// of R and t (t on the unit sphere, closed-form derivatives) minimising the
+// Sampson error over the inliers, in pixels; then the same again at a threshold scaled to the pair's measured
 // pixel noise (adaptive_threshold_sigmas). With J the Jacobian of the Sampson residuals w.r.t. (omega, t) at the
 // optimum and sigma^2 the pixel noise variance estimated from the residuals:
 //   conditional (the paper's code, t held fixed):  C = (J_w^T J_w)^-1
@@ -90,7 +90,7 @@ struct RelativePoseOptions {
   // is resolved by cheirality.
   double max_homography_inlier_ratio = 1.0;
   double near_planar_report_ratio = 0.95;  // counted as near-planar in reports (kept)
-  int refine_max_iterations = 50;      // Ceres iterations of the Sampson refinement
+  int refine_max_iterations = 50;      // Levenberg-Marquardt iterations of the Sampson refinement
   double max_condition_number = 1e10;  // of J^T J; larger: rejected as singular
   RotationCovarianceModel covariance_model = RotationCovarianceModel::kMarginal;
   // Model selection with the rotation-only homography (see above). Off: pairs

@@ -30,6 +30,24 @@ T SampsonError(const Eigen::Matrix<T, 3, 3>& f, const Eigen::Matrix<T, 3, 1>& x1
   return x2.dot(fx1) / sqrt(denominator + T(1e-300));
 }
 
+// The Sampson error and its derivative with respect to the entries of F
+// (d r / d F(a, b) in `gradient`), in closed form: the two-view refinement
+// evaluates it for every inlier at every iteration, where automatic
+// derivatives through the pose parameters cost several times more.
+// With g = F x1, h = F^T x2, e = x2^T g, d = g0^2 + g1^2 + h0^2 + h1^2:
+//   r = e / sqrt(d),  dr/dF = (x2 x1^T - (r / sqrt(d)) (g' x1^T + x2 h'^T)) / sqrt(d),
+// g' = (g0, g1, 0), h' = (h0, h1, 0).
+inline double SampsonErrorAndGradient(const Eigen::Matrix3d& f, const Eigen::Vector3d& x1, const Eigen::Vector3d& x2,
+                                      Eigen::Matrix3d* gradient) {
+  const Eigen::Vector3d g = f * x1, h = f.transpose() * x2;
+  const double inv_sqrt_d = 1.0 / std::sqrt(g[0] * g[0] + g[1] * g[1] + h[0] * h[0] + h[1] * h[1] + 1e-300);
+  const double r = x2.dot(g) * inv_sqrt_d;
+  const double c = r * inv_sqrt_d;
+  const Eigen::Vector3d u = x2 - c * Eigen::Vector3d(g[0], g[1], 0.0);
+  *gradient = inv_sqrt_d * (u * x1.transpose() - c * x2 * Eigen::RowVector3d(h[0], h[1], 0.0));
+  return r;
+}
+
 }  // namespace rotation_averaging
 
 #endif  // ROTATION_AVERAGING_GEOMETRY_EPIPOLAR_H_
