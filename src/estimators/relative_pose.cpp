@@ -316,7 +316,11 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
   }
   std::nth_element(parallax.begin(), parallax.begin() + parallax.size() / 2, parallax.end());
   const double median_parallax_deg = RadToDeg(parallax[parallax.size() / 2]);
-  if (median_parallax_deg < options.min_median_parallax_deg) {
+  // Without the rotation model, a pair without parallax is rejected here.
+  // With it, model selection decides: a pair the general model still wins has
+  // a translation the data show, and its marginal covariance carries how
+  // weakly that translation is observed.
+  if (!options.rotation_model && median_parallax_deg < options.min_median_parallax_deg) {
     RelativePoseResult r = Fail(TwoViewFailure::kPureRotation, "median parallax " + std::to_string(median_parallax_deg) + " deg");
     r.median_parallax_deg = median_parallax_deg;
     return r;

@@ -80,7 +80,10 @@ struct RelativePoseOptions {
   double ransac_confidence = 0.9999;   // probability of finding the best model
   int ransac_max_iterations = 10000;
   int min_inliers = 20;                // fewer inliers: pair rejected
-  double min_median_parallax_deg = 0.3;  // below: near-pure rotation, rejected
+  // Without the rotation model (rotation_model = false), pairs below this
+  // median parallax are rejected as near-pure rotation; with it, the model
+  // selection decides.
+  double min_median_parallax_deg = 0.3;
   // Pairs where a homography explains more than this fraction of the
   // essential-matrix inliers are rejected as near-planar. Default 1: keep them
   // (and report them). Measured on the Strecha scenes: on the facade
