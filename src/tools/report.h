@@ -56,10 +56,11 @@ inline std::string CommandLine(const std::string& program, int argc, char** argv
 
 // Runs this program again (`self` = argv[0]) with `args` in a child process,
 // for a figure of its own: what it writes to stdout goes to `out` (may be
-// null) and its peak resident memory (MiB, from wait4's rusage) to
-// `peak_mib`. False if the child did not exit with status 0.
+// null), its peak resident memory (MiB, from wait4's rusage) to `peak_mib`
+// and its CPU time (user + system, seconds) to `cpu_s` (both may be null).
+// False if the child did not exit with status 0.
 inline bool RunChildProcess(const char* self, const std::vector<std::string>& args, std::string* out,
-                            double* peak_mib) {
+                            double* peak_mib, double* cpu_s = nullptr) {
   int fds[2];
   if (pipe(fds) != 0) return false;
   const pid_t pid = fork();
@@ -83,6 +84,10 @@ inline bool RunChildProcess(const char* self, const std::vector<std::string>& ar
   if (pid < 0 || wait4(pid, &status, 0, &usage) < 0 || !WIFEXITED(status) || WEXITSTATUS(status) != 0) return false;
   if (out) *out = text;
   if (peak_mib) *peak_mib = usage.ru_maxrss / 1024.0;  // ru_maxrss is in KiB on Linux
+  if (cpu_s) {
+    *cpu_s = usage.ru_utime.tv_sec + 1e-6 * usage.ru_utime.tv_usec + usage.ru_stime.tv_sec +
+             1e-6 * usage.ru_stime.tv_usec;
+  }
   return true;
 }
 

@@ -163,13 +163,14 @@ int main(int argc, char** argv) {
     if (fs::exists(rotavg)) {
       md << "\n## Reading, and `rotavg solve` as a whole process\n\nRead: `ReadViewGraph` in this process (median of "
          << repeats << "). Whole process: wall time of `rotavg solve GRAPH --output FILE` from fork to exit (median of "
-         << repeats << "), against the read and solve times it prints itself; start-up: `rotavg --help`.\n\n"
-         << "| graph | read (s) | solve (s) | read / solve | whole process (s) | process / (read + solve) |\n"
-         << "|---|---|---|---|---|---|\n";
+         << repeats << "), against the read and solve times it prints itself, and its CPU time (user + system, "
+         << "all threads); start-up: `rotavg --help`.\n\n"
+         << "| graph | read (s) | solve (s) | read / solve | whole process (s) | process / (read + solve) | CPU (s) |\n"
+         << "|---|---|---|---|---|---|---|\n";
       const std::string csv = (fs::temp_directory_path() / ("rotavg_benchmark_" + std::to_string(::getpid()) + ".csv")).string();
-      const auto process_s = [&](const std::vector<std::string>& args, std::string* out) {
+      const auto process_s = [&](const std::vector<std::string>& args, std::string* out, double* cpu_s = nullptr) {
         const auto start = std::chrono::steady_clock::now();
-        if (!ra::RunChildProcess(rotavg.c_str(), args, out, nullptr)) return -1.0;
+        if (!ra::RunChildProcess(rotavg.c_str(), args, out, nullptr, cpu_s)) return -1.0;
         return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
       };
       const auto printed = [](const std::string& out, const std::string& label) {
@@ -179,27 +180,29 @@ int main(int argc, char** argv) {
       std::vector<Dataset> timed = datasets;
       timed.push_back({"smallGrid3D (125 views)", data_dir + "/pose_graphs/smallGrid3D.g2o", 0.0});
       for (const Dataset& d : timed) {
-        std::vector<double> reads, processes, printed_read, printed_solve;
+        std::vector<double> reads, processes, printed_read, printed_solve, cpus;
         for (int r = 0; r < repeats; ++r) {
           ra::ViewGraph graph;
           const auto start = std::chrono::steady_clock::now();
           if (!ra::ReadViewGraph(d.path, ra::GraphFormat::kAuto, &graph).ok()) break;
           reads.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
           std::string out;
-          const double wall = process_s({"solve", d.path, "--output", csv}, &out);
+          double cpu = 0.0;
+          const double wall = process_s({"solve", d.path, "--output", csv}, &out, &cpu);
           if (wall < 0.0) break;
           processes.push_back(wall);
+          cpus.push_back(cpu);
           printed_read.push_back(printed(out, "read time: "));
           printed_solve.push_back(printed(out, "solve time: "));
         }
         if (processes.empty()) {
-          md << "| " << d.name << " | failed | | | | |\n";
+          md << "| " << d.name << " | failed | | | | | |\n";
           continue;
         }
         const double read = Median(printed_read), solve = Median(printed_solve), whole = Median(processes);
         md << "| " << d.name << " | " << Fixed(Median(reads), 4) << " | " << Fixed(solve, 4) << " | "
            << Fixed(Median(reads) / solve, 2) << " | " << Fixed(whole, 4) << " | " << Fixed(whole / (read + solve), 2)
-           << " |\n";
+           << " | " << Fixed(Median(cpus), 4) << " |\n";
       }
       std::remove(csv.c_str());
       std::vector<double> startups;
