@@ -40,6 +40,13 @@ inline std::string Fixed(double v, int digits) {
   return s.str();
 }
 
+// `digits` significant digits (costs, whose magnitude varies by graph).
+inline std::string Significant(double v, int digits) {
+  std::ostringstream s;
+  s << std::setprecision(digits) << v;
+  return s.str();
+}
+
 // Median (the mean of the two middle values for an even count); NaN if empty.
 inline double Median(std::vector<double> v) {
   if (v.empty()) return NAN;
