@@ -261,6 +261,29 @@ Block<K> Dot(const std::vector<double>& a, const std::vector<double>& b, int n) 
   return s;
 }
 
+// A symmetric 3x3 block by its six distinct entries. The off-diagonal blocks
+// of a matrix-weighted Laplacian (-G_ij) are symmetric, so the product
+// streams two thirds of the bytes of a full block; the passes over the
+// blocks are bound by that streaming, not by arithmetic.
+template <typename T>
+struct SymmetricBlock {
+  T xx, xy, xz, yy, yz, zz;
+  // The symmetric part of m (the input's blocks are symmetric up to rounding).
+  static SymmetricBlock Of(const Eigen::Matrix3d& m) {
+    return {static_cast<T>(m(0, 0)), static_cast<T>(0.5 * (m(0, 1) + m(1, 0))),
+            static_cast<T>(0.5 * (m(0, 2) + m(2, 0))), static_cast<T>(m(1, 1)),
+            static_cast<T>(0.5 * (m(1, 2) + m(2, 1))), static_cast<T>(m(2, 2))};
+  }
+  // s += B v.
+  template <typename S>
+  void AddProduct(const double* v, S* s) const {
+    const T v0 = static_cast<T>(v[0]), v1 = static_cast<T>(v[1]), v2 = static_cast<T>(v[2]);
+    s[0] += xx * v0 + xy * v1 + xz * v2;
+    s[1] += xy * v0 + yy * v1 + yz * v2;
+    s[2] += xz * v0 + yz * v1 + zz * v2;
+  }
+};
+
 // The finest level of a 3x3-block system (SetupBlocks): every block row's
 // off-diagonal blocks (the full symmetric pattern, columns ascending; those
 // left of the diagonal end at split[i]) and its diagonal block apart, with
@@ -268,17 +291,17 @@ Block<K> Dot(const std::vector<double>& a, const std::vector<double>& b, int n) 
 struct BlockLevel {
   int n = 0;
   std::vector<int> ptr, split, col;
-  std::vector<Eigen::Matrix3d> val, diag, inv_diag;
+  std::vector<SymmetricBlock<double>> val;
+  std::vector<Eigen::Matrix3d> diag, inv_diag;
   // The off-diagonal blocks again in single precision for the smoother: the
   // cycle streams them three times per iteration, the outer iteration's
   // product (exact, in double) once; single precision halves that traffic
   // and only perturbs the preconditioner, which flexible CG absorbs.
-  std::vector<Eigen::Matrix3f> val_single;
+  std::vector<SymmetricBlock<float>> val_single;
   // Entry (a, b) of off-diagonal block k is input value base[k] + b *
-  // stride[k] + a, transposed for the blocks above the diagonal; likewise
+  // stride[k] + a (or its transpose: the same symmetric block); likewise
   // the diagonal blocks (diagonal_base, diagonal_stride).
   std::vector<int> base, stride, diagonal_base, diagonal_stride;
-  std::vector<unsigned char> transposed;
   std::vector<double> residual;
 };
 
@@ -287,18 +310,16 @@ void BlockMultiply(const BlockLevel& level, const double* x, double* y) {
   using Vector = Eigen::Map<const Eigen::Vector3d>;
   for (int i = 0; i < level.n; ++i) {
     Eigen::Vector3d s = level.diag[i] * Vector(x + 3 * i);
-    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) s.noalias() += level.val[p] * Vector(x + 3 * level.col[p]);
+    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) level.val[p].AddProduct(x + 3 * level.col[p], s.data());
     Eigen::Map<Eigen::Vector3d>(y + 3 * i) = s;
   }
 }
 
 // sum over p in [first, last) of H_p z_col(p), H in single precision.
 inline Eigen::Vector3d BlockRowProduct(const BlockLevel& level, int first, int last, const double* z) {
-  Eigen::Vector3f s = Eigen::Vector3f::Zero();
-  for (int p = first; p < last; ++p) {
-    s.noalias() += level.val_single[p] * Eigen::Map<const Eigen::Vector3d>(z + 3 * level.col[p]).cast<float>();
-  }
-  return s.cast<double>();
+  float s[3] = {0.0f, 0.0f, 0.0f};
+  for (int p = first; p < last; ++p) level.val_single[p].AddProduct(z + 3 * level.col[p], s);
+  return Eigen::Vector3d(s[0], s[1], s[2]);
 }
 
 // Block Gauss-Seidel on H z = r: each view's three unknowns are solved
@@ -802,7 +823,6 @@ bool AggregationAmg::Impl::BuildBlocks(const Eigen::SparseMatrix<double>& lower)
     block.col.resize(entries);
     block.base.resize(entries);
     block.stride.resize(entries);
-    block.transposed.resize(entries);
     std::vector<int> fill(block.ptr.begin(), block.ptr.end() - 1);
     // The surrogate: lower triangle of the n x n matrix of the blocks'
     // traces / 3, in the same order.
@@ -820,13 +840,12 @@ bool AggregationAmg::Impl::BuildBlocks(const Eigen::SparseMatrix<double>& lower)
         surrogate_stride.push_back(count);
         if (r == c) continue;
         // Block (r, c) below the diagonal: row r sees it as stored, row c
-        // as its transpose.
-        for (const auto& [row, column, t] : {std::tuple<int, int, int>{r, c, 0}, {c, r, 1}}) {
+        // as its transpose, which is the same symmetric block.
+        for (const auto& [row, column] : {std::pair<int, int>{r, c}, {c, r}}) {
           const int q = fill[row]++;
           block.col[q] = column;
           block.base[q] = outer[3 * c] + k;
           block.stride[q] = count;
-          block.transposed[q] = static_cast<unsigned char>(t);
         }
       }
       surrogate_outer[c + 1] = static_cast<int>(surrogate_inner.size());
@@ -857,10 +876,10 @@ bool AggregationAmg::Impl::BuildBlocks(const Eigen::SparseMatrix<double>& lower)
   };
   block.val_single.resize(block.val.size());
   for (std::size_t q = 0; q < block.val.size(); ++q) {
-    block.val[q] = read(block.base[q], block.stride[q]);
-    if (block.transposed[q]) block.val[q].transposeInPlace();
-    if (!block.val[q].allFinite()) return false;
-    block.val_single[q] = block.val[q].cast<float>();
+    const Eigen::Matrix3d m = read(block.base[q], block.stride[q]);
+    if (!m.allFinite()) return false;
+    block.val[q] = SymmetricBlock<double>::Of(m);
+    block.val_single[q] = SymmetricBlock<float>::Of(m);
   }
   for (int i = 0; i < n; ++i) {
     // The input's diagonal blocks hold the full 3x3; symmetrised against rounding.

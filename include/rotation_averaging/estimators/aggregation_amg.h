@@ -78,7 +78,9 @@ class AggregationAmg {
   // a matrix-weighted graph Laplacian: off-diagonal blocks -G_ij, diagonal
   // blocks the sums of the G_ij of their edges (and of edges to held views),
   // G_ij symmetric positive semi-definite, so that the three constant vectors
-  // are its near null space. The hierarchy is built on the scalar Laplacian
+  // are its near null space. The off-diagonal blocks are kept by their six
+  // distinct entries (their symmetric part: the rounding of the assembly's
+  // asymmetry is dropped), which is all the passes over them stream. The hierarchy is built on the scalar Laplacian
   // of weights tr(G_ij) / 3 (each block replaced by its trace / 3), which
   // bounds the block matrix within the edges' anisotropy; the finest level is
   // smoothed by block Gauss-Seidel on the blocks themselves, so the
