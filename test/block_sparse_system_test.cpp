@@ -16,21 +16,28 @@ struct RandomSystem {
   Eigen::VectorXd rhs;
 };
 
-RandomSystem MakeSystem(int blocks, unsigned seed) {
+// `extra` more couplings per block to blocks drawn at random (a factor that
+// fills in); none: a ring, whose factor stays thin.
+RandomSystem MakeSystem(int blocks, unsigned seed, int extra = 0) {
   std::mt19937 rng(seed);
   std::normal_distribution<double> normal;
+  std::uniform_int_distribution<int> pick(0, blocks - 1);
   RandomSystem s;
   s.dense = Eigen::MatrixXd::Zero(3 * blocks, 3 * blocks);
   for (int b = 0; b < blocks; ++b) {
-    const int c = (b + 1) % blocks;
-    Eigen::Matrix3d m;
-    for (int k = 0; k < 9; ++k) m(k / 3, k % 3) = 0.3 * normal(rng);
-    s.pairs.emplace_back(b, c);
-    s.off.push_back({{b, c}, m});
-    s.dense.block<3, 3>(3 * b, 3 * c) += m;
-    s.dense.block<3, 3>(3 * c, 3 * b) += m.transpose();
+    for (int k = 0; k <= extra; ++k) {
+      const int c = k == 0 ? (b + 1) % blocks : pick(rng);
+      if (c == b) continue;
+      Eigen::Matrix3d m;
+      for (int e = 0; e < 9; ++e) m(e / 3, e % 3) = 0.3 * normal(rng);
+      s.pairs.emplace_back(b, c);
+      s.off.push_back({{b, c}, m});
+      s.dense.block<3, 3>(3 * b, 3 * c) += m;
+      s.dense.block<3, 3>(3 * c, 3 * b) += m.transpose();
+    }
   }
-  s.dense += 5.0 * Eigen::MatrixXd::Identity(3 * blocks, 3 * blocks);  // diagonally dominant
+  // Diagonally dominant.
+  s.dense += (5.0 + 2.0 * extra) * Eigen::MatrixXd::Identity(3 * blocks, 3 * blocks);
   s.rhs = Eigen::VectorXd::NullaryExpr(3 * blocks, [&]() { return normal(rng); });
   return s;
 }
@@ -54,6 +61,32 @@ TEST(BlockSparseSystem, MatchesADenseSolve) {
   const Eigen::VectorXd expected = s.dense.ldlt().solve(s.rhs);
   EXPECT_LT((x - expected).norm(), 1e-10 * expected.norm());
   EXPECT_EQ(system.NumFactorizations(), 1);
+}
+
+// A thin factor (a ring) goes to the simplicial factor ordered on the
+// blocks, a filled one (random couplings) to the supernodal factor where
+// CHOLMOD is built in; both solve exactly.
+TEST(BlockSparseSystem, ThinAndFilledFactorsBothSolveExactly) {
+  for (const int extra : {0, 6}) {
+    const RandomSystem s = MakeSystem(200, 11, extra);
+    BlockSparseSystem system(200, s.pairs);
+    Fill(s, &system);
+    Eigen::VectorXd x;
+    ASSERT_TRUE(system.Solve(0.0, 0, &x));
+    const Eigen::VectorXd expected = s.dense.ldlt().solve(s.rhs);
+    EXPECT_LT((x - expected).norm(), 1e-10 * expected.norm()) << "extra couplings " << extra;
+    if (extra == 0) {
+      EXPECT_STREQ(system.FactorizationMethod(), "block_simplicial");
+    } else {
+#ifdef ROTAVG_HAVE_CHOLMOD
+      EXPECT_STREQ(system.FactorizationMethod(), "supernodal");
+#else
+      EXPECT_STREQ(system.FactorizationMethod(), "block_simplicial");
+#endif
+    }
+  }
+  BlockSparseSystem scalar(200, MakeSystem(200, 12).pairs, /*block_dim=*/1);
+  EXPECT_STREQ(scalar.FactorizationMethod(), "simplicial");
 }
 
 TEST(BlockSparseSystem, ReusedFactorAsPreconditionerGivesTheNewSolution) {

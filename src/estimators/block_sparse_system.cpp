@@ -61,6 +61,81 @@ void HoldOpenBlasToOneThread() {
   });
 }
 
+// Approximate minimum degree ordering of a block graph given by the lower
+// block pattern `rows_of_column` (column c: block rows r >= c, c included):
+// order[k] is the block eliminated k-th (Eigen's convention for orderings).
+Eigen::VectorXi BlockGraphOrdering(const std::vector<std::vector<int>>& rows_of_column) {
+  const int n = static_cast<int>(rows_of_column.size());
+  std::vector<Eigen::Triplet<double>> entries;
+  for (int c = 0; c < n; ++c) {
+    for (int r : rows_of_column[c]) {
+      entries.emplace_back(r, c, 1.0);
+      if (r != c) entries.emplace_back(c, r, 1.0);
+    }
+  }
+  Eigen::SparseMatrix<double> pattern(n, n);
+  pattern.setFromTriplets(entries.begin(), entries.end());
+  Eigen::PermutationMatrix<Eigen::Dynamic, Eigen::Dynamic, int> perm;
+  Eigen::internal::minimum_degree_ordering(pattern, perm);
+  return perm.indices();
+}
+
+// Fill-reducing ordering of a matrix of dense 3x3 blocks for Eigen's
+// simplicial factor: approximate minimum degree on the graph of the blocks
+// (a ninth of the entries of the scalar pattern, whose ordering took most of
+// the symbolic analysis), each block's three rows kept together. `full` is
+// the symmetric pattern (both triangles) Eigen passes.
+struct BlockAmdOrdering {
+  using PermutationType = Eigen::PermutationMatrix<Eigen::Dynamic, Eigen::Dynamic, int>;
+  template <typename MatrixType>
+  void operator()(const MatrixType& full, PermutationType& perm) {
+    const int n = static_cast<int>(full.cols()) / 3;
+    std::vector<std::vector<int>> rows_of_column(n);
+    for (int b = 0; b < n; ++b) {
+      for (typename MatrixType::InnerIterator it(full, 3 * b); it; ++it) {
+        const int r = static_cast<int>(it.row());
+        if (r % 3 == 0 && r / 3 >= b) rows_of_column[b].push_back(r / 3);
+      }
+    }
+    const Eigen::VectorXi block_perm = BlockGraphOrdering(rows_of_column);
+    perm.resize(3 * n);
+    for (int b = 0; b < n; ++b)
+      for (int k = 0; k < 3; ++k) perm.indices()[3 * b + k] = 3 * block_perm[b] + k;
+  }
+};
+
+// Nonzeros of the Cholesky factor of a block graph eliminated in `order`
+// (BlockGraphOrdering), diagonal included: the elimination tree and column
+// counts of the block pattern.
+std::size_t BlockFactorNonZeros(const std::vector<std::vector<int>>& rows_of_column, const Eigen::VectorXi& order) {
+  const int n = static_cast<int>(rows_of_column.size());
+  std::vector<int> perm(n);  // block -> its step in the elimination
+  for (int k = 0; k < n; ++k) perm[order[k]] = k;
+  // Each off-diagonal pair under the new numbering, as (lower, higher).
+  std::vector<std::vector<int>> lower_of(n);
+  for (int c = 0; c < n; ++c) {
+    for (int r : rows_of_column[c]) {
+      if (r == c) continue;
+      const int a = perm[r], b = perm[c];
+      lower_of[std::max(a, b)].push_back(std::min(a, b));
+    }
+  }
+  std::vector<int> parent(n, -1), tag(n, -1);
+  std::size_t count = n;
+  for (int k = 0; k < n; ++k) {
+    tag[k] = k;
+    for (int i : lower_of[k]) {
+      // Up the elimination tree from i to k: each node passed has L(k, node) != 0.
+      for (; tag[i] != k; i = parent[i]) {
+        if (parent[i] == -1) parent[i] = k;
+        ++count;
+        tag[i] = k;
+      }
+    }
+  }
+  return count;
+}
+
 }  // namespace
 
 struct BlockSparseSystem::Index {
@@ -73,6 +148,8 @@ struct BlockSparseSystem::Factorization {
   Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>, Eigen::Lower> cholmod;
 #endif
   Eigen::SimplicialLLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> simplicial;
+  Eigen::SimplicialLLT<Eigen::SparseMatrix<double>, Eigen::Lower, BlockAmdOrdering> block_simplicial;
+  bool use_block_simplicial = false;  // 3x3 blocks whose factor is thin
   bool use_cholmod = false;
   bool use_metis = false;       // nested-dissection ordering (large systems)
   bool analyzed = false;
@@ -88,6 +165,7 @@ struct BlockSparseSystem::Factorization {
       return cholmod.solve(b);
     }
 #endif
+    if (use_block_simplicial) return block_simplicial.solve(b);
     return simplicial.solve(b);
   }
   bool Factorize(const Eigen::SparseMatrix<double>& m) {
@@ -107,6 +185,12 @@ struct BlockSparseSystem::Factorization {
       return cholmod.info() == Eigen::Success;
     }
 #endif
+    if (use_block_simplicial) {
+      if (!analyzed) block_simplicial.analyzePattern(m);
+      analyzed = true;
+      block_simplicial.factorize(m);
+      return block_simplicial.info() == Eigen::Success;
+    }
     if (!analyzed) simplicial.analyzePattern(m);
     analyzed = true;
     simplicial.factorize(m);
@@ -154,21 +238,41 @@ BlockSparseSystem::BlockSparseSystem(int num_blocks, const std::vector<std::pair
   rhs_ = Eigen::MatrixXd::Zero(n, std::max(1, num_rhs));
   SetZero();
 #ifdef ROTAVG_HAVE_CHOLMOD
-  // 3x3 blocks: supernodal CHOLMOD measured faster than Eigen's simplicial
-  // LLT on the shared pose graphs (sphere2500 0.09 vs 0.11 s, cubicle 0.16 vs
-  // 0.20 s). Scalar Laplacians: simplicial is faster (torus3D 0.039 vs
-  // 0.049 s, iRotAvg 0.007 vs 0.012 s, Madrid even): their factors are too
-  // thin for dense supernodes to pay for CHOLMOD's BLAS and thread overhead.
-  // Large scalar systems are another matter: on 10,000-view grid-like graphs
+  // 3x3 blocks whose factor is thin (a few dozen entries per column: a pose
+  // graph that is mostly a chain, parking-garage) are factorised by Eigen's
+  // simplicial LLT, ordered on the graph of the blocks; denser ones
+  // (cubicle, grid-like graphs) by CHOLMOD's supernodal factor, whose dense
+  // kernels pay there and only there. The factor's size is predicted from
+  // the block graph's ordering and elimination tree, before any numbers.
+  // Scalar Laplacians: simplicial is faster (torus3D 0.039 vs 0.049 s,
+  // iRotAvg 0.007 vs 0.012 s, Madrid even): their factors are too thin for
+  // dense supernodes to pay for CHOLMOD's BLAS and thread overhead. Large
+  // scalar systems are another matter: on 10,000-view grid-like graphs
   // (rotavg_scale_benchmark) CHOLMOD's supernodal factor with a METIS
   // ordering solved in 1.6 s against 5.8 s with the simplicial LLT.
-  factorization_->use_cholmod = block_dim_ == 3 || num_blocks > kScalarCholmodMinBlocks;
+  if (block_dim_ == 3 && num_blocks > 0) {
+    const std::size_t block_entries =
+        BlockFactorNonZeros(index_->rows_of_column, BlockGraphOrdering(index_->rows_of_column));
+    // Each off-diagonal block of the factor holds 9 entries, each diagonal block 6.
+    const double entries = 9.0 * static_cast<double>(block_entries - num_blocks) + 6.0 * num_blocks;
+    factorization_->use_block_simplicial = entries <= kBlockSimplicialMaxColumnCount * n;
+  }
+  factorization_->use_cholmod =
+      block_dim_ == 3 ? !factorization_->use_block_simplicial : num_blocks > kScalarCholmodMinBlocks;
   if (factorization_->use_cholmod) HoldOpenBlasToOneThread();
   factorization_->use_metis = block_dim_ == 1 && num_blocks > kMetisMinRows;
+#else
+  factorization_->use_block_simplicial = block_dim_ == 3;
 #endif
 }
 
 BlockSparseSystem::~BlockSparseSystem() = default;
+
+const char* BlockSparseSystem::FactorizationMethod() const {
+  return factorization_->use_cholmod            ? "supernodal"
+         : factorization_->use_block_simplicial ? "block_simplicial"
+                                                : "simplicial";
+}
 
 void BlockSparseSystem::SetPcgTolerance(double tolerance) {
   // A new accuracy (the next stage of a robust solve) gets a fresh chance.

@@ -85,10 +85,19 @@ class BlockSparseSystem {
   // preconditioned solves (see Solve).
   void SetPcgTolerance(double tolerance);
   int NumFactorizations() const { return num_factorizations_; }
+  // The factorisation this system's pattern chose: "simplicial" (Eigen's
+  // simplicial LLT, ordered on the scalar pattern), "block_simplicial" (the
+  // same, ordered on the graph of the 3x3 blocks) or "supernodal" (CHOLMOD).
+  const char* FactorizationMethod() const;
   int NumPreconditionedSolves() const { return num_pcg_solves_; }
   int LastPcgIterations() const { return last_pcg_iterations_; }
 
   static constexpr int kScalarCholmodMinBlocks = 5000;  // scalar systems larger than this use CHOLMOD
+  // 3x3-block systems whose Cholesky factor has at most this many entries
+  // per column on average (predicted from the block graph) use Eigen's
+  // simplicial factor, the others CHOLMOD's supernodal one (see the
+  // constructor).
+  static constexpr double kBlockSimplicialMaxColumnCount = 32.0;
   // Scalar systems with more blocks than this are ordered with METIS (less fill
   // on grid-like graphs); 3x3-block systems keep CHOLMOD's default ordering
   // (METIS made cubicle's slower).
