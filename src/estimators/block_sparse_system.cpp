@@ -1,14 +1,12 @@
 #include "rotation_averaging/estimators/block_sparse_system.h"
 
 #include "rotation_averaging/estimators/aggregation_amg.h"
+#include "rotation_averaging/util/blas_threads.h"
 
 #include <Eigen/SparseCholesky>
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
-#include <mutex>
-
-#include <dlfcn.h>
 
 #ifdef ROTAVG_HAVE_CHOLMOD
 #include <Eigen/CholmodSupport>
@@ -45,21 +43,6 @@ class SingleThreadedOpenMp {
   int previous_dynamic_;
 #endif
 };
-
-// OpenBLAS (the pthread variant, see CMakeLists.txt) starts a pool of
-// threads for CHOLMOD's dense supernode updates; on these factors they cost
-// more than they bring (median of 7 solves on this 2-core machine: sphere2500
-// 0.24 s with its default threads against 0.054 s with one, cubicle 0.67 vs
-// 0.24 s). Held to one thread once per process, unless the user set
-// OPENBLAS_NUM_THREADS. Looked up at run time: other BLAS have no such call.
-void HoldOpenBlasToOneThread() {
-  static std::once_flag once;
-  std::call_once(once, [] {
-    if (std::getenv("OPENBLAS_NUM_THREADS") || std::getenv("GOTO_NUM_THREADS")) return;
-    using SetThreads = void (*)(int);
-    if (auto set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"))) set(1);
-  });
-}
 
 // Approximate minimum degree ordering of a block graph given by the lower
 // block pattern `rows_of_column` (column c: block rows r >= c, c included):

@@ -10,7 +10,6 @@
 //
 // This program links the core library only (no OpenCV, no ROS), so that it
 // starts in milliseconds; the image front end lives in rotavg_images.
-#include <dlfcn.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -25,32 +24,9 @@
 
 #include "cli.h"
 #include "rotation_averaging/scene/synthetic_graph.h"
+#include "rotation_averaging/util/blas_threads.h"
 
 namespace {
-
-// OpenBLAS starts a pool of worker threads when it loads (one per core but
-// one), and idle workers spin on sched_yield for a while before they sleep,
-// burning a core each. The solver holds OpenBLAS to one thread
-// (block_sparse_system.cpp), so this process never uses the pool. It starts
-// before main (OPENBLAS_NUM_THREADS set in a preinit function is lost:
-// libc's own initialisation runs after it and resets the environment), so
-// main stops it first thing, before any thread of this program starts. Looked
-// up at run time: other BLAS have no such calls. A thread count the user
-// set is kept.
-void StopOpenBlasPool() {
-  if (std::getenv("OPENBLAS_NUM_THREADS") || std::getenv("GOTO_NUM_THREADS")) return;
-  using SetThreads = void (*)(int);
-  using Shutdown = int (*)();
-  const auto set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
-  const auto shutdown = reinterpret_cast<Shutdown>(dlsym(RTLD_DEFAULT, "blas_thread_shutdown_"));
-  if (!set || !shutdown) return;
-  set(1);
-  shutdown();
-  // A later openblas_set_num_threads (the solver's, see above) would start
-  // the pool again: the variable tells it, and programs run from here, that
-  // the count is settled.
-  setenv("OPENBLAS_NUM_THREADS", "1", /*overwrite=*/0);
-}
 
 using namespace rotation_averaging_cli;  // NOLINT: the tool's own helpers
 
@@ -198,7 +174,10 @@ int RunProgram(const char* name, int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  StopOpenBlasPool();
+  // The solver holds OpenBLAS to one thread, so this process never uses the
+  // pool of workers OpenBLAS started when it loaded: stopped here, before any
+  // other thread exists (see blas_threads.h).
+  rotation_averaging::HoldOpenBlasToOneThread(/*stop_pool=*/true);
   if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
     std::cout << kUsage;
     return argc < 2 ? 2 : 0;
