@@ -132,6 +132,7 @@ struct BlockSparseSystem::Factorization {
 #endif
   Eigen::SimplicialLLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> simplicial;
   Eigen::SimplicialLLT<Eigen::SparseMatrix<double>, Eigen::Lower, BlockAmdOrdering> block_simplicial;
+  bool chosen = false;                // the three below (BlockSparseSystem::ChooseFactorization)
   bool use_block_simplicial = false;  // 3x3 blocks whose factor is thin
   bool use_cholmod = false;
   bool use_metis = false;       // nested-dissection ordering (large systems)
@@ -220,6 +221,15 @@ BlockSparseSystem::BlockSparseSystem(int num_blocks, const std::vector<std::pair
   }
   rhs_ = Eigen::MatrixXd::Zero(n, std::max(1, num_rhs));
   SetZero();
+}
+
+// Chosen when a factorisation is first needed: systems that multigrid
+// solves never pay for the prediction (0.2 s on the anisotropic 100,000-view
+// scale graph).
+void BlockSparseSystem::ChooseFactorization() const {
+  Factorization& f = *factorization_;
+  if (f.chosen) return;
+  f.chosen = true;
 #ifdef ROTAVG_HAVE_CHOLMOD
   // 3x3 blocks whose factor is thin (a few dozen entries per column: a pose
   // graph that is mostly a chain, parking-garage) are factorised by Eigen's
@@ -233,25 +243,25 @@ BlockSparseSystem::BlockSparseSystem(int num_blocks, const std::vector<std::pair
   // scalar systems are another matter: on 10,000-view grid-like graphs
   // (rotavg_scale_benchmark) CHOLMOD's supernodal factor with a METIS
   // ordering solved in 1.6 s against 5.8 s with the simplicial LLT.
-  if (block_dim_ == 3 && num_blocks > 0) {
+  if (block_dim_ == 3 && num_blocks_ > 0) {
     const std::size_t block_entries =
         BlockFactorNonZeros(index_->rows_of_column, BlockGraphOrdering(index_->rows_of_column));
     // Each off-diagonal block of the factor holds 9 entries, each diagonal block 6.
-    const double entries = 9.0 * static_cast<double>(block_entries - num_blocks) + 6.0 * num_blocks;
-    factorization_->use_block_simplicial = entries <= kBlockSimplicialMaxColumnCount * n;
+    const double entries = 9.0 * static_cast<double>(block_entries - num_blocks_) + 6.0 * num_blocks_;
+    f.use_block_simplicial = entries <= kBlockSimplicialMaxColumnCount * 3.0 * num_blocks_;
   }
-  factorization_->use_cholmod =
-      block_dim_ == 3 ? !factorization_->use_block_simplicial : num_blocks > kScalarCholmodMinBlocks;
-  if (factorization_->use_cholmod) HoldOpenBlasToOneThread();
-  factorization_->use_metis = block_dim_ == 1 && num_blocks > kMetisMinRows;
+  f.use_cholmod = block_dim_ == 3 ? !f.use_block_simplicial : num_blocks_ > kScalarCholmodMinBlocks;
+  if (f.use_cholmod) HoldOpenBlasToOneThread();
+  f.use_metis = block_dim_ == 1 && num_blocks_ > kMetisMinRows;
 #else
-  factorization_->use_block_simplicial = block_dim_ == 3;
+  f.use_block_simplicial = block_dim_ == 3;
 #endif
 }
 
 BlockSparseSystem::~BlockSparseSystem() = default;
 
 const char* BlockSparseSystem::FactorizationMethod() const {
+  ChooseFactorization();
   return factorization_->use_cholmod            ? "supernodal"
          : factorization_->use_block_simplicial ? "block_simplicial"
                                                 : "simplicial";
@@ -516,6 +526,7 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
     f.pcg_back_off.Failed();
   }
 
+  ChooseFactorization();
   for (int attempt = 0; attempt <= max_retries; ++attempt) {
     for (int k = 0; k < n; ++k) values[diagonal_positions_[k]] += lambda - applied;
     applied = lambda;

@@ -148,6 +148,8 @@ class BlockSparseSystem {
   std::unique_ptr<AggregationAmg> multigrid_;
   struct Factorization;
   std::unique_ptr<Factorization> factorization_;
+  // Picks the factorisation for this pattern (see FactorizationMethod), once.
+  void ChooseFactorization() const;
 };
 
 }  // namespace rotation_averaging
