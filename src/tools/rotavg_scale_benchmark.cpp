@@ -191,23 +191,25 @@ std::string ScaleSection(const char* self, const std::vector<int>& sizes, int an
   }
   // The multigrid systems' tolerance against a hundredfold tighter one, on
   // the same graphs: the justification of multigrid_linear_solve_tolerance.
+  // The default is run again here, beside the tight one, so that the two
+  // times of a pair come from adjacent runs.
   std::vector<std::string> tolerance_rows;
-  const double tight = ra::RotationAveragingOptions().multigrid_linear_solve_tolerance / 100.0;
+  const double default_tolerance = ra::RotationAveragingOptions().multigrid_linear_solve_tolerance;
   for (int n : sizes) {
     if (n < 10000 || n > 100000) continue;
     for (const bool anisotropic : {false, true}) {
       if (anisotropic && n > anisotropic_max_views) continue;
       std::ostringstream rows;
-      for (const double tolerance : {0.0, tight}) {
+      for (const double tolerance : {default_tolerance, default_tolerance / 100.0}) {
+        const bool is_default = tolerance == default_tolerance;
         std::cerr << "scale: " << n << " views, " << (anisotropic ? "anisotropic" : "isotropic") << ", tolerance "
-                  << (tolerance > 0.0 ? tolerance : ra::RotationAveragingOptions().multigrid_linear_solve_tolerance)
-                  << " ..." << std::flush;
-        const ScaleRun r = RunScale(self, n, true, anisotropic, tolerance);
+                  << tolerance << " ..." << std::flush;
+        const ScaleRun r = RunScale(self, n, true, anisotropic, is_default ? 0.0 : tolerance);
         std::cerr << (r.ok ? " " + Fixed(r.solve_s, 2) + " s\n" : " failed\n");
         std::ostringstream t;
-        t << (tolerance > 0.0 ? tolerance : ra::RotationAveragingOptions().multigrid_linear_solve_tolerance);
+        t << tolerance;
         rows << "| " << n << " | " << (anisotropic ? "anisotropic" : "isotropic") << " | " << t.str()
-             << (tolerance > 0.0 ? "" : " (default)") << " | ";
+             << (is_default ? " (default)" : "") << " | ";
         if (r.ok) {
           rows << Fixed(r.solve_s, 3) << " | " << r.iterations << " | " << ra::Significant(r.final_cost, 9) << " | "
                << Fixed(r.median_deg, 3) << " | " << r.views_off << " |\n";

@@ -80,12 +80,12 @@ class AggregationAmg {
   // G_ij symmetric positive semi-definite, so that the three constant vectors
   // are its near null space. The off-diagonal blocks are kept by their six
   // distinct entries (their symmetric part: the rounding of the assembly's
-  // asymmetry is dropped), which is all the passes over them stream. The hierarchy is built on the scalar Laplacian
-  // of weights tr(G_ij) / 3 (each block replaced by its trace / 3), which
-  // bounds the block matrix within the edges' anisotropy; the finest level is
-  // smoothed by block Gauss-Seidel on the blocks themselves, so the
-  // anisotropy of each view's own couplings is resolved there and only the
-  // smooth error goes to the scalar levels. False also when the matrix is not
+  // asymmetry is dropped), which is all the passes over them stream. The
+  // hierarchy is built on the scalar Laplacian of weights tr(G_ij) / 3 (each
+  // block replaced by its trace / 3), which bounds the block matrix within the
+  // edges' anisotropy; the finest level is smoothed by block Gauss-Seidel on
+  // the blocks themselves, so the anisotropy of each view's own couplings is
+  // resolved there and only the smooth error goes to the scalar levels. False also when the matrix is not
   // of that block form, a diagonal block is not positive definite, or it is
   // too small to coarsen (at most max_coarsest_size views: factorise it).
   bool SetupBlocks(const Eigen::SparseMatrix<double>& lower, bool reuse_aggregates = false);

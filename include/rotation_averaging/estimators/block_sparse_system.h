@@ -95,8 +95,8 @@ class BlockSparseSystem {
   static constexpr int kScalarCholmodMinBlocks = 5000;  // scalar systems larger than this use CHOLMOD
   // 3x3-block systems whose Cholesky factor has at most this many entries
   // per column on average (predicted from the block graph) use Eigen's
-  // simplicial factor, the others CHOLMOD's supernodal one (see the
-  // constructor).
+  // simplicial factor, the others CHOLMOD's supernodal one (see
+  // ChooseFactorization).
   static constexpr double kBlockSimplicialMaxColumnCount = 32.0;
   // Scalar systems with more blocks than this are ordered with METIS (less fill
   // on grid-like graphs); 3x3-block systems keep CHOLMOD's default ordering
