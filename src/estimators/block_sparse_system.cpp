@@ -1,48 +1,15 @@
 #include "rotation_averaging/estimators/block_sparse_system.h"
 
 #include "rotation_averaging/estimators/aggregation_amg.h"
-#include "rotation_averaging/util/blas_threads.h"
+#include "rotation_averaging/util/backends.h"
 
 #include <Eigen/SparseCholesky>
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
 
-#ifdef ROTAVG_HAVE_CHOLMOD
-#include <Eigen/CholmodSupport>
-#endif
-#ifdef _OPENMP
-#include <omp.h>
-#endif
-
 namespace rotation_averaging {
 namespace {
-
-// CHOLMOD is built with OpenMP and opens parallel regions inside its
-// supernodal factorisation. For systems of the size of the shared pose graphs,
-// waking those threads costs more than they save; our solver is
-// single-threaded by design, so the calling thread's OpenMP settings are
-// changed around CHOLMOD calls and restored afterwards (they are per thread:
-// nothing else changes).
-class SingleThreadedOpenMp {
- public:
-#ifdef _OPENMP
-  // CHOLMOD asks for its teams with an explicit num_threads clause, which
-  // only dynamic adjustment may shrink.
-  SingleThreadedOpenMp() : previous_threads_(omp_get_max_threads()), previous_dynamic_(omp_get_dynamic()) {
-    omp_set_num_threads(1);
-    omp_set_dynamic(1);
-  }
-  ~SingleThreadedOpenMp() {
-    omp_set_num_threads(previous_threads_);
-    omp_set_dynamic(previous_dynamic_);
-  }
-
- private:
-  int previous_threads_;
-  int previous_dynamic_;
-#endif
-};
 
 // Approximate minimum degree ordering of a block graph given by the lower
 // block pattern `rows_of_column` (column c: block rows r >= c, c included):
@@ -127,48 +94,24 @@ struct BlockSparseSystem::Index {
 };
 
 struct BlockSparseSystem::Factorization {
-#ifdef ROTAVG_HAVE_CHOLMOD
-  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>, Eigen::Lower> cholmod;
-#endif
+  std::unique_ptr<SupernodalCholesky> supernodal;  // from the back-end library, when chosen
   Eigen::SimplicialLLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> simplicial;
   Eigen::SimplicialLLT<Eigen::SparseMatrix<double>, Eigen::Lower, BlockAmdOrdering> block_simplicial;
   bool chosen = false;                // the three below (BlockSparseSystem::ChooseFactorization)
   bool use_block_simplicial = false;  // 3x3 blocks whose factor is thin
-  bool use_cholmod = false;
   bool use_metis = false;       // nested-dissection ordering (large systems)
   bool analyzed = false;
   bool has_factor = false;      // a numeric factor of an earlier matrix exists
   bool refactor_next = false;   // the last PCG solve struggled: refresh the factor
   BackOff pcg_back_off;  // preconditioned solves through this factor (see Solve)
 
-  template <typename Matrix>
-  Matrix ApplyInverse(const Matrix& b) {
-#ifdef ROTAVG_HAVE_CHOLMOD
-    if (use_cholmod) {
-      SingleThreadedOpenMp single;
-      return cholmod.solve(b);
-    }
-#endif
+  Eigen::MatrixXd ApplyInverse(const Eigen::MatrixXd& b) {
+    if (supernodal) return supernodal->Solve(b);
     if (use_block_simplicial) return block_simplicial.solve(b);
     return simplicial.solve(b);
   }
   bool Factorize(const Eigen::SparseMatrix<double>& m) {
-#ifdef ROTAVG_HAVE_CHOLMOD
-    if (use_cholmod) {
-      SingleThreadedOpenMp single;
-      // A factorisation that fails is retried with regularisation by the
-      // caller and counted there; CHOLMOD's own warning on stderr is noise.
-      cholmod.cholmod().print = 0;
-      if (!analyzed && use_metis) {
-        cholmod.cholmod().nmethods = 1;
-        cholmod.cholmod().method[0].ordering = CHOLMOD_METIS;
-      }
-      if (!analyzed) cholmod.analyzePattern(m);
-      analyzed = true;
-      cholmod.factorize(m);
-      return cholmod.info() == Eigen::Success;
-    }
-#endif
+    if (supernodal) return supernodal->Factorize(m, use_metis);
     if (use_block_simplicial) {
       if (!analyzed) block_simplicial.analyzePattern(m);
       analyzed = true;
@@ -230,7 +173,6 @@ void BlockSparseSystem::ChooseFactorization() const {
   Factorization& f = *factorization_;
   if (f.chosen) return;
   f.chosen = true;
-#ifdef ROTAVG_HAVE_CHOLMOD
   // 3x3 blocks whose factor is thin (a few dozen entries per column: a pose
   // graph that is mostly a chain, parking-garage) are factorised by Eigen's
   // simplicial LLT, ordered on the graph of the blocks; denser ones
@@ -250,19 +192,23 @@ void BlockSparseSystem::ChooseFactorization() const {
     const double entries = 9.0 * static_cast<double>(block_entries - num_blocks_) + 6.0 * num_blocks_;
     f.use_block_simplicial = entries <= kBlockSimplicialMaxColumnCount * 3.0 * num_blocks_;
   }
-  f.use_cholmod = block_dim_ == 3 ? !f.use_block_simplicial : num_blocks_ > kScalarCholmodMinBlocks;
-  if (f.use_cholmod) HoldOpenBlasToOneThread();
+  const bool supernodal = block_dim_ == 3 ? !f.use_block_simplicial : num_blocks_ > kScalarCholmodMinBlocks;
+  if (supernodal) {
+    // CHOLMOD lives in the back-end library, loaded here the first time a
+    // system needs it. Without it, 3x3 blocks keep the block-ordered
+    // simplicial factor and scalar systems Eigen's.
+    const Backends* backends = LoadBackends();
+    if (backends && backends->make_supernodal_cholesky) f.supernodal = backends->make_supernodal_cholesky();
+    if (!f.supernodal && block_dim_ == 3) f.use_block_simplicial = true;
+  }
   f.use_metis = block_dim_ == 1 && num_blocks_ > kMetisMinRows;
-#else
-  f.use_block_simplicial = block_dim_ == 3;
-#endif
 }
 
 BlockSparseSystem::~BlockSparseSystem() = default;
 
 const char* BlockSparseSystem::FactorizationMethod() const {
   ChooseFactorization();
-  return factorization_->use_cholmod            ? "supernodal"
+  return factorization_->supernodal             ? "supernodal"
          : factorization_->use_block_simplicial ? "block_simplicial"
                                                 : "simplicial";
 }

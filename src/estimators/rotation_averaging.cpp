@@ -11,6 +11,7 @@
 
 #include "rotation_averaging/estimators/component_problem.h"
 #include "rotation_averaging/geometry/so3.h"
+#include "rotation_averaging/util/backends.h"
 
 namespace rotation_averaging {
 namespace {
@@ -181,6 +182,19 @@ std::string RotationAveragingSummary::Report() const {
   if (components.size() > 5) out << "\n  ... " << components.size() - 5 << " more components";
   for (const std::string& w : warnings) out << "\nwarning: " << w;
   return out.str();
+}
+
+void SolveComponentCeres(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
+                         ComponentSummary* summary) {
+  // Ceres is in the back-end library (util/backends.h); if it cannot be
+  // loaded (a warning says why), IRLS minimises the same cost.
+  const Backends* backends = LoadBackends();
+  if (backends && backends->solve_component_ceres) {
+    backends->solve_component_ceres(options, loss, problem, summary);
+    return;
+  }
+  SolveComponentIrls(options, loss, problem, summary);
+  summary->status = "Ceres solver unavailable, solved by IRLS: " + summary->status;
 }
 
 namespace {

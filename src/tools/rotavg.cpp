@@ -24,7 +24,6 @@
 
 #include "cli.h"
 #include "rotation_averaging/scene/synthetic_graph.h"
-#include "rotation_averaging/util/blas_threads.h"
 
 namespace {
 
@@ -174,10 +173,10 @@ int RunProgram(const char* name, int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  // The solver holds OpenBLAS to one thread, so this process never uses the
-  // pool of workers OpenBLAS started when it loaded: stopped here, before any
-  // other thread exists (see blas_threads.h).
-  rotation_averaging::HoldOpenBlasToOneThread(/*stop_pool=*/true);
+  // The solver holds OpenBLAS to one thread (see blas_threads.h). Said here,
+  // before any thread exists, so that OpenBLAS never starts its pool of
+  // workers when a solve loads it, nor in the programs this one runs.
+  setenv("OPENBLAS_NUM_THREADS", "1", /*overwrite=*/0);
   if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
     std::cout << kUsage;
     return argc < 2 ? 2 : 0;

@@ -158,7 +158,8 @@ int main(int argc, char** argv) {
     // ---- Reading, and rotavg as a whole process -------------------------
     // What a user of `rotavg solve` waits for: start-up (loading the
     // libraries), reading, solving, writing. rotavg links the core library
-    // only, so the start-up is that of Eigen, Ceres, CHOLMOD and OpenBLAS.
+    // only, which loads CHOLMOD and OpenBLAS when a solve first needs them
+    // (util/backends.h): inside the solve time of the graphs that do.
     const fs::path rotavg = fs::path(argv[0]).parent_path() / "rotavg";
     if (fs::exists(rotavg)) {
       md << "\n## Reading, and `rotavg solve` as a whole process\n\nRead: `ReadViewGraph` in this process (median of "

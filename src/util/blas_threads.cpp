@@ -7,19 +7,24 @@
 
 namespace rotation_averaging {
 
-void HoldOpenBlasToOneThread(bool stop_pool) {
-  static std::once_flag once;
-  std::call_once(once, [stop_pool] {
-    if (std::getenv("OPENBLAS_NUM_THREADS") || std::getenv("GOTO_NUM_THREADS")) return;
-    using SetThreads = void (*)(int);
-    using Shutdown = int (*)();
-    const auto set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
-    if (!set) return;
-    set(1);
-    if (!stop_pool) return;
-    if (const auto shutdown = reinterpret_cast<Shutdown>(dlsym(RTLD_DEFAULT, "blas_thread_shutdown_"))) shutdown();
-    setenv("OPENBLAS_NUM_THREADS", "1", /*overwrite=*/0);
-  });
+void HoldOpenBlasToOneThread(bool stop_pool, void* library) {
+  static std::mutex mutex;
+  static bool held = false;
+  std::lock_guard<std::mutex> lock(mutex);
+  if (held) return;
+  if (std::getenv("OPENBLAS_NUM_THREADS") || std::getenv("GOTO_NUM_THREADS")) {
+    held = true;
+    return;
+  }
+  void* scope = library ? library : RTLD_DEFAULT;
+  using SetThreads = void (*)(int);
+  using Shutdown = int (*)();
+  const auto set = reinterpret_cast<SetThreads>(dlsym(scope, "openblas_set_num_threads"));
+  if (!set) return;  // OpenBLAS not loaded (yet): a later call decides
+  held = true;
+  set(1);
+  if (!stop_pool) return;
+  if (const auto shutdown = reinterpret_cast<Shutdown>(dlsym(scope, "blas_thread_shutdown_"))) shutdown();
 }
 
 }  // namespace rotation_averaging

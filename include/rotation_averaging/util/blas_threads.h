@@ -13,15 +13,16 @@
 
 namespace rotation_averaging {
 
-// Holds OpenBLAS to one thread, once per process: the first call decides,
-// later ones do nothing. A thread count the user set (OPENBLAS_NUM_THREADS,
-// GOTO_NUM_THREADS) is kept. With `stop_pool` the workers OpenBLAS started
-// when it loaded are shut down as well (idle workers spin on sched_yield for
-// a while before they sleep, a core each), and OPENBLAS_NUM_THREADS=1 is set
-// so that programs this process runs never start theirs. Stopping the pool is
-// only safe before any other thread of the process can call BLAS: call it
-// with `stop_pool` first thing in main, or not at all.
-void HoldOpenBlasToOneThread(bool stop_pool = false);
+// Holds OpenBLAS to one thread, once per process: the first call that finds
+// OpenBLAS decides, later ones do nothing. A thread count the user set
+// (OPENBLAS_NUM_THREADS, GOTO_NUM_THREADS) is kept. OpenBLAS is looked up in
+// `library` (a dlopen handle: that library and its dependencies) or, when
+// null, in the process's global scope. With `stop_pool` the workers OpenBLAS
+// started when it loaded are shut down as well (idle workers spin on
+// sched_yield for a while before they sleep, a core each). Stopping the pool
+// is only safe while no other thread can be calling BLAS: right after
+// OpenBLAS was loaded by the caller, or first thing in main.
+void HoldOpenBlasToOneThread(bool stop_pool = false, void* library = nullptr);
 
 }  // namespace rotation_averaging
 

@@ -6,6 +6,7 @@
 
 #include <cmath>
 
+#include "backends/backends_internal.h"
 #include "rotation_averaging/estimators/component_problem.h"
 #include "rotation_averaging/geometry/so3.h"
 
@@ -59,7 +60,7 @@ struct RelativeRotationCost {
 
 }  // namespace
 
-void SolveComponentCeres(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
+void CeresSolveComponent(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
                          ComponentSummary* summary) {
   const int n = static_cast<int>(problem->view_ids.size());
   std::vector<Eigen::Vector4d> quaternions(n);
