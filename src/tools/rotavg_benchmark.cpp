@@ -5,7 +5,7 @@
 //
 // Times are of the solve alone (no file reading), single-threaded, median of
 // N runs in this process. Peak memory is the maximum resident set size of a
-// child process that reads the graph and solves it once (wait4's rusage).
+// child process that reads the graph and solves it once (its own VmHWM).
 #include <unistd.h>
 
 #include <algorithm>
@@ -61,13 +61,14 @@ std::vector<Config> Configs() {
 }
 
 
-// Child mode: read and solve once, exit. The parent reads our peak RSS.
+// Child mode: read and solve once, print the peak resident memory, exit.
 int RunSingle(const std::string& path, int config_index) {
   ra::ViewGraph graph;
   if (!ra::ReadViewGraph(path, ra::GraphFormat::kAuto, &graph).ok()) return 1;
   ra::ViewOrientations orientations;
   ra::RotationAveragingSummary summary;
   ra::SolveRotationAveraging(graph, Configs()[config_index].options, &orientations, &summary);
+  ra::PrintOwnPeakMemory();
   return 0;
 }
 
@@ -163,7 +164,7 @@ int main(int argc, char** argv) {
     const fs::path rotavg = fs::path(argv[0]).parent_path() / "rotavg";
     if (fs::exists(rotavg)) {
       md << "\n## Reading, and `rotavg solve` as a whole process\n\nRead: `ReadViewGraph` in this process (median of "
-         << repeats << "). Whole process: wall time of `rotavg solve GRAPH --output FILE` from fork to exit (median of "
+         << repeats << "). Whole process: wall time of `rotavg solve GRAPH --output FILE` from posix_spawn to exit (median of "
          << repeats << "), against the read and solve times it prints itself, and its CPU time (user + system, "
          << "all threads); start-up: `rotavg --help`.\n\n"
          << "| graph | read (s) | solve (s) | read / solve | whole process (s) | process / (read + solve) | CPU (s) |\n"

@@ -95,6 +95,8 @@ int RunChild(int views, bool multigrid, bool anisotropic, double multigrid_toler
   for (const auto& [name, error] : e.errors_deg) off += error > 10.0;
   std::printf("%zu %.6f %.6f %d %d %d %.6f %zu %.12g\n", sg.graph.NumEdges(), generate_s, summary.solve_time_s,
               iterations, factorizations, multigrid_solves, e.median_error_deg, off, final_cost);
+  std::fflush(stdout);
+  ra::PrintOwnPeakMemory();
   return 0;
 }
 
