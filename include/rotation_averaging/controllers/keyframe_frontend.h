@@ -11,8 +11,9 @@
 // Retrieval with a vocabulary (features/vocabulary.h): the keyframes whose
 // tf-idf bag of words scores highest against the new one's in an inverted
 // index. Its cost hardly grows with the map, and keyframes that have left the
-// recent window keep only their `compact_features` strongest features (byte
-// descriptors and their words), about 165 KB each, and are matched within
+// recent window keep only their `compact_features` best features (SIFT
+// descriptors packed at 4 bits per value, and their words), about 105 KB
+// each, and are matched within
 // the vocabulary tree's branches. Without a vocabulary: a fixed sample of
 // the new keyframe's descriptors is matched against every older keyframe's
 // nearest-neighbour index, whose cost and memory grow with the map (every
@@ -58,6 +59,11 @@ struct KeyframeFrontendOptions {
   // Features a keyframe keeps beyond the recent window (vocabulary only):
   // first those that were inliers of the most verified pairs (seen from
   // other views, they are what a revisit matches), then the strongest.
+  // Twice as many fit in 200 KB and find more loop closures (entry-P10 5 of
+  // 5 instead of 4, castle-P19 4 of 5 instead of 2), but those loop pairs err
+  // several times what their covariances give, and the averaging got worse
+  // with them (castle-P19 mean 0.25 -> 0.52 deg, entry-P10 median 0.03 ->
+  // 0.13 deg; results/replay.md, "Twice the features per compact keyframe").
   int compact_features = 1000;
   // Pairs with a compact keyframe (loop closures) match features only within
   // the same first-level branch of the vocabulary tree, as ORB-SLAM matches

@@ -28,7 +28,9 @@ struct FeatureOptions {
 struct ImageFeatures {
   std::vector<Eigen::Vector2d> keypoints_px;  // in the (possibly resized) image
   std::vector<float> strength;                // detector response per keypoint (stronger first to keep)
-  cv::Mat descriptors;                        // one row per keypoint (CV_32F SIFT, CV_8U ORB)
+  // One row per keypoint: SIFT as CV_32F (or, compacted, CV_8U with 64
+  // columns: two 4-bit values per byte, see CompactFeatures), ORB as CV_8U.
+  cv::Mat descriptors;
   FeatureType type = FeatureType::kSift;
   int width = 0, height = 0;                  // of the image features were detected in
   // Vocabulary word of each keypoint (Vocabulary::Assign); empty without one.
@@ -83,14 +85,17 @@ std::vector<std::pair<int, int>> MatchFeaturesByGroup(const ImageFeatures& a, co
 // `max_features` features spread over a 4 x 4 grid of the image (the best of
 // every cell before the second best of any), the best being those of highest
 // priority (one value per feature; none: all equal), then the strongest;
-// kept in their original order, with SIFT descriptors stored as bytes
-// (OpenCV's SIFT values are whole numbers in [0, 255], so nothing is lost).
-// Returns the input unchanged but for the byte descriptors when it has no
-// more features than that.
+// kept in their original order, with SIFT descriptors packed at 4 bits per
+// value (the square root of each value quantised to 16 levels: 64 bytes per
+// descriptor, matched as the values of those levels). Returns all the
+// features, packed, when there are no more than `max_features`.
 ImageFeatures CompactFeatures(const ImageFeatures& features, int max_features,
                               const std::vector<std::uint16_t>& priority = {});
 // Float descriptors for matching (a copy only when they are bytes of SIFT).
 ImageFeatures MatchableFeatures(const ImageFeatures& features);
+// The SIFT descriptors as CV_32F rows of 128 values, whether they are
+// floats, bytes or packed (compact).
+cv::Mat SiftDescriptorsAsFloat(const ImageFeatures& features);
 // Bytes held by the keypoints, strengths and descriptors.
 std::size_t FeatureMemoryBytes(const ImageFeatures& features);
 
