@@ -97,7 +97,7 @@ struct BlockSparseSystem::Factorization {
   std::unique_ptr<SupernodalCholesky> supernodal;  // from the back-end library, when chosen
   Eigen::SimplicialLLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> simplicial;
   Eigen::SimplicialLLT<Eigen::SparseMatrix<double>, Eigen::Lower, BlockAmdOrdering> block_simplicial;
-  bool chosen = false;                // the three below (BlockSparseSystem::ChooseFactorization)
+  bool chosen = false;                // supernodal and the two below (BlockSparseSystem::ChooseFactorization)
   bool use_block_simplicial = false;  // 3x3 blocks whose factor is thin
   bool use_metis = false;       // nested-dissection ordering (large systems)
   bool analyzed = false;
