@@ -3,11 +3,10 @@
 #include <dlfcn.h>
 
 #include <atomic>
+#include <cstdlib>
 #include <iostream>
 #include <mutex>
 #include <string>
-
-#include "rotation_averaging/util/blas_threads.h"
 
 namespace rotation_averaging {
 namespace {
@@ -16,6 +15,27 @@ constexpr char kLibraryName[] = "librotation_averaging_backends.so";
 constexpr char kEntryPoint[] = "rotation_averaging_backends";
 
 std::atomic<const Backends*> loaded{nullptr};
+
+// CHOLMOD's supernodal factorisation calls BLAS for its dense supernode
+// updates. The pthread build of OpenBLAS (see CMakeLists.txt) runs those on a
+// pool of worker threads that it starts when it loads; on the factors of
+// pose graphs the threads cost more than they bring (median of 7 solves on a
+// 2-core machine: sphere2500 0.24 s with its default threads against 0.054 s
+// with one, cubicle 0.67 vs 0.24 s), and the solver is single-threaded by
+// design. So OpenBLAS, looked up in `library` and its dependencies (other
+// BLAS have no such calls), is held to one thread, unless the user set a
+// thread count (OPENBLAS_NUM_THREADS, GOTO_NUM_THREADS). With `stop_pool`
+// the workers it started are shut down as well (idle workers spin on
+// sched_yield for a while before they sleep, a core each): only safe while
+// no other thread can be calling BLAS.
+void HoldOpenBlasToOneThread(void* library, bool stop_pool) {
+  if (std::getenv("OPENBLAS_NUM_THREADS") || std::getenv("GOTO_NUM_THREADS")) return;
+  const auto set = reinterpret_cast<void (*)(int)>(dlsym(library, "openblas_set_num_threads"));
+  if (!set) return;
+  set(1);
+  if (!stop_pool) return;
+  if (const auto shutdown = reinterpret_cast<int (*)()>(dlsym(library, "blas_thread_shutdown_"))) shutdown();
+}
 
 // The directory of the library this function is in (the core), with a
 // trailing slash; empty if the dynamic linker cannot say.
@@ -57,9 +77,9 @@ const Backends* Load() {
               << ": solving without its back ends" << std::endl;
     return nullptr;
   }
-  // OpenBLAS came in with the library just now, so no other thread can be
+  // If OpenBLAS came in with the library just now, no other thread can be
   // using its pool yet: stopping the pool is safe.
-  HoldOpenBlasToOneThread(/*stop_pool=*/!blas_was_loaded, handle);
+  HoldOpenBlasToOneThread(handle, /*stop_pool=*/!blas_was_loaded);
   return entry();
 }
 

@@ -46,7 +46,7 @@ struct Backends {
 // directory of the core library or else the dynamic linker's search path.
 // Null (and one warning on stderr) when it cannot be loaded: callers fall
 // back to what the core has. Thread-safe. OpenBLAS, if loading it started
-// the library, is held to one thread (see blas_threads.h).
+// the library, is held to one thread (see backends.cpp).
 const Backends* LoadBackends();
 
 // Whether the back-end library is loaded in this process (tests).
