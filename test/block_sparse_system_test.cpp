@@ -1,8 +1,13 @@
 #include "rotation_averaging/estimators/block_sparse_system.h"
 
+#include "rotation_averaging/estimators/block_cholesky.h"
+
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
+#include <algorithm>
+#include <limits>
+#include <numeric>
 #include <random>
 
 namespace rotation_averaging {
@@ -87,6 +92,101 @@ TEST(BlockSparseSystem, ThinAndFilledFactorsBothSolveExactly) {
   }
   BlockSparseSystem scalar(200, MakeSystem(200, 12).pairs, /*block_dim=*/1);
   EXPECT_STREQ(scalar.FactorizationMethod(), "simplicial");
+}
+
+// The lower block triangle of `dense` laid out as BlockSparseSystem stores
+// it (block column c: its block rows r >= c, c first; each 3x3 block in the
+// three scalar columns of c), with the block pattern of `pairs`.
+struct LowerBlocks {
+  std::vector<std::vector<int>> rows_of_column;
+  Eigen::SparseMatrix<double> lower;
+};
+
+LowerBlocks StoreLowerBlocks(const Eigen::MatrixXd& dense, const std::vector<std::pair<int, int>>& pairs) {
+  const int n = static_cast<int>(dense.rows() / 3);
+  LowerBlocks out;
+  out.rows_of_column.resize(n);
+  for (int c = 0; c < n; ++c) out.rows_of_column[c].push_back(c);
+  for (const auto& [a, b] : pairs) {
+    if (a != b) out.rows_of_column[std::min(a, b)].push_back(std::max(a, b));
+  }
+  std::vector<Eigen::Triplet<double>> entries;
+  for (int c = 0; c < n; ++c) {
+    std::vector<int>& rows = out.rows_of_column[c];
+    std::sort(rows.begin(), rows.end());
+    rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
+    for (int r : rows) {
+      for (int a = 0; a < 3; ++a)
+        for (int b = 0; b < 3; ++b) entries.emplace_back(3 * r + a, 3 * c + b, dense(3 * r + a, 3 * c + b));
+    }
+  }
+  out.lower.resize(3 * n, 3 * n);
+  out.lower.setFromTriplets(entries.begin(), entries.end());
+  out.lower.makeCompressed();
+  return out;
+}
+
+// Any elimination order gives the dense solution, for every right-hand side.
+TEST(BlockCholesky, MatchesADenseSolveInAnyOrder) {
+  for (const int extra : {0, 2}) {
+    const int n = 60;
+    const RandomSystem s = MakeSystem(n, 21 + extra, extra);
+    LowerBlocks stored = StoreLowerBlocks(s.dense, s.pairs);
+    // Every block of the pattern is stored (setFromTriplets keeps zeros).
+    ASSERT_EQ(stored.lower.nonZeros(), [&] {
+      Eigen::Index count = 0;
+      for (const auto& rows : stored.rows_of_column) count += 9 * static_cast<Eigen::Index>(rows.size());
+      return count;
+    }());
+    std::vector<int> shuffled(n);
+    std::iota(shuffled.begin(), shuffled.end(), 0);
+    std::shuffle(shuffled.begin(), shuffled.end(), std::mt19937(5));
+    std::vector<int> reversed(shuffled.size());
+    for (int k = 0; k < n; ++k) reversed[k] = n - 1 - k;
+    std::vector<int> identity(n);
+    std::iota(identity.begin(), identity.end(), 0);
+    Eigen::MatrixXd rhs(3 * n, 3);
+    rhs.col(0) = s.rhs;
+    rhs.col(1) = Eigen::VectorXd::LinSpaced(3 * n, -1.0, 1.0);
+    rhs.col(2).setOnes();
+    const Eigen::MatrixXd expected = s.dense.ldlt().solve(rhs);
+    for (const std::vector<int>* order : {&identity, &reversed, &shuffled}) {
+      BlockCholesky factor;
+      factor.Analyze(stored.rows_of_column, Eigen::Map<const Eigen::VectorXi>(order->data(), n), stored.lower);
+      ASSERT_TRUE(factor.Factorize(stored.lower));
+      const Eigen::MatrixXd x = factor.Solve(rhs);
+      EXPECT_LT((x - expected).norm(), 1e-10 * expected.norm()) << "extra couplings " << extra;
+      EXPECT_GE(factor.NumFactorBlocks(), static_cast<std::size_t>(n + s.off.size() / 2));
+    }
+    // A new matrix on the same pattern reuses the analysis.
+    BlockCholesky factor;
+    factor.Analyze(stored.rows_of_column, Eigen::Map<const Eigen::VectorXi>(shuffled.data(), n), stored.lower);
+    ASSERT_TRUE(factor.Factorize(stored.lower));
+    const Eigen::MatrixXd scaled = 2.0 * s.dense;
+    const LowerBlocks stored2 = StoreLowerBlocks(scaled, s.pairs);
+    ASSERT_TRUE(factor.Factorize(stored2.lower));
+    EXPECT_LT((factor.Solve(rhs) - 0.5 * expected).norm(), 1e-10 * expected.norm());
+  }
+}
+
+TEST(BlockCholesky, IndefiniteOrNonFiniteMatricesAreRefused) {
+  const int n = 20;
+  const RandomSystem s = MakeSystem(n, 31);
+  std::vector<int> identity(n);
+  std::iota(identity.begin(), identity.end(), 0);
+  const Eigen::Map<const Eigen::VectorXi> order(identity.data(), n);
+  Eigen::MatrixXd indefinite = s.dense;
+  indefinite.block<3, 3>(3 * 7, 3 * 7) -= 20.0 * Eigen::Matrix3d::Identity();
+  LowerBlocks stored = StoreLowerBlocks(indefinite, s.pairs);
+  BlockCholesky factor;
+  factor.Analyze(stored.rows_of_column, order, stored.lower);
+  EXPECT_FALSE(factor.Factorize(stored.lower));
+  Eigen::MatrixXd not_finite = s.dense;
+  not_finite(3 * 4 + 1, 3 * 4 + 1) = std::numeric_limits<double>::quiet_NaN();
+  stored = StoreLowerBlocks(not_finite, s.pairs);
+  EXPECT_FALSE(factor.Factorize(stored.lower));
+  stored = StoreLowerBlocks(s.dense, s.pairs);
+  EXPECT_TRUE(factor.Factorize(stored.lower));
 }
 
 TEST(BlockSparseSystem, ReusedFactorAsPreconditionerGivesTheNewSolution) {

@@ -1,6 +1,7 @@
 #include "rotation_averaging/estimators/block_sparse_system.h"
 
 #include "rotation_averaging/estimators/aggregation_amg.h"
+#include "rotation_averaging/estimators/block_cholesky.h"
 #include "rotation_averaging/util/backends.h"
 
 #include <Eigen/SparseCholesky>
@@ -30,62 +31,6 @@ Eigen::VectorXi BlockGraphOrdering(const std::vector<std::vector<int>>& rows_of_
   return perm.indices();
 }
 
-// Fill-reducing ordering of a matrix of dense 3x3 blocks for Eigen's
-// simplicial factor: approximate minimum degree on the graph of the blocks
-// (a ninth of the entries of the scalar pattern, whose ordering took most of
-// the symbolic analysis), each block's three rows kept together. `full` is
-// the symmetric pattern (both triangles) Eigen passes.
-struct BlockAmdOrdering {
-  using PermutationType = Eigen::PermutationMatrix<Eigen::Dynamic, Eigen::Dynamic, int>;
-  template <typename MatrixType>
-  void operator()(const MatrixType& full, PermutationType& perm) {
-    const int n = static_cast<int>(full.cols()) / 3;
-    std::vector<std::vector<int>> rows_of_column(n);
-    for (int b = 0; b < n; ++b) {
-      for (typename MatrixType::InnerIterator it(full, 3 * b); it; ++it) {
-        const int r = static_cast<int>(it.row());
-        if (r % 3 == 0 && r / 3 >= b) rows_of_column[b].push_back(r / 3);
-      }
-    }
-    const Eigen::VectorXi block_perm = BlockGraphOrdering(rows_of_column);
-    perm.resize(3 * n);
-    for (int b = 0; b < n; ++b)
-      for (int k = 0; k < 3; ++k) perm.indices()[3 * b + k] = 3 * block_perm[b] + k;
-  }
-};
-
-// Nonzeros of the Cholesky factor of a block graph eliminated in `order`
-// (BlockGraphOrdering), diagonal included: the elimination tree and column
-// counts of the block pattern.
-std::size_t BlockFactorNonZeros(const std::vector<std::vector<int>>& rows_of_column, const Eigen::VectorXi& order) {
-  const int n = static_cast<int>(rows_of_column.size());
-  std::vector<int> perm(n);  // block -> its step in the elimination
-  for (int k = 0; k < n; ++k) perm[order[k]] = k;
-  // Each off-diagonal pair under the new numbering, as (lower, higher).
-  std::vector<std::vector<int>> lower_of(n);
-  for (int c = 0; c < n; ++c) {
-    for (int r : rows_of_column[c]) {
-      if (r == c) continue;
-      const int a = perm[r], b = perm[c];
-      lower_of[std::max(a, b)].push_back(std::min(a, b));
-    }
-  }
-  std::vector<int> parent(n, -1), tag(n, -1);
-  std::size_t count = n;
-  for (int k = 0; k < n; ++k) {
-    tag[k] = k;
-    for (int i : lower_of[k]) {
-      // Up the elimination tree from i to k: each node passed has L(k, node) != 0.
-      for (; tag[i] != k; i = parent[i]) {
-        if (parent[i] == -1) parent[i] = k;
-        ++count;
-        tag[i] = k;
-      }
-    }
-  }
-  return count;
-}
-
 }  // namespace
 
 struct BlockSparseSystem::Index {
@@ -96,7 +41,7 @@ struct BlockSparseSystem::Index {
 struct BlockSparseSystem::Factorization {
   std::unique_ptr<SupernodalCholesky> supernodal;  // from the back-end library, when chosen
   Eigen::SimplicialLLT<Eigen::SparseMatrix<double>, Eigen::Lower, Eigen::AMDOrdering<int>> simplicial;
-  Eigen::SimplicialLLT<Eigen::SparseMatrix<double>, Eigen::Lower, BlockAmdOrdering> block_simplicial;
+  BlockCholesky block_simplicial;  // analysed in ChooseFactorization
   bool chosen = false;                // supernodal and the two below (BlockSparseSystem::ChooseFactorization)
   bool use_block_simplicial = false;  // 3x3 blocks whose factor is thin
   bool use_metis = false;       // nested-dissection ordering (large systems)
@@ -107,17 +52,12 @@ struct BlockSparseSystem::Factorization {
 
   Eigen::MatrixXd ApplyInverse(const Eigen::MatrixXd& b) {
     if (supernodal) return supernodal->Solve(b);
-    if (use_block_simplicial) return block_simplicial.solve(b);
+    if (use_block_simplicial) return block_simplicial.Solve(b);
     return simplicial.solve(b);
   }
   bool Factorize(const Eigen::SparseMatrix<double>& m) {
     if (supernodal) return supernodal->Factorize(m, use_metis);
-    if (use_block_simplicial) {
-      if (!analyzed) block_simplicial.analyzePattern(m);
-      analyzed = true;
-      block_simplicial.factorize(m);
-      return block_simplicial.info() == Eigen::Success;
-    }
+    if (use_block_simplicial) return block_simplicial.Factorize(m);
     if (!analyzed) simplicial.analyzePattern(m);
     analyzed = true;
     simplicial.factorize(m);
@@ -174,8 +114,8 @@ void BlockSparseSystem::ChooseFactorization() const {
   if (f.chosen) return;
   f.chosen = true;
   // 3x3 blocks whose factor is thin (a few dozen entries per column: a pose
-  // graph that is mostly a chain, parking-garage) are factorised by Eigen's
-  // simplicial LLT, ordered on the graph of the blocks; denser ones
+  // graph that is mostly a chain, parking-garage) are factorised block by
+  // block (BlockCholesky), ordered on the graph of the blocks; denser ones
   // (cubicle, grid-like graphs) by CHOLMOD's supernodal factor, whose dense
   // kernels pay there and only there. The factor's size is predicted from
   // the block graph's ordering and elimination tree, before any numbers.
@@ -185,12 +125,9 @@ void BlockSparseSystem::ChooseFactorization() const {
   // scalar systems are another matter: on 10,000-view grid-like graphs
   // (rotavg_scale_benchmark) CHOLMOD's supernodal factor with a METIS
   // ordering solved in 1.6 s against 5.8 s with the simplicial LLT.
+  Eigen::VectorXi block_order;
   if (block_dim_ == 3 && num_blocks_ > 0) {
-    const std::size_t block_entries =
-        BlockFactorNonZeros(index_->rows_of_column, BlockGraphOrdering(index_->rows_of_column));
-    // Each off-diagonal block of the factor holds 9 entries, each diagonal block 6.
-    const double entries = 9.0 * static_cast<double>(block_entries - num_blocks_) + 6.0 * num_blocks_;
-    f.use_block_simplicial = entries <= kBlockSimplicialMaxColumnCount * 3.0 * num_blocks_;
+    f.use_block_simplicial = PredictFactor(&block_order) <= block_cholesky_max_column_count_;
   }
   const bool supernodal = block_dim_ == 3 ? !f.use_block_simplicial : num_blocks_ > kScalarCholmodMinBlocks;
   if (supernodal) {
@@ -202,6 +139,21 @@ void BlockSparseSystem::ChooseFactorization() const {
     if (!f.supernodal && block_dim_ == 3) f.use_block_simplicial = true;
   }
   f.use_metis = block_dim_ == 1 && num_blocks_ > kMetisMinRows;
+  if (f.use_block_simplicial) f.block_simplicial.Analyze(index_->rows_of_column, block_order, matrix_);
+}
+
+double BlockSparseSystem::PredictFactor(Eigen::VectorXi* block_order) const {
+  if (block_dim_ != 3 || num_blocks_ == 0) return 0.0;
+  *block_order = BlockGraphOrdering(index_->rows_of_column);
+  const std::size_t block_entries = BlockCholesky::CountFactorBlocks(index_->rows_of_column, *block_order);
+  // Each off-diagonal block of the factor holds 9 entries, each diagonal block 6.
+  const double entries = 9.0 * static_cast<double>(block_entries - num_blocks_) + 6.0 * num_blocks_;
+  return entries / (3.0 * num_blocks_);
+}
+
+double BlockSparseSystem::PredictedFactorEntriesPerColumn() const {
+  Eigen::VectorXi block_order;
+  return PredictFactor(&block_order);
 }
 
 BlockSparseSystem::~BlockSparseSystem() = default;

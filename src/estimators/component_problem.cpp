@@ -8,6 +8,7 @@
 #include <queue>
 #include <unordered_map>
 
+#include "rotation_averaging/estimators/block_cholesky.h"
 #include "rotation_averaging/geometry/so3.h"
 
 namespace rotation_averaging {
@@ -28,20 +29,24 @@ double Median(std::vector<double> values) {
 }
 
 // W = s C^-1 for a symmetric positive definite C (ViewGraph validates it
-// and floors its eigenvalues). By Cholesky: a third of the time of an
-// eigendecomposition, which is a visible part of reading a graph into
-// component problems on pose graphs of a few thousand edges. The
-// eigendecomposition remains for a C that is not numerically positive
-// definite after all.
-Eigen::Matrix3d InformationFromCovariance(const Eigen::Matrix3d& covariance, double scale) {
-  const Eigen::LLT<Eigen::Matrix3d> llt(covariance);
-  if (llt.info() == Eigen::Success) {
-    const Eigen::Matrix3d w = llt.solve(Eigen::Matrix3d::Identity()) * scale;
-    if (w.allFinite()) return 0.5 * (w + w.transpose());
+// and floors its eigenvalues), and a square root S of it (S^T S = W, so
+// |S r|^2 = r^T W r): with C = L L^T, S = sqrt(s) L^-1, from the closed-form
+// 3x3 factor, which is a visible part of building the component problems of
+// pose graphs of a few thousand edges when done by a general factorisation
+// and solve (one for C, one more for the root of W). The eigendecomposition
+// remains for a C that is not numerically positive definite after all.
+void InformationFromCovariance(const Eigen::Matrix3d& covariance, double scale, Eigen::Matrix3d* information,
+                               Eigen::Matrix3d* sqrt_information) {
+  Eigen::Matrix3d inverse_factor;
+  if (InverseCholeskyFactor(covariance, &inverse_factor)) {
+    *sqrt_information = std::sqrt(scale) * inverse_factor;
+    *information = sqrt_information->transpose() * *sqrt_information;
+    if (information->allFinite() && sqrt_information->allFinite()) return;
   }
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(covariance);
   const Eigen::Vector3d inv = eig.eigenvalues().cwiseMax(1e-300).cwiseInverse() * scale;
-  return eig.eigenvectors() * inv.asDiagonal() * eig.eigenvectors().transpose();
+  *information = eig.eigenvectors() * inv.asDiagonal() * eig.eigenvectors().transpose();
+  *sqrt_information = inv.cwiseSqrt().asDiagonal() * eig.eigenvectors().transpose();
 }
 
 }  // namespace
@@ -105,10 +110,8 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
                                                     : SpanningTreeWeight::kUniform;
   }
 
-  // Edge information per graph edge.
-  std::vector<Eigen::Matrix3d> information(graph_edges.size());
-  for (std::size_t k = 0; k < graph_edges.size(); ++k) {
-    const RelativeRotation& e = graph_edges[k];
+  // Edge information and its square root, written straight into the edge.
+  auto set_information = [&](const RelativeRotation& e, ComponentEdge* ce) {
     double scalar = 1.0;
     switch (weighting) {
       case EdgeWeighting::kNone: break;
@@ -125,19 +128,16 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
     }
     if (weighting == EdgeWeighting::kCovariance) {
       if (e.has_covariance) {
-        information[k] = InformationFromCovariance(e.covariance, info_scale);
-      } else {
-        ++missing;
-        information[k] = Eigen::Matrix3d::Identity() * (3.0 / median_trace) * info_scale;
+        InformationFromCovariance(e.covariance, info_scale, &ce->information, &ce->sqrt_information);
+        return;
       }
-    } else {
-      information[k] = Eigen::Matrix3d::Identity() * scalar;
+      ++missing;
+      scalar = (3.0 / median_trace) * info_scale;
     }
-  }
-  if (missing > 0 && warnings) {
-    warnings->push_back(std::to_string(missing) + " edge(s) lack what weighting '" + EdgeWeightingName(weighting) +
-                        "' needs and were given the median weight");
-  }
+    ce->information = Eigen::Matrix3d::Identity() * scalar;
+    ce->sqrt_information = Eigen::Matrix3d::Identity() * std::sqrt(scalar);
+  };
+
 
   // Components.
   std::unordered_map<ViewId, std::pair<int, int>> where;  // view -> (component, local index)
@@ -160,6 +160,9 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
     }
     problems.push_back(std::move(p));
   }
+  std::vector<std::size_t> edges_of(problems.size(), 0);
+  for (const RelativeRotation& e : graph_edges) ++edges_of[where.at(e.view1).first];
+  for (std::size_t c = 0; c < problems.size(); ++c) problems[c].edges.reserve(edges_of[c]);
   for (std::size_t k = 0; k < graph_edges.size(); ++k) {
     const RelativeRotation& e = graph_edges[k];
     const auto& a = where.at(e.view1);
@@ -168,15 +171,18 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
     ce.i = a.second;
     ce.j = b.second;
     ce.measured = e.rotation;
-    ce.information = information[k];
-    ce.sqrt_information = Eigen::LLT<Eigen::Matrix3d>(information[k]).matrixL().transpose();
+    set_information(e, &ce);
     switch (tree_weight) {
       case SpanningTreeWeight::kInliers: ce.tree_weight = std::max(e.num_inliers, 0); break;
-      case SpanningTreeWeight::kInformation: ce.tree_weight = information[k].trace(); break;
+      case SpanningTreeWeight::kInformation: ce.tree_weight = ce.information.trace(); break;
       default: ce.tree_weight = 1.0; break;
     }
     ce.graph_index = k;
     problems[a.first].edges.push_back(ce);
+  }
+  if (missing > 0 && warnings) {
+    warnings->push_back(std::to_string(missing) + " edge(s) lack what weighting '" + EdgeWeightingName(weighting) +
+                        "' needs and were given the median weight");
   }
   return problems;
 }

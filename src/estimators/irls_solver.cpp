@@ -50,6 +50,24 @@ bool AllIsotropic(const std::vector<ComponentEdge>& edges) {
 }
 
 
+// Median over the edges of InformationAnisotropy (from at most 10,000 edges
+// evenly spread), once per workspace: only systems large enough for
+// multigrid need it.
+double MedianAnisotropy(const ComponentProblem& problem, IrlsWorkspace* ws) {
+  if (ws->median_anisotropy < 0.0) {
+    ws->median_anisotropy = 1.0;
+    if (!ws->isotropic && !problem.edges.empty()) {
+      const std::size_t stride = std::max<std::size_t>(1, problem.edges.size() / 10000);
+      std::vector<double> anisotropy;
+      for (std::size_t k = 0; k < problem.edges.size(); k += stride)
+        anisotropy.push_back(InformationAnisotropy(problem.edges[k].information));
+      std::nth_element(anisotropy.begin(), anisotropy.begin() + anisotropy.size() / 2, anisotropy.end());
+      ws->median_anisotropy = anisotropy[anisotropy.size() / 2];
+    }
+  }
+  return ws->median_anisotropy;
+}
+
 // The normal-equation pattern of a component, once per workspace.
 void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace) {
   IrlsWorkspace& ws = *workspace;
@@ -84,15 +102,7 @@ void PrepareWorkspace(const ComponentProblem& problem, IrlsWorkspace* workspace)
   }
   ws.system = ws.isotropic ? std::make_unique<BlockSparseSystem>(free_blocks, pairs, 1, 3)
                            : std::make_unique<BlockSparseSystem>(free_blocks, pairs);
-  ws.median_anisotropy = 1.0;
-  if (!ws.isotropic && !problem.edges.empty()) {
-    const std::size_t stride = std::max<std::size_t>(1, problem.edges.size() / 10000);
-    std::vector<double> anisotropy;
-    for (std::size_t k = 0; k < problem.edges.size(); k += stride)
-      anisotropy.push_back(InformationAnisotropy(problem.edges[k].information));
-    std::nth_element(anisotropy.begin(), anisotropy.begin() + anisotropy.size() / 2, anisotropy.end());
-    ws.median_anisotropy = anisotropy[anisotropy.size() / 2];
-  }
+  ws.median_anisotropy = -1.0;  // MedianAnisotropy computes it when multigrid is considered
   // Slot of each edge's off-diagonal block in its column (-1: touches the gauge).
   ws.offdiagonal_slot.assign(problem.edges.size(), -1);
   for (std::size_t k = 0; k < problem.edges.size(); ++k) {
@@ -262,8 +272,9 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   Eigen::MatrixXd delta;
   int iteration = 0;
   const bool multigrid = options.multigrid_min_views > 0 && num_free >= options.multigrid_min_views &&
-                         (isotropic || ws.median_anisotropy <= options.block_multigrid_max_anisotropy);
+                         (isotropic || MedianAnisotropy(*problem, &ws) <= options.block_multigrid_max_anisotropy);
   system.SetUseMultigrid(multigrid);
+  system.SetBlockCholeskyMaxColumnCount(options.block_cholesky_max_column_count);
   system.SetPcgTolerance(multigrid ? std::max(options.linear_solve_tolerance, options.multigrid_linear_solve_tolerance)
                                    : options.linear_solve_tolerance);
   for (; iteration < options.max_iterations; ++iteration) {

@@ -55,12 +55,26 @@ double DefaultScaleFor(EdgeWeighting weighting, CovarianceNormalization normaliz
   return kScaleRadians;
 }
 
+// Residuals of the problem's edges at its rotations: those the last IRLS
+// solve on `workspace` ended with when they are for these rotations (they
+// do not depend on the loss or the information), computed otherwise.
+std::vector<Eigen::Vector3d> CurrentResiduals(const ComponentProblem& problem, const IrlsWorkspace& workspace) {
+  if (workspace.residuals.size() == problem.edges.size() && workspace.residual_rotations == problem.rotations) {
+    return workspace.residuals;
+  }
+  std::vector<Eigen::Vector3d> residuals;
+  residuals.reserve(problem.edges.size());
+  for (const ComponentEdge& e : problem.edges) residuals.push_back(problem.Residual(e));
+  return residuals;
+}
+
 // sigma_hat = sqrt(median |D^T r|^2 / 2.366): the scale of the whitened
 // residuals (1 for calibrated covariances; 2.366 is the median of chi2(3)).
-double WhitenedResidualScale(const ComponentProblem& problem) {
+double WhitenedResidualScale(const ComponentProblem& problem, const std::vector<Eigen::Vector3d>& residuals) {
   std::vector<double> s;
   s.reserve(problem.edges.size());
-  for (const ComponentEdge& e : problem.edges) s.push_back((e.sqrt_information * problem.Residual(e)).squaredNorm());
+  for (std::size_t k = 0; k < problem.edges.size(); ++k)
+    s.push_back((problem.edges[k].sqrt_information * residuals[k]).squaredNorm());
   if (s.empty()) return 1.0;
   std::nth_element(s.begin(), s.begin() + s.size() / 2, s.end());
   return std::sqrt(s[s.size() / 2] / 2.366);
@@ -224,10 +238,10 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
   double component_scale = scale;
   std::unique_ptr<RobustLoss> component_loss = CreateLoss(options.loss, scale);
 
+  IrlsWorkspace workspace;
   if (options.solver == SolverType::kL1Irls) {
     SolveComponentL1Irls(options, &problem, &cs);
   } else {
-    IrlsWorkspace workspace;
     auto solve_with = [&](const RotationAveragingOptions& o, const RobustLoss& l) {
       if (o.solver == SolverType::kCeres) {
         SolveComponentCeres(o, l, &problem, &cs);
@@ -250,8 +264,12 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
       cs.iterations += SolveSurrogate(l1_options, SoftL1Loss(options.l1_init_smoothing_rad),
                                       [](const Eigen::Matrix3d&) { return 1.0; }, &problem, &workspace);
     } else if (!all_warm && !needs_robust_start && options.isotropic_presolve_max_anisotropy > 1.0) {
+      // Stops at the first edge beyond the limit.
       double max_anisotropy = 1.0;
-      for (const ComponentEdge& e : problem.edges) max_anisotropy = std::max(max_anisotropy, InformationAnisotropy(e.information));
+      for (const ComponentEdge& e : problem.edges) {
+        max_anisotropy = std::max(max_anisotropy, InformationAnisotropy(e.information));
+        if (max_anisotropy > options.isotropic_presolve_max_anisotropy) break;
+      }
       if (max_anisotropy > 1.0 + 1e-9 && max_anisotropy <= options.isotropic_presolve_max_anisotropy) {
         RotationAveragingOptions iso_options = options;
         iso_options.function_tolerance = options.isotropic_presolve_function_tolerance;
@@ -272,16 +290,22 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
         solve_with(stage_options, *CreateLoss(options.loss, s));
       }
     }
+    // The IRLS solve reports the cost of its start under its loss: when
+    // nothing ran before it and the loss stays, that is the start's cost
+    // under the final loss, which the report below needs.
+    const bool from_initial = options.solver == SolverType::kIrls && problem.rotations == initial_rotations;
     solve(*component_loss);
+    double initial_cost = from_initial ? cs.initial_cost : std::numeric_limits<double>::quiet_NaN();
     // Self-calibration of the covariance scale (see auto_scale_threshold).
     if (weighting == EdgeWeighting::kCovariance &&
         options.covariance_normalization == CovarianceNormalization::kStandardDeviations &&
         options.auto_scale_threshold > 0.0 && options.loss_scale <= 0.0) {
-      cs.noise_scale = WhitenedResidualScale(problem);
+      cs.noise_scale = WhitenedResidualScale(problem, CurrentResiduals(problem, workspace));
       if (cs.noise_scale > options.auto_scale_threshold) {
         component_scale = scale * cs.noise_scale;
         component_loss = CreateLoss(options.loss, component_scale);
         solve(*component_loss);
+        initial_cost = std::numeric_limits<double>::quiet_NaN();
       }
     }
     // Both costs are reported under the final loss. The robust start (L1,
@@ -291,7 +315,9 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
     // one outlier edge or noise spread over all of them. Then the start is
     // refined under the final loss as well and the lower of the two kept, so
     // a solve never ends above its start.
-    cs.initial_cost = ComponentProblem::CostOf(problem.edges, initial_rotations, *component_loss);
+    cs.initial_cost = std::isfinite(initial_cost)
+                          ? initial_cost
+                          : ComponentProblem::CostOf(problem.edges, initial_rotations, *component_loss);
     if (cs.final_cost > cs.initial_cost * (1.0 + 1e-9) + 1e-300) {
       const std::vector<Eigen::Matrix3d> ended = problem.rotations;
       const double ended_cost = cs.final_cost;
@@ -340,9 +366,11 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
   }
   // Per-edge results under the final loss and the weighting of the options
   // (the L1-IRLS baseline reports its own unweighted residuals).
-  for (const ComponentEdge& e : problem.edges) {
+  const std::vector<Eigen::Vector3d> residuals = CurrentResiduals(problem, workspace);
+  for (std::size_t k = 0; k < problem.edges.size(); ++k) {
+    const ComponentEdge& e = problem.edges[k];
     EdgeResult& er = summary->edges[e.graph_index];
-    const Eigen::Vector3d r = problem.Residual(e);
+    const Eigen::Vector3d& r = residuals[k];
     er.residual_rad = r.norm();
     er.whitened_squared = (e.sqrt_information * r).squaredNorm();
     er.robust_weight = options.solver == SolverType::kL1Irls

@@ -424,6 +424,7 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
   ROTAVG_FIELD(linear_solve_tolerance);
   ROTAVG_FIELD(robust_start_linear_solve_tolerance);
   ROTAVG_FIELD(multigrid_min_views);
+  ROTAVG_FIELD(block_cholesky_max_column_count);
   ROTAVG_FIELD(block_multigrid_max_anisotropy);
   ROTAVG_FIELD(multigrid_linear_solve_tolerance);
   ROTAVG_FIELD(num_threads);

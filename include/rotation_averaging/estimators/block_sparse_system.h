@@ -72,6 +72,9 @@ class BlockSparseSystem {
   // Single right-hand side.
   bool Solve(double relative_lambda, int max_retries, Eigen::VectorXd* x, double* lambda_used = nullptr);
   void SetReuseFactorization(bool reuse) { reuse_factorization_ = reuse; }
+  // Replaces kBlockSimplicialMaxColumnCount; read when the first
+  // factorisation chooses its method.
+  void SetBlockCholeskyMaxColumnCount(double count) { block_cholesky_max_column_count_ = count; }
   // Solve by conjugate gradients preconditioned with aggregation multigrid
   // (AggregationAmg, set up for each matrix: Setup for scalar systems,
   // SetupBlocks for 3x3 blocks, which must then form a matrix-weighted
@@ -86,18 +89,24 @@ class BlockSparseSystem {
   void SetPcgTolerance(double tolerance);
   int NumFactorizations() const { return num_factorizations_; }
   // The factorisation this system's pattern chose: "simplicial" (Eigen's
-  // simplicial LLT, ordered on the scalar pattern), "block_simplicial" (the
-  // same, ordered on the graph of the 3x3 blocks) or "supernodal" (CHOLMOD).
+  // simplicial LLT, ordered on the scalar pattern), "block_simplicial"
+  // (BlockCholesky, ordered on the graph of the 3x3 blocks) or "supernodal"
+  // (CHOLMOD).
   const char* FactorizationMethod() const;
+  // 3x3 blocks: entries per scalar column of the Cholesky factor, predicted
+  // from the block graph's minimum degree ordering and elimination tree (what
+  // the choice of FactorizationMethod compares with the limit). 0 for
+  // scalar systems.
+  double PredictedFactorEntriesPerColumn() const;
   int NumPreconditionedSolves() const { return num_pcg_solves_; }
   int LastPcgIterations() const { return last_pcg_iterations_; }
 
   static constexpr int kScalarCholmodMinBlocks = 5000;  // scalar systems larger than this use CHOLMOD
   // 3x3-block systems whose Cholesky factor has at most this many entries
-  // per column on average (predicted from the block graph) use Eigen's
-  // simplicial factor, the others CHOLMOD's supernodal one (see
-  // ChooseFactorization).
-  static constexpr double kBlockSimplicialMaxColumnCount = 32.0;
+  // per column on average (predicted from the block graph) use BlockCholesky,
+  // the others CHOLMOD's supernodal one (see ChooseFactorization and
+  // RotationAveragingOptions::block_cholesky_max_column_count).
+  static constexpr double kBlockSimplicialMaxColumnCount = 64.0;
   // Scalar systems with more blocks than this are ordered with METIS (less fill
   // on grid-like graphs); 3x3-block systems keep CHOLMOD's default ordering
   // (METIS made cubicle's slower).
@@ -136,6 +145,7 @@ class BlockSparseSystem {
   std::unique_ptr<Index> index_;
   Eigen::MatrixXd rhs_;
   bool reuse_factorization_ = true;
+  double block_cholesky_max_column_count_ = kBlockSimplicialMaxColumnCount;
   double pcg_tolerance_ = 1e-5;
   int num_factorizations_ = 0;
   int num_pcg_solves_ = 0;
@@ -150,6 +160,8 @@ class BlockSparseSystem {
   std::unique_ptr<Factorization> factorization_;
   // Picks the factorisation for this pattern (see FactorizationMethod), once.
   void ChooseFactorization() const;
+  // PredictedFactorEntriesPerColumn and the block ordering it is for.
+  double PredictFactor(Eigen::VectorXi* block_order) const;
 };
 
 }  // namespace rotation_averaging

@@ -79,8 +79,9 @@ struct IrlsWorkspace {
   std::vector<int> var;  // local view -> free block (-1 for the gauge)
   bool isotropic = false;  // every edge has W = s I: scalar Laplacian system
   // Median over the edges of InformationAnisotropy (3x3-block systems; from
-  // at most 10,000 edges evenly spread): see block_multigrid_max_anisotropy.
-  double median_anisotropy = 1.0;
+  // at most 10,000 edges evenly spread; < 0 until a solve needs it): see
+  // block_multigrid_max_anisotropy.
+  double median_anisotropy = -1.0;
   std::vector<int> offdiagonal_slot;  // per edge: BlockSparseSystem::Locate of its off-diagonal block
   // Isotropic problems (the scalar Laplacian), per edge: s of W = s I, the
   // views it joins, the index of its off-diagonal entry (-1: none); per free

@@ -170,6 +170,14 @@ struct RotationAveragingOptions {
   // (cubicle's median is 1.6e5) it does not, and finding that out costs more
   // than the factorisation.
   double block_multigrid_max_anisotropy = 1000.0;
+  // 3x3-block systems that are factorised are factorised block by block
+  // (BlockCholesky: fixed-size 3x3 products, no per-entry index work) when
+  // their factor, predicted from the block graph before any numbers, has at
+  // most this many entries per column on average; denser factors go to
+  // CHOLMOD's supernodal factor, whose dense kernels pay only there. The
+  // default sits between the densities where each was measured faster
+  // (results/core_benchmark.md, "Factorisation of 3x3-block systems").
+  double block_cholesky_max_column_count = 64.0;
   // Systems solved by multigrid take max(linear_solve_tolerance, this): each
   // of its iterations costs a pass over the matrix, where the stale-factor
   // iterations of the factorisation path are nearly free to add. IRLS
