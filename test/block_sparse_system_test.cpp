@@ -66,11 +66,17 @@ TEST(BlockSparseSystem, MatchesADenseSolve) {
   const Eigen::VectorXd expected = s.dense.ldlt().solve(s.rhs);
   EXPECT_LT((x - expected).norm(), 1e-10 * expected.norm());
   EXPECT_EQ(system.NumFactorizations(), 1);
+  // The product with H, from its stored lower triangle, both triangles.
+  Eigen::MatrixXd v(90, 2);
+  v.col(0) = s.rhs;
+  v.col(1) = Eigen::VectorXd::LinSpaced(90, -2.0, 3.0);
+  const Eigen::MatrixXd product = system.Multiply(v);
+  EXPECT_LT((product - s.dense * v).norm(), 1e-12 * (s.dense * v).norm());
 }
 
-// A thin factor (a ring) goes to the simplicial factor ordered on the
-// blocks, a filled one (random couplings) to the supernodal factor where
-// CHOLMOD is built in; both solve exactly.
+// A thin factor (a ring) goes to BlockCholesky, a filled one (random
+// couplings) to the supernodal factor where CHOLMOD is built in; both solve
+// exactly.
 TEST(BlockSparseSystem, ThinAndFilledFactorsBothSolveExactly) {
   for (const int extra : {0, 6}) {
     const RandomSystem s = MakeSystem(200, 11, extra);

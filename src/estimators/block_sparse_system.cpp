@@ -132,8 +132,8 @@ void BlockSparseSystem::ChooseFactorization() const {
   const bool supernodal = block_dim_ == 3 ? !f.use_block_simplicial : num_blocks_ > kScalarCholmodMinBlocks;
   if (supernodal) {
     // CHOLMOD lives in the back-end library, loaded here the first time a
-    // system needs it. Without it, 3x3 blocks keep the block-ordered
-    // simplicial factor and scalar systems Eigen's.
+    // system needs it. Without it, 3x3 blocks keep BlockCholesky and scalar
+    // systems Eigen's simplicial factor.
     const Backends* backends = LoadBackends();
     if (backends && backends->make_supernodal_cholesky) f.supernodal = backends->make_supernodal_cholesky();
     if (!f.supernodal && block_dim_ == 3) f.use_block_simplicial = true;
@@ -154,6 +154,35 @@ double BlockSparseSystem::PredictFactor(Eigen::VectorXi* block_order) const {
 double BlockSparseSystem::PredictedFactorEntriesPerColumn() const {
   Eigen::VectorXi block_order;
   return PredictFactor(&block_order);
+}
+
+// 3x3 blocks: block by block from the stored lower triangle (each
+// off-diagonal block serves both triangles), a fixed-size product per block
+// where the generic symmetric sparse product does index work per entry.
+Eigen::MatrixXd BlockSparseSystem::Multiply(const Eigen::MatrixXd& v) const {
+  if (block_dim_ != 3) return matrix_.selfadjointView<Eigen::Lower>() * v;
+  Eigen::MatrixXd product = Eigen::MatrixXd::Zero(v.rows(), v.cols());
+  const double* values = matrix_.valuePtr();
+  const int* outer = matrix_.outerIndexPtr();
+  using Block = Eigen::Map<const Eigen::Matrix3d, 0, Eigen::OuterStride<>>;
+  for (Eigen::Index k = 0; k < v.cols(); ++k) {
+    const double* x = v.col(k).data();
+    double* y = product.col(k).data();
+    for (int c = 0; c < num_blocks_; ++c) {
+      const std::vector<int>& rows = index_->rows_of_column[c];
+      const Eigen::OuterStride<> stride(outer[3 * c + 1] - outer[3 * c]);
+      const Eigen::Map<const Eigen::Vector3d> x_c(x + 3 * c);
+      Eigen::Map<Eigen::Vector3d> y_c(y + 3 * c);
+      y_c.noalias() += Block(values + outer[3 * c], stride) * x_c;
+      for (std::size_t p = 1; p < rows.size(); ++p) {
+        const Block b(values + outer[3 * c] + 3 * p, stride);
+        const int r = rows[p];
+        Eigen::Map<Eigen::Vector3d>(y + 3 * r).noalias() += b * x_c;
+        y_c.noalias() += b.transpose() * Eigen::Map<const Eigen::Vector3d>(x + 3 * r);
+      }
+    }
+  }
+  return product;
 }
 
 BlockSparseSystem::~BlockSparseSystem() = default;
@@ -361,11 +390,11 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
     // lengths: one triangular solve with k columns streams the factor once
     // (100,000-row grid Laplacian: 3 columns 44 ms, one column 30 ms), so
     // the Laplacian's three coordinates cost little more than one.
-    const auto h = matrix_.selfadjointView<Eigen::Lower>();
+    const auto h = [this](const Eigen::MatrixXd& v) { return Multiply(v); };
     const Eigen::Index k = rhs_.cols();
     Eigen::MatrixXd& xs = *x;
     xs = f.ApplyInverse(rhs_);
-    Eigen::MatrixXd r = rhs_ - h * xs;
+    Eigen::MatrixXd r = rhs_ - h(xs);
     const Eigen::ArrayXd initial = r.colwise().squaredNorm().transpose().array();
     const Eigen::ArrayXd target = pcg_tolerance_ * pcg_tolerance_ * rhs_.colwise().squaredNorm().transpose().array();
     Eigen::ArrayXd residual2 = initial;
@@ -376,7 +405,7 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
     int iterations = 0;
     bool failed = false;
     while (!all_converged() && !failed && iterations < kMaxPcgIterations) {
-      const Eigen::MatrixXd hp = h * p;
+      const Eigen::MatrixXd hp = h(p);
       ++iterations;
       for (Eigen::Index c = 0; c < k; ++c) {
         if (residual2(c) <= target(c)) continue;  // this column is done

@@ -216,11 +216,20 @@ void InitializeBySpanningTree(ComponentProblem* problem) {
   std::vector<bool> done(n, false);
   using Item = std::pair<double, int>;  // (tree weight, edge index)
   std::priority_queue<Item> queue;
+  // An edge is queued only if it beats every edge queued so far towards the
+  // same view: the others would be popped after it, when that view is
+  // placed, and skipped. The tree is the same, with fewer heap operations.
+  std::vector<Item> best_towards(n, Item(-std::numeric_limits<double>::infinity(), -1));
   auto visit = [&](int v) {
     done[v] = true;
     for (int k : incident[v]) {
       const ComponentEdge& e = problem->edges[k];
-      if (!done[e.i == v ? e.j : e.i]) queue.push({e.tree_weight, k});
+      const int other = e.i == v ? e.j : e.i;
+      const Item item(e.tree_weight, k);
+      if (!done[other] && best_towards[other] < item) {
+        best_towards[other] = item;
+        queue.push(item);
+      }
     }
   };
   auto predict = [&](const ComponentEdge& e, int v) -> Eigen::Matrix3d {  // v's rotation from the other end

@@ -98,6 +98,8 @@ class BlockSparseSystem {
   // the choice of FactorizationMethod compares with the limit). 0 for
   // scalar systems.
   double PredictedFactorEntriesPerColumn() const;
+  // H v for the current H (symmetric, from its stored lower triangle).
+  Eigen::MatrixXd Multiply(const Eigen::MatrixXd& v) const;
   int NumPreconditionedSolves() const { return num_pcg_solves_; }
   int LastPcgIterations() const { return last_pcg_iterations_; }
 
