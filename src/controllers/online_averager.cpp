@@ -269,8 +269,7 @@ bool OnlineAverager::SolveLocked(bool force_full) {
     // rather than from where local solves put them: the full solve then runs
     // the robust start (L1 + GNC) when the start disagrees with the edges, as
     // it does when every solve is a full one, and repairs what the local
-    // solves placed wrongly (results/online.md: 33 vs 114 keyframes > 5 deg
-    // off after 30 additions to 3,000).
+    // solves placed wrongly.
     StartFromTree(&orientations);
     components = snapshot.ConnectedComponents();
     StartJoinedComponentsFromTree(components, &orientations);
