@@ -87,6 +87,9 @@ std::size_t BlockCholesky::CountFactorBlocks(const std::vector<std::vector<int>>
                                              const Eigen::VectorXi& order) {
   const int n = static_cast<int>(rows_of_column.size());
   std::vector<int> row_start(n + 1, 0), row_blocks;
+  std::size_t stored_blocks = 0;
+  for (const std::vector<int>& rows : rows_of_column) stored_blocks += rows.size();
+  row_blocks.reserve(stored_blocks);
   ForEachPermutedBlockByRow(rows_of_column, StepOfBlock(order), [&](int k, int i, int, int, bool) {
     if (i < k) row_blocks.push_back(i);
     row_start[k + 1] = static_cast<int>(row_blocks.size());

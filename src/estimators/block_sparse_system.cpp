@@ -18,6 +18,9 @@ namespace {
 Eigen::VectorXi BlockGraphOrdering(const std::vector<std::vector<int>>& rows_of_column) {
   const int n = static_cast<int>(rows_of_column.size());
   std::vector<Eigen::Triplet<double>> entries;
+  std::size_t stored = 0;
+  for (const std::vector<int>& rows : rows_of_column) stored += rows.size();
+  entries.reserve(2 * stored);
   for (int c = 0; c < n; ++c) {
     for (int r : rows_of_column[c]) {
       entries.emplace_back(r, c, 1.0);
@@ -70,6 +73,12 @@ BlockSparseSystem::BlockSparseSystem(int num_blocks, const std::vector<std::pair
     : num_blocks_(num_blocks), block_dim_(block_dim == 1 ? 1 : 3), index_(new Index), factorization_(new Factorization) {
   const int d = block_dim_;
   index_->rows_of_column.resize(num_blocks);
+  {
+    std::vector<int> count(num_blocks, 1);  // the diagonal
+    for (const auto& p : pairs)
+      if (p.first != p.second) ++count[std::min(p.first, p.second)];
+    for (int c = 0; c < num_blocks; ++c) index_->rows_of_column[c].reserve(count[c]);
+  }
   for (int c = 0; c < num_blocks; ++c) index_->rows_of_column[c].push_back(c);
   for (const auto& p : pairs) {
     if (p.first == p.second) continue;

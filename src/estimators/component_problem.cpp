@@ -189,14 +189,25 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
 
 void InitializeBySpanningTree(ComponentProblem* problem) {
   const int n = static_cast<int>(problem->view_ids.size());
-  std::vector<std::vector<int>> incident(n);
+  const int m = static_cast<int>(problem->edges.size());
+  // The edges of view v, in edge order: incident[incident_start[v] ..
+  // incident_start[v + 1]) (one array: a vector per view cost more in
+  // allocations than the tree itself on pose graphs of a few thousand views).
+  std::vector<int> incident_start(n + 1, 0), incident(2 * m);
   std::vector<double> strength(n, 0.0);
-  for (int k = 0; k < static_cast<int>(problem->edges.size()); ++k) {
-    const ComponentEdge& e = problem->edges[k];
-    incident[e.i].push_back(k);
-    incident[e.j].push_back(k);
+  for (const ComponentEdge& e : problem->edges) {
+    ++incident_start[e.i + 1];
+    ++incident_start[e.j + 1];
     strength[e.i] += e.tree_weight;
     strength[e.j] += e.tree_weight;
+  }
+  for (int v = 0; v < n; ++v) incident_start[v + 1] += incident_start[v];
+  {
+    std::vector<int> next(incident_start.begin(), incident_start.end() - 1);
+    for (int k = 0; k < m; ++k) {
+      incident[next[problem->edges[k].i]++] = k;
+      incident[next[problem->edges[k].j]++] = k;
+    }
   }
   bool any_initial = false, any_fixed = false;
   for (int v = 0; v < n; ++v) {
@@ -222,7 +233,8 @@ void InitializeBySpanningTree(ComponentProblem* problem) {
   std::vector<Item> best_towards(n, Item(-std::numeric_limits<double>::infinity(), -1));
   auto visit = [&](int v) {
     done[v] = true;
-    for (int k : incident[v]) {
+    for (int q = incident_start[v]; q < incident_start[v + 1]; ++q) {
+      const int k = incident[q];
       const ComponentEdge& e = problem->edges[k];
       const int other = e.i == v ? e.j : e.i;
       const Item item(e.tree_weight, k);
@@ -256,8 +268,8 @@ void InitializeBySpanningTree(ComponentProblem* problem) {
       // outlier edge does not decide where a new keyframe starts when it has
       // two or more good ones).
       std::vector<Eigen::Matrix3d> candidates;
-      for (int k : incident[v]) {
-        const ComponentEdge& f = problem->edges[k];
+      for (int q = incident_start[v]; q < incident_start[v + 1]; ++q) {
+        const ComponentEdge& f = problem->edges[incident[q]];
         if (done[f.i == v ? f.j : f.i]) candidates.push_back(predict(f, v));
       }
       if (candidates.size() >= 3) {

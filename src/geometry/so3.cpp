@@ -44,8 +44,12 @@ Eigen::Matrix3d RightJacobianInverseSO3(const Eigen::Vector3d& phi) {
   const double theta2 = phi.squaredNorm();
   const Eigen::Matrix3d w = Hat(phi);
   double c;
-  if (theta2 < 1e-8) {
-    c = 1.0 / 12.0 + theta2 / 720.0;
+  if (theta2 < 1e-2) {
+    // c = 1/theta^2 - cot(theta/2) / (2 theta) by its series: below 0.1 rad
+    // the next term is under 3e-16 of c, while the closed form loses ~1e-13
+    // to cancellation there, and the series needs no sin and cos (IRLS
+    // residuals are mostly this small; this runs per edge per iteration).
+    c = 1.0 / 12.0 + theta2 * (1.0 / 720.0 + theta2 * (1.0 / 30240.0 + theta2 / 1209600.0));
   } else {
     const double theta = std::sqrt(theta2);
     c = 1.0 / theta2 - (1.0 + std::cos(theta)) / (2.0 * theta * std::sin(theta));
