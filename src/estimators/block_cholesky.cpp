@@ -25,7 +25,6 @@ bool InverseCholeskyFactor(const Eigen::Matrix3d& a, Eigen::Matrix3d* m) {
   return m->allFinite();
 }
 
-
 namespace {
 
 // The stored blocks of A as blocks of P A P^T, grouped by row: for each step
@@ -58,7 +57,7 @@ void ForEachPermutedBlockByRow(const std::vector<std::vector<int>>& rows_of_colu
 }
 
 // Walks the elimination tree of the rows of P A P^T given by `row_blocks`
-// (for each k, the steps i < k of its blocks, in rows_start): calls
+// (for each k, the steps i < k of its blocks, from row_start[k]): calls
 // visit(k, i) for each block L(k, i), i < k, of the factor's row k.
 template <typename Visit>
 void ForEachFactorBlock(int n, const std::vector<int>& row_start, const std::vector<int>& row_blocks, Visit visit) {

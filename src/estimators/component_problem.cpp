@@ -138,7 +138,6 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
     ce->sqrt_information = Eigen::Matrix3d::Identity() * std::sqrt(scalar);
   };
 
-
   // Components.
   std::unordered_map<ViewId, std::pair<int, int>> where;  // view -> (component, local index)
   std::vector<ComponentProblem> problems;
