@@ -74,6 +74,12 @@ void ForEachFactorBlock(int n, const std::vector<int>& row_start, const std::vec
   }
 }
 
+std::size_t StoredBlocks(const std::vector<std::vector<int>>& rows_of_column) {
+  std::size_t count = 0;
+  for (const std::vector<int>& rows : rows_of_column) count += rows.size();
+  return count;
+}
+
 std::vector<int> StepOfBlock(const Eigen::VectorXi& order) {
   std::vector<int> step(order.size());
   for (int k = 0; k < static_cast<int>(order.size()); ++k) step[order[k]] = k;
@@ -86,9 +92,7 @@ std::size_t BlockCholesky::CountFactorBlocks(const std::vector<std::vector<int>>
                                              const Eigen::VectorXi& order) {
   const int n = static_cast<int>(rows_of_column.size());
   std::vector<int> row_start(n + 1, 0), row_blocks;
-  std::size_t stored_blocks = 0;
-  for (const std::vector<int>& rows : rows_of_column) stored_blocks += rows.size();
-  row_blocks.reserve(stored_blocks);
+  row_blocks.reserve(StoredBlocks(rows_of_column));
   ForEachPermutedBlockByRow(rows_of_column, StepOfBlock(order), [&](int k, int i, int, int, bool) {
     if (i < k) row_blocks.push_back(i);
     row_start[k + 1] = static_cast<int>(row_blocks.size());
@@ -109,8 +113,7 @@ void BlockCholesky::Analyze(const std::vector<std::vector<int>>& rows_of_column,
   const int* outer = lower.outerIndexPtr();
   source_start_.assign(n + 1, 0);
   sources_.clear();
-  std::size_t stored_blocks = 0;
-  for (const std::vector<int>& rows : rows_of_column) stored_blocks += rows.size();
+  const std::size_t stored_blocks = StoredBlocks(rows_of_column);
   sources_.reserve(stored_blocks);
   std::vector<int> row_blocks;
   row_blocks.reserve(stored_blocks);
@@ -162,7 +165,6 @@ void BlockCholesky::Analyze(const std::vector<std::vector<int>>& rows_of_column,
   // Factorize writes every block before reading it.
   blocks_.resize(row_of_slot_.size());
   work_.resize(n);
-  analyzed_ = true;
 }
 
 bool BlockCholesky::Factorize(const Eigen::SparseMatrix<double>& lower) {

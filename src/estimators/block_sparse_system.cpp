@@ -399,11 +399,10 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
     // lengths: one triangular solve with k columns streams the factor once
     // (100,000-row grid Laplacian: 3 columns 44 ms, one column 30 ms), so
     // the Laplacian's three coordinates cost little more than one.
-    const auto h = [this](const Eigen::MatrixXd& v) { return Multiply(v); };
     const Eigen::Index k = rhs_.cols();
     Eigen::MatrixXd& xs = *x;
     xs = f.ApplyInverse(rhs_);
-    Eigen::MatrixXd r = rhs_ - h(xs);
+    Eigen::MatrixXd r = rhs_ - Multiply(xs);
     const Eigen::ArrayXd initial = r.colwise().squaredNorm().transpose().array();
     const Eigen::ArrayXd target = pcg_tolerance_ * pcg_tolerance_ * rhs_.colwise().squaredNorm().transpose().array();
     Eigen::ArrayXd residual2 = initial;
@@ -414,7 +413,7 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
     int iterations = 0;
     bool failed = false;
     while (!all_converged() && !failed && iterations < kMaxPcgIterations) {
-      const Eigen::MatrixXd hp = h(p);
+      const Eigen::MatrixXd hp = Multiply(p);
       ++iterations;
       for (Eigen::Index c = 0; c < k; ++c) {
         if (residual2(c) <= target(c)) continue;  // this column is done

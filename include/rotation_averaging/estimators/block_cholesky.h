@@ -45,7 +45,6 @@ class BlockCholesky {
   bool Factorize(const Eigen::SparseMatrix<double>& lower);
   // A^-1 b for every column of b (3 x blocks rows).
   Eigen::MatrixXd Solve(const Eigen::MatrixXd& b) const;
-  bool Analyzed() const { return analyzed_; }
   // Blocks of the factor of the same pattern and order, the diagonal ones
   // included, from the elimination tree alone (nothing is kept): what
   // choosing a factorisation needs before any numbers.
@@ -64,14 +63,13 @@ class BlockCholesky {
     int column_stride;
     bool transposed;
   };
-  bool analyzed_ = false;
   int n_ = 0;
   std::vector<int> order_;                 // step -> block of A
   std::vector<int> source_start_;          // row k: sources_[source_start_[k] .. source_start_[k + 1])
   std::vector<Source> sources_;
   std::vector<int> row_start_;             // row k of L (left of the diagonal): row_columns_/row_slots_[row_start_[k] ..)
   std::vector<int> row_columns_;           // ascending (a topological order of the elimination tree)
-  std::vector<int> row_slots_;             // slot of L(k, column) in column_blocks_
+  std::vector<int> row_slots_;             // slot of L(k, column) in blocks_
   std::vector<int> column_start_;          // column i of L: slots column_start_[i] (diagonal) .. column_start_[i + 1]
   std::vector<int> row_of_slot_;           // block row of each slot
   std::vector<Eigen::Matrix3d> blocks_;    // L by slot; diagonal slots hold the inverse of L(i, i)
