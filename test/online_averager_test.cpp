@@ -8,6 +8,7 @@
 #include <limits>
 #include <random>
 #include <thread>
+#include <tuple>
 
 #include "rotation_averaging/eval/rotation_evaluation.h"
 #include "rotation_averaging/geometry/so3.h"
@@ -353,6 +354,45 @@ TEST(OnlineAverager, BackgroundFullSolvesAreTakenAndResetDropsThem) {
   }
   EXPECT_EQ(averager.Solution()->orientations.size(), 120u);
   EXPECT_LT(MedianErrorDeg(*averager.Solution(), other), 1.0);
+}
+
+// Background solves after the first replay on their own copy of the graph
+// what was added since the one before: each solve taken has a result for
+// every edge added so far, at the orientations it publishes.
+TEST(OnlineAverager, BackgroundSolvesSeeEverythingAddedBeforeThem) {
+  const RigData d = MakeRig(100, 0.05, 16);
+  OnlineAveragerOptions options;
+  options.local_solve_min_views = 50;
+  options.full_solve_every = 2;
+  OnlineAverager averager(options);
+  std::map<std::tuple<std::string, std::string, EdgeSource>, Eigen::Matrix3d> measured;
+  for (const auto& m : d.measurements) {
+    measured[{OnlineAverager::KeyframeName(m.keyframe1), OnlineAverager::KeyframeName(m.keyframe2), m.source}] =
+        m.rotation;
+  }
+  std::uint64_t taken = 0;
+  int checked = 0;
+  FeedCaptures(d, 40, &averager, [&](int, const OnlineSolution&) {
+    const OnlineAveragerStats stats = averager.Stats();
+    if (stats.background_solves > taken) {
+      taken = stats.background_solves;
+      const auto solution = averager.Solution();
+      EXPECT_EQ(solution->edges.size(), stats.edges);
+      double worst = 0.0;
+      for (const SolvedEdge& e : solution->edges) {
+        const Eigen::Matrix3d& m = measured.at(
+            {OnlineAverager::KeyframeName(e.keyframe1), OnlineAverager::KeyframeName(e.keyframe2), e.source});
+        const Eigen::Matrix3d r = m.transpose() * solution->orientations.at(e.keyframe1) *
+                                  solution->orientations.at(e.keyframe2).transpose();
+        worst = std::max(worst, std::abs(RadToDeg(LogSO3(r).norm()) - e.residual_deg));
+      }
+      EXPECT_LT(worst, 1e-6) << "background solve " << taken;
+      ++checked;
+    }
+    // Time for the background solve to finish before the next capture.
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  });
+  EXPECT_GE(checked, 3);
 }
 
 // An edge that joins two components solved apart (each in its own gauge)

@@ -116,6 +116,7 @@ std::size_t OnlineAverager::DrainQueue() {
         ids_[key] = id;
         keys_.push_back(key);
         graph_.AddView(id, KeyframeName(key));
+        if (background_graph_valid_) RecordAddition(GraphAddition{id, KeyframeName(key), false, RelativeRotation()});
         new_views_.push_back(id);
         ids[k] = id;
       }
@@ -136,6 +137,7 @@ std::size_t OnlineAverager::DrainQueue() {
     if (graph_.AddEdge(edge) == AddEdgeResult::kRejected) {
       ++rejected;
     } else {
+      if (background_graph_valid_) RecordAddition(GraphAddition{0, std::string(), true, edge});
       ++accepted;
       ++applied;
       if (edge.source == EdgeSource::kLoopClosure) loop_closure_since_full_ = true;
@@ -157,8 +159,29 @@ std::size_t OnlineAverager::DrainQueue() {
   return applied;
 }
 
-OnlineAverager::FullSolve OnlineAverager::RunFullSolve(const ViewGraph& graph, const RotationAveragingOptions& options,
+void OnlineAverager::RecordAddition(GraphAddition addition) {
+  background_additions_.push_back(std::move(addition));
+  // Past half the graph's edges a copy is cheaper than the replay it saves
+  // (and the list would grow without bound while no background solve starts).
+  if (background_additions_.size() > graph_.NumEdges() / 2 + 64) {
+    background_graph_valid_ = false;
+    background_additions_.clear();
+  }
+}
+
+OnlineAverager::FullSolve OnlineAverager::RunFullSolve(ViewGraph* background_graph, std::vector<GraphAddition> additions,
+                                                      const RotationAveragingOptions& options,
                                                       ViewOrientations orientations, std::uint64_t generation) {
+  // The same calls, in the same order, on a copy of the graph they were made
+  // on leave the same graph.
+  for (const GraphAddition& a : additions) {
+    if (a.is_edge) {
+      background_graph->AddEdge(a.edge);
+    } else {
+      background_graph->AddView(a.view, a.name);
+    }
+  }
+  const ViewGraph& graph = *background_graph;
   FullSolve result;
   result.generation = generation;
   result.ok = SolveRotationAveraging(graph, options, &orientations, &result.summary);
@@ -359,8 +382,18 @@ bool OnlineAverager::SolveLocked(bool force_full) {
     snapshot_new_views_ = new_views_;
     StartFromTree(&start_from);
     loop_closure_since_full_ = false;
-    background_ = std::async(std::launch::async, &OnlineAverager::RunFullSolve, snapshot, averaging,
-                             std::move(start_from), generation);
+    // No background solve is running (background_ is not valid), so its
+    // graph can be replaced here.
+    std::vector<GraphAddition> additions;
+    if (!background_graph_valid_) {
+      background_graph_ = std::make_unique<ViewGraph>(snapshot);
+      background_graph_valid_ = true;
+    } else {
+      additions.swap(background_additions_);
+    }
+    background_additions_.clear();
+    background_ = std::async(std::launch::async, &OnlineAverager::RunFullSolve, background_graph_.get(),
+                             std::move(additions), averaging, std::move(start_from), generation);
     changed_since_snapshot_.clear();
     background_stale_ = false;
   }
@@ -431,6 +464,10 @@ void OnlineAverager::ClearLocalState() {
   edge_results_.clear();
   local_solves_since_full_ = 0;
   background_stale_ = background_.valid();  // its generation is gone as well
+  // The graph was replaced: the next background solve starts from a copy.
+  // (One still running keeps using its graph until it is taken.)
+  background_graph_valid_ = false;
+  background_additions_.clear();
 }
 
 bool OnlineAverager::SolveNow() {
