@@ -285,34 +285,30 @@ struct SymmetricBlock {
 };
 
 // The finest level of a 3x3-block system (SetupBlocks): its diagonal
-// blocks, and its off-diagonal blocks twice: in single precision by the
-// full symmetric pattern of every block row (columns ascending; those left
-// of the diagonal end at split[i]) for the smoother, and in double
-// precision left of the diagonal only for the outer iteration's product.
+// blocks, and each off-diagonal block once, in block row i's part left of
+// the diagonal (from lower_ptr[i]; the block is symmetric and is its own
+// transpose in row lower_col[m]). Every pass applies each block to both of
+// its views, gathering for one and scattering to the other, so it streams
+// half the blocks of the full symmetric pattern.
 struct BlockLevel {
   int n = 0;
   std::vector<Eigen::Matrix3d> diag, inv_diag;
-  // The smoother's blocks: the cycle streams them three times per
-  // iteration; single precision halves that traffic and only perturbs the
-  // preconditioner, which flexible CG absorbs.
-  std::vector<int> ptr, split, col;
+  std::vector<int> lower_ptr, lower_col;
+  // Double precision for the outer iteration's product; single precision for
+  // the smoother, which the cycle streams twice per iteration: it halves that
+  // traffic and only perturbs the preconditioner, which flexible CG absorbs.
+  std::vector<SymmetricBlock<double>> val;
   std::vector<SymmetricBlock<float>> val_single;
-  // The product's blocks, each stored once (block row i's, left of the
-  // diagonal, from lower_ptr[i]): the product applies each to both of its
-  // views, streaming half the blocks of the full pattern. mirror[m]: the
-  // position of lower block m's transpose in the full pattern.
-  std::vector<int> lower_ptr, lower_col, mirror;
-  std::vector<SymmetricBlock<double>> val_lower;
-  // Entry (a, b) of lower block m is input value lower_base[m] + b *
-  // lower_stride[m] + a (or its transpose: the same symmetric block);
-  // likewise the diagonal blocks (diagonal_base, diagonal_stride).
-  std::vector<int> lower_base, lower_stride, diagonal_base, diagonal_stride;
-  std::vector<double> residual;
+  // Entry (a, b) of block m is input value base[m] + b * stride[m] + a (or
+  // its transpose: the same symmetric block); likewise the diagonal blocks
+  // (diagonal_base, diagonal_stride).
+  std::vector<int> base, stride, diagonal_base, diagonal_stride;
+  std::vector<double> residual, sum;
 };
 
-// y = H x (3 values per node), in double precision: each block once, for
-// its row (gathered) and for its column (scattered to a row already
-// written, since y_j, j < i, is complete but for rows below).
+// y = H x (3 values per node), in double precision: each block for its row
+// (gathered) and for its column (scattered to a row already written, which
+// only rows below add to).
 void BlockMultiply(const BlockLevel& level, const double* x, double* y) {
   using Vector = Eigen::Map<const Eigen::Vector3d>;
   for (int i = 0; i < level.n; ++i) {
@@ -320,52 +316,89 @@ void BlockMultiply(const BlockLevel& level, const double* x, double* y) {
     Eigen::Vector3d s = level.diag[i] * Vector(xi);
     for (int m = level.lower_ptr[i]; m < level.lower_ptr[i + 1]; ++m) {
       const int j = level.lower_col[m];
-      level.val_lower[m].AddProduct(x + 3 * j, s.data());
-      level.val_lower[m].AddProduct(xi, y + 3 * j);
+      level.val[m].AddProduct(x + 3 * j, s.data());
+      level.val[m].AddProduct(xi, y + 3 * j);
     }
     Eigen::Map<Eigen::Vector3d>(y + 3 * i) = s;
   }
 }
 
-// sum over p in [first, last) of H_p z_col(p), H in single precision,
-// p ascending or (kBackward) descending. A backward sweep walks each row
-// backward too, so that the blocks stream in one direction, which the
-// hardware prefetcher follows: rows backward with each row's blocks forward
-// was the slowest pass of the cycle, more than twice the time of a forward
-// sweep over the same blocks.
-template <bool kBackward = false>
-inline Eigen::Vector3d BlockRowProduct(const BlockLevel& level, int first, int last, const double* z) {
-  float s[3] = {0.0f, 0.0f, 0.0f};
-  for (int k = first; k < last; ++k) {
-    const int p = kBackward ? first + last - 1 - k : k;
-    level.val_single[p].AddProduct(z + 3 * level.col[p], s);
-  }
-  return Eigen::Vector3d(s[0], s[1], s[2]);
-}
-
 // Block Gauss-Seidel on H z = r: each view's three unknowns are solved
 // together with its diagonal block, which is where an anisotropic
 // information matrix couples them (a scalar smoother would leave the error
-// along its weak axes). A forward sweep from z = 0 needs only the blocks
-// left of the diagonal; the other sweeps update z in place.
-void BlockGaussSeidelFromZero(const BlockLevel& level, const double* r, double* z) {
+// along its weak axes). Row i's blocks left of the diagonal are gathered
+// from the views before it; those right of it, which a sweep meets as
+// blocks left of the diagonal of later rows, are scattered into
+// `right` (sum over j > i of H_ij z_j) as those rows are solved, so each
+// block streams once per sweep, in the direction of the sweep, and stays
+// in cache between its gather and its scatter. Single precision.
+//
+// A forward sweep from z = 0 (the blocks right of the diagonal still meet
+// zeros), leaving the residual r - H z = -U z in `residual`.
+void BlockGaussSeidelFromZero(BlockLevel& level, const double* r, double* z) {
+  double* residual = level.residual.data();
+  std::fill(level.residual.begin(), level.residual.end(), 0.0);
   for (int i = 0; i < level.n; ++i) {
-    const Eigen::Vector3d s = Eigen::Map<const Eigen::Vector3d>(r + 3 * i) -
-                              BlockRowProduct(level, level.ptr[i], level.split[i], z);
-    Eigen::Map<Eigen::Vector3d>(z + 3 * i) = level.inv_diag[i] * s;
+    const int first = level.lower_ptr[i], last = level.lower_ptr[i + 1];
+    float s[3] = {0.0f, 0.0f, 0.0f};
+    for (int m = first; m < last; ++m) level.val_single[m].AddProduct(z + 3 * level.lower_col[m], s);
+    double* zi = z + 3 * i;
+    Eigen::Map<Eigen::Vector3d> new_zi(zi);
+    new_zi = level.inv_diag[i] * (Eigen::Map<const Eigen::Vector3d>(r + 3 * i) - Eigen::Vector3d(s[0], s[1], s[2]));
+    for (int m = first; m < last; ++m) {
+      float t[3] = {0.0f, 0.0f, 0.0f};
+      level.val_single[m].AddProduct(zi, t);
+      double* rj = residual + 3 * level.lower_col[m];
+      rj[0] -= t[0], rj[1] -= t[1], rj[2] -= t[2];
+    }
   }
 }
 
-void BlockGaussSeidel(const BlockLevel& level, const double* r, double* z, bool forward) {
-  auto relax = [&](int i, auto backward) {
-    const Eigen::Vector3d s = Eigen::Map<const Eigen::Vector3d>(r + 3 * i) -
-                              BlockRowProduct<decltype(backward)::value>(level, level.ptr[i], level.ptr[i + 1], z);
-    Eigen::Map<Eigen::Vector3d>(z + 3 * i) = level.inv_diag[i] * s;
-  };
+// One sweep in place, forward or backward.
+void BlockGaussSeidel(BlockLevel& level, const double* r, double* z, bool forward) {
+  double* sum = level.sum.data();
+  std::fill(level.sum.begin(), level.sum.end(), 0.0);
+  auto product = [&](int m, const double* v, float* out) { level.val_single[m].AddProduct(v, out); };
   if (forward) {
-    for (int i = 0; i < level.n; ++i) relax(i, std::false_type());
-  } else {
-    for (int i = level.n - 1; i >= 0; --i) relax(i, std::true_type());
+    // The blocks right of the diagonal meet the values before the sweep:
+    // their products first, scattered from each row to the rows before it.
+    for (int i = 0; i < level.n; ++i) {
+      for (int m = level.lower_ptr[i]; m < level.lower_ptr[i + 1]; ++m) {
+        float t[3] = {0.0f, 0.0f, 0.0f};
+        product(m, z + 3 * i, t);
+        double* sj = sum + 3 * level.lower_col[m];
+        sj[0] += t[0], sj[1] += t[1], sj[2] += t[2];
+      }
+    }
+    for (int i = 0; i < level.n; ++i) {
+      float s[3] = {0.0f, 0.0f, 0.0f};
+      for (int m = level.lower_ptr[i]; m < level.lower_ptr[i + 1]; ++m) product(m, z + 3 * level.lower_col[m], s);
+      Eigen::Map<Eigen::Vector3d>(z + 3 * i) =
+          level.inv_diag[i] * (Eigen::Map<const Eigen::Vector3d>(r + 3 * i) - Eigen::Map<const Eigen::Vector3d>(sum + 3 * i) -
+                               Eigen::Vector3d(s[0], s[1], s[2]));
+    }
+    return;
+  }
+  // Backward: row i gathers its blocks left of the diagonal (views not yet
+  // updated), takes the sum scattered by the rows after it, and scatters its
+  // new value to the rows before it. Its blocks are walked backward too, so
+  // that the whole sweep streams in one direction, which the hardware
+  // prefetcher follows (rows backward with each row's blocks forward took
+  // more than twice the time of a forward sweep).
+  for (int i = level.n - 1; i >= 0; --i) {
+    const int first = level.lower_ptr[i], last = level.lower_ptr[i + 1];
+    float s[3] = {0.0f, 0.0f, 0.0f};
+    for (int m = last - 1; m >= first; --m) product(m, z + 3 * level.lower_col[m], s);
+    double* zi = z + 3 * i;
+    Eigen::Map<Eigen::Vector3d> new_zi(zi);
+    new_zi = level.inv_diag[i] * (Eigen::Map<const Eigen::Vector3d>(r + 3 * i) -
+                                  Eigen::Map<const Eigen::Vector3d>(sum + 3 * i) - Eigen::Vector3d(s[0], s[1], s[2]));
+    for (int m = last - 1; m >= first; --m) {
+      float t[3] = {0.0f, 0.0f, 0.0f};
+      product(m, zi, t);
+      double* sj = sum + 3 * level.lower_col[m];
+      sj[0] += t[0], sj[1] += t[1], sj[2] += t[2];
+    }
   }
 }
 
@@ -562,16 +595,10 @@ void AggregationAmg::Impl::CoarseCorrection(int l, const double* residual, doubl
 void AggregationAmg::Impl::BlockCycle(const double* r, double* z) {
   const std::size_t size = 3 * static_cast<std::size_t>(block.n);
   block.residual.resize(size);
+  block.sum.resize(size);
   BlockGaussSeidelFromZero(block, r, z);
-  for (int sweep = 1; sweep < block_sweeps; ++sweep) BlockGaussSeidel(block, r, z, /*forward=*/true);
-  if (block_sweeps == 1) {
-    // After one forward sweep from zero, (D + L) z = r: the residual is
-    // -U z, the blocks right of the diagonal only.
-    for (int i = 0; i < block.n; ++i) {
-      Eigen::Map<Eigen::Vector3d>(block.residual.data() + 3 * i) =
-          -BlockRowProduct(block, block.split[i], block.ptr[i + 1], z);
-    }
-  } else {
+  if (block_sweeps > 1) {
+    for (int sweep = 1; sweep < block_sweeps; ++sweep) BlockGaussSeidel(block, r, z, /*forward=*/true);
     BlockMultiply(block, z, block.residual.data());
     for (std::size_t k = 0; k < size; ++k) block.residual[k] = r[k] - block.residual[k];
   }
@@ -832,32 +859,19 @@ bool AggregationAmg::Impl::BuildBlocks(const Eigen::SparseMatrix<double>& lower)
     }
     block = BlockLevel();
     block.n = n;
-    block.ptr.assign(n + 1, 0);
     block.lower_ptr.assign(n + 1, 0);
     block.diagonal_base.resize(n);
     block.diagonal_stride.resize(n);
     for (int c = 0; c < n; ++c) {
       const int count = outer[3 * c + 1] - outer[3 * c];
-      for (int k = 3; k < count; k += 3) {
-        const int r = inner[outer[3 * c] + k] / 3;
-        ++block.ptr[r + 1];
-        ++block.lower_ptr[r + 1];
-        ++block.ptr[c + 1];
-      }
+      for (int k = 3; k < count; k += 3) ++block.lower_ptr[inner[outer[3 * c] + k] / 3 + 1];
     }
-    for (int i = 0; i < n; ++i) {
-      block.ptr[i + 1] += block.ptr[i];
-      block.lower_ptr[i + 1] += block.lower_ptr[i];
-    }
-    const int entries = block.ptr[n], lower_entries = block.lower_ptr[n];
-    block.split.resize(n);
-    block.col.resize(entries);
-    block.lower_col.resize(lower_entries);
-    block.mirror.resize(lower_entries);
-    block.lower_base.resize(lower_entries);
-    block.lower_stride.resize(lower_entries);
-    std::vector<int> fill(block.ptr.begin(), block.ptr.end() - 1);
-    std::vector<int> lower_fill(block.lower_ptr.begin(), block.lower_ptr.end() - 1);
+    for (int i = 0; i < n; ++i) block.lower_ptr[i + 1] += block.lower_ptr[i];
+    const int entries = block.lower_ptr[n];
+    block.lower_col.resize(entries);
+    block.base.resize(entries);
+    block.stride.resize(entries);
+    std::vector<int> fill(block.lower_ptr.begin(), block.lower_ptr.end() - 1);
     // The surrogate: lower triangle of the n x n matrix of the blocks'
     // traces / 3, in the same order.
     std::vector<int> surrogate_outer(n + 1, 0), surrogate_inner;
@@ -873,31 +887,22 @@ bool AggregationAmg::Impl::BuildBlocks(const Eigen::SparseMatrix<double>& lower)
         surrogate_base.push_back(outer[3 * c] + k);
         surrogate_stride.push_back(count);
         if (r == c) continue;
-        // Block (r, c) below the diagonal: row r sees it as stored, row c
-        // as its transpose, which is the same symmetric block.
-        const int m = lower_fill[r]++;
+        // Block (r, c) below the diagonal, in row r. Block columns are
+        // visited in ascending order, so each row's blocks are in ascending
+        // columns.
+        const int m = fill[r]++;
         block.lower_col[m] = c;
-        block.lower_base[m] = outer[3 * c] + k;
-        block.lower_stride[m] = count;
-        block.col[fill[r]++] = c;
-        block.mirror[m] = fill[c];
-        block.col[fill[c]++] = r;
+        block.base[m] = outer[3 * c] + k;
+        block.stride[m] = count;
       }
       surrogate_outer[c + 1] = static_cast<int>(surrogate_inner.size());
-    }
-    // Block columns are visited in ascending order, so row i receives its
-    // blocks left of the diagonal (from the columns c < i) in ascending c,
-    // then those of its own column, ascending too.
-    for (int i = 0; i < n; ++i) {
-      block.split[i] = block.ptr[i];
-      while (block.split[i] < block.ptr[i + 1] && block.col[block.split[i]] < i) ++block.split[i];
     }
     surrogate.resize(n, n);
     surrogate.resizeNonZeros(static_cast<Eigen::Index>(surrogate_inner.size()));
     std::copy(surrogate_outer.begin(), surrogate_outer.end(), surrogate.outerIndexPtr());
     std::copy(surrogate_inner.begin(), surrogate_inner.end(), surrogate.innerIndexPtr());
+    block.val.resize(entries);
     block.val_single.resize(entries);
-    block.val_lower.resize(lower_entries);
     block.diag.resize(n);
     block.inv_diag.resize(n);
     block_pattern_outer.assign(outer, outer + rows + 1);
@@ -910,17 +915,11 @@ bool AggregationAmg::Impl::BuildBlocks(const Eigen::SparseMatrix<double>& lower)
       for (int a = 0; a < 3; ++a) m(a, b) = values[base + b * stride + a];
     return m;
   };
-  // Row i's blocks left of the diagonal come first in its full pattern, in
-  // the order of its lower blocks.
-  for (int i = 0; i < n; ++i) {
-    for (int m = block.lower_ptr[i]; m < block.lower_ptr[i + 1]; ++m) {
-      const Eigen::Matrix3d g = read(block.lower_base[m], block.lower_stride[m]);
-      if (!g.allFinite()) return false;
-      block.val_lower[m] = SymmetricBlock<double>::Of(g);
-      const SymmetricBlock<float> single = SymmetricBlock<float>::Of(g);
-      block.val_single[block.ptr[i] + (m - block.lower_ptr[i])] = single;
-      block.val_single[block.mirror[m]] = single;
-    }
+  for (std::size_t m = 0; m < block.val.size(); ++m) {
+    const Eigen::Matrix3d g = read(block.base[m], block.stride[m]);
+    if (!g.allFinite()) return false;
+    block.val[m] = SymmetricBlock<double>::Of(g);
+    block.val_single[m] = SymmetricBlock<float>::Of(g);
   }
   for (int i = 0; i < n; ++i) {
     // The input's diagonal blocks hold the full 3x3; symmetrised against rounding.
