@@ -357,6 +357,28 @@ TEST(AggregationAmg, SolvesAMatrixWeightedLaplacianOfAnisotropicBlocks) {
   EXPECT_LE(MaxRelativeResidual(l.full, 2.0 * x, b), 1e-8);
 }
 
+TEST(AggregationAmg, AnyNumberOfSmoothingSweepsSolvesTheSystem) {
+  // The last forward sweep leaves the residual: after the sweep from zero
+  // (one sweep) or after in-place sweeps (two, three).
+  const Laplacian l = GridLaplacian(50, 2, 4.0, 33);
+  const Eigen::MatrixXd b = RandomRhs(l.n, 3, 34);
+  int previous = 0;
+  for (const int sweeps : {1, 2, 3}) {
+    SCOPED_TRACE("smoothing_sweeps " + std::to_string(sweeps));
+    AggregationAmg::Options options;
+    options.smoothing_sweeps = sweeps;
+    AggregationAmg amg(options);
+    ASSERT_TRUE(amg.Setup(l.lower));
+    Eigen::MatrixXd x;
+    bool converged = false;
+    const int iterations = amg.Solve(b, 1e-8, 100, &x, &converged);
+    EXPECT_TRUE(converged);
+    EXPECT_LE(MaxRelativeResidual(l.full, x, b), 1e-8);
+    if (previous > 0) EXPECT_LE(iterations, previous);
+    previous = iterations;
+  }
+}
+
 TEST(AggregationAmg, MoreBlockSmoothingSweepsSolveTheSameSystem) {
   // The in-place forward sweep and the residual after it, which one sweep
   // from zero does not use.

@@ -34,8 +34,14 @@ struct Level {
   // Per off-diagonal entry: its slot in the next level's entries, -1 - a for
   // the diagonal of aggregate a, or kSkip (see Impl::UpdateNumeric).
   std::vector<int> entry_target;
+  // The cycle's copy of the entries left of the diagonal, row by row (from
+  // lower_ptr[i]; lower_source: their positions in col / val). The passes
+  // of the cycle apply each entry to both of its nodes, gathering for one
+  // and scattering to the other, so they stream half the entries.
+  std::vector<int> lower_ptr, lower_col, lower_source;
+  std::vector<double> lower_val;
   // Work vectors, K values per node (row-major blocks).
-  std::vector<double> residual;
+  std::vector<double> residual, sum;
   // Coarse-correction work on the next level's nodes.
   std::vector<double> rc, c1, v1, rt, c2, v2;
   std::size_t NonZeros() const { return col.size() + static_cast<std::size_t>(n); }
@@ -200,56 +206,115 @@ void Galerkin(const Level& fine, const std::vector<int>& aggregate, int num_coar
 template <int K>
 using Block = std::array<double, K>;
 
+// The entries left of the diagonal of every row (Level::lower_ptr ...),
+// indexed on a new pattern, their values on every setup.
+void IndexLower(Level* level_out) {
+  Level& level = *level_out;
+  level.lower_ptr.assign(level.n + 1, 0);
+  level.lower_col.clear();
+  level.lower_source.clear();
+  for (int i = 0; i < level.n; ++i) {
+    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
+      if (level.col[p] >= i) continue;
+      level.lower_col.push_back(level.col[p]);
+      level.lower_source.push_back(p);
+    }
+    level.lower_ptr[i + 1] = static_cast<int>(level.lower_col.size());
+  }
+}
+
+void UpdateLower(Level* level) {
+  level->lower_val.resize(level->lower_source.size());
+  for (std::size_t m = 0; m < level->lower_source.size(); ++m) level->lower_val[m] = level->val[level->lower_source[m]];
+}
+
+// y = A x: each entry for its row (gathered) and for its column (scattered
+// to a row already written, which only rows below add to).
 template <int K>
 void Multiply(const Level& level, const double* x, double* y) {
   for (int i = 0; i < level.n; ++i) {
+    const double* xi = x + K * i;
     Block<K> s;
-    for (int c = 0; c < K; ++c) s[c] = level.diag[i] * x[K * i + c];
-    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
-      const double a = level.val[p];
-      const double* xj = x + K * level.col[p];
-      for (int c = 0; c < K; ++c) s[c] += a * xj[c];
+    for (int c = 0; c < K; ++c) s[c] = level.diag[i] * xi[c];
+    for (int m = level.lower_ptr[i]; m < level.lower_ptr[i + 1]; ++m) {
+      const double a = level.lower_val[m];
+      const int j = level.lower_col[m];
+      for (int c = 0; c < K; ++c) {
+        s[c] += a * x[K * j + c];
+        y[K * j + c] += a * xi[c];
+      }
     }
     for (int c = 0; c < K; ++c) y[K * i + c] = s[c];
   }
 }
 
-// z = one forward Gauss-Seidel sweep on A z = r from z = 0.
+// Forward Gauss-Seidel sweeps on A z = r, the first from z = 0, leaving the
+// residual r - A z in `residual`. Row i gathers its entries left of the
+// diagonal from the nodes before it (already updated) and takes the sum
+// over its entries right of the diagonal, sum_i = (U z)_i at the values
+// before the sweep, which the rows after it scattered in the sweep before
+// (zero in the first); it then scatters its new value to the rows before it,
+// which rebuilds sum for the next sweep. Each entry streams once per sweep,
+// and the last sweep's residual needs no product of its own: row i's
+// equation holds but for the change in its sum, residual_i = sum_i before -
+// sum_i after.
 template <int K>
-void ForwardGaussSeidel(const Level& level, const double* r, double* z) {
-  for (int i = 0; i < level.n; ++i) {
-    Block<K> s;
-    for (int c = 0; c < K; ++c) s[c] = r[K * i + c];
-    for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
-      const int j = level.col[p];
-      if (j >= i) continue;  // not yet visited: still zero
-      const double a = level.val[p];
-      for (int c = 0; c < K; ++c) s[c] -= a * z[K * j + c];
+void ForwardGaussSeidel(Level& level, const double* r, double* z, int sweeps) {
+  double* sum = level.sum.data();
+  double* residual = level.residual.data();
+  std::fill(level.sum.begin(), level.sum.end(), 0.0);
+  for (int sweep = 0; sweep < sweeps; ++sweep) {
+    const bool last = sweep + 1 == sweeps;
+    for (int i = 0; i < level.n; ++i) {
+      const int first = level.lower_ptr[i], end = level.lower_ptr[i + 1];
+      Block<K> s;
+      for (int c = 0; c < K; ++c) s[c] = r[K * i + c] - sum[K * i + c];
+      for (int m = first; m < end; ++m) {
+        const double a = level.lower_val[m];
+        const double* zj = z + K * level.lower_col[m];
+        for (int c = 0; c < K; ++c) s[c] -= a * zj[c];
+      }
+      double* zi = z + K * i;
+      for (int c = 0; c < K; ++c) {
+        zi[c] = s[c] * level.inv_diag[i];
+        if (last) residual[K * i + c] = sum[K * i + c];
+        sum[K * i + c] = 0.0;
+      }
+      for (int m = first; m < end; ++m) {
+        const double a = level.lower_val[m];
+        double* sj = sum + K * level.lower_col[m];
+        for (int c = 0; c < K; ++c) sj[c] += a * zi[c];
+      }
     }
-    for (int c = 0; c < K; ++c) z[K * i + c] = s[c] * level.inv_diag[i];
   }
+  for (std::size_t k = 0; k < level.residual.size(); ++k) residual[k] -= sum[k];
 }
 
-// Gauss-Seidel update of row i of A z = r, in place.
+// One backward Gauss-Seidel sweep in place: row i gathers its entries left
+// of the diagonal (nodes not yet updated), takes the sum its rows after it
+// scattered, and scatters its new value to the rows before it. Each row's
+// entries are walked backward too, so that the sweep streams in one
+// direction, which the hardware prefetcher follows.
 template <int K>
-inline void RelaxRow(const Level& level, const double* r, double* z, int i) {
-  Block<K> s;
-  for (int c = 0; c < K; ++c) s[c] = r[K * i + c];
-  for (int p = level.ptr[i]; p < level.ptr[i + 1]; ++p) {
-    const double a = level.val[p];
-    const double* zj = z + K * level.col[p];
-    for (int c = 0; c < K; ++c) s[c] -= a * zj[c];
-  }
-  for (int c = 0; c < K; ++c) z[K * i + c] = s[c] * level.inv_diag[i];
-}
-
-// One Gauss-Seidel sweep on A z = r, in place, forward or backward.
-template <int K>
-void GaussSeidel(const Level& level, const double* r, double* z, bool forward) {
-  if (forward) {
-    for (int i = 0; i < level.n; ++i) RelaxRow<K>(level, r, z, i);
-  } else {
-    for (int i = level.n - 1; i >= 0; --i) RelaxRow<K>(level, r, z, i);
+void BackwardGaussSeidel(Level& level, const double* r, double* z) {
+  double* sum = level.sum.data();
+  std::fill(level.sum.begin(), level.sum.end(), 0.0);
+  for (int i = level.n - 1; i >= 0; --i) {
+    const int first = level.lower_ptr[i], end = level.lower_ptr[i + 1];
+    Block<K> s;
+    for (int c = 0; c < K; ++c) s[c] = r[K * i + c] - sum[K * i + c];
+    for (int m = end - 1; m >= first; --m) {
+      const double a = level.lower_val[m];
+      const double* zj = z + K * level.lower_col[m];
+      for (int c = 0; c < K; ++c) s[c] -= a * zj[c];
+    }
+    double* zi = z + K * i;
+    for (int c = 0; c < K; ++c) zi[c] = s[c] * level.inv_diag[i];
+    for (int m = end - 1; m >= first; --m) {
+      const double a = level.lower_val[m];
+      double* sj = sum + K * level.lower_col[m];
+      for (int c = 0; c < K; ++c) sj[c] += a * zi[c];
+    }
   }
 }
 
@@ -522,13 +587,11 @@ void AggregationAmg::Impl::Cycle(int l, const double* r, double* z) {
     out = coarsest.solve(rhs);
     return;
   }
-  ForwardGaussSeidel<K>(level, r, z);
-  for (int sweep = 1; sweep < sweeps; ++sweep) GaussSeidel<K>(level, r, z, /*forward=*/true);
   level.residual.resize(static_cast<std::size_t>(K) * n);
-  Multiply<K>(level, z, level.residual.data());
-  for (std::size_t k = 0; k < level.residual.size(); ++k) level.residual[k] = r[k] - level.residual[k];
+  level.sum.resize(static_cast<std::size_t>(K) * n);
+  ForwardGaussSeidel<K>(level, r, z, sweeps);
   CoarseCorrection<K>(l, level.residual.data(), z);
-  for (int sweep = 0; sweep < sweeps; ++sweep) GaussSeidel<K>(level, r, z, /*forward=*/false);
+  for (int sweep = 0; sweep < sweeps; ++sweep) BackwardGaussSeidel<K>(level, r, z);
 }
 
 template <int K>
@@ -773,7 +836,8 @@ bool AggregationAmg::Impl::BuildHierarchy(const AggregationAmg::Options& options
     pattern_n = -1;
     return false;
   }
-  if (reuse && !pattern_changed) {
+  const bool aggregates_rebuilt = !reuse || pattern_changed;
+  if (!aggregates_rebuilt) {
     UpdateNumeric();
   } else {
     levels.resize(1);
@@ -808,6 +872,8 @@ bool AggregationAmg::Impl::BuildHierarchy(const AggregationAmg::Options& options
       if (!(level.diag[i] > 0.0) || !std::isfinite(level.diag[i])) return false;
       level.inv_diag[i] = 1.0 / level.diag[i];
     }
+    if (aggregates_rebuilt) IndexLower(&level);
+    UpdateLower(&level);
   }
   return FactorCoarsest(/*analyse=*/!reuse || pattern_changed);
 }
