@@ -184,8 +184,10 @@ struct RotationAveragingOptions {
   // converges linearly, so a step solved more accurately than that
   // contraction buys nothing (inexact Newton): at 1e-2 the scale graphs of
   // 10,000 and 100,000 views end at the final cost of 1e-4 to seven digits,
-  // with its median error and views off; at 100,000 views in 15-25% less
-  // time (results/scale.md, "Multigrid solve tolerance").
+  // with its median error and views off, in a quarter less time with
+  // anisotropic covariances at 100,000 views and a sixth less at 10,000;
+  // isotropic ones take about the same time either way (results/scale.md,
+  // "Multigrid solve tolerance").
   double multigrid_linear_solve_tolerance = 1e-2;
   int num_threads = 1;                 // Ceres threads; the IRLS solver is single-threaded
   // Posterior covariances of the views (RotationAveragingSummary::
