@@ -393,8 +393,8 @@ void BlockMultiply(const BlockLevel& level, const double* x, double* y) {
 // information matrix couples them (a scalar smoother would leave the error
 // along its weak axes). Row i's blocks left of the diagonal are gathered
 // from the views before it; those right of it, which a sweep meets as
-// blocks left of the diagonal of later rows, are scattered into
-// `right` (sum over j > i of H_ij z_j) as those rows are solved, so each
+// blocks left of the diagonal of later rows, are scattered into `sum`
+// (sum over j > i of H_ij z_j) as those rows are solved, so each
 // block streams once per sweep, in the direction of the sweep, and stays
 // in cache between its gather and its scatter. Single precision.
 //

@@ -234,10 +234,9 @@ class OnlineAverager {
   // The background full solve's own copy of the graph, brought up to date at
   // each start by replaying in the background thread what was added to
   // graph_ since the last start: starting one then costs the additions, not
-  // a copy of the whole graph in the solving thread (10,000 keyframes: a
-  // copy took 5-7 ms of the re-solve that started it). Only a running
-  // background solve touches it; copied afresh after Reset and LoadGraph,
-  // and when the additions outgrow half the graph.
+  // a copy of the whole graph in the solving thread, which grows with the
+  // map. Only a running background solve touches it; copied afresh after
+  // Reset and LoadGraph, and when the additions outgrow half the graph.
   std::unique_ptr<ViewGraph> background_graph_;
   std::vector<GraphAddition> background_additions_;
   bool background_graph_valid_ = false;
