@@ -248,76 +248,6 @@ void Multiply(const Level& level, const double* x, double* y) {
   }
 }
 
-// Forward Gauss-Seidel sweeps on A z = r, the first from z = 0, leaving the
-// residual r - A z in `residual`. Row i gathers its entries left of the
-// diagonal from the nodes before it (already updated) and takes the sum
-// over its entries right of the diagonal, sum_i = (U z)_i at the values
-// before the sweep, which the rows after it scattered in the sweep before
-// (zero in the first); it then scatters its new value to the rows before it,
-// which rebuilds sum for the next sweep. Each entry streams once per sweep,
-// and the last sweep's residual needs no product of its own: row i's
-// equation holds but for the change in its sum, residual_i = sum_i before -
-// sum_i after.
-template <int K>
-void ForwardGaussSeidel(Level& level, const double* r, double* z, int sweeps) {
-  double* sum = level.sum.data();
-  double* residual = level.residual.data();
-  std::fill(level.sum.begin(), level.sum.end(), 0.0);
-  for (int sweep = 0; sweep < sweeps; ++sweep) {
-    const bool last = sweep + 1 == sweeps;
-    for (int i = 0; i < level.n; ++i) {
-      const int first = level.lower_ptr[i], end = level.lower_ptr[i + 1];
-      Block<K> s;
-      for (int c = 0; c < K; ++c) s[c] = r[K * i + c] - sum[K * i + c];
-      for (int m = first; m < end; ++m) {
-        const double a = level.lower_val[m];
-        const double* zj = z + K * level.lower_col[m];
-        for (int c = 0; c < K; ++c) s[c] -= a * zj[c];
-      }
-      double* zi = z + K * i;
-      for (int c = 0; c < K; ++c) {
-        zi[c] = s[c] * level.inv_diag[i];
-        if (last) residual[K * i + c] = sum[K * i + c];
-        sum[K * i + c] = 0.0;
-      }
-      for (int m = first; m < end; ++m) {
-        const double a = level.lower_val[m];
-        double* sj = sum + K * level.lower_col[m];
-        for (int c = 0; c < K; ++c) sj[c] += a * zi[c];
-      }
-    }
-  }
-  for (std::size_t k = 0; k < level.residual.size(); ++k) residual[k] -= sum[k];
-}
-
-// One backward Gauss-Seidel sweep in place: row i gathers its entries left
-// of the diagonal (nodes not yet updated), takes the sum its rows after it
-// scattered, and scatters its new value to the rows before it. Each row's
-// entries are walked backward too, so that the sweep streams in one
-// direction, which the hardware prefetcher follows.
-template <int K>
-void BackwardGaussSeidel(Level& level, const double* r, double* z) {
-  double* sum = level.sum.data();
-  std::fill(level.sum.begin(), level.sum.end(), 0.0);
-  for (int i = level.n - 1; i >= 0; --i) {
-    const int first = level.lower_ptr[i], end = level.lower_ptr[i + 1];
-    Block<K> s;
-    for (int c = 0; c < K; ++c) s[c] = r[K * i + c] - sum[K * i + c];
-    for (int m = end - 1; m >= first; --m) {
-      const double a = level.lower_val[m];
-      const double* zj = z + K * level.lower_col[m];
-      for (int c = 0; c < K; ++c) s[c] -= a * zj[c];
-    }
-    double* zi = z + K * i;
-    for (int c = 0; c < K; ++c) zi[c] = s[c] * level.inv_diag[i];
-    for (int m = end - 1; m >= first; --m) {
-      const double a = level.lower_val[m];
-      double* sj = sum + K * level.lower_col[m];
-      for (int c = 0; c < K; ++c) sj[c] += a * zi[c];
-    }
-  }
-}
-
 template <int K>
 Block<K> Dot(const std::vector<double>& a, const std::vector<double>& b, int n) {
   Block<K> s{};
@@ -388,84 +318,117 @@ void BlockMultiply(const BlockLevel& level, const double* x, double* y) {
   }
 }
 
-// Block Gauss-Seidel on H z = r: each view's three unknowns are solved
-// together with its diagonal block, which is where an anisotropic
-// information matrix couples them (a scalar smoother would leave the error
-// along its weak axes). Row i's blocks left of the diagonal are gathered
-// from the views before it; those right of it, which a sweep meets as
-// blocks left of the diagonal of later rows, are scattered into `sum`
-// (sum over j > i of H_ij z_j) as those rows are solved, so each
-// block streams once per sweep, in the direction of the sweep, and stays
-// in cache between its gather and its scatter. Single precision.
+// Gauss-Seidel on A z = r over a level whose entries left of the diagonal
+// are stored row by row (Level, BlockLevel). Row i gathers its entries left
+// of the diagonal from the nodes before it and takes sum_i, the sum over its
+// entries right of the diagonal, which the rows after it scattered as they
+// were solved; it then scatters its new value to the rows before it. Each
+// entry streams once per sweep, in the direction of the sweep, and stays in
+// cache between its gather and its scatter. `Entries` applies the level's
+// entries: ScalarEntries (K columns apart) or BlockEntries (3x3 blocks, so
+// each view's three unknowns are solved together with its diagonal block,
+// where an anisotropic information matrix couples them; a scalar smoother
+// would leave the error along its weak axes).
 //
-// A forward sweep from z = 0 (the blocks right of the diagonal still meet
-// zeros), leaving the residual r - H z = -U z in `residual`.
-void BlockGaussSeidelFromZero(BlockLevel& level, const double* r, double* z) {
+// Forward sweeps, the first from z = 0, leaving the residual r - A z in
+// level.residual. In a forward sweep sum_i is (U z)_i at the values before
+// the sweep, scattered in the sweep before (zero in the first), and the
+// sweep's own scatters rebuild it for the next; so the last sweep's residual
+// needs no product of its own: row i's equation holds but for the change in
+// its sum, residual_i = sum_i before - sum_i after.
+template <typename Entries>
+void ForwardGaussSeidel(const Entries& entries, const double* r, double* z, int sweeps) {
+  constexpr int V = Entries::kValues;
+  auto& level = entries.level;
+  double* sum = level.sum.data();
   double* residual = level.residual.data();
-  std::fill(level.residual.begin(), level.residual.end(), 0.0);
-  for (int i = 0; i < level.n; ++i) {
-    const int first = level.lower_ptr[i], last = level.lower_ptr[i + 1];
-    float s[3] = {0.0f, 0.0f, 0.0f};
-    for (int m = first; m < last; ++m) level.val_single[m].AddProduct(z + 3 * level.lower_col[m], s);
-    double* zi = z + 3 * i;
-    Eigen::Map<Eigen::Vector3d> new_zi(zi);
-    new_zi = level.inv_diag[i] * (Eigen::Map<const Eigen::Vector3d>(r + 3 * i) - Eigen::Vector3d(s[0], s[1], s[2]));
-    for (int m = first; m < last; ++m) {
-      float t[3] = {0.0f, 0.0f, 0.0f};
-      level.val_single[m].AddProduct(zi, t);
-      double* rj = residual + 3 * level.lower_col[m];
-      rj[0] -= t[0], rj[1] -= t[1], rj[2] -= t[2];
+  std::fill(level.sum.begin(), level.sum.end(), 0.0);
+  for (int sweep = 0; sweep < sweeps; ++sweep) {
+    const bool last = sweep + 1 == sweeps;
+    for (int i = 0; i < level.n; ++i) {
+      const int first = level.lower_ptr[i], end = level.lower_ptr[i + 1];
+      double* sum_i = sum + V * i;
+      auto s = entries.Begin(r + V * i, sum_i);
+      for (int m = first; m < end; ++m) entries.Gather(m, z + V * level.lower_col[m], &s);
+      double* zi = z + V * i;
+      entries.Finish(i, r + V * i, sum_i, s, zi);
+      for (int c = 0; c < V; ++c) {
+        if (last) residual[V * i + c] = sum_i[c];
+        sum_i[c] = 0.0;
+      }
+      for (int m = first; m < end; ++m) entries.Scatter(m, zi, sum + V * level.lower_col[m]);
     }
+  }
+  for (std::size_t k = 0; k < level.residual.size(); ++k) residual[k] -= sum[k];
+}
+
+// One backward sweep in place: sum_i holds the rows after i at their new
+// values. Each row's entries are walked backward too, so that the whole
+// sweep streams in one direction, which the hardware prefetcher follows
+// (rows backward with each row's blocks forward took more than twice the
+// time of a forward sweep).
+template <typename Entries>
+void BackwardGaussSeidel(const Entries& entries, const double* r, double* z) {
+  constexpr int V = Entries::kValues;
+  auto& level = entries.level;
+  double* sum = level.sum.data();
+  std::fill(level.sum.begin(), level.sum.end(), 0.0);
+  for (int i = level.n - 1; i >= 0; --i) {
+    const int first = level.lower_ptr[i], end = level.lower_ptr[i + 1];
+    auto s = entries.Begin(r + V * i, sum + V * i);
+    for (int m = end - 1; m >= first; --m) entries.Gather(m, z + V * level.lower_col[m], &s);
+    double* zi = z + V * i;
+    entries.Finish(i, r + V * i, sum + V * i, s, zi);
+    for (int m = end - 1; m >= first; --m) entries.Scatter(m, zi, sum + V * level.lower_col[m]);
   }
 }
 
-// One sweep in place, forward or backward.
-void BlockGaussSeidel(BlockLevel& level, const double* r, double* z, bool forward) {
-  double* sum = level.sum.data();
-  std::fill(level.sum.begin(), level.sum.end(), 0.0);
-  auto product = [&](int m, const double* v, float* out) { level.val_single[m].AddProduct(v, out); };
-  if (forward) {
-    // The blocks right of the diagonal meet the values before the sweep:
-    // their products first, scattered from each row to the rows before it.
-    for (int i = 0; i < level.n; ++i) {
-      for (int m = level.lower_ptr[i]; m < level.lower_ptr[i + 1]; ++m) {
-        float t[3] = {0.0f, 0.0f, 0.0f};
-        product(m, z + 3 * i, t);
-        double* sj = sum + 3 * level.lower_col[m];
-        sj[0] += t[0], sj[1] += t[1], sj[2] += t[2];
-      }
-    }
-    for (int i = 0; i < level.n; ++i) {
-      float s[3] = {0.0f, 0.0f, 0.0f};
-      for (int m = level.lower_ptr[i]; m < level.lower_ptr[i + 1]; ++m) product(m, z + 3 * level.lower_col[m], s);
-      Eigen::Map<Eigen::Vector3d>(z + 3 * i) =
-          level.inv_diag[i] * (Eigen::Map<const Eigen::Vector3d>(r + 3 * i) - Eigen::Map<const Eigen::Vector3d>(sum + 3 * i) -
-                               Eigen::Vector3d(s[0], s[1], s[2]));
-    }
-    return;
+// A scalar level's entries, applied to K columns apart: s = r_i - sum_i
+// minus the gathered products, z_i = s / a_ii.
+template <int K>
+struct ScalarEntries {
+  static constexpr int kValues = K;
+  Level& level;
+  Block<K> Begin(const double* ri, const double* sum_i) const {
+    Block<K> s;
+    for (int c = 0; c < K; ++c) s[c] = ri[c] - sum_i[c];
+    return s;
   }
-  // Backward: row i gathers its blocks left of the diagonal (views not yet
-  // updated), takes the sum scattered by the rows after it, and scatters its
-  // new value to the rows before it. Its blocks are walked backward too, so
-  // that the whole sweep streams in one direction, which the hardware
-  // prefetcher follows (rows backward with each row's blocks forward took
-  // more than twice the time of a forward sweep).
-  for (int i = level.n - 1; i >= 0; --i) {
-    const int first = level.lower_ptr[i], last = level.lower_ptr[i + 1];
+  void Gather(int m, const double* zj, Block<K>* s) const {
+    const double a = level.lower_val[m];
+    for (int c = 0; c < K; ++c) (*s)[c] -= a * zj[c];
+  }
+  void Finish(int i, const double*, const double*, const Block<K>& s, double* zi) const {
+    for (int c = 0; c < K; ++c) zi[c] = s[c] * level.inv_diag[i];
+  }
+  void Scatter(int m, const double* zi, double* sj) const {
+    const double a = level.lower_val[m];
+    for (int c = 0; c < K; ++c) sj[c] += a * zi[c];
+  }
+};
+
+// A block level's entries in single precision (the smoother's blocks): the
+// gathered products summed in single precision, z_i = D_i^-1 (r_i - sum_i -
+// that sum).
+struct BlockEntries {
+  static constexpr int kValues = 3;
+  struct Sum {
     float s[3] = {0.0f, 0.0f, 0.0f};
-    for (int m = last - 1; m >= first; --m) product(m, z + 3 * level.lower_col[m], s);
-    double* zi = z + 3 * i;
+  };
+  BlockLevel& level;
+  Sum Begin(const double*, const double*) const { return Sum(); }
+  void Gather(int m, const double* zj, Sum* s) const { level.val_single[m].AddProduct(zj, s->s); }
+  void Finish(int i, const double* ri, const double* sum_i, const Sum& s, double* zi) const {
     Eigen::Map<Eigen::Vector3d> new_zi(zi);
-    new_zi = level.inv_diag[i] * (Eigen::Map<const Eigen::Vector3d>(r + 3 * i) -
-                                  Eigen::Map<const Eigen::Vector3d>(sum + 3 * i) - Eigen::Vector3d(s[0], s[1], s[2]));
-    for (int m = last - 1; m >= first; --m) {
-      float t[3] = {0.0f, 0.0f, 0.0f};
-      product(m, zi, t);
-      double* sj = sum + 3 * level.lower_col[m];
-      sj[0] += t[0], sj[1] += t[1], sj[2] += t[2];
-    }
+    new_zi = level.inv_diag[i] * (Eigen::Map<const Eigen::Vector3d>(ri) - Eigen::Map<const Eigen::Vector3d>(sum_i) -
+                                  Eigen::Vector3d(s.s[0], s.s[1], s.s[2]));
   }
-}
+  void Scatter(int m, const double* zi, double* sj) const {
+    float t[3] = {0.0f, 0.0f, 0.0f};
+    level.val_single[m].AddProduct(zi, t);
+    sj[0] += t[0], sj[1] += t[1], sj[2] += t[2];
+  }
+};
 
 }  // namespace
 
@@ -589,9 +552,10 @@ void AggregationAmg::Impl::Cycle(int l, const double* r, double* z) {
   }
   level.residual.resize(static_cast<std::size_t>(K) * n);
   level.sum.resize(static_cast<std::size_t>(K) * n);
-  ForwardGaussSeidel<K>(level, r, z, sweeps);
+  const ScalarEntries<K> entries{level};
+  ForwardGaussSeidel(entries, r, z, sweeps);
   CoarseCorrection<K>(l, level.residual.data(), z);
-  for (int sweep = 0; sweep < sweeps; ++sweep) BackwardGaussSeidel<K>(level, r, z);
+  for (int sweep = 0; sweep < sweeps; ++sweep) BackwardGaussSeidel(entries, r, z);
 }
 
 template <int K>
@@ -659,14 +623,10 @@ void AggregationAmg::Impl::BlockCycle(const double* r, double* z) {
   const std::size_t size = 3 * static_cast<std::size_t>(block.n);
   block.residual.resize(size);
   block.sum.resize(size);
-  BlockGaussSeidelFromZero(block, r, z);
-  if (block_sweeps > 1) {
-    for (int sweep = 1; sweep < block_sweeps; ++sweep) BlockGaussSeidel(block, r, z, /*forward=*/true);
-    BlockMultiply(block, z, block.residual.data());
-    for (std::size_t k = 0; k < size; ++k) block.residual[k] = r[k] - block.residual[k];
-  }
+  const BlockEntries entries{block};
+  ForwardGaussSeidel(entries, r, z, block_sweeps);
   CoarseCorrection<3>(0, block.residual.data(), z);
-  for (int sweep = 0; sweep < block_sweeps; ++sweep) BlockGaussSeidel(block, r, z, /*forward=*/false);
+  for (int sweep = 0; sweep < block_sweeps; ++sweep) BackwardGaussSeidel(entries, r, z);
 }
 
 // Flexible CG on n nodes of K independent columns (apply: y = A x,
@@ -875,7 +835,7 @@ bool AggregationAmg::Impl::BuildHierarchy(const AggregationAmg::Options& options
     if (aggregates_rebuilt) IndexLower(&level);
     UpdateLower(&level);
   }
-  return FactorCoarsest(/*analyse=*/!reuse || pattern_changed);
+  return FactorCoarsest(/*analyse=*/aggregates_rebuilt);
 }
 
 bool AggregationAmg::Setup(const Eigen::SparseMatrix<double>& lower, bool reuse_aggregates) {
