@@ -115,8 +115,9 @@ std::size_t OnlineAverager::DrainQueue() {
         const ViewId id = keys_.size();
         ids_[key] = id;
         keys_.push_back(key);
-        graph_.AddView(id, KeyframeName(key));
-        if (background_graph_valid_) RecordAddition(GraphAddition{id, KeyframeName(key), false, RelativeRotation()});
+        const std::string name = KeyframeName(key);
+        graph_.AddView(id, name);
+        if (background_graph_valid_) RecordAddition(GraphAddition{id, name, false, RelativeRotation()});
         new_views_.push_back(id);
         ids[k] = id;
       }
