@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <limits>
+#include <random>
 
 #include <set>
 #include <thread>
@@ -417,6 +418,91 @@ TEST(RotationAveraging, CovarianceWeightingWithoutCovariancesFallsBackWithAWarni
   ASSERT_FALSE(summary.warnings.empty());
   EXPECT_NE(summary.warnings[0].find("no weighting"), std::string::npos);
   EXPECT_NEAR(summary.loss_scale, DegToRad(5.0), 1e-12);  // radians default, not standard deviations
+}
+
+// Edges whose stated covariances come from "pixel noise" (standard
+// deviations 0.005 to 0.5 deg, log-uniform) but whose errors also carry a
+// part that does not shrink with them: e ~ N(0, C + floor^2 I). A fraction of
+// the edges are outliers (random rotations) with covariances like the rest.
+SyntheticGraph GraphWithCovarianceFloor(std::uint64_t seed, double floor_deg, double outlier_ratio) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  auto random_rotation = [&] {
+    Eigen::Quaterniond q(normal(rng), normal(rng), normal(rng), normal(rng));
+    return Eigen::Matrix3d(q.normalized().toRotationMatrix());
+  };
+  SyntheticGraph sg;
+  const int n = 120;
+  for (int v = 0; v < n; ++v) {
+    sg.graph.AddView(v);
+    sg.ground_truth[v] = random_rotation();
+  }
+  std::set<std::pair<int, int>> pairs;
+  for (int v = 0; v + 1 < n; ++v) pairs.insert({v, v + 1});
+  std::uniform_int_distribution<int> view(0, n - 1);
+  while (pairs.size() < 4u * n) {
+    const int a = view(rng), b = view(rng);
+    if (a != b) pairs.insert({std::min(a, b), std::max(a, b)});
+  }
+  for (const auto& [a, b] : pairs) {
+    const double stated = DegToRad(0.005 * std::pow(100.0, uniform(rng)));
+    const double actual = std::hypot(stated, DegToRad(floor_deg));
+    const bool outlier = uniform(rng) < outlier_ratio;
+    RelativeRotation e;
+    e.view1 = a;
+    e.view2 = b;
+    const Eigen::Vector3d eta(actual * normal(rng), actual * normal(rng), actual * normal(rng));
+    e.rotation = outlier ? random_rotation()
+                         : Eigen::Matrix3d(sg.ground_truth[a] * sg.ground_truth[b].transpose() * ExpSO3(eta));
+    e.has_covariance = true;
+    e.covariance = stated * stated * Eigen::Matrix3d::Identity();
+    sg.graph.AddEdge(e);
+    sg.edge_is_outlier.push_back(outlier);
+  }
+  return sg;
+}
+
+RotationAveragingOptions WithSelfCalibration(CovarianceSelfCalibration c) {
+  RotationAveragingOptions o;
+  o.self_calibration = c;
+  return o;
+}
+
+// The floor is recovered from the residuals alone, outliers do not move it,
+// and weighting by C + floor^2 I beats widening the loss for C.
+TEST(RotationAveraging, CovarianceFloorIsRecoveredAndBeatsWideningTheLoss) {
+  const double floor_deg = 0.1;
+  double floor_error = 0.0, widened_error = 0.0;
+  for (std::uint64_t seed : {1, 2, 3}) {
+    const SyntheticGraph sg = GraphWithCovarianceFloor(seed, floor_deg, 0.15);
+    const Outcome floor = SolveAndScore(sg, WithSelfCalibration(CovarianceSelfCalibration::kFloor));
+    const Outcome widened = SolveAndScore(sg, WithSelfCalibration(CovarianceSelfCalibration::kLossScale));
+    ASSERT_EQ(floor.summary.components.size(), 1u);
+    const ComponentSummary& c = floor.summary.components[0];
+    EXPECT_NEAR(RadToDeg(c.covariance_floor_rad), floor_deg, 0.2 * floor_deg) << "seed " << seed;
+    EXPECT_EQ(c.loss_scale, DefaultLossScale(RotationAveragingOptions()));  // not widened
+    EXPECT_LT(c.noise_scale, 1.5);
+    EXPECT_EQ(widened.summary.components[0].covariance_floor_rad, 0.0);
+    std::printf("seed %d: floor %.4f deg, median error %.4f deg; loss scale %.2f: %.4f deg\n", static_cast<int>(seed),
+                RadToDeg(c.covariance_floor_rad), floor.eval.median_error_deg,
+                widened.summary.components[0].loss_scale, widened.eval.median_error_deg);
+    floor_error += floor.eval.median_error_deg;
+    widened_error += widened.eval.median_error_deg;
+  }
+  EXPECT_LT(floor_error, 0.8 * widened_error);
+}
+
+// Covariances that describe the errors get no floor (or a negligible one),
+// and the solution is the one without it.
+TEST(RotationAveraging, CalibratedCovariancesGetNoCovarianceFloor) {
+  for (std::uint64_t seed : {1, 2, 3}) {
+    const SyntheticGraph sg = GraphWithCovarianceFloor(seed, 0.0, 0.15);
+    const Outcome floor = SolveAndScore(sg, WithSelfCalibration(CovarianceSelfCalibration::kFloor));
+    const Outcome plain = SolveAndScore(sg, WithSelfCalibration(CovarianceSelfCalibration::kLossScale));
+    EXPECT_LT(RadToDeg(floor.summary.components[0].covariance_floor_rad), 0.002) << "seed " << seed;
+    EXPECT_NEAR(floor.eval.median_error_deg, plain.eval.median_error_deg, 0.1 * plain.eval.median_error_deg);
+  }
 }
 
 // The online case: all but one view warm-started. The new view is placed by

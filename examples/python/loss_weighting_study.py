@@ -9,7 +9,7 @@ and AUC at the chosen threshold), rows the losses and columns the weightings,
 as in Table 2 of Zhang, Larsson and Barath (CVPR 2023).
 
     # a graph written by `rotavg images --graph-out` and its ground truth
-    python3 loss_weighting_study.py --graph graph.txt --gt castle-P19
+    python3 loss_weighting_study.py --graph graph.txt --gt castle-P19 --self-calibration floor
     # any graph file rotavg reads, with the paper's covariance scaling
     python3 loss_weighting_study.py --graph EGs.txt --gt gt.csv --normalization paper
     # no files: a synthetic graph with anisotropic covariances and outliers
@@ -35,6 +35,9 @@ def main(argv=None):
     parser.add_argument("--gt", help="ground truth for --graph (Strecha folder, COLMAP images.txt, CSV, graph)")
     parser.add_argument("--normalization", default="std", choices=["std", "paper"],
                         help="covariance units for covariance weighting (default: std)")
+    parser.add_argument("--self-calibration", default="loss_scale", choices=["loss_scale", "floor"],
+                        help="optimistic covariances: widen the loss (default) or add a covariance floor "
+                             "(what `rotavg images` does)")
     parser.add_argument("--auc", type=float, default=5.0, help="AUC threshold in degrees (default 5)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the synthetic graph")
     parser.add_argument("--markdown", help="also write the tables to this file")
@@ -62,7 +65,8 @@ def main(argv=None):
     start = time.perf_counter()
     for a, loss in enumerate(losses):
         for b, weighting in enumerate(weightings):
-            solution = ra.solve(graph, loss=loss, weighting=weighting, covariance_normalization=args.normalization)
+            solution = ra.solve(graph, loss=loss, weighting=weighting, covariance_normalization=args.normalization,
+                                self_calibration=args.self_calibration)
             scores = ra.evaluate(solution.named(), truth, auc_thresholds_deg=[args.auc])
             median[a, b] = scores["median_error_deg"]
             auc[a, b] = 100.0 * scores["auc"][args.auc]

@@ -51,6 +51,110 @@ void InformationFromCovariance(const Eigen::Matrix3d& covariance, double scale, 
 
 }  // namespace
 
+namespace {
+
+// chi2(3): median, 99% quantile, and mean below that quantile.
+constexpr double kChi2Median3 = 2.366;
+constexpr double kChi2Quantile99 = 11.345;
+constexpr double kChi2TruncatedMean99 = 2.894;
+// With fewer redundant edges the floor is not estimated: with one or two,
+// its estimate would rest on a single loop's misclosure.
+constexpr int kMinRedundantEdges = 3;
+
+}  // namespace
+
+double EstimateCovarianceFloor(const std::vector<ComponentEdge>& edges, const std::vector<Eigen::Vector3d>& residuals,
+                               int free_views) {
+  const std::size_t m = edges.size();
+  if (m == 0 || residuals.size() != m) return 0.0;
+  // r^T (C + s I)^-1 r = sum_i (u_i^T r)^2 / (c_i + s) with C = U diag(c) U^T,
+  // the eigenvectors of W = C^-1 and the inverses of its eigenvalues.
+  std::vector<Eigen::Vector3d> variances(m), projected(m);
+  std::vector<double> squared_norms(m);
+  for (std::size_t k = 0; k < m; ++k) {
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+    eig.computeDirect(edges[k].information);
+    for (int i = 0; i < 3; ++i) {
+      const double l = eig.eigenvalues()(i);
+      variances[k](i) = l > 0.0 ? 1.0 / l : std::numeric_limits<double>::infinity();
+    }
+    projected[k] = (eig.eigenvectors().transpose() * residuals[k]).cwiseAbs2();
+    squared_norms[k] = residuals[k].squaredNorm();
+    if (!projected[k].allFinite()) projected[k].setZero();
+  }
+  auto whitened = [&](std::size_t k, double s) {
+    double w = 0.0;
+    for (int i = 0; i < 3; ++i) {
+      const double c = variances[k](i) + s;
+      if (c > 0.0 && std::isfinite(c)) w += projected[k](i) / c;
+    }
+    return w;
+  };
+  // Bisection for the root of a function that decreases in s on [0, hi].
+  auto solve = [](double hi, auto excess) {
+    double lo = 0.0;
+    for (int i = 0; i < 100 && hi - lo > 1e-12 * hi; ++i) {
+      const double mid = 0.5 * (lo + hi);
+      (excess(mid) > 0.0 ? lo : hi) = mid;
+    }
+    return 0.5 * (lo + hi);
+  };
+  // Start: the median whitened squared residual is chi2(3)'s.
+  std::vector<double> w(m);
+  auto median_whitened = [&](double s) {
+    for (std::size_t k = 0; k < m; ++k) w[k] = whitened(k, s);
+    std::nth_element(w.begin(), w.begin() + m / 2, w.end());
+    return w[m / 2];
+  };
+  if (!(median_whitened(0.0) > kChi2Median3)) return 0.0;
+  std::vector<double> norms = squared_norms;
+  std::nth_element(norms.begin(), norms.begin() + m / 2, norms.end());
+  double s = solve(norms[m / 2] / kChi2Median3, [&](double t) { return median_whitened(t) - kChi2Median3; });
+  // Then the truncated moment equation on the edges below the quantile.
+  std::vector<std::size_t> kept;
+  for (int iteration = 0; iteration < 50; ++iteration) {
+    kept.clear();
+    double kept_norms = 0.0;
+    for (std::size_t k = 0; k < m; ++k) {
+      if (whitened(k, s) < kChi2Quantile99) {
+        kept.push_back(k);
+        kept_norms += squared_norms[k];
+      }
+    }
+    const long redundancy = static_cast<long>(kept.size()) - free_views;
+    if (redundancy < kMinRedundantEdges) return 0.0;
+    const double target = kChi2TruncatedMean99 * static_cast<double>(redundancy);
+    auto excess = [&](double t) {
+      double sum = 0.0;
+      for (std::size_t k : kept) sum += whitened(k, t);
+      return sum - target;
+    };
+    // sum over kept of r^T (C + t I)^-1 r <= kept_norms / t, so the root lies below kept_norms / target.
+    const double next = excess(0.0) <= 0.0 ? 0.0 : solve(kept_norms / target, excess);
+    const bool settled = std::abs(next - s) <= 1e-6 * s;
+    s = next;
+    if (settled || s == 0.0) break;
+  }
+  return std::isfinite(s) ? s : 0.0;
+}
+
+std::vector<ComponentEdge> WithCovarianceFloor(const std::vector<ComponentEdge>& edges, double variance) {
+  std::vector<ComponentEdge> floored = edges;
+  if (!(variance > 0.0)) return floored;
+  for (ComponentEdge& e : floored) {
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+    eig.computeDirect(e.information);
+    Eigen::Vector3d c;
+    for (int i = 0; i < 3; ++i) {
+      const double l = eig.eigenvalues()(i);
+      c(i) = (l > 0.0 ? 1.0 / l : 1e300) + variance;
+    }
+    const Eigen::Matrix3d covariance = eig.eigenvectors() * c.asDiagonal() * eig.eigenvectors().transpose();
+    InformationFromCovariance(covariance, 1.0, &e.information, &e.sqrt_information);
+  }
+  return floored;
+}
+
 
 double ComponentProblem::CostOf(const std::vector<ComponentEdge>& edges, const std::vector<Eigen::Matrix3d>& rotations,
                                 const RobustLoss& loss) {

@@ -34,6 +34,14 @@ constexpr SpanningTreeWeight kAllTreeWeights[] = {SpanningTreeWeight::kAuto, Spa
 constexpr SolverType kAllSolvers[] = {SolverType::kIrls, SolverType::kCeres, SolverType::kL1Irls};
 constexpr CovarianceNormalization kAllNormalizations[] = {CovarianceNormalization::kStandardDeviations,
                                                           CovarianceNormalization::kPaper};
+constexpr CovarianceSelfCalibration kAllSelfCalibrations[] = {CovarianceSelfCalibration::kLossScale,
+                                                              CovarianceSelfCalibration::kFloor};
+
+// Covariance floor (CovarianceSelfCalibration::kFloor): at most this many
+// estimate-and-solve rounds; a floor within this fraction of the last one
+// has settled.
+constexpr int kCovarianceFloorRounds = 5;
+constexpr double kCovarianceFloorSettled = 0.05;
 
 bool IsRedescending(LossType type) {
   return type == LossType::kMagsac || type == LossType::kTukey || type == LossType::kGemanMcClure;
@@ -154,6 +162,12 @@ const char* SpanningTreeWeightName(SpanningTreeWeight w) {
 bool ParseSpanningTreeWeight(const std::string& text, SpanningTreeWeight* w) {
   return ParseByName(text, kAllTreeWeights, &SpanningTreeWeightName, w);
 }
+const char* CovarianceSelfCalibrationName(CovarianceSelfCalibration c) {
+  return c == CovarianceSelfCalibration::kFloor ? "floor" : "loss_scale";
+}
+bool ParseCovarianceSelfCalibration(const std::string& text, CovarianceSelfCalibration* c) {
+  return ParseByName(text, kAllSelfCalibrations, &CovarianceSelfCalibrationName, c);
+}
 const std::vector<EdgeWeighting>& AllEdgeWeightings() {
   static const std::vector<EdgeWeighting> kAll(std::begin(kAllWeightings), std::end(kAllWeightings));
   return kAll;
@@ -190,8 +204,9 @@ std::string RotationAveragingSummary::Report() const {
     const ComponentSummary& c = components[k];
     out << "\n  component " << k << ": " << c.num_views << " views, " << c.num_edges << " edges, " << c.iterations
         << " iterations (" << c.factorizations << " factorisations, " << c.preconditioned_solves
-        << " preconditioned solves, " << c.multigrid_solves << " multigrid solves, " << c.extrapolations << " extrapolations), loss scale " << c.loss_scale << " (residual scale " << c.noise_scale << "), "
-        << c.status;
+        << " preconditioned solves, " << c.multigrid_solves << " multigrid solves, " << c.extrapolations << " extrapolations), loss scale " << c.loss_scale << " (residual scale " << c.noise_scale;
+    if (c.covariance_floor_rad > 0.0) out << ", covariance floor " << RadToDeg(c.covariance_floor_rad) << " deg";
+    out << "), " << c.status;
   }
   if (components.size() > 5) out << "\n  ... " << components.size() - 5 << " more components";
   for (const std::string& w : warnings) out << "\nwarning: " << w;
@@ -250,57 +265,93 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
       }
     };
     auto solve = [&](const RobustLoss& l) { solve_with(options, l); };
-    // A start that already agrees with (almost) every edge needs neither
-    // the L1 start nor graduated non-convexity.
-    const bool needs_robust_start =
-        !all_warm && TreeDisagreement(problem, scale) > options.l1_initialization_min_disagreement;
-    if (options.l1_initialization && needs_robust_start) {
-      // Unweighted, so the start does not depend on the covariances and
-      // always takes the scalar-Laplacian path of the IRLS solver.
-      RotationAveragingOptions l1_options = options;
-      l1_options.max_iterations = options.l1_init_max_iterations;
-      l1_options.function_tolerance = options.l1_init_function_tolerance;
-      l1_options.linear_solve_tolerance = options.robust_start_linear_solve_tolerance;
-      cs.iterations += SolveSurrogate(l1_options, SoftL1Loss(options.l1_init_smoothing_rad),
-                                      [](const Eigen::Matrix3d&) { return 1.0; }, &problem, &workspace);
-    } else if (!all_warm && !needs_robust_start && options.isotropic_presolve_max_anisotropy > 1.0) {
-      // Stops at the first edge beyond the limit.
-      double max_anisotropy = 1.0;
-      for (const ComponentEdge& e : problem.edges) {
-        max_anisotropy = std::max(max_anisotropy, InformationAnisotropy(e.information));
-        if (max_anisotropy > options.isotropic_presolve_max_anisotropy) break;
+    // The robust start and the solve under the final loss, from the
+    // component's start. Returns the start's cost under that loss when the
+    // solve reports it, NaN otherwise.
+    auto solve_from_start = [&]() {
+      problem.rotations = initial_rotations;
+      // A start that already agrees with (almost) every edge needs neither
+      // the L1 start nor graduated non-convexity.
+      const bool needs_robust_start =
+          !all_warm && TreeDisagreement(problem, scale) > options.l1_initialization_min_disagreement;
+      if (options.l1_initialization && needs_robust_start) {
+        // Unweighted, so the start does not depend on the covariances and
+        // always takes the scalar-Laplacian path of the IRLS solver.
+        RotationAveragingOptions l1_options = options;
+        l1_options.max_iterations = options.l1_init_max_iterations;
+        l1_options.function_tolerance = options.l1_init_function_tolerance;
+        l1_options.linear_solve_tolerance = options.robust_start_linear_solve_tolerance;
+        cs.iterations += SolveSurrogate(l1_options, SoftL1Loss(options.l1_init_smoothing_rad),
+                                        [](const Eigen::Matrix3d&) { return 1.0; }, &problem, &workspace);
+      } else if (!all_warm && !needs_robust_start && options.isotropic_presolve_max_anisotropy > 1.0) {
+        // Stops at the first edge beyond the limit.
+        double max_anisotropy = 1.0;
+        for (const ComponentEdge& e : problem.edges) {
+          max_anisotropy = std::max(max_anisotropy, InformationAnisotropy(e.information));
+          if (max_anisotropy > options.isotropic_presolve_max_anisotropy) break;
+        }
+        if (max_anisotropy > 1.0 + 1e-9 && max_anisotropy <= options.isotropic_presolve_max_anisotropy) {
+          RotationAveragingOptions iso_options = options;
+          iso_options.function_tolerance = options.isotropic_presolve_function_tolerance;
+          cs.iterations += SolveSurrogate(iso_options, *component_loss,
+                                          [](const Eigen::Matrix3d& w) { return w.trace() / 3.0; }, &problem,
+                                          &workspace);
+        }
       }
-      if (max_anisotropy > 1.0 + 1e-9 && max_anisotropy <= options.isotropic_presolve_max_anisotropy) {
-        RotationAveragingOptions iso_options = options;
-        iso_options.function_tolerance = options.isotropic_presolve_function_tolerance;
-        cs.iterations += SolveSurrogate(iso_options, *component_loss,
-                                        [](const Eigen::Matrix3d& w) { return w.trace() / 3.0; }, &problem,
-                                        &workspace);
+      // Graduated non-convexity for redescending losses started from a tree.
+      if (IsRedescending(options.loss) && needs_robust_start && options.gnc_initial_scale_factor > 1.0 &&
+          options.gnc_scale_step > 1.0) {
+        // Intermediate stages only need to move into the right basin: a few
+        // iterations each, not convergence.
+        RotationAveragingOptions stage_options = options;
+        stage_options.max_iterations = std::min(options.max_iterations, options.gnc_stage_max_iterations);
+        stage_options.linear_solve_tolerance = options.robust_start_linear_solve_tolerance;
+        for (double s = scale * options.gnc_initial_scale_factor; s > scale * 1.0001; s /= options.gnc_scale_step) {
+          solve_with(stage_options, *CreateLoss(options.loss, s));
+        }
       }
-    }
-    // Graduated non-convexity for redescending losses started from a tree.
-    if (IsRedescending(options.loss) && needs_robust_start && options.gnc_initial_scale_factor > 1.0 &&
-        options.gnc_scale_step > 1.0) {
-      // Intermediate stages only need to move into the right basin: a few
-      // iterations each, not convergence.
-      RotationAveragingOptions stage_options = options;
-      stage_options.max_iterations = std::min(options.max_iterations, options.gnc_stage_max_iterations);
-      stage_options.linear_solve_tolerance = options.robust_start_linear_solve_tolerance;
-      for (double s = scale * options.gnc_initial_scale_factor; s > scale * 1.0001; s /= options.gnc_scale_step) {
-        solve_with(stage_options, *CreateLoss(options.loss, s));
-      }
-    }
-    // The IRLS solve reports the cost of its start under its loss: when
-    // nothing ran before it and the loss stays, that is the start's cost
-    // under the final loss, which the report below needs.
-    const bool from_initial = options.solver == SolverType::kIrls && problem.rotations == initial_rotations;
-    solve(*component_loss);
-    double initial_cost = from_initial ? cs.initial_cost : std::numeric_limits<double>::quiet_NaN();
+      // The IRLS solve reports the cost of its start under its loss: when
+      // nothing ran before it and the loss stays, that is the start's cost
+      // under the final loss, which the report below needs.
+      const bool from_initial = options.solver == SolverType::kIrls && problem.rotations == initial_rotations;
+      solve(*component_loss);
+      return from_initial ? cs.initial_cost : std::numeric_limits<double>::quiet_NaN();
+    };
+    double initial_cost = solve_from_start();
     // Self-calibration of the covariance scale (see auto_scale_threshold).
     if (weighting == EdgeWeighting::kCovariance &&
         options.covariance_normalization == CovarianceNormalization::kStandardDeviations &&
         options.auto_scale_threshold > 0.0 && options.loss_scale <= 0.0) {
       cs.noise_scale = WhitenedResidualScale(problem, CurrentResiduals(problem, workspace));
+      // The floor is estimated whatever the residual scale: it is zero when
+      // the residuals fit the covariances. The first residuals come from a
+      // solve that trusted the optimistic covariances (and so rejected
+      // correct edges and leaned on others), which inflates them; as in
+      // Helmert's variance component estimation, each floor is estimated
+      // from the solve weighted by the one before, until it settles.
+      if (options.self_calibration == CovarianceSelfCalibration::kFloor) {
+        const std::vector<ComponentEdge> unfloored = problem.edges;
+        int free_views = 0;
+        for (int v = 0; v < static_cast<int>(problem.view_ids.size()); ++v) free_views += !problem.IsFixed(v);
+        double variance = 0.0;
+        for (int round = 0; round < kCovarianceFloorRounds; ++round) {
+          const double next = EstimateCovarianceFloor(unfloored, CurrentResiduals(problem, workspace), free_views);
+          if (!(next > 0.0) || (variance > 0.0 && std::abs(next - variance) <= kCovarianceFloorSettled * variance)) {
+            break;
+          }
+          variance = next;
+          problem.edges = WithCovarianceFloor(unfloored, variance);
+          workspace.median_anisotropy = -1.0;  // of the information it was computed from
+          // Afresh: the first solve's basin was chosen under the optimistic
+          // covariances (an edge they made rigid can have pulled a view off).
+          initial_cost = solve_from_start();
+        }
+        if (variance > 0.0) {
+          cs.covariance_floor_rad = std::sqrt(variance);
+          cs.noise_scale = WhitenedResidualScale(problem, CurrentResiduals(problem, workspace));
+        }
+      }
+      // Still optimistic (or kLossScale): widen the loss.
       if (cs.noise_scale > options.auto_scale_threshold) {
         component_scale = scale * cs.noise_scale;
         component_loss = CreateLoss(options.loss, component_scale);

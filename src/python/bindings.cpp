@@ -221,6 +221,7 @@ py::dict ComponentToDict(const ra::ComponentSummary& c) {
   d["extrapolations"] = c.extrapolations;
   d["loss_scale"] = c.loss_scale;
   d["noise_scale"] = c.noise_scale;
+  d["covariance_floor_rad"] = c.covariance_floor_rad;
   d["initial_cost"] = c.initial_cost;
   d["final_cost"] = c.final_cost;
   d["refined_start"] = c.refined_start;
@@ -402,6 +403,8 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
                &ra::CovarianceNormalizationName, &ra::ParseCovarianceNormalization, "std, paper");
   EnumProperty(options, "spanning_tree_weight", &ra::RotationAveragingOptions::spanning_tree_weight,
                &ra::SpanningTreeWeightName, &ra::ParseSpanningTreeWeight, "auto, uniform, inliers, information");
+  EnumProperty(options, "self_calibration", &ra::RotationAveragingOptions::self_calibration,
+               &ra::CovarianceSelfCalibrationName, &ra::ParseCovarianceSelfCalibration, "loss_scale, floor");
 #define ROTAVG_FIELD(name) options.def_readwrite(#name, &ra::RotationAveragingOptions::name)
   ROTAVG_FIELD(loss_scale);
   ROTAVG_FIELD(paper_covariance_scale);

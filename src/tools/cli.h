@@ -69,7 +69,8 @@ inline bool CheckKnown(const Args& args, const std::vector<std::string>& known, 
 }
 
 inline const std::vector<std::string> kAveragingFlags = {"--solver", "--loss", "--weighting", "--sigma-max",
-                                                         "--normalization", "--max-iterations"};
+                                                         "--normalization", "--max-iterations",
+                                                         "--self-calibration"};
 
 inline bool ParseAveragingOptions(const Args& args, ra::RotationAveragingOptions* options, std::string* error) {
   auto fail = [error](const std::string& e) {
@@ -83,6 +84,12 @@ inline bool ParseAveragingOptions(const Args& args, ra::RotationAveragingOptions
   }
   if (!ra::ParseCovarianceNormalization(args.Get("--normalization", "std"), &options->covariance_normalization)) {
     return fail("unknown --normalization (std or paper)");
+  }
+  // The caller's options hold the command's default.
+  if (!ra::ParseCovarianceSelfCalibration(
+          args.Get("--self-calibration", ra::CovarianceSelfCalibrationName(options->self_calibration)),
+          &options->self_calibration)) {
+    return fail("unknown --self-calibration (loss_scale or floor)");
   }
   if (args.Has("--sigma-max")) {
     options->loss_scale = std::atof(args.Get("--sigma-max").c_str());

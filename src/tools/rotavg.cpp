@@ -3,6 +3,7 @@
 //   rotavg solve INPUT [--format auto|1dsfm|g2o|toro|irotavg] [--loss magsac|...]
 //                [--weighting covariance|none|inliers|trace|frobenius] [--solver irls|ceres|l1_irls]
 //                [--sigma-max S] [--normalization std|paper] [--no-gnc] [--max-iterations N]
+//                [--self-calibration loss_scale|floor]
 //                [--gt PATH [--gt-format ...]] --output orientations.csv
 //   rotavg eval --estimate orientations.csv --gt PATH [--gt-format auto|csv|strecha|colmap|chain] [--json]
 //   rotavg images ...  runs rotavg_images (beside this program) with the same arguments
@@ -41,6 +42,9 @@ const char* kUsage = R"(usage:
       --normalization N     std (default: covariances in rad^2) or paper (C scaled by 1e8, the paper's code)
       --no-gnc              start redescending losses at their final scale (the paper's setting)
       --max-iterations N    per component (default 100)
+      --self-calibration C  when covariances prove optimistic (residual scale above 1.5): loss_scale
+                            (default: widen the loss by that scale) or floor (add an isotropic floor,
+                            estimated from the residuals, to every edge's covariance; images' default)
       --gt PATH             also score the result against ground truth (see eval)
       --gt-format F         auto (default), csv, strecha, colmap, chain
   rotavg eval --estimate orientations.csv --gt PATH [--gt-format F] [--json]

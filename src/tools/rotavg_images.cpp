@@ -21,7 +21,7 @@ const char* kUsage = R"(usage:
                [--output orientations.csv] [--gt PATH [--gt-format F]] [--verbose] [--json] [--refine]
                [--no-rotation-model]
                [the averaging options of rotavg solve: --solver --loss --weighting --sigma-max --normalization
-                --no-gnc --max-iterations]
+                --no-gnc --max-iterations --self-calibration (default here: floor)]
       features, matching, relative poses with rotation covariances, then averaging (--refine: then the
       orientations refined on every pair's inlier correspondences); prints per-stage timings and per-pair
       statistics; --graph-out writes the view graph for `rotavg solve`; --no-rotation-model: every pair
@@ -56,6 +56,9 @@ int Images(int argc, char** argv) {
   }
   pipeline.relative_pose.rotation_model = !args.Has("--no-rotation-model");
   ra::RotationAveragingOptions options;
+  // Two-view covariances from pixel noise miss the errors that do not
+  // shrink with the matches (results/frontend.md, "Calibration").
+  options.self_calibration = ra::CovarianceSelfCalibration::kFloor;
   if (!ParseAveragingOptions(args, &options, &error)) return Fail(error);
   const std::string output = args.Get("--output");
   if (output.empty() && !args.Has("--gt") && !args.Has("--graph-out")) {

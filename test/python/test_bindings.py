@@ -85,6 +85,25 @@ def test_every_loss_and_weighting_runs_and_options_are_checked(synthetic):
     derived = ra.make_options(options, weighting="trace")
     assert options.weighting == "covariance" and derived.weighting == "trace" and derived.loss == "cauchy"
     assert ra.SolveOptions().default_loss_scale() == 3.0
+    assert ra.SolveOptions().self_calibration == "loss_scale"
+    with pytest.raises(ValueError, match="loss_scale, floor"):
+        ra.make_options(self_calibration="scale")
+
+
+def test_covariance_floor_from_python():
+    # Covariances that claim 0.01 deg for errors of 1 deg: the floor takes up
+    # the difference and the loss keeps its scale.
+    graph, truth, _ = ra.synthetic_graph(num_views=60, mean_degree=8, noise_deg=1.0, seed=3)
+    views = graph.edge_views
+    optimistic = np.tile(np.eye(3) * np.radians(0.01) ** 2, (len(views), 1, 1))
+    g = ra.ViewGraph.from_arrays(views[:, 0], views[:, 1], graph.edge_rotations, covariances=optimistic)
+    floor = ra.solve(g, self_calibration="floor")
+    widened = ra.solve(g)
+    c = floor.components[0]
+    assert 0.5 < np.degrees(c["covariance_floor_rad"]) < 1.5
+    assert c["loss_scale"] == 3.0 and widened.components[0]["loss_scale"] > 3.0
+    assert widened.components[0]["covariance_floor_rad"] == 0.0
+    assert ra.evaluate(floor.named(), truth)["median_error_deg"] < 1.0
 
 
 def test_warm_start_continues_from_a_solution_and_posterior_covariances(synthetic):

@@ -61,6 +61,23 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
                                                      const ViewOrientations& initial, std::vector<std::string>* warnings,
                                                      EdgeWeighting* effective_weighting = nullptr);
 
+// Variance s^2 (rad^2) of the isotropic covariance floor that makes the
+// residuals of a solve consistent with the covariances C + s^2 I of its
+// edges (covariance weighting in standard deviations: C = W^-1 of `edges`),
+// 0 when they already are or when there are too few redundant edges to tell.
+// free_views: the views the solve could move (all but the gauge). A variance
+// component estimate that outliers do not move: s^2 starts where the median
+// whitened squared residual is that of chi2(3), then is re-solved on the
+// edges whose whitened squared residual lies below chi2(3)'s 99% quantile, so
+// that their sum equals its expectation there, the truncated mean of chi2(3)
+// times their redundancy (edges minus free views: the residuals of a fit are
+// smaller than the errors), until that set is stable.
+double EstimateCovarianceFloor(const std::vector<ComponentEdge>& edges, const std::vector<Eigen::Vector3d>& residuals,
+                               int free_views);
+
+// The edges with every information W replaced by (W^-1 + variance I)^-1.
+std::vector<ComponentEdge> WithCovarianceFloor(const std::vector<ComponentEdge>& edges, double variance);
+
 // Chooses the gauge (the view with the largest total tree weight among the
 // fixed views if there are any, else preferring warm-started views) and
 // fills every view without a warm start by chaining edges along a maximum

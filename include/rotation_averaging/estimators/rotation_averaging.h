@@ -56,6 +56,24 @@ enum class SolverType {
 // Weight of an edge when building the initial maximum spanning tree.
 enum class SpanningTreeWeight { kAuto, kUniform, kInliers, kInformation };
 
+// What a solve does when its covariances turn out optimistic (covariance
+// weighting in standard deviations; see auto_scale_threshold).
+//  kLossScale: widen the loss scale by the residual scale sigma_hat, i.e.
+//    treat every covariance as sigma_hat^2 times too small.
+//  kFloor: add an isotropic covariance C + s^2 I to every edge, with s^2
+//    estimated from the residuals of the solve (EstimateCovarianceFloor in
+//    component_problem.h), and solve again from the start at the loss scale
+//    as given. Estimated at any residual scale (it is zero when the residuals
+//    fit the covariances); the loss is still widened if the residual scale
+//    stays above auto_scale_threshold.
+//    For errors that do not shrink with the number of matches behind an
+//    edge (correlated feature errors, biased matches): two-view covariances
+//    from pixel noise are least calibrated on the pairs with the most
+//    inliers (results/frontend.md, "Calibration": median NEES 204 on
+//    castle-P19's pairs of 500 inliers or more, 64 on those of 100-499), so
+//    a scale factor that fits those makes weak pairs look far too uncertain.
+enum class CovarianceSelfCalibration { kLossScale, kFloor };
+
 const char* EdgeWeightingName(EdgeWeighting w);
 bool ParseEdgeWeighting(const std::string& text, EdgeWeighting* w);
 const char* SolverTypeName(SolverType s);
@@ -64,6 +82,8 @@ const char* CovarianceNormalizationName(CovarianceNormalization n);
 bool ParseCovarianceNormalization(const std::string& text, CovarianceNormalization* n);
 const char* SpanningTreeWeightName(SpanningTreeWeight w);  // "auto", "uniform", "inliers", "information"
 bool ParseSpanningTreeWeight(const std::string& text, SpanningTreeWeight* w);
+const char* CovarianceSelfCalibrationName(CovarianceSelfCalibration c);  // "loss_scale", "floor"
+bool ParseCovarianceSelfCalibration(const std::string& text, CovarianceSelfCalibration* c);
 const std::vector<EdgeWeighting>& AllEdgeWeightings();
 
 struct RotationAveragingOptions {
@@ -132,8 +152,11 @@ struct RotationAveragingOptions {
   // with the loss scale multiplied by sigma_hat. 2.366 is the median of
   // chi2(3), so the estimate is robust to up to half the edges being
   // outliers. Real two-view covariances are optimistic (results/frontend.md, calibration).
-  // <= 0 disables.
+  // self_calibration says how the solve then corrects them. <= 0 disables.
   double auto_scale_threshold = 1.5;
+  // kLossScale in the library and the node, whose local re-solves reuse the
+  // loss scale of the last full solve; `rotavg images` uses kFloor.
+  CovarianceSelfCalibration self_calibration = CovarianceSelfCalibration::kLossScale;
   int max_iterations = 100;            // per component (IRLS iterations or Ceres iterations)
   double step_tolerance_rad = 1e-6;    // stop when every update is smaller than this (1e-6 rad = 0.00006 deg)
   double function_tolerance = 1e-8;    // relative cost decrease at which to stop
@@ -220,6 +243,9 @@ struct ComponentSummary {
   int factorizations = 0;        // numeric Cholesky factorisations (IRLS solver)
   double loss_scale = 0.0;       // scale used for this component (after auto-scaling)
   double noise_scale = 1.0;      // sigma_hat: estimated scale of the whitened residuals
+  // Standard deviation s of the isotropic covariance floor C + s^2 I added to
+  // every edge (CovarianceSelfCalibration::kFloor), rad; 0: none.
+  double covariance_floor_rad = 0.0;
   int preconditioned_solves = 0; // IRLS steps solved by PCG with an earlier factor
   int multigrid_solves = 0;      // IRLS steps solved by multigrid-preconditioned CG
   int extrapolations = 0;        // IRLS extrapolation jumps taken
