@@ -3,12 +3,17 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <iomanip>
+#include <limits>
 #include <opencv2/imgcodecs.hpp>
 #include <sstream>
 
+#include "rotation_averaging/geometry/epipolar.h"
+#include "rotation_averaging/geometry/so3.h"
 #include "rotation_averaging/io/text_lines.h"
+#include "rotation_averaging/util/parallel_for.h"
 
 namespace rotation_averaging {
 namespace {
@@ -229,6 +234,162 @@ PairReport EstimatePair(int image1, int image2, const std::vector<Eigen::Vector2
   return report;
 }
 
+namespace {
+// Inliers of a pair in the focal-length profile: within this many of its
+// noise standard deviations (the two-view refinement's own rule), and at
+// least this many pixels (its smallest adaptive threshold).
+constexpr double kFocalInlierSigmas = 3.0;
+constexpr double kFocalMinThresholdPx = 0.5;
+// Groups of pairs (by index modulo) the jackknife leaves out in turn.
+constexpr int kFocalJackknifeGroups = 4;
+}  // namespace
+
+FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const Eigen::Matrix3d& k,
+                                    const FocalCalibrationOptions& options) {
+  FocalCalibration out;
+  // Each pair's matches, the inliers of its pose, its noise and threshold.
+  struct Used {
+    const FocalPair* pair;
+    double sigma, threshold;
+  };
+  std::vector<Used> used;
+  for (const FocalPair& p : pairs) {
+    if (!p.pose || !p.points1 || !p.points2 || !p.pose->success || p.pose->model != TwoViewModel::kEssential ||
+        !(p.pose->sigma_px > 0.0) || static_cast<int>(p.pose->inliers.size()) < options.min_inliers) {
+      continue;
+    }
+    used.push_back({&p, p.pose->sigma_px, std::max(kFocalInlierSigmas * p.pose->sigma_px, kFocalMinThresholdPx)});
+  }
+  out.pairs = static_cast<int>(used.size());
+  if (out.pairs < std::max(1, options.min_pairs)) return out;
+  const int threads = ResolveThreadCount(options.num_threads);
+  // The profile: at each a, every pair's pose is refined from its estimate
+  // on the matches within its threshold, which are selected again at the
+  // refined pose (twice), and scored by the truncated squared Sampson error
+  // of all its matches in units of its noise. Selecting the inliers anew
+  // matters: those the pose kept in the given focal length favour it.
+  std::vector<double> per_pair(used.size());
+  // The profile over the pairs not in `left_out` (a group of the jackknife
+  // below; -1: none).
+  auto cost = [&](double a, int left_out) {
+    Eigen::Matrix3d ka = k;
+    ka(0, 0) *= a;
+    ka(1, 1) *= a;
+    const Eigen::Matrix3d ka_inv = ka.inverse();
+    ParallelFor(static_cast<int>(used.size()), threads, [&](int u) {
+      per_pair[u] = 0.0;
+      if (u % kFocalJackknifeGroups == left_out) return;
+      const FocalPair& p = *used[u].pair;
+      const std::vector<Eigen::Vector2d>& all1 = *p.points1;
+      const std::vector<Eigen::Vector2d>& all2 = *p.points2;
+      Eigen::Matrix3d rotation = p.pose->rotation;
+      Eigen::Vector3d translation = p.pose->translation;
+      std::vector<int> inliers = p.pose->inliers;
+      const double threshold = used[u].threshold;
+      double truncated = 0.0;
+      for (int round = 0; round < 3; ++round) {
+        std::vector<Eigen::Vector2d> p1, p2;
+        for (int m : inliers) {
+          p1.push_back(all1[m]);
+          p2.push_back(all2[m]);
+        }
+        if (static_cast<int>(p1.size()) < options.min_inliers / 2) break;
+        RefinePoseOnInliers(p1, p2, ka, ka, &rotation, &translation);
+        const Eigen::Matrix3d f = ka_inv.transpose() * Hat(translation) * rotation * ka_inv;
+        inliers.clear();
+        truncated = 0.0;
+        for (std::size_t m = 0; m < all1.size() && m < all2.size(); ++m) {
+          const double r = SampsonError<double>(f, all1[m].homogeneous(), all2[m].homogeneous());
+          if (std::abs(r) < threshold) inliers.push_back(static_cast<int>(m));
+          truncated += std::min(r * r, threshold * threshold);
+        }
+      }
+      per_pair[u] = truncated / (used[u].sigma * used[u].sigma);
+    });
+    double sum = 0.0;
+    for (double c : per_pair) sum += c;
+    return sum;
+  };
+  // The minimum of the profile: a coarse scan, then golden-section search in
+  // the best cell's neighbours. NaN when it lies on the edge of the range.
+  const double range = std::clamp(options.search_range, 0.01, 0.5), step = 0.02;
+  const int cells = static_cast<int>(std::ceil(range / step));
+  auto minimise = [&](int left_out) {
+    int best = -cells;
+    double best_cost = std::numeric_limits<double>::infinity();
+    for (int c = -cells; c <= cells; ++c) {
+      const double value = cost(1.0 + c * step, left_out);
+      if (value < best_cost) {
+        best_cost = value;
+        best = c;
+      }
+    }
+    if (!std::isfinite(best_cost) || best == -cells || best == cells) return std::numeric_limits<double>::quiet_NaN();
+    double lo = 1.0 + (best - 1) * step, hi = 1.0 + (best + 1) * step;
+    const double ratio = 0.5 * (std::sqrt(5.0) - 1.0);
+    double x1 = hi - ratio * (hi - lo), x2 = lo + ratio * (hi - lo);
+    double f1 = cost(x1, left_out), f2 = cost(x2, left_out);
+    while (hi - lo > 1e-4) {
+      if (f1 < f2) {
+        hi = x2;
+        x2 = x1;
+        f2 = f1;
+        x1 = hi - ratio * (hi - lo);
+        f1 = cost(x1, left_out);
+      } else {
+        lo = x1;
+        x1 = x2;
+        f1 = f2;
+        x2 = lo + ratio * (hi - lo);
+        f2 = cost(x2, left_out);
+      }
+    }
+    return 0.5 * (lo + hi);
+  };
+  out.scale = minimise(-1);
+  if (!std::isfinite(out.scale)) {
+    out.scale = 1.0;
+    return out;
+  }
+  // Standard deviation: the larger of the chi-square profile's curvature
+  // (pixel noise alone) and a delete-a-group jackknife over the pairs, which
+  // also sees how much the pairs disagree on it.
+  const double h = 1e-3, centre = cost(out.scale, -1);
+  const double curvature = (cost(out.scale + h, -1) - 2.0 * centre + cost(out.scale - h, -1)) / (h * h);
+  double deviation = curvature > 0.0 ? std::sqrt(2.0 / curvature) : std::numeric_limits<double>::infinity();
+  if (out.pairs >= 2 * kFocalJackknifeGroups) {
+    std::vector<double> partial;
+    for (int g = 0; g < kFocalJackknifeGroups; ++g) partial.push_back(minimise(g));
+    double mean = 0.0;
+    for (double x : partial) mean += x / kFocalJackknifeGroups;
+    double spread = 0.0;
+    for (double x : partial) spread += (x - mean) * (x - mean);
+    const double jackknife = std::sqrt((kFocalJackknifeGroups - 1.0) / kFocalJackknifeGroups * spread);
+    deviation = std::isfinite(jackknife) ? std::max(deviation, jackknife) : std::numeric_limits<double>::infinity();
+  }
+  out.standard_deviation = deviation;
+  out.estimated = std::isfinite(out.standard_deviation);
+  return out;
+}
+
+bool ShouldApplyFocalScale(const FocalCalibration& calibration, const FocalCalibrationOptions& options) {
+  const double correction = std::abs(calibration.scale - 1.0);
+  return calibration.estimated && correction > options.min_correction &&
+         correction > 3.0 * calibration.standard_deviation;
+}
+
+std::string FocalCalibration::Report() const {
+  std::ostringstream out;
+  out << std::setprecision(4);
+  if (!estimated) {
+    out << "focal length: not estimated (" << pairs << " pairs with enough inliers)";
+  } else {
+    out << "focal length: estimated x" << scale << " (+- " << standard_deviation << ", " << pairs << " pairs), "
+        << (applied ? "applied: pairs estimated again" : "kept as given (too small or too uncertain a correction)");
+  }
+  return out.str();
+}
+
 std::vector<EdgeCorrespondences> CorrespondencesOfEdges(const ImagePipelineResult& result) {
   const double focal = 0.5 * (result.k(0, 0) + result.k(1, 1));
   std::vector<EdgeCorrespondences> out;
@@ -262,20 +423,11 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
   std::vector<std::unique_ptr<FeatureIndex>> indices;
   for (const ImageFeatures& f : features) indices.push_back(std::make_unique<FeatureIndex>(f));
   result.matching_s += Seconds(index_start);
-  for (const auto& [i, j] : SelectPairs(n, options.pairs, names, &result.errors)) {
-    const auto start = Clock::now();
-    const std::vector<std::pair<int, int>> matches =
-        MatchFeatures(features[i], *indices[i], features[j], *indices[j], options.matching);
-    result.matching_s += Seconds(start);
-    std::vector<Eigen::Vector2d> p1, p2;
-    p1.reserve(matches.size());
-    p2.reserve(matches.size());
-    for (const auto& [a, b] : matches) {
-      p1.push_back(features[i].keypoints_px[a]);
-      p2.push_back(features[j].keypoints_px[b]);
-    }
+  // The relative pose of one pair into the graph and the counts.
+  auto add_pair = [&](int i, int j, const std::vector<Eigen::Vector2d>& p1, const std::vector<Eigen::Vector2d>& p2,
+                      const Eigen::Matrix3d& pair_k, Clock::time_point start) {
     const auto pose_start = Clock::now();
-    PairReport report = EstimatePair(i, j, p1, p2, k, options.relative_pose);
+    PairReport report = EstimatePair(i, j, p1, p2, pair_k, options.relative_pose);
     result.relative_pose_s += Seconds(pose_start);
     report.milliseconds = 1e3 * Seconds(start);
     if (report.pose.success) {
@@ -291,6 +443,52 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
       ++result.failures[TwoViewFailureName(report.pose.failure)];
     }
     result.pairs.push_back(std::move(report));
+  };
+  // The matched keypoints of every pair, kept for a second estimation with a
+  // corrected focal length.
+  struct Matched {
+    int i, j;
+    std::vector<Eigen::Vector2d> p1, p2;
+  };
+  std::vector<Matched> matched;
+  for (const auto& [i, j] : SelectPairs(n, options.pairs, names, &result.errors)) {
+    const auto start = Clock::now();
+    const std::vector<std::pair<int, int>> matches =
+        MatchFeatures(features[i], *indices[i], features[j], *indices[j], options.matching);
+    result.matching_s += Seconds(start);
+    Matched m{i, j, {}, {}};
+    m.p1.reserve(matches.size());
+    m.p2.reserve(matches.size());
+    for (const auto& [a, b] : matches) {
+      m.p1.push_back(features[i].keypoints_px[a]);
+      m.p2.push_back(features[j].keypoints_px[b]);
+    }
+    add_pair(i, j, m.p1, m.p2, k, start);
+    if (options.focal.enabled) matched.push_back(std::move(m));
+  }
+  if (options.focal.enabled) {
+    const auto focal_start = Clock::now();
+    std::vector<FocalPair> focal_pairs;
+    for (std::size_t p = 0; p < matched.size(); ++p) {
+      focal_pairs.push_back({&matched[p].p1, &matched[p].p2, &result.pairs[p].pose});
+    }
+    result.focal = EstimateFocalScale(focal_pairs, k, options.focal);
+    if (ShouldApplyFocalScale(result.focal, options.focal)) {
+      result.focal.applied = true;
+      result.k = k;
+      result.k(0, 0) *= result.focal.scale;
+      result.k(1, 1) *= result.focal.scale;
+      // Every pair again, from its matches, in the corrected focal length.
+      ViewGraph graph;
+      for (const View& v : result.graph.Views()) graph.AddView(v.id, v.name);
+      result.graph = std::move(graph);
+      result.pairs.clear();
+      result.failures.clear();
+      result.near_planar_pairs = 0;
+      result.rotation_model_pairs = 0;
+      for (const Matched& m : matched) add_pair(m.i, m.j, m.p1, m.p2, result.k, Clock::now());
+    }
+    result.focal_s = Seconds(focal_start);
   }
   return result;
 }
@@ -347,6 +545,7 @@ std::string ImagePipelineResult::Report() const {
   out << "\ntime: features " << features_s << " s (" << (n ? 1e3 * features_s / n : 0.0) << " ms/image), matching "
       << matching_s << " s, relative pose + covariance " << relative_pose_s << " s ("
       << (pairs.empty() ? 0.0 : 1e3 * (matching_s + relative_pose_s) / pairs.size()) << " ms/pair)";
+  if (focal.pairs > 0 || focal.estimated) out << "\n" << focal.Report() << " (" << focal_s << " s)";
   for (const std::string& e : errors) out << "\nerror: " << e;
   return out.str();
 }

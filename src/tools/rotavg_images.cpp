@@ -19,19 +19,21 @@ const char* kUsage = R"(usage:
   rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
                [--pairs exhaustive|sequential:N|list:FILE] [--covariance marginal|conditional] [--graph-out graph.txt]
                [--output orientations.csv] [--gt PATH [--gt-format F]] [--verbose] [--json] [--refine]
-               [--no-rotation-model]
+               [--no-rotation-model] [--no-focal-calibration]
                [the averaging options of rotavg solve: --solver --loss --weighting --sigma-max --normalization
                 --no-gnc --max-iterations --self-calibration (default here: floor)]
       features, matching, relative poses with rotation covariances, then averaging (--refine: then the
       orientations refined on every pair's inlier correspondences); prints per-stage timings and per-pair
       statistics; --graph-out writes the view graph for `rotavg solve`; --no-rotation-model: every pair
-      through the essential matrix (pairs without parallax fail instead of using the rotation-only model)
+      through the essential matrix (pairs without parallax fail instead of using the rotation-only model);
+      --no-focal-calibration: trust the focal length of the intrinsics (by default it is estimated from the
+      pairs and, when it differs by more than 0.5% and its uncertainty, corrected and the pairs estimated again)
 )";
 
 int Images(int argc, char** argv) {
   Args args;
   std::string error;
-  if (!ParseArgs(argc, argv, 1, {"--no-gnc", "--json", "--verbose", "--refine", "--no-rotation-model"}, &args, &error)) return Fail(error);
+  if (!ParseArgs(argc, argv, 1, {"--no-gnc", "--json", "--verbose", "--refine", "--no-rotation-model", "--no-focal-calibration"}, &args, &error)) return Fail(error);
   if (!CheckKnown(args,
                   Concat({"--images", "--intrinsics", "--downsample", "--features", "--max-features", "--pairs",
                           "--covariance", "--graph-out", "--output", "--gt", "--gt-format"},
@@ -55,6 +57,9 @@ int Images(int argc, char** argv) {
     return Fail("--covariance must be marginal or conditional");
   }
   pipeline.relative_pose.rotation_model = !args.Has("--no-rotation-model");
+  // Image folders come with intrinsics of any quality; the correction is
+  // applied only when the pairs clearly ask for it (FocalCalibrationOptions).
+  pipeline.focal.enabled = !args.Has("--no-focal-calibration");
   ra::RotationAveragingOptions options;
   // Two-view covariances from pixel noise miss the errors that do not
   // shrink with the matches (results/frontend.md, "Calibration").

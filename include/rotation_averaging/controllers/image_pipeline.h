@@ -41,11 +41,45 @@ struct CameraIntrinsics {
 // (first camera; SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL or RADIAL).
 bool ReadCameraIntrinsics(const std::string& path, CameraIntrinsics* intrinsics, std::string* error);
 
+// Self-calibration of the focal length for images whose intrinsics are not
+// trusted. A focal length 1% off moves two-view rotations by about 1% of
+// their angle (results/frontend.md, "What moves the two-view rotations"),
+// while an essential matrix in the wrong focal length fits the matches less
+// well: the scale a of the focal length (f -> a f, principal point kept)
+// that minimises the Sampson errors of every pair's inliers, each pair's
+// pose re-refined at each a (a profile likelihood), estimates it.
+struct FocalCalibrationOptions {
+  bool enabled = false;  // the library and the node trust K; `rotavg images` turns it on
+  // Applied only when the estimate is further from 1 than this and than 3
+  // of its standard deviations. The estimate has a bias the pixel noise
+  // does not explain: on the Strecha scenes at full resolution, whose
+  // intrinsics come with the ground truth, it lands 0.05-0.31% from 1
+  // (results/frontend.md, "What moves the two-view rotations"), so a smaller
+  // correction would as likely add an error as remove one.
+  double min_correction = 0.005;
+  double search_range = 0.15;  // scales in [1 - range, 1 + range]
+  int min_inliers = 50;        // pairs (essential-matrix model) with fewer are not used
+  int min_pairs = 3;
+  int num_threads = 0;         // 0: the machine's cores; the result does not depend on it
+};
+
 struct ImagePipelineOptions {
   FeatureOptions features;
   MatchOptions matching;
   RelativePoseOptions relative_pose;
   PairSelection pairs;
+  FocalCalibrationOptions focal;
+};
+
+struct FocalCalibration {
+  bool estimated = false;          // enough pairs to estimate it
+  double scale = 1.0;              // estimated true / given focal length
+  // Of scale: the larger of the profile's curvature (pixel noise alone) and a
+  // jackknife over four groups of pairs (how much the pairs disagree).
+  double standard_deviation = 0.0;
+  int pairs = 0;                   // pairs used
+  bool applied = false;            // the pairs were estimated again with the corrected focal length
+  std::string Report() const;
 };
 
 struct PairReport {
@@ -67,6 +101,8 @@ struct ImagePipelineResult {
   std::map<std::string, int> failures;  // reason -> count
   int near_planar_pairs = 0;            // kept pairs a homography explains (see RelativePoseOptions)
   int rotation_model_pairs = 0;         // kept pairs whose rotation comes from the rotation-only model
+  FocalCalibration focal;               // ImagePipelineOptions::focal
+  double focal_s = 0.0;                 // its estimation and the pairs estimated again
   std::vector<std::string> errors;      // images that could not be read
   std::string Report() const;
 };
@@ -109,6 +145,21 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
 PairReport EstimatePair(int image1, int image2, const std::vector<Eigen::Vector2d>& points1,
                         const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k,
                         const RelativePoseOptions& options);
+
+// One pair for EstimateFocalScale: its matched keypoints (pixels of images
+// with the pinhole matrix k) and the pose estimated from them with k.
+struct FocalPair {
+  const std::vector<Eigen::Vector2d>* points1 = nullptr;
+  const std::vector<Eigen::Vector2d>* points2 = nullptr;
+  const RelativePoseResult* pose = nullptr;
+};
+
+// Estimates the scale of the focal length of `k` from the successful
+// essential-matrix pairs (FocalCalibrationOptions). `applied` is left false:
+// the caller decides, with ShouldApplyFocalScale.
+FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const Eigen::Matrix3d& k,
+                                    const FocalCalibrationOptions& options);
+bool ShouldApplyFocalScale(const FocalCalibration& calibration, const FocalCalibrationOptions& options);
 
 // The edge of one successful pair (i, j).
 RelativeRotation EdgeFromPair(const PairReport& pair);
