@@ -63,7 +63,9 @@ enum class SpanningTreeWeight { kAuto, kUniform, kInliers, kInformation };
 //  kFloor: add an isotropic covariance C + s^2 I to every edge, with s^2
 //    estimated from the residuals of the solve (EstimateCovarianceFloor in
 //    component_problem.h), and solve again from the start at the loss scale
-//    as given. Estimated at any residual scale (it is zero when the residuals
+//    as given; the floor is estimated again from that solve, and so on until
+//    it settles (at most five rounds: the first solve's residuals, under the
+//    optimistic covariances, overstate it). Estimated at any residual scale (it is zero when the residuals
 //    fit the covariances); the loss is still widened if the residual scale
 //    stays above auto_scale_threshold.
 //    For errors that do not shrink with the number of matches behind an
