@@ -288,13 +288,8 @@ FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const E
       const double threshold = used[u].threshold;
       double truncated = 0.0;
       for (int round = 0; round < 3; ++round) {
-        std::vector<Eigen::Vector2d> p1, p2;
-        for (int m : inliers) {
-          p1.push_back(all1[m]);
-          p2.push_back(all2[m]);
-        }
-        if (static_cast<int>(p1.size()) < options.min_inliers / 2) break;
-        RefinePoseOnInliers(p1, p2, ka, ka, &rotation, &translation);
+        if (static_cast<int>(inliers.size()) < options.min_inliers / 2) break;
+        RefinePoseOnInliers(all1, all2, inliers, ka, ka, &rotation, &translation);
         const Eigen::Matrix3d f = ka_inv.transpose() * Hat(translation) * rotation * ka_inv;
         inliers.clear();
         truncated = 0.0;

@@ -49,10 +49,6 @@ void InformationFromCovariance(const Eigen::Matrix3d& covariance, double scale, 
   *sqrt_information = inv.cwiseSqrt().asDiagonal() * eig.eigenvectors().transpose();
 }
 
-}  // namespace
-
-namespace {
-
 // chi2(3): median, 99% quantile, and mean below that quantile.
 constexpr double kChi2Median3 = 2.366;
 constexpr double kChi2Quantile99 = 11.345;
@@ -60,6 +56,19 @@ constexpr double kChi2TruncatedMean99 = 2.894;
 // With fewer redundant edges the floor is not estimated: with one or two,
 // its estimate would rest on a single loop's misclosure.
 constexpr int kMinRedundantEdges = 3;
+
+// The covariance C = W^-1 of an information matrix as its axes (the
+// eigenvectors of W) and the variances along them (infinite where W has no
+// positive eigenvalue).
+void CovarianceAxes(const Eigen::Matrix3d& information, Eigen::Matrix3d* axes, Eigen::Vector3d* variances) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+  eig.computeDirect(information);
+  *axes = eig.eigenvectors();
+  for (int i = 0; i < 3; ++i) {
+    const double l = eig.eigenvalues()(i);
+    (*variances)(i) = l > 0.0 ? 1.0 / l : std::numeric_limits<double>::infinity();
+  }
+}
 
 }  // namespace
 
@@ -72,13 +81,9 @@ double EstimateCovarianceFloor(const std::vector<ComponentEdge>& edges, const st
   std::vector<Eigen::Vector3d> variances(m), projected(m);
   std::vector<double> squared_norms(m);
   for (std::size_t k = 0; k < m; ++k) {
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
-    eig.computeDirect(edges[k].information);
-    for (int i = 0; i < 3; ++i) {
-      const double l = eig.eigenvalues()(i);
-      variances[k](i) = l > 0.0 ? 1.0 / l : std::numeric_limits<double>::infinity();
-    }
-    projected[k] = (eig.eigenvectors().transpose() * residuals[k]).cwiseAbs2();
+    Eigen::Matrix3d axes;
+    CovarianceAxes(edges[k].information, &axes, &variances[k]);
+    projected[k] = (axes.transpose() * residuals[k]).cwiseAbs2();
     squared_norms[k] = residuals[k].squaredNorm();
     if (!projected[k].allFinite()) projected[k].setZero();
   }
@@ -142,19 +147,16 @@ std::vector<ComponentEdge> WithCovarianceFloor(const std::vector<ComponentEdge>&
   std::vector<ComponentEdge> floored = edges;
   if (!(variance > 0.0)) return floored;
   for (ComponentEdge& e : floored) {
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
-    eig.computeDirect(e.information);
+    Eigen::Matrix3d axes;
     Eigen::Vector3d c;
-    for (int i = 0; i < 3; ++i) {
-      const double l = eig.eigenvalues()(i);
-      c(i) = (l > 0.0 ? 1.0 / l : 1e300) + variance;
-    }
-    const Eigen::Matrix3d covariance = eig.eigenvectors() * c.asDiagonal() * eig.eigenvectors().transpose();
+    CovarianceAxes(e.information, &axes, &c);
+    // Finite, or inf * 0 in the product below would give NaN.
+    c = (c.cwiseMin(1e300).array() + variance).matrix();
+    const Eigen::Matrix3d covariance = axes * c.asDiagonal() * axes.transpose();
     InformationFromCovariance(covariance, 1.0, &e.information, &e.sqrt_information);
   }
   return floored;
 }
-
 
 double ComponentProblem::CostOf(const std::vector<ComponentEdge>& edges, const std::vector<Eigen::Matrix3d>& rotations,
                                 const RobustLoss& loss) {

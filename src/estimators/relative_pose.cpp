@@ -166,15 +166,11 @@ RelativePoseResult Fail(TwoViewFailure failure, const std::string& message) {
 
 }  // namespace
 
-double RefinePoseOnInliers(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
-                           const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2, Eigen::Matrix3d* rotation,
-                           Eigen::Vector3d* translation, int max_iterations) {
-  std::vector<int> all(std::min(points1.size(), points2.size()));
-  for (std::size_t i = 0; i < all.size(); ++i) all[i] = static_cast<int>(i);
-  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+int RefinePoseOnInliers(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                        const std::vector<int>& inliers, const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
+                        Eigen::Matrix3d* rotation, Eigen::Vector3d* translation, int max_iterations) {
   *translation = translation->normalized();
-  RefineSampson(points1, points2, all, k1_inv, k2_inv, max_iterations, rotation, translation);
-  return SampsonSumSquares(points1, points2, all, FundamentalPx(k1_inv, k2_inv, *rotation, *translation));
+  return RefineSampson(points1, points2, inliers, k1.inverse(), k2.inverse(), max_iterations, rotation, translation);
 }
 
 const char* RotationCovarianceModelName(RotationCovarianceModel model) {

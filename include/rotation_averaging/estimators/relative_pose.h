@@ -136,13 +136,13 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
                                                       const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
                                                       const RelativePoseOptions& options = RelativePoseOptions());
 
-// Refines the pose (R_21, unit t_21) on correspondences that are all inliers
-// (pixels of images with intrinsics k1, k2), Levenberg-Marquardt on their
-// Sampson errors as the estimation's own refinement does; returns the sum of
-// their squared Sampson errors in pixels at the result.
-double RefinePoseOnInliers(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
-                           const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2, Eigen::Matrix3d* rotation,
-                           Eigen::Vector3d* translation, int max_iterations = 50);
+// Refines the pose (R_21, unit t_21) on the correspondences `inliers` (indices
+// into points1/points2, pixels of images with intrinsics k1, k2):
+// Levenberg-Marquardt on their Sampson errors, as the estimation's own
+// refinement does. Returns its iterations.
+int RefinePoseOnInliers(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                        const std::vector<int>& inliers, const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
+                        Eigen::Matrix3d* rotation, Eigen::Vector3d* translation, int max_iterations = 50);
 
 }  // namespace rotation_averaging
 
