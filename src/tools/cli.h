@@ -108,8 +108,9 @@ inline std::vector<std::string> Concat(std::vector<std::string> a, const std::ve
   return a;
 }
 
+// per_view (text only): then one line "view NAME ERROR_DEG" per common view.
 inline int Evaluate(const ra::NamedOrientations& estimate, const std::string& gt_path, const std::string& gt_format_text,
-             bool json) {
+             bool json, bool per_view = false) {
   ra::GroundTruthFormat gt_format;
   if (!ra::ParseGroundTruthFormat(gt_format_text, &gt_format)) return Fail("unknown --gt-format " + gt_format_text);
   ra::NamedOrientations gt;
@@ -117,6 +118,9 @@ inline int Evaluate(const ra::NamedOrientations& estimate, const std::string& gt
   if (!report.ok()) return Fail(report.error);
   const ra::EvaluationResult result = ra::EvaluateOrientations(estimate, gt);
   std::cout << (json ? result.ToJson() : result.ToText()) << std::endl;
+  if (per_view && !json) {
+    for (const auto& [name, error] : result.errors_deg) std::cout << "view " << name << " " << error << "\n";
+  }
   return 0;
 }
 

@@ -5,7 +5,8 @@
 //                [--sigma-max S] [--normalization std|paper] [--no-gnc] [--max-iterations N]
 //                [--self-calibration loss_scale|floor]
 //                [--gt PATH [--gt-format ...]] --output orientations.csv
-//   rotavg eval --estimate orientations.csv --gt PATH [--gt-format auto|csv|strecha|colmap|chain] [--json]
+//   rotavg eval --estimate orientations.csv|images.txt [--estimate-format csv|colmap] --gt PATH
+//               [--gt-format auto|csv|strecha|colmap|chain] [--json] [--per-view]
 //   rotavg images ...  runs rotavg_images (beside this program) with the same arguments
 //   rotavg vocabulary ...  runs rotavg_vocabulary likewise
 //
@@ -47,8 +48,10 @@ const char* kUsage = R"(usage:
                             estimated from the residuals, to every edge's covariance; images' default)
       --gt PATH             also score the result against ground truth (see eval)
       --gt-format F         auto (default), csv, strecha, colmap, chain
-  rotavg eval --estimate orientations.csv --gt PATH [--gt-format F] [--json]
-      prints views in ground truth / estimated / common, median and mean error, AUC@2/5/10/20
+  rotavg eval --estimate orientations.csv --gt PATH [--gt-format F] [--estimate-format E] [--json] [--per-view]
+      prints views in ground truth / estimated / common, median and mean error, AUC@2/5/10/20 (--per-view:
+      then each view's error); --estimate-format csv (default) or colmap (a COLMAP text model's images.txt,
+      or its folder: another tool's reconstruction scored the same way)
   rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
                [--pairs exhaustive|sequential:N|list:FILE] [--covariance marginal|conditional] [--graph-out graph.txt]
                [--output orientations.csv] [--gt PATH] [--verbose] [all averaging options of solve]
@@ -103,13 +106,24 @@ int Solve(int argc, char** argv) {
 int EvalCommand(int argc, char** argv) {
   Args args;
   std::string error;
-  if (!ParseArgs(argc, argv, 2, {"--json"}, &args, &error)) return Fail(error);
-  if (!CheckKnown(args, {"--estimate", "--gt", "--gt-format"}, &error)) return Fail(error);
+  if (!ParseArgs(argc, argv, 2, {"--json", "--per-view"}, &args, &error)) return Fail(error);
+  if (!CheckKnown(args, {"--estimate", "--estimate-format", "--gt", "--gt-format"}, &error)) return Fail(error);
   if (!args.Has("--estimate") || !args.Has("--gt")) return Fail("eval needs --estimate and --gt\n" + std::string(kUsage));
+  // Another tool's reconstruction (COLMAP's images.txt) is scored by the same
+  // alignment and errors as ours.
+  const std::string estimate_format = args.Get("--estimate-format", "csv");
   ra::NamedOrientations estimate;
-  const ra::ReadReport report = ra::ReadOrientationsCsv(args.Get("--estimate"), &estimate);
+  ra::ReadReport report;
+  if (estimate_format == "csv") {
+    report = ra::ReadOrientationsCsv(args.Get("--estimate"), &estimate);
+  } else if (estimate_format == "colmap") {
+    report = ra::ReadColmapGroundTruth(args.Get("--estimate"), &estimate);
+  } else {
+    return Fail("unknown --estimate-format " + estimate_format + " (csv or colmap)");
+  }
   if (!report.ok()) return Fail(report.error);
-  return Evaluate(estimate, args.Get("--gt"), args.Get("--gt-format", "auto"), args.Has("--json"));
+  return Evaluate(estimate, args.Get("--gt"), args.Get("--gt-format", "auto"), args.Has("--json"),
+                  args.Has("--per-view"));
 }
 
 int Demo(int argc, char** argv) {

@@ -189,6 +189,51 @@ def test_python_and_the_command_line_give_the_same_orientations(tmp_path, synthe
     assert max(np.abs(cli[k] - py[k]).max() for k in cli) < 1e-12
 
 
+def quaternion_wxyz(r):
+    """Unit quaternion (w, x, y, z) of a rotation matrix (COLMAP's order)."""
+    k = np.array([[r[0, 0] - r[1, 1] - r[2, 2], r[1, 0] + r[0, 1], r[2, 0] + r[0, 2], r[2, 1] - r[1, 2]],
+                  [r[1, 0] + r[0, 1], r[1, 1] - r[0, 0] - r[2, 2], r[2, 1] + r[1, 2], r[0, 2] - r[2, 0]],
+                  [r[2, 0] + r[0, 2], r[2, 1] + r[1, 2], r[2, 2] - r[0, 0] - r[1, 1], r[1, 0] - r[0, 1]],
+                  [r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1], r[0, 0] + r[1, 1] + r[2, 2]]]) / 3.0
+    values, vectors = np.linalg.eigh(k)
+    x, y, z, w = vectors[:, np.argmax(values)]
+    return np.array([w, x, y, z])
+
+
+@pytest.mark.skipif(not ROTAVG, reason="ROTAVG_BINARY not set")
+def test_command_line_scores_a_colmap_model_as_it_scores_our_csv(tmp_path, synthetic):
+    _, truth, _ = synthetic
+    truth_csv = str(tmp_path / "truth.csv")
+    ra.write_orientations(truth_csv, truth)
+    # Another frame (one rotation away from the truth's) and one view 2 degrees off.
+    frame = ra.exp_so3(np.array([0.3, -1.1, 0.4]))
+    off = sorted(truth)[5]
+    estimate = {name: r @ frame for name, r in truth.items()}
+    estimate[off] = ra.exp_so3(np.radians(2.0) * np.array([0.0, 0.6, 0.8])) @ estimate[off]
+    estimate_csv = str(tmp_path / "estimate.csv")
+    ra.write_orientations(estimate_csv, estimate)
+    lines = ["# Image list with two lines of data per image:"]
+    for index, (name, r) in enumerate(sorted(estimate.items())):
+        w, x, y, z = quaternion_wxyz(r)
+        lines += [f"{index + 1} {w!r} {x!r} {y!r} {z!r} 0.5 -0.25 2 1 {name}", ""]
+    (tmp_path / "images.txt").write_text("\n".join(lines) + "\n")
+
+    def scores(*arguments):
+        run = subprocess.run([ROTAVG, "eval", "--gt", truth_csv, "--per-view", *arguments], check=True,
+                             capture_output=True, text=True)
+        return {line.split()[1]: float(line.split()[2]) for line in run.stdout.splitlines() if line.startswith("view ")}
+
+    ours = scores("--estimate", estimate_csv)
+    colmap = scores("--estimate", str(tmp_path / "images.txt"), "--estimate-format", "colmap")
+    assert ours.keys() == colmap.keys() == truth.keys()
+    assert abs(colmap[off] - 2.0) < 1e-6
+    assert max(abs(colmap[name] - ours[name]) for name in ours) < 1e-9
+    assert max(error for name, error in colmap.items() if name != off) < 1e-9
+    bad = subprocess.run([ROTAVG, "eval", "--gt", truth_csv, "--estimate", estimate_csv, "--estimate-format", "bundler"],
+                         capture_output=True, text=True)
+    assert bad.returncode != 0 and "unknown --estimate-format bundler" in bad.stderr
+
+
 def test_solves_in_threads_agree_with_sequential_ones(synthetic):
     graph, _, _ = synthetic
     expected = ra.solve(graph).rotations
