@@ -7,6 +7,7 @@
 #                      synthetic robustness and the synthetic loss x weighting table
 #   scale.md           1,000 to 1,000,000 synthetic views (time, memory, growth exponent)
 #   online.md          the online re-solve of a 10,000-keyframe graph growing one keyframe at a time
+#   colmap.md          COLMAP's bundle adjustment against rotavg images, one evaluator
 #   frontend.md        the two-view front end on the Strecha scenes and lund_door
 #   loss_table.md      (full resolution and downsampled by 4): covariance
 #   plots/cdf_*.png    calibration, the loss x weighting table, CDF plots, speed
@@ -15,7 +16,7 @@
 #   long_run.md        the keyframe front end over 800 keyframes and three laps
 # results/README.md is the written summary of these files.
 #
-#   bash scripts/report.sh            about 25 minutes on 2 cores (1,000,000 views alone: 3-4, beside the front end)
+#   bash scripts/report.sh            about 50 minutes on 2 cores (COLMAP about 25 of them; 1,000,000 views alone: 3-4, beside the front end)
 #   bash scripts/report.sh --quick    under 3 minutes; small sizes, written to build/report_quick/
 #                                     (CI runs it so the report code never rots)
 # Real data comes from ../shared/data (ROTAVG_DATA_DIR to override); parts that
@@ -57,6 +58,8 @@ step "core solvers"
 "$BIN/rotavg_benchmark" --data "$DATA" --output results/core_benchmark.md > /dev/null
 step "online re-solve"
 "$BIN/rotavg_scale_benchmark" --only online --output results/online.md > /dev/null
+step "COLMAP on the Strecha scenes (its models are scored in frontend.md too)"
+bash scripts/benchmark_colmap.sh > /dev/null
 step "scale (in the background) and the front end with the loss x weighting table"
 "$BIN/rotavg_scale_benchmark" --only scale --output results/scale.md > build/report_scale.log 2>&1 &
 SCALE=$!

@@ -1,0 +1,124 @@
+#!/usr/bin/env bash
+# Regenerates results/colmap.md: COLMAP's incremental SfM with bundle
+# adjustment (Debian's colmap package, on the CPU) against `rotavg images`
+# with its defaults, on the Strecha scenes at full resolution, both scored by
+# the same evaluator (`rotavg eval`: one robustly fitted alignment rotation,
+# then per-view angular errors). COLMAP gets what rotavg gets: the images and
+# the given intrinsics (one PINHOLE camera), with its defaults otherwise (it
+# refines the focal length in its bundle adjustment).
+# lund_door is left out: its reference poses are a COLMAP reconstruction.
+#   bash scripts/benchmark_colmap.sh      (about 30 minutes on 2 cores)
+#   bash scripts/benchmark_colmap.sh --report-only   (results/colmap.md from the last runs)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh > /dev/null
+if ! command -v colmap > /dev/null; then
+  DEBIAN_FRONTEND=noninteractive apt-get install -y colmap > /dev/null
+fi
+export PATH=/usr/bin:$PATH
+export QT_QPA_PLATFORM=offscreen  # colmap's command line needs no display
+BIN=build/devel/lib/rotation_averaging
+OUT=build/benchmark_colmap
+DATA=${ROTAVG_DATA_DIR:-../shared/data}
+mkdir -p "$OUT"
+
+seconds() { date +%s.%N; }
+
+SCENES=()
+for s in fountain-P11 entry-P10 castle-P19; do
+  [ -d "$DATA/strecha/$s" ] && SCENES+=("$s")
+done
+if [ ${#SCENES[@]} -eq 0 ]; then
+  echo "no Strecha scenes under $DATA/strecha: nothing to compare" >&2
+  exit 1
+fi
+
+for s in "${SCENES[@]}"; do
+  [ "${1:-}" = "--report-only" ] && break
+  C="$DATA/strecha/$s"
+  W="$OUT/$s"
+  rm -rf "$W"
+  mkdir -p "$W/sparse"
+  read -r -a k < <(tr -s ' \n' ' ' < "$C/images/K.txt"; echo)
+  fx=${k[0]} cx=${k[2]} fy=${k[4]} cy=${k[5]}
+  start=$(seconds)
+  colmap feature_extractor --database_path "$W/database.db" --image_path "$C/images" \
+    --ImageReader.camera_model PINHOLE --ImageReader.single_camera 1 \
+    --ImageReader.camera_params "$fx,$fy,$cx,$cy" --SiftExtraction.use_gpu 0 > "$W/colmap.log" 2>&1
+  colmap exhaustive_matcher --database_path "$W/database.db" --SiftMatching.use_gpu 0 >> "$W/colmap.log" 2>&1
+  # Debian's COLMAP 3.8 can spin without end in the essential-matrix RANSAC
+  # of its initial pair (LORANSAC, seen on fountain-P11): bounded, and
+  # reported as not finished.
+  if timeout "${COLMAP_MAPPER_TIMEOUT:-420}" colmap mapper --database_path "$W/database.db" --image_path "$C/images" \
+    --output_path "$W/sparse" >> "$W/colmap.log" 2>&1 && [ -d "$W/sparse/0" ]; then
+    # The largest model is 0.
+    colmap model_converter --input_path "$W/sparse/0" --output_path "$W" --output_type TXT >> "$W/colmap.log" 2>&1
+    "$BIN/rotavg" eval --estimate "$W/images.txt" --estimate-format colmap --gt "$C" --per-view > "$W/colmap_scores.txt"
+  else
+    echo "mapper did not finish" > "$W/colmap_failed.txt"
+  fi
+  echo "$(seconds) - $start" | bc > "$W/colmap_seconds.txt"
+
+  start=$(seconds)
+  "$BIN/rotavg" images --images "$C/images" --intrinsics "$C/images/K.txt" --output "$W/rotavg.csv" > "$W/rotavg.log"
+  echo "$(seconds) - $start" | bc > "$W/rotavg_seconds.txt"
+  "$BIN/rotavg" eval --estimate "$W/rotavg.csv" --gt "$C" --per-view > "$W/rotavg_scores.txt"
+done
+
+field() {  # file, label
+  sed -n "s/^$2: \([0-9.a-z]*\).*/\1/p" "$1"
+}
+
+{
+  echo "# Rotation averaging from images against COLMAP's bundle adjustment"
+  echo
+  echo "Reproduce with: \`bash scripts/benchmark_colmap.sh\`. Generated $(date -u '+%Y-%m-%d %H:%M') UTC on a $(nproc)-core machine, $(colmap -h 2>&1 | sed -n 's/^COLMAP \([0-9.]*\).*/COLMAP \1/p' | head -1) from Debian."
+  echo
+  echo "Both methods get the images at full resolution and the given intrinsics. COLMAP:"
+  echo "\`feature_extractor\` (one PINHOLE camera with the given K, CPU SIFT), \`exhaustive_matcher\`,"
+  echo "\`mapper\` (incremental SfM with bundle adjustment; by default it refines the focal length), every"
+  echo "other setting its default. rotavg: \`rotavg images\` with its defaults (rotation averaging only, no"
+  echo "bundle adjustment). Both are scored by \`rotavg eval\` against the LIDAR-registered cameras: one"
+  echo "robustly fitted rotation aligns the estimate, then the angle of every view's error. Times are wall"
+  echo "time of the whole run on this machine."
+  echo
+  echo "| scene | views | COLMAP: registered | median (deg) | mean (deg) | AUC@2 (%) | seconds | rotavg: median (deg) | mean (deg) | AUC@2 (%) | seconds |"
+  echo "|---|---|---|---|---|---|---|---|---|---|---|"
+  for s in "${SCENES[@]}"; do
+    W="$OUT/$s"
+    views=$(field "$W/rotavg_scores.txt" "views in ground truth")
+    ours="$(field "$W/rotavg_scores.txt" "median error") | $(field "$W/rotavg_scores.txt" "mean error") | $(field "$W/rotavg_scores.txt" "AUC@2") | $(printf '%.0f' "$(cat "$W/rotavg_seconds.txt")")"
+    if [ -f "$W/colmap_failed.txt" ]; then
+      echo "| $s | $views | mapper did not finish | - | - | - | > $(printf '%.0f' "$(cat "$W/colmap_seconds.txt")") | $ours |"
+    else
+      echo "| $s | $views | $(field "$W/colmap_scores.txt" "views common") | $(field "$W/colmap_scores.txt" "median error") | $(field "$W/colmap_scores.txt" "mean error") | $(field "$W/colmap_scores.txt" "AUC@2") | $(printf '%.0f' "$(cat "$W/colmap_seconds.txt")") | $ours |"
+    fi
+  done
+  echo
+  echo "COLMAP's camera after its bundle adjustment (cameras.txt: fx, fy, cx, cy) against the given K:"
+  echo
+  echo "| scene | given fx, fy | COLMAP fx, fy |"
+  echo "|---|---|---|"
+  for s in "${SCENES[@]}"; do
+    [ -f "$OUT/$s/cameras.txt" ] || continue
+    read -r -a k < <(tr -s ' \n' ' ' < "$DATA/strecha/$s/images/K.txt"; echo)
+    fx=${k[0]} fy=${k[4]}
+    refined=$(grep -v '^#' "$OUT/$s/cameras.txt" | head -1 | awk '{printf "%.1f, %.1f", $5, $6}')
+    echo "| $s | $fx, $fy | $refined |"
+  done
+  echo
+  echo "Per view (deg), COLMAP / rotavg:"
+  for s in "${SCENES[@]}"; do
+    W="$OUT/$s"
+    echo
+    echo "**$s**"
+    echo
+    echo "| view | COLMAP | rotavg |"
+    echo "|---|---|---|"
+    while read -r _ name error; do
+      other=$(sed -n "s/^view $name \([0-9.e+-]*\)$/\1/p" "$W/colmap_scores.txt" 2>/dev/null || true)
+      printf '| %s | %s | %.4f |\n' "$name" "$( [ -n "$other" ] && printf '%.4f' "$other" || echo -)" "$error"
+    done < <(grep '^view ' "$W/rotavg_scores.txt")
+  done
+} > results/colmap.md
+cat results/colmap.md
