@@ -23,6 +23,8 @@ DATA=${ROTAVG_DATA_DIR:-../shared/data}
 mkdir -p "$OUT"
 
 seconds() { date +%s.%N; }
+# The 3x3 K of a scene, row by row, into the array k.
+read_k() { read -r -a k < <(tr -s ' \n' ' ' < "$DATA/strecha/$1/images/K.txt"; echo); }
 
 SCENES=()
 for s in fountain-P11 entry-P10 castle-P19; do
@@ -39,7 +41,7 @@ for s in "${SCENES[@]}"; do
   W="$OUT/$s"
   rm -rf "$W"
   mkdir -p "$W/sparse"
-  read -r -a k < <(tr -s ' \n' ' ' < "$C/images/K.txt"; echo)
+  read_k "$s"
   fx=${k[0]} cx=${k[2]} fy=${k[4]} cy=${k[5]}
   start=$(seconds)
   colmap feature_extractor --database_path "$W/database.db" --image_path "$C/images" \
@@ -101,7 +103,7 @@ field() {  # file, label
   echo "|---|---|---|"
   for s in "${SCENES[@]}"; do
     [ -f "$OUT/$s/cameras.txt" ] || continue
-    read -r -a k < <(tr -s ' \n' ' ' < "$DATA/strecha/$s/images/K.txt"; echo)
+    read_k "$s"
     fx=${k[0]} fy=${k[4]}
     refined=$(grep -v '^#' "$OUT/$s/cameras.txt" | head -1 | awk '{printf "%.1f, %.1f", $5, $6}')
     echo "| $s | $fx, $fy | $refined |"

@@ -65,6 +65,25 @@ struct Scene {
   bool exact_intrinsics;     // K comes with the ground truth (Strecha), not from a reconstruction
 };
 
+// A method's row of the long table (loss_table.md): median and every AUC.
+std::string LongTableRow(const std::string& scene, const std::string& scale, const std::string& label,
+                         const ra::EvaluationResult& e) {
+  std::ostringstream row;
+  row << "| " << scene << " | " << scale << " | " << label << " | " << Fixed(e.median_error_deg, 4);
+  for (const auto& [t, a] : e.auc) row << " | " << Fixed(100.0 * a, 1);
+  row << " |\n";
+  return row.str();
+}
+
+// A row of a scene's "other method" table: median and the first four AUCs.
+std::string OtherMethodRow(const std::string& label, const ra::EvaluationResult& e) {
+  std::ostringstream row;
+  row << "| " << label << " | " << Fixed(e.median_error_deg, 4);
+  for (std::size_t t = 0; t < 4; ++t) row << " | " << Fixed(100.0 * e.auc[t].second, 1);
+  row << " |\n";
+  return row.str();
+}
+
 
 
 double Mean(const std::vector<double>& v) {
@@ -411,10 +430,7 @@ int main(int argc, char** argv) {
           std::cerr << "  " << refinement.Report() << "\n";
         }
         results.push_back(ra::EvaluateOrientations(ra::NameOrientations(graphs[m.covariance], out), gt, thresholds));
-        const ra::EvaluationResult& e = results.back();
-        table << "| " << scene.name << " | " << scale_text << " | " << m.label << " | " << Fixed(e.median_error_deg, 4);
-        for (const auto& [t, a] : e.auc) table << " | " << Fixed(100.0 * a, 1);
-        table << " |\n";
+        table << LongTableRow(scene.name, scale_text, m.label, results.back());
       }
       // The loss x weighting matrix of medians, then the other methods.
       accuracy << "\n**" << scene.name << ", scale " << scale_text << "** (" << gt.size()
@@ -433,23 +449,21 @@ int main(int argc, char** argv) {
       }
       accuracy << "\n\n| other method | median (deg) | AUC@0.1 | AUC@0.5 | AUC@1 | AUC@2 |\n|---|---|---|---|---|---|\n";
       for (std::size_t k = kLosses.size() * kWeightings.size(); k < methods.size(); ++k) {
-        accuracy << "| " << methods[k].label << " | " << Fixed(results[k].median_error_deg, 4);
-        for (std::size_t t = 0; t < 4; ++t) accuracy << " | " << Fixed(100.0 * results[k].auc[t].second, 1);
-        accuracy << " |\n";
+        accuracy << OtherMethodRow(methods[k].label, results[k]);
       }
       // COLMAP's reconstruction from the full-resolution images, scored as
       // the methods above.
       const fs::path colmap_model = fs::path(colmap_dir) / scene.name / "images.txt";
-      ra::NamedOrientations colmap;
-      if (scale_text == "1" && fs::exists(colmap_model) &&
-          ra::ReadColmapGroundTruth(colmap_model.string(), &colmap).ok()) {
-        const ra::EvaluationResult e = ra::EvaluateOrientations(colmap, gt, thresholds);
-        accuracy << "| " << kColmapLabel << " | " << Fixed(e.median_error_deg, 4);
-        for (std::size_t t = 0; t < 4; ++t) accuracy << " | " << Fixed(100.0 * e.auc[t].second, 1);
-        accuracy << " |\n";
-        table << "| " << scene.name << " | " << scale_text << " | " << kColmapLabel << " | " << Fixed(e.median_error_deg, 4);
-        for (const auto& [t, a] : e.auc) table << " | " << Fixed(100.0 * a, 1);
-        table << " |\n";
+      if (scale_text == "1" && fs::exists(colmap_model)) {
+        ra::NamedOrientations colmap;
+        const ra::ReadReport read = ra::ReadColmapGroundTruth(colmap_model.string(), &colmap);
+        if (read.ok()) {
+          const ra::EvaluationResult e = ra::EvaluateOrientations(colmap, gt, thresholds);
+          accuracy << OtherMethodRow(kColmapLabel, e);
+          table << LongTableRow(scene.name, scale_text, kColmapLabel, e);
+        } else {
+          std::cerr << "  COLMAP model left out: " << read.error << "\n";
+        }
       }
       // The paper's figure: cumulative error distributions of a few methods.
       std::vector<ra::CdfSeries> curves;
