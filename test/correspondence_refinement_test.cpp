@@ -5,6 +5,7 @@
 #include <Eigen/Geometry>
 #include <random>
 
+#include "refinement_test_util.h"
 #include "rotation_averaging/geometry/so3.h"
 
 namespace rotation_averaging {
@@ -57,25 +58,6 @@ Scene MakeScene(int views, double noise_px, std::uint32_t seed) {
     }
   }
   return scene;
-}
-
-// Largest angle between the estimate and the truth after removing the gauge
-// (both expressed relative to view 0).
-double MaxErrorDeg(const ViewOrientations& estimate, const ViewOrientations& truth) {
-  double worst = 0.0;
-  const Eigen::Matrix3d e0 = estimate.at(0), t0 = truth.at(0);
-  for (const auto& [id, r] : truth) {
-    worst = std::max(worst, RadToDeg(LogSO3((r * t0.transpose()).transpose() * (estimate.at(id) * e0.transpose())).norm()));
-  }
-  return worst;
-}
-
-ViewOrientations Perturbed(const ViewOrientations& truth, double degrees, std::uint32_t seed) {
-  std::mt19937 rng(seed);
-  std::normal_distribution<double> n(0.0, DegToRad(degrees) / std::sqrt(3.0));
-  ViewOrientations out;
-  for (const auto& [id, r] : truth) out[id] = ExpSO3(Eigen::Vector3d(n(rng), n(rng), n(rng))) * r;
-  return out;
 }
 
 // The minimum the refinement finds from the true orientations: the best an
@@ -148,20 +130,7 @@ TEST(CorrespondenceRefinement, AWrongPairIsLeftOutAndDoesNotPull) {
 TEST(CorrespondenceRefinement, BadEdgesAreLeftOutAndNothingToRefineChangesNothing) {
   Scene scene = MakeScene(4, 0.5, 7);
   std::vector<EdgeCorrespondences> edges = scene.edges;
-  EdgeCorrespondences nan_point = edges[0];
-  nan_point.points1[3].x() = std::numeric_limits<double>::quiet_NaN();
-  EdgeCorrespondences no_sigma = edges[1];
-  no_sigma.sigma = 0.0;
-  EdgeCorrespondences self = edges[2];
-  self.view2 = self.view1;
-  EdgeCorrespondences unknown = edges[3];
-  unknown.view2 = 99;
-  EdgeCorrespondences uneven = edges[4];
-  uneven.points2.pop_back();
-  EdgeCorrespondences few = edges[5];
-  few.points1.resize(3);
-  few.points2.resize(3);
-  const std::vector<EdgeCorrespondences> bad = {nan_point, no_sigma, self, unknown, uneven, few};
+  const std::vector<EdgeCorrespondences> bad = BadEdgeCorrespondences(edges);
 
   ViewOrientations orientations = Perturbed(scene.truth, 0.5, 8);
   const ViewOrientations start = orientations;

@@ -33,32 +33,6 @@ struct WhitenedSampson {
   double inverse_sigma_;
 };
 
-bool Finite(const EdgeCorrespondences& e) {
-  if (!std::isfinite(e.sigma) || !(e.sigma > 0.0) || !e.translation.allFinite() || !(e.translation.norm() > 0.0)) {
-    return false;
-  }
-  for (std::size_t k = 0; k < e.points1.size(); ++k) {
-    if (!e.points1[k].allFinite() || !e.points2[k].allFinite()) return false;
-  }
-  return true;
-}
-
-// The translation direction that best explains the correspondences under
-// the relative rotation r21: x2^T [t]x R x1 = t . (R x1 x x2), so t is the
-// eigenvector of the smallest eigenvalue of sum m m^T, m = R x1 x x2, with
-// the two-view estimate's sign.
-Eigen::Vector3d StartDirection(const EdgeCorrespondences& e, const Eigen::Matrix3d& r21) {
-  Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
-  for (std::size_t k = 0; k < e.points1.size(); ++k) {
-    const Eigen::Vector3d m = (r21 * e.points1[k].homogeneous()).cross(e.points2[k].homogeneous());
-    a += m * m.transpose();
-  }
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(a);
-  Eigen::Vector3d t = eigen.eigenvectors().col(0);
-  if (t.dot(e.translation) < 0.0) t = -t;
-  return t.allFinite() && t.norm() > 0.5 ? t.normalized() : e.translation.normalized();
-}
-
 // Fraction of the correspondences whose whitened Sampson error under
 // (r21, t) is within `scale`.
 double FractionWithin(const EdgeCorrespondences& e, const Eigen::Matrix3d& r21, const Eigen::Vector3d& t, double scale) {
@@ -92,13 +66,13 @@ bool Pass(const std::vector<EdgeCorrespondences>& edges, const CorrespondenceRef
     const auto a = orientations->find(e.view1), b = orientations->find(e.view2);
     if (e.view1 == e.view2 || a == orientations->end() || b == orientations->end() ||
         e.points1.size() != e.points2.size() ||
-        static_cast<int>(e.points1.size()) < std::max(1, options.min_correspondences) || !Finite(e) ||
+        static_cast<int>(e.points1.size()) < std::max(1, options.min_correspondences) || !CorrespondencesAreFinite(e) ||
         !a->second.allFinite() || !b->second.allFinite()) {
       ++summary->edges_skipped;
       continue;
     }
     const Eigen::Matrix3d r21 = b->second * a->second.transpose();
-    const Eigen::Vector3d t = StartDirection(e, r21);
+    const Eigen::Vector3d t = BestTranslationDirection(e, r21);
     if (gate > 0.0 && FractionWithin(e, r21, t, scale) < gate) {
       ++summary->edges_contradicted;
       continue;
@@ -182,6 +156,28 @@ bool Pass(const std::vector<EdgeCorrespondences>& edges, const CorrespondenceRef
 }
 
 }  // namespace
+
+bool CorrespondencesAreFinite(const EdgeCorrespondences& e) {
+  if (!std::isfinite(e.sigma) || !(e.sigma > 0.0) || !e.translation.allFinite() || !(e.translation.norm() > 0.0)) {
+    return false;
+  }
+  for (std::size_t k = 0; k < e.points1.size(); ++k) {
+    if (!e.points1[k].allFinite() || !e.points2[k].allFinite()) return false;
+  }
+  return true;
+}
+
+Eigen::Vector3d BestTranslationDirection(const EdgeCorrespondences& e, const Eigen::Matrix3d& r21) {
+  Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+  for (std::size_t k = 0; k < e.points1.size(); ++k) {
+    const Eigen::Vector3d m = (r21 * e.points1[k].homogeneous()).cross(e.points2[k].homogeneous());
+    a += m * m.transpose();
+  }
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(a);
+  Eigen::Vector3d t = eigen.eigenvectors().col(0);
+  if (t.dot(e.translation) < 0.0) t = -t;
+  return t.allFinite() && t.norm() > 0.5 ? t.normalized() : e.translation.normalized();
+}
 
 std::string CorrespondenceRefinementSummary::Report() const {
   std::ostringstream out;

@@ -44,6 +44,16 @@ struct EdgeCorrespondences {
   double sigma = 0.0;
 };
 
+// True if the edge's sigma is positive and its translation and points are
+// finite.
+bool CorrespondencesAreFinite(const EdgeCorrespondences& e);
+
+// The translation direction that best explains the edge's correspondences
+// under the relative rotation r21: x2^T [t]x R x1 = t . (R x1 x x2), so t is
+// the eigenvector of the smallest eigenvalue of sum m m^T, m = R x1 x x2,
+// with the sign of e.translation (which it falls back to if degenerate).
+Eigen::Vector3d BestTranslationDirection(const EdgeCorrespondences& e, const Eigen::Matrix3d& r21);
+
 struct CorrespondenceRefinementOptions {
   // Cauchy scale in standard deviations of each edge's residual. 3: the rule
   // the two-view refinement selects its inliers with, so a match the

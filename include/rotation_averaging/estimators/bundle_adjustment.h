@@ -1,0 +1,91 @@
+// Stable interface of rotation_averaging::core (README.md, "Embedding the averager").
+// Bundle adjustment started from averaged orientations: the refinement that
+// gives the averaging what incremental SfM has and pairwise summaries lack,
+// points seen in three or more views.
+//
+// A pair's relative rotation, however it is summarised (a covariance, or its
+// Sampson cost as in correspondence_refinement.h), only knows that pair's
+// matches. A wrong match that lies near its pair's epipolar line (a window
+// matched to the next one along a façade) fits that pair, but the 3D point
+// it implies does not project onto the same feature in the other views of
+// its track; and each pair's translation direction is free there, while here
+// every pair's baseline comes from the same camera centres. So the rotation
+// is pinned by every view that sees a point, as in SfM's bundle adjustment:
+//
+//   1. Tracks: the inlier correspondences of the edges are linked through
+//      the keypoints they share (a keypoint is its coordinates in its view);
+//      a track holding two keypoints of one view is inconsistent and dropped.
+//   2. Camera centres with the orientations held: c_j - c_i = s_ij d_ij,
+//      s_ij >= 1, d_ij the direction the edge's matches give under the
+//      averaged orientations (least unsquared deviations, Ozyesil & Singer,
+//      CVPR 2015: convex, so no start is needed).
+//   3. Points by the midpoint of their rays; tracks behind a camera or with
+//      too little parallax are left out.
+//   4. Reprojection errors, each whitened by its view's pixel noise (the
+//      median of its edges' Sampson noise), minimised under Huber's loss
+//      (the centres of step 2 are rough) over centres and points with the
+//      orientations held, then over everything; then observations beyond
+//      `outlier_sigmas` are dropped and everything is adjusted again under
+//      Cauchy's loss.
+#ifndef ROTATION_AVERAGING_ESTIMATORS_BUNDLE_ADJUSTMENT_H_
+#define ROTATION_AVERAGING_ESTIMATORS_BUNDLE_ADJUSTMENT_H_
+
+#include <Eigen/Core>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "rotation_averaging/estimators/correspondence_refinement.h"
+#include "rotation_averaging/estimators/rotation_averaging.h"
+
+namespace rotation_averaging {
+
+struct BundleAdjustmentOptions {
+  // Loss scale in standard deviations of an observation's pixel noise, for
+  // the Huber stages and the final Cauchy one.
+  double loss_scale_sigmas = 3.0;
+  // Before the last stage, observations whose whitened reprojection error
+  // exceeds this are dropped (and tracks left with fewer than two views).
+  double outlier_sigmas = 6.0;
+  // Tracks whose rays meet at less than this angle (degrees) are left out:
+  // their depth, and with it their pull on the orientations, is undetermined.
+  double min_parallax_deg = 1.0;
+  int max_iterations = 200;  // per stage
+  int min_correspondences = 8;  // edges with fewer are left out
+};
+
+struct BundleAdjustmentSummary {
+  int views = 0;
+  int edges_used = 0;
+  int edges_skipped = 0;        // too few correspondences, unknown views, bad numbers
+  int tracks = 0;               // triangulated and adjusted (final stage)
+  int tracks_inconsistent = 0;  // holding two keypoints of one view
+  int tracks_unconstrained = 0; // behind a camera or below min_parallax_deg
+  std::size_t observations = 0; // final stage
+  std::size_t observations_dropped = 0;  // beyond outlier_sigmas before the last stage
+  // Root mean square of the whitened reprojection errors, per coordinate:
+  // after triangulation, and of the kept observations at the end.
+  double initial_rms_sigmas = 0.0;
+  double final_rms_sigmas = 0.0;
+  int iterations = 0;           // of every stage
+  double time_s = 0.0;
+  bool converged = false;
+  std::string status;
+  std::string Report() const;   // one line for logs and the CLI
+};
+
+// Refines `orientations` (world-to-camera, as SolveRotationAveraging gives
+// them) in place and, if `centres` is given, fills it with the adjusted
+// camera centres (in the frame of the orientations, up to one scale per
+// component). Views without an orientation and edges touching one are left
+// out; the first view of each connected component of the tracks is held
+// fixed (the gauge, with the scale from s_ij >= 1). Returns false, leaving
+// `orientations` as they were, if nothing could be adjusted or a solve failed.
+bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>& edges,
+                                         const BundleAdjustmentOptions& options, ViewOrientations* orientations,
+                                         BundleAdjustmentSummary* summary,
+                                         std::unordered_map<ViewId, Eigen::Vector3d>* centres = nullptr);
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_ESTIMATORS_BUNDLE_ADJUSTMENT_H_
