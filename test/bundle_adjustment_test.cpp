@@ -161,6 +161,38 @@ TEST(BundleAdjustment, RepeatedStructureMatchesAreDroppedByTheirTracks) {
   EXPECT_GT(shifted, 50);
 }
 
+TEST(BundleAdjustment, TwoViewTracksAreLeftOutByDefault) {
+  // 100 more matches in pair (0, 3) only, each between two keypoints no other
+  // pair has, all 1.5 px above where they belong in view 3: wrong matches
+  // near their epipolar lines, which no third view sees. As two-view tracks
+  // they pull as they pull the pair; by default they are left out.
+  Scene scene = MakeScene(8, 0.3, 11);
+  const Scene clean = scene;
+  std::mt19937 rng(12);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (EdgeCorrespondences& e : scene.edges) {
+    if (e.view1 != 0 || e.view2 != 3) continue;
+    for (int k = 0; k < 100; ++k) {
+      const Eigen::Vector3d p(3.0 * u(rng), 2.0 * u(rng), 6.0 + 2.0 * u(rng));
+      e.points1.push_back((scene.truth.at(0) * (p - scene.centres[0])).hnormalized());
+      e.points2.push_back((scene.truth.at(3) * (p - scene.centres[3])).hnormalized() + Eigen::Vector2d(0.0, 1.5 / kFocal));
+    }
+  }
+  const ViewOrientations start = Perturbed(scene.truth, 0.3, 13);
+  ViewOrientations reference = start, adjusted = start, with_pairs = start;
+  BundleAdjustmentSummary summary;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(clean.edges, BundleAdjustmentOptions(), &reference, &summary));
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &adjusted, &summary));
+  EXPECT_EQ(summary.tracks_short, 100) << summary.Report();
+  EXPECT_EQ(summary.tracks, 300) << summary.Report();
+  EXPECT_LT(MaxErrorDeg(adjusted, reference), 1e-6) << summary.Report();
+  BundleAdjustmentOptions two_views;
+  two_views.min_track_views = 2;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, two_views, &with_pairs, &summary));
+  EXPECT_EQ(summary.tracks_short, 0) << summary.Report();
+  EXPECT_GT(MaxErrorDeg(with_pairs, reference), 1e-3) << summary.Report();
+}
+
 TEST(BundleAdjustment, BadEdgesAreLeftOutAndNothingToAdjustChangesNothing) {
   Scene scene = MakeScene(4, 0.5, 7);
   std::vector<EdgeCorrespondences> edges = scene.edges;

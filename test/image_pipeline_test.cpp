@@ -344,12 +344,14 @@ TEST(ImagePipeline, BundleAdjustmentImprovesTheAveragingOfCastle) {
   std::cout << "castle-P19, 10 images at 1/4: averaging " << averaged << " deg, bundle adjusted " << adjusted << " deg; "
             << adjustment.Report() << "\n";
   EXPECT_EQ(adjustment.views, 10);
-  EXPECT_GT(adjustment.tracks, 1000);
+  // Tracks of three views or more; the two-view ones are left out.
+  EXPECT_GT(adjustment.tracks, 500);
+  EXPECT_GT(adjustment.tracks_short, 500);
   // Most observations fit: the pixel noise the pairs measured is the noise
   // of the tracks too.
   EXPECT_LT(adjustment.observations_dropped, adjustment.observations / 10);
   EXPECT_LT(adjustment.final_rms_sigmas, 2.0);
-  EXPECT_LT(adjusted, 0.9 * averaged);
+  EXPECT_LT(adjusted, 0.5 * averaged);
 }
 
 }  // namespace

@@ -126,9 +126,11 @@ double WhitenedSquaredError(const AdjustedView& v, const Track& t, const Observa
 std::string BundleAdjustmentSummary::Report() const {
   std::ostringstream out;
   out << "bundle adjustment: " << views << " views, " << edges_used << " edges (" << edges_skipped << " unusable), "
-      << tracks << " tracks (" << tracks_inconsistent << " inconsistent, " << tracks_unconstrained
+      << tracks << " tracks (" << tracks_inconsistent << " inconsistent, " << tracks_short << " in too few views, "
+      << tracks_unconstrained
       << " without parallax or behind a camera), " << observations << " observations (" << observations_dropped
-      << " dropped), rms reprojection error " << initial_rms_sigmas << " -> " << final_rms_sigmas << " sigma, "
+      << " dropped), rms reprojection error " << initial_rms_sigmas << " sigma at the centres from the pairs, "
+      << final_rms_sigmas << " sigma adjusted, "
       << iterations << " iterations, " << time_s << " s" << (converged ? "" : " (not converged)");
   if (!status.empty()) out << ": " << status;
   return out.str();
@@ -216,6 +218,10 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
     std::sort(seen.begin(), seen.end());
     if (std::adjacent_find(seen.begin(), seen.end()) != seen.end()) {
       ++summary->tracks_inconsistent;
+      continue;
+    }
+    if (static_cast<int>(seen.size()) < std::max(2, options.min_track_views)) {
+      ++summary->tracks_short;
       continue;
     }
     tracks.push_back(std::move(track));
@@ -358,8 +364,8 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   ceres::CauchyLoss cauchy(scale);
   if (!adjust(false, &cauchy, &first)) return finish(false, "everything: " + first.message);
 
-  // Drop the observations the Huber stages could not fit, then tracks left
-  // with fewer than two views, and triangulate again from the adjusted views.
+  // Drop the observations the first stages could not fit, then tracks left
+  // in too few views, and triangulate again from the adjusted views.
   const double outlier = options.outlier_sigmas * options.outlier_sigmas;
   std::vector<Track> kept;
   for (Track& t : tracks) {
@@ -371,7 +377,9 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
         ++summary->observations_dropped;
       }
     }
-    if (fitted.observations.size() >= 2) kept.push_back(std::move(fitted));
+    if (static_cast<int>(fitted.observations.size()) >= std::max(2, options.min_track_views)) {
+      kept.push_back(std::move(fitted));
+    }
   }
   tracks = std::move(kept);
   triangulate_all();
