@@ -1,15 +1,18 @@
 #!/usr/bin/env bash
 # Regenerates results/colmap.md: COLMAP's incremental SfM with bundle
 # adjustment (Debian's colmap package, on the CPU) against `rotavg images`
-# with its defaults, on the Strecha scenes at full resolution, both scored by
+# with its defaults (averaging, then bundle adjustment) and with the averaging
+# alone, on the Strecha scenes at full resolution, all scored by
 # the same evaluator (`rotavg eval`: one robustly fitted alignment rotation,
 # then per-view angular errors). COLMAP gets what rotavg gets: the images and
 # the given intrinsics (one PINHOLE camera), with its defaults otherwise (it
 # refines the focal length in its bundle adjustment).
 # lund_door is left out: its reference poses are a COLMAP reconstruction.
 #   bash scripts/benchmark_colmap.sh      (about 30 minutes on 2 cores)
+#   bash scripts/benchmark_colmap.sh --rotavg-only   (rotavg again, COLMAP's last runs kept)
 #   bash scripts/benchmark_colmap.sh --report-only   (results/colmap.md from the last runs)
 set -euo pipefail
+MODE=${1:-}
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh > /dev/null
 if ! command -v colmap > /dev/null; then
@@ -36,35 +39,41 @@ if [ ${#SCENES[@]} -eq 0 ]; then
 fi
 
 for s in "${SCENES[@]}"; do
-  [ "${1:-}" = "--report-only" ] && break
+  [ "$MODE" = "--report-only" ] && break
   C="$DATA/strecha/$s"
   W="$OUT/$s"
-  rm -rf "$W"
-  mkdir -p "$W/sparse"
-  read_k "$s"
-  fx=${k[0]} cx=${k[2]} fy=${k[4]} cy=${k[5]}
-  start=$(seconds)
-  colmap feature_extractor --database_path "$W/database.db" --image_path "$C/images" \
-    --ImageReader.camera_model PINHOLE --ImageReader.single_camera 1 \
-    --ImageReader.camera_params "$fx,$fy,$cx,$cy" --SiftExtraction.use_gpu 0 > "$W/colmap.log" 2>&1
-  colmap exhaustive_matcher --database_path "$W/database.db" --SiftMatching.use_gpu 0 >> "$W/colmap.log" 2>&1
-  # Debian's COLMAP 3.8 can spin without end in the essential-matrix RANSAC
-  # of its initial pair (LORANSAC, seen on fountain-P11): bounded, and
-  # reported as not finished.
-  if timeout "${COLMAP_MAPPER_TIMEOUT:-420}" colmap mapper --database_path "$W/database.db" --image_path "$C/images" \
-    --output_path "$W/sparse" >> "$W/colmap.log" 2>&1 && [ -d "$W/sparse/0" ]; then
-    # The largest model is 0.
-    colmap model_converter --input_path "$W/sparse/0" --output_path "$W" --output_type TXT >> "$W/colmap.log" 2>&1
-    "$BIN/rotavg" eval --estimate "$W/images.txt" --estimate-format colmap --gt "$C" --per-view > "$W/colmap_scores.txt"
-  else
-    echo "mapper did not finish" > "$W/colmap_failed.txt"
+  mkdir -p "$W"
+  if [ "$MODE" != "--rotavg-only" ]; then
+    rm -rf "$W"
+    mkdir -p "$W/sparse"
+    read_k "$s"
+    fx=${k[0]} cx=${k[2]} fy=${k[4]} cy=${k[5]}
+    start=$(seconds)
+    colmap feature_extractor --database_path "$W/database.db" --image_path "$C/images" \
+      --ImageReader.camera_model PINHOLE --ImageReader.single_camera 1 \
+      --ImageReader.camera_params "$fx,$fy,$cx,$cy" --SiftExtraction.use_gpu 0 > "$W/colmap.log" 2>&1
+    colmap exhaustive_matcher --database_path "$W/database.db" --SiftMatching.use_gpu 0 >> "$W/colmap.log" 2>&1
+    # Debian's COLMAP 3.8 can spin without end in the essential-matrix RANSAC
+    # of its initial pair (LORANSAC, seen on fountain-P11): bounded, and
+    # reported as not finished.
+    if timeout "${COLMAP_MAPPER_TIMEOUT:-420}" colmap mapper --database_path "$W/database.db" --image_path "$C/images" \
+      --output_path "$W/sparse" >> "$W/colmap.log" 2>&1 && [ -d "$W/sparse/0" ]; then
+      # The largest model is 0.
+      colmap model_converter --input_path "$W/sparse/0" --output_path "$W" --output_type TXT >> "$W/colmap.log" 2>&1
+      "$BIN/rotavg" eval --estimate "$W/images.txt" --estimate-format colmap --gt "$C" --per-view > "$W/colmap_scores.txt"
+    else
+      echo "mapper did not finish" > "$W/colmap_failed.txt"
+    fi
+    echo "$(seconds) - $start" | bc > "$W/colmap_seconds.txt"
   fi
-  echo "$(seconds) - $start" | bc > "$W/colmap_seconds.txt"
 
   start=$(seconds)
   "$BIN/rotavg" images --images "$C/images" --intrinsics "$C/images/K.txt" --output "$W/rotavg.csv" > "$W/rotavg.log"
   echo "$(seconds) - $start" | bc > "$W/rotavg_seconds.txt"
   "$BIN/rotavg" eval --estimate "$W/rotavg.csv" --gt "$C" --per-view > "$W/rotavg_scores.txt"
+  "$BIN/rotavg" images --images "$C/images" --intrinsics "$C/images/K.txt" --no-bundle-adjustment \
+    --output "$W/averaging.csv" > "$W/averaging.log"
+  "$BIN/rotavg" eval --estimate "$W/averaging.csv" --gt "$C" --per-view > "$W/averaging_scores.txt"
 done
 
 field() {  # file, label
@@ -79,17 +88,18 @@ field() {  # file, label
   echo "Both methods get the images at full resolution and the given intrinsics. COLMAP:"
   echo "\`feature_extractor\` (one PINHOLE camera with the given K, CPU SIFT), \`exhaustive_matcher\`,"
   echo "\`mapper\` (incremental SfM with bundle adjustment; by default it refines the focal length), every"
-  echo "other setting its default. rotavg: \`rotavg images\` with its defaults (rotation averaging only, no"
-  echo "bundle adjustment). Both are scored by \`rotavg eval\` against the LIDAR-registered cameras: one"
-  echo "robustly fitted rotation aligns the estimate, then the angle of every view's error. Times are wall"
-  echo "time of the whole run on this machine."
+  echo "other setting its default. rotavg: \`rotavg images\` with its defaults (rotation averaging, then"
+  echo "bundle adjustment from the averaged orientations), and with \`--no-bundle-adjustment\` (the averaging"
+  echo "alone). All are scored by \`rotavg eval\` against the LIDAR-registered cameras: one robustly fitted"
+  echo "rotation aligns the estimate, then the angle of every view's error. Times are wall time of the whole"
+  echo "run on this machine."
   echo
-  echo "| scene | views | COLMAP: registered | median (deg) | mean (deg) | AUC@2 (%) | seconds | rotavg: median (deg) | mean (deg) | AUC@2 (%) | seconds |"
-  echo "|---|---|---|---|---|---|---|---|---|---|---|"
+  echo "| scene | views | COLMAP: registered | median (deg) | mean (deg) | AUC@2 (%) | seconds | rotavg: median (deg) | mean (deg) | AUC@2 (%) | seconds | averaging alone: median (deg) | mean (deg) |"
+  echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|"
   for s in "${SCENES[@]}"; do
     W="$OUT/$s"
     views=$(field "$W/rotavg_scores.txt" "views in ground truth")
-    ours="$(field "$W/rotavg_scores.txt" "median error") | $(field "$W/rotavg_scores.txt" "mean error") | $(field "$W/rotavg_scores.txt" "AUC@2") | $(printf '%.0f' "$(cat "$W/rotavg_seconds.txt")")"
+    ours="$(field "$W/rotavg_scores.txt" "median error") | $(field "$W/rotavg_scores.txt" "mean error") | $(field "$W/rotavg_scores.txt" "AUC@2") | $(printf '%.0f' "$(cat "$W/rotavg_seconds.txt")") | $(field "$W/averaging_scores.txt" "median error") | $(field "$W/averaging_scores.txt" "mean error")"
     if [ -f "$W/colmap_failed.txt" ]; then
       echo "| $s | $views | mapper did not finish | - | - | - | > $(printf '%.0f' "$(cat "$W/colmap_seconds.txt")") | $ours |"
     else
@@ -109,17 +119,18 @@ field() {  # file, label
     echo "| $s | $fx, $fy | $refined |"
   done
   echo
-  echo "Per view (deg), COLMAP / rotavg:"
+  echo "Per view (deg), COLMAP / rotavg / the averaging alone:"
   for s in "${SCENES[@]}"; do
     W="$OUT/$s"
     echo
     echo "**$s**"
     echo
-    echo "| view | COLMAP | rotavg |"
-    echo "|---|---|---|"
+    echo "| view | COLMAP | rotavg | averaging alone |"
+    echo "|---|---|---|---|"
     while read -r _ name error; do
       other=$(sed -n "s/^view $name \([0-9.e+-]*\)$/\1/p" "$W/colmap_scores.txt" 2>/dev/null || true)
-      printf '| %s | %s | %.4f |\n' "$name" "$( [ -n "$other" ] && printf '%.4f' "$other" || echo -)" "$error"
+      alone=$(sed -n "s/^view $name \([0-9.e+-]*\)$/\1/p" "$W/averaging_scores.txt")
+      printf '| %s | %s | %.4f | %.4f |\n' "$name" "$( [ -n "$other" ] && printf '%.4f' "$other" || echo -)" "$error" "$alone"
     done < <(grep '^view ' "$W/rotavg_scores.txt")
   done
 } > results/colmap.md

@@ -16,7 +16,7 @@
 #   long_run.md        the keyframe front end over 800 keyframes and three laps
 # results/README.md is the written summary of these files.
 #
-#   bash scripts/report.sh            about 50 minutes on 2 cores (COLMAP about 25 of them; 1,000,000 views alone: 3-4, beside the front end)
+#   bash scripts/report.sh            about 55 minutes on 2 cores (COLMAP about 25 of them; 1,000,000 views alone: 3-4, beside the front end)
 #   bash scripts/report.sh --quick    under 3 minutes; small sizes, written to build/report_quick/
 #                                     (CI runs it so the report code never rots)
 # Real data comes from ../shared/data (ROTAVG_DATA_DIR to override); parts that
@@ -46,6 +46,8 @@ if [ "$QUICK" = 1 ]; then
   done
   if [ -d "$DATA/strecha" ]; then
     grep -q "median error (deg) per loss and weighting" "$OUT/frontend.md" || { echo "report: loss table missing" >&2; exit 1; }
+    grep -q "then bundle adjusted (rotavg images defaults) | [0-9]" "$OUT/frontend.md" ||
+      { echo "report: bundle adjustment row missing" >&2; exit 1; }
     ls "$OUT"/plots/cdf_*.png > /dev/null || { echo "report: no CDF plot" >&2; exit 1; }
   fi
   step "done: quick report in $OUT"

@@ -29,7 +29,7 @@ std::string Format(double v) {
 
 cv::Scalar Colour(std::size_t k) {
   static const cv::Scalar kColours[] = {{200, 90, 30},  {40, 120, 230}, {60, 160, 60}, {40, 40, 200},
-                                        {170, 80, 160}, {30, 170, 200}, {120, 120, 120}};
+                                        {170, 80, 160}, {30, 170, 200}, {120, 120, 120}, {150, 150, 0}};
   return kColours[k % (sizeof(kColours) / sizeof(kColours[0]))];
 }
 

@@ -9,6 +9,7 @@
 
 #include "cli.h"
 #include "rotation_averaging/controllers/image_pipeline.h"
+#include "rotation_averaging/estimators/bundle_adjustment.h"
 #include "rotation_averaging/geometry/so3.h"
 
 namespace {
@@ -19,13 +20,16 @@ const char* kUsage = R"(usage:
   rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
                [--pairs exhaustive|sequential:N|list:FILE] [--covariance marginal|conditional] [--graph-out graph.txt]
                [--output orientations.csv] [--gt PATH [--gt-format F]] [--verbose] [--json] [--refine]
-               [--no-rotation-model] [--no-focal-calibration]
+               [--no-bundle-adjustment] [--no-rotation-model] [--no-focal-calibration]
                [the averaging options of rotavg solve: --solver --loss --weighting --sigma-max --normalization
                 --no-gnc --max-iterations --self-calibration (default here: floor)]
-      features, matching, relative poses with rotation covariances, then averaging (--refine: then the
-      orientations refined on every pair's inlier correspondences); prints per-stage timings and per-pair
-      statistics; --graph-out writes the view graph for `rotavg solve`; --no-rotation-model: every pair
-      through the essential matrix (pairs without parallax fail instead of using the rotation-only model);
+      features, matching, relative poses with rotation covariances, averaging (--refine: then the
+      orientations refined on every pair's inlier correspondences), then bundle adjustment from the averaged
+      orientations: the pairs' inliers linked into tracks, camera centres and points estimated and everything
+      adjusted on the reprojection errors (--no-bundle-adjustment: the averaging's orientations); prints
+      per-stage timings and per-pair statistics; --graph-out writes the view graph for `rotavg solve`;
+      --no-rotation-model: every pair through the essential matrix (pairs without parallax fail instead of
+      using the rotation-only model);
       --no-focal-calibration: trust the focal length of the intrinsics (by default it is estimated from the
       pairs and, when it differs by more than 0.5% and its uncertainty, corrected and the pairs estimated again)
 )";
@@ -33,7 +37,7 @@ const char* kUsage = R"(usage:
 int Images(int argc, char** argv) {
   Args args;
   std::string error;
-  if (!ParseArgs(argc, argv, 1, {"--no-gnc", "--json", "--verbose", "--refine", "--no-rotation-model", "--no-focal-calibration"}, &args, &error)) return Fail(error);
+  if (!ParseArgs(argc, argv, 1, {"--no-gnc", "--json", "--verbose", "--refine", "--no-bundle-adjustment", "--no-rotation-model", "--no-focal-calibration"}, &args, &error)) return Fail(error);
   if (!CheckKnown(args,
                   Concat({"--images", "--intrinsics", "--downsample", "--features", "--max-features", "--pairs",
                           "--covariance", "--graph-out", "--output", "--gt", "--gt-format"},
@@ -102,6 +106,16 @@ int Images(int argc, char** argv) {
     ra::RefineRotationsWithCorrespondences(ra::CorrespondencesOfEdges(front), ra::CorrespondenceRefinementOptions(),
                                            &orientations, &refinement);
     std::cout << refinement.Report() << std::endl;
+  }
+  // The averaging sees each pair through its two-view summary; the tracks
+  // see each point in every view at once, which holds the views that the
+  // summaries of wide-baseline or repetitive pairs mislead
+  // (results/frontend.md: castle-P19 0.073 -> 0.028 deg median).
+  if (!args.Has("--no-bundle-adjustment")) {
+    ra::BundleAdjustmentSummary adjustment;
+    ra::RefineRotationsWithBundleAdjustment(ra::CorrespondencesOfEdges(front), ra::BundleAdjustmentOptions(),
+                                            &orientations, &adjustment);
+    std::cout << adjustment.Report() << std::endl;
   }
   const int rc = WriteAndScore(args, ra::NameOrientations(front.graph, orientations));
   return rc != 0 ? rc : (ok ? 0 : 1);
