@@ -23,11 +23,11 @@
 //   3. Points by the midpoint of their rays; tracks behind a camera or with
 //      too little parallax are left out.
 //   4. Reprojection errors, each whitened by its view's pixel noise (the
-//      median of its edges' Sampson noise), minimised under Huber's loss
-//      (the centres of step 2 are rough) over centres and points with the
-//      orientations held, then over everything; then observations beyond
-//      `outlier_sigmas` are dropped and everything is adjusted again under
-//      Cauchy's loss.
+//      median of its edges' Sampson noise), minimised over centres and
+//      points with the orientations held under Huber's loss (the centres of
+//      step 2 are rough), then over everything under Cauchy's; then
+//      observations beyond `outlier_sigmas` are dropped and everything is
+//      adjusted again under Cauchy's loss.
 #ifndef ROTATION_AVERAGING_ESTIMATORS_BUNDLE_ADJUSTMENT_H_
 #define ROTATION_AVERAGING_ESTIMATORS_BUNDLE_ADJUSTMENT_H_
 
@@ -43,7 +43,7 @@ namespace rotation_averaging {
 
 struct BundleAdjustmentOptions {
   // Loss scale in standard deviations of an observation's pixel noise, for
-  // the Huber stages and the final Cauchy one.
+  // the Huber stage and the two Cauchy ones.
   double loss_scale_sigmas = 3.0;
   // Before the last stage, observations whose whitened reprojection error
   // exceeds this are dropped (and tracks left in fewer than min_track_views).
@@ -88,8 +88,9 @@ struct BundleAdjustmentSummary {
 // them) in place and, if `centres` is given, fills it with the adjusted
 // camera centres (in the frame of the orientations, up to one scale per
 // component). Views without an orientation and edges touching one are left
-// out; the first view of each connected component of the tracks is held
-// fixed (the gauge, with the scale from s_ij >= 1). Returns false, leaving
+// out. The gauge: in each group of views the tracks connect, the first view
+// keeps its orientation and centre, and one coordinate of a second view's
+// centre keeps the scale of step 2 (s_ij >= 1). Returns false, leaving
 // `orientations` as they were, if nothing could be adjusted or a solve failed.
 bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>& edges,
                                          const BundleAdjustmentOptions& options, ViewOrientations* orientations,
