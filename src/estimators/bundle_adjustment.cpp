@@ -94,16 +94,17 @@ bool Triangulate(const std::vector<AdjustedView>& views, double min_parallax_rad
   Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
   Eigen::Vector3d b = Eigen::Vector3d::Zero();
   double max_angle = 0.0;
-  for (std::size_t k = 0; k < track->observations.size(); ++k) {
-    const AdjustedView& v = views[track->observations[k].view];
-    const Eigen::Vector3d r = Ray(v, track->observations[k].x);
+  std::vector<Eigen::Vector3d> rays;
+  for (const Observation& o : track->observations) {
+    const AdjustedView& v = views[o.view];
+    const Eigen::Vector3d r = Ray(v, o.x);
     const Eigen::Matrix3d p = Eigen::Matrix3d::Identity() - r * r.transpose();
     a += p;
     b += p * v.centre;
-    for (std::size_t m = 0; m < k; ++m) {
-      const Eigen::Vector3d r2 = Ray(views[track->observations[m].view], track->observations[m].x);
-      max_angle = std::max(max_angle, std::acos(std::clamp(r.dot(r2), -1.0, 1.0)));
+    for (const Eigen::Vector3d& earlier : rays) {
+      max_angle = std::max(max_angle, std::acos(std::clamp(r.dot(earlier), -1.0, 1.0)));
     }
+    rays.push_back(r);
   }
   if (max_angle < min_parallax_rad) return false;
   const Eigen::Vector3d point = a.ldlt().solve(b);

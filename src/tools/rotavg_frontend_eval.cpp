@@ -223,15 +223,14 @@ std::string VariantRows(const std::string& scene, const std::string& scale_text,
     ra::RotationAveragingSummary summary;
     ra::SolveRotationAveraging(graph, ImagesDefaults(), &out, &summary);
     const ra::EvaluationResult e = ra::EvaluateOrientations(ra::NameOrientations(graph, out), gt);
+    // Both refinements start from the same averaging and the same matches.
+    const std::vector<ra::EdgeCorrespondences> correspondences = ra::CorrespondencesOfEdges(front);
+    ra::ViewOrientations adjusted = out;
     ra::CorrespondenceRefinementSummary refinement;
-    ra::RefineRotationsWithCorrespondences(ra::CorrespondencesOfEdges(front), ra::CorrespondenceRefinementOptions(), &out,
-                                           &refinement);
+    ra::RefineRotationsWithCorrespondences(correspondences, ra::CorrespondenceRefinementOptions(), &out, &refinement);
     const ra::EvaluationResult refined = ra::EvaluateOrientations(ra::NameOrientations(graph, out), gt);
-    ra::ViewOrientations adjusted;
-    ra::SolveRotationAveraging(graph, ImagesDefaults(), &adjusted, &summary);
     ra::BundleAdjustmentSummary adjustment;
-    ra::RefineRotationsWithBundleAdjustment(ra::CorrespondencesOfEdges(front), ra::BundleAdjustmentOptions(), &adjusted,
-                                            &adjustment);
+    ra::RefineRotationsWithBundleAdjustment(correspondences, ra::BundleAdjustmentOptions(), &adjusted, &adjustment);
     const ra::EvaluationResult bundle = ra::EvaluateOrientations(ra::NameOrientations(graph, adjusted), gt);
     int over_one = 0;
     for (double x : errors) over_one += x > 1.0;
