@@ -6,6 +6,8 @@
 #include <ros/time.h>
 
 #include <limits>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include "rotation_averaging/geometry/so3.h"
 #include "rotation_averaging/ros/msg_conversion.h"
@@ -107,6 +109,68 @@ TEST(KeyframePipeline, BadImagesAreRejectedAndCounted) {
   jpeg.data = {0xFF, 0xD8, 0x00, 0x01};  // a JPEG that stops after its marker
   EXPECT_FALSE(pipeline.DecodeCompressedImage(jpeg, Info(64, 48), &k, &error));
   EXPECT_EQ(pipeline.Stats().rejected_images, 8u);
+}
+
+sensor_msgs::CompressedImage Compressed(double t, const std::string& extension) {
+  sensor_msgs::CompressedImage m;
+  m.header.frame_id = "cam";
+  m.header.stamp = ros::Time(t);
+  m.format = "mono8; " + extension.substr(1) + " compressed";
+  cv::Mat grey(48, 64, CV_8UC1);
+  cv::randu(grey, 0, 255);
+  cv::imencode(extension, grey, m.data);
+  return m;
+}
+
+void PutBigEndian16(std::uint32_t value, std::uint8_t* at) {
+  at[0] = static_cast<std::uint8_t>(value >> 8);
+  at[1] = static_cast<std::uint8_t>(value);
+}
+
+// The decoder allocates the size a header declares before it reads any
+// pixel: a header that disagrees with camera_info (or, without a camera_info
+// size, an implausible one) is refused before decoding, and formats other
+// than image_transport's PNG and JPEG are refused.
+TEST(KeyframePipeline, CompressedImagesAreCheckedBeforeDecoding) {
+  KeyframePipeline pipeline(ReadPipelineConfig(NoParameters(), nullptr));
+  PendingKeyframe k;
+  std::string error;
+  EXPECT_TRUE(pipeline.DecodeCompressedImage(Compressed(1.0, ".png"), Info(64, 48), &k, &error)) << error;
+  EXPECT_EQ(k.image.cols, 64);
+  EXPECT_TRUE(pipeline.DecodeCompressedImage(Compressed(2.0, ".jpg"), Info(64, 48), &k, &error)) << error;
+  EXPECT_EQ(k.image.rows, 48);
+  EXPECT_TRUE(pipeline.DecodeCompressedImage(Compressed(3.0, ".png"), Info(0, 0), &k, &error)) << error;
+
+  sensor_msgs::CompressedImage png = Compressed(4.0, ".png");
+  PutBigEndian16(6000, &png.data[18]);  // IHDR width 6000, height 4000
+  PutBigEndian16(4000, &png.data[22]);
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(png, Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("declares 6000x4000 pixels, not camera_info's 64x48"), std::string::npos) << error;
+  PutBigEndian16(0x4000, &png.data[16]);  // about 2^30 x 4000, no camera_info size
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(png, Info(0, 0), &k, &error));
+  EXPECT_NE(error.find("implausibly large"), std::string::npos) << error;
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(png, Info(0x40001770, 4000), &k, &error));  // also when camera_info says so
+  EXPECT_NE(error.find("implausibly large"), std::string::npos) << error;
+
+  sensor_msgs::CompressedImage jpeg = Compressed(5.0, ".jpg");
+  std::size_t sof = 2;
+  while (sof + 1 < jpeg.data.size() && !(jpeg.data[sof] == 0xFF && jpeg.data[sof + 1] == 0xC0)) ++sof;
+  ASSERT_LT(sof + 9, jpeg.data.size());
+  PutBigEndian16(48, &jpeg.data[sof + 7]);  // width 48, height 48
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(jpeg, Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("JPEG header declares 48x48"), std::string::npos) << error;
+
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(Compressed(6.0, ".bmp"), Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("neither PNG nor JPEG"), std::string::npos) << error;
+  sensor_msgs::CompressedImage cut = Compressed(7.0, ".png");
+  cut.data.resize(20);
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(cut, Info(64, 48), &k, &error));
+  EXPECT_EQ(pipeline.Stats().rejected_images, 6u);
+  // A header that agrees, over pixels cut short, is left to the decoder.
+  sensor_msgs::CompressedImage truncated = Compressed(8.0, ".png");
+  truncated.data.resize(truncated.data.size() / 2);
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(truncated, Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("does not decode"), std::string::npos) << error;
 }
 
 TEST(KeyframePipeline, RigExtrinsicsFromStaticTransformsAndMarkers) {

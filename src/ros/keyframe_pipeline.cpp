@@ -5,7 +5,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <opencv2/imgcodecs.hpp>
+#include <string>
+#include <vector>
 
 #include "rotation_averaging/geometry/so3.h"
 #include "rotation_averaging/ros/msg_conversion.h"
@@ -29,6 +32,54 @@ T Param(const ParameterSource& params, const std::string& name, T fallback) {
 std::size_t PositiveSize(const ParameterSource& params, const std::string& name, int fallback, int minimum) {
   return static_cast<std::size_t>(std::max(minimum, Param(params, name, fallback)));
 }
+
+// The size a PNG or JPEG declares in its header, read before decoding: the
+// decoder allocates the whole image from that header before it reads the
+// pixels, so a damaged or hostile header of a few bytes asks for gigabytes.
+// PNG and JPEG are what image_transport's compressed transport sends; any
+// other format is refused. Returns the format's name, or "" when the bytes are
+// neither (or their header is cut short).
+std::string CompressedImageSize(const std::vector<std::uint8_t>& d, std::uint32_t* width, std::uint32_t* height) {
+  auto be16 = [&d](std::size_t at) { return static_cast<std::uint32_t>(d[at] << 8 | d[at + 1]); };
+  auto be32 = [&](std::size_t at) { return be16(at) << 16 | be16(at + 2); };
+  static const std::uint8_t kPng[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
+  if (d.size() >= 24 && std::equal(kPng, kPng + 8, d.begin())) {
+    if (d[12] != 'I' || d[13] != 'H' || d[14] != 'D' || d[15] != 'R') return "";
+    *width = be32(16);
+    *height = be32(20);
+    return "PNG";
+  }
+  if (d.size() < 4 || d[0] != 0xFF || d[1] != 0xD8) return "";
+  // JPEG: marker segments up to the first start-of-frame, which holds the size.
+  std::size_t at = 2;
+  while (at + 4 <= d.size()) {
+    if (d[at] != 0xFF) return "";
+    const std::uint8_t marker = d[at + 1];
+    if (marker == 0xFF) {  // fill byte
+      ++at;
+      continue;
+    }
+    if (marker == 0xD9 || marker == 0xDA) return "";  // end of image or scan data before any frame
+    const std::uint32_t length = be16(at + 2);
+    if (length < 2) return "";
+    const bool start_of_frame = marker >= 0xC0 && marker <= 0xCF && marker != 0xC4 && marker != 0xC8 &&
+                                marker != 0xCC;
+    if (start_of_frame) {
+      if (at + 9 > d.size() || length < 7) return "";
+      *height = be16(at + 5);
+      *width = be16(at + 7);
+      return "JPEG";
+    }
+    at += 2 + length;
+  }
+  return "";
+}
+
+// The largest compressed keyframe accepted, whatever camera_info says: above
+// any sensor a mapping stack runs at keyframe rate (134 Mpixel), and a bound
+// on what one message can make the decoder allocate (a progressive JPEG holds
+// every coefficient of the image while it decodes).
+constexpr std::uint64_t kMaxCompressedPixels = std::uint64_t{1} << 27;
 
 }  // namespace
 
@@ -240,6 +291,25 @@ bool KeyframePipeline::DecodeImage(const sensor_msgs::Image& image, const sensor
 bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage& image,
                                              const sensor_msgs::CameraInfo& info, PendingKeyframe* out,
                                              std::string* error) {
+  const std::string from = "compressed image from " + image.header.frame_id + " (" + image.format + ")";
+  std::uint32_t width = 0, height = 0;
+  const std::string format = CompressedImageSize(image.data, &width, &height);
+  if (format.empty()) {
+    return Reject(&stats_.rejected_images, from + " is neither PNG nor JPEG, or its header is cut short", error);
+  }
+  // camera_info's size, or its transpose (an EXIF orientation that the
+  // decoder applies; Validate then compares the decoded image).
+  const bool sized = info.width > 0 && info.height > 0;
+  const bool as_info = (width == info.width && height == info.height) || (width == info.height && height == info.width);
+  const bool plausible = width > 0 && height > 0 && std::uint64_t{width} * height <= kMaxCompressedPixels;
+  if (!plausible || (sized && !as_info)) {
+    return Reject(&stats_.rejected_images,
+                  from + ": its " + format + " header declares " + std::to_string(width) + "x" +
+                      std::to_string(height) + " pixels, " +
+                      (plausible ? "not camera_info's " + std::to_string(info.width) + "x" + std::to_string(info.height)
+                                 : "an empty or implausibly large image"),
+                  error);
+  }
   cv::Mat grey;
   try {
     grey = cv::imdecode(image.data, cv::IMREAD_GRAYSCALE);
@@ -248,7 +318,7 @@ bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage&
   }
   if (grey.empty()) {
     return Reject(&stats_.rejected_images,
-                  "compressed image from " + image.header.frame_id + " (" + image.format + ") does not decode", error);
+                  from + " does not decode", error);
   }
   return Validate(image.header.frame_id, image.header.stamp, grey, info, out, error);
 }
