@@ -101,6 +101,24 @@ TEST(KeyframePipeline, BadImagesAreRejectedAndCounted) {
   sensor_msgs::Image short_data = Image("cam", 6.0, 64, 48, "mono8");
   short_data.data.resize(10);
   EXPECT_FALSE(pipeline.DecodeImage(short_data, Info(64, 48), &k, &error));
+  // height * step wraps around to the data's size in 32 bits (4 rows of a
+  // gigabyte over 3072 bytes): refused before cv_bridge, which checks in 32
+  // bits and would copy 4 GiB from past the data.
+  sensor_msgs::Image wrapped = Image("cam", 6.5, 64, 48, "mono8");
+  wrapped.height = 4;
+  wrapped.width = wrapped.step = (1u << 30) + 768;
+  wrapped.data.assign(3072, 0);
+  ASSERT_EQ(static_cast<std::uint32_t>(wrapped.height * wrapped.step), wrapped.data.size());
+  EXPECT_FALSE(pipeline.DecodeImage(wrapped, Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("malformed"), std::string::npos) << error;
+  // So is a width whose bytes per row (6 per pixel) wrap around to below step.
+  wrapped = Image("cam", 6.7, 64, 48, "rgb16");
+  wrapped.width = 715827883;
+  wrapped.height = 1;
+  wrapped.step = 16;
+  wrapped.data.assign(16, 0);
+  EXPECT_FALSE(pipeline.DecodeImage(wrapped, Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("malformed"), std::string::npos) << error;
   EXPECT_FALSE(pipeline.DecodeImage(Image("", 7.0, 64, 48, "mono8"), Info(64, 48), &k, &error));
   sensor_msgs::CompressedImage jpeg;
   jpeg.header.frame_id = "cam";
@@ -108,7 +126,7 @@ TEST(KeyframePipeline, BadImagesAreRejectedAndCounted) {
   jpeg.format = "jpeg";
   jpeg.data = {0xFF, 0xD8, 0x00, 0x01};  // a JPEG that stops after its marker
   EXPECT_FALSE(pipeline.DecodeCompressedImage(jpeg, Info(64, 48), &k, &error));
-  EXPECT_EQ(pipeline.Stats().rejected_images, 8u);
+  EXPECT_EQ(pipeline.Stats().rejected_images, 10u);
 }
 
 sensor_msgs::CompressedImage Compressed(double t, const std::string& extension) {

@@ -75,11 +75,11 @@ std::string CompressedImageSize(const std::vector<std::uint8_t>& d, std::uint32_
   return "";
 }
 
-// The largest compressed keyframe accepted, whatever camera_info says: above
+// The largest keyframe accepted, whatever camera_info says: above
 // any sensor a mapping stack runs at keyframe rate (134 Mpixel), and a bound
 // on what one message can make the decoder allocate (a progressive JPEG holds
 // every coefficient of the image while it decodes).
-constexpr std::uint64_t kMaxCompressedPixels = std::uint64_t{1} << 27;
+constexpr std::uint64_t kMaxKeyframePixels = std::uint64_t{1} << 27;
 
 }  // namespace
 
@@ -276,6 +276,24 @@ bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp
 
 bool KeyframePipeline::DecodeImage(const sensor_msgs::Image& image, const sensor_msgs::CameraInfo& info,
                                    PendingKeyframe* out, std::string* error) {
+  // cv_bridge compares height * step with the data's size, and step with
+  // width * bytes per pixel, in 32 bits: a product that wraps around passes,
+  // and the copy then reads gigabytes past the data. Checked in 64 bits first.
+  const std::string from = "image from " + image.header.frame_id + " (" + image.encoding + ", " +
+                           std::to_string(image.width) + "x" + std::to_string(image.height) + ", step " +
+                           std::to_string(image.step) + ", " + std::to_string(image.data.size()) + " bytes)";
+  std::uint64_t pixel_bytes = 0;
+  try {
+    pixel_bytes = static_cast<std::uint64_t>(sensor_msgs::image_encodings::bitDepth(image.encoding) / 8) *
+                  sensor_msgs::image_encodings::numChannels(image.encoding);
+  } catch (const std::exception&) {
+    return Reject(&stats_.rejected_images, from + " has an unknown encoding", error);
+  }
+  if (image.width == 0 || image.height == 0 || std::uint64_t{image.width} * image.height > kMaxKeyframePixels ||
+      std::uint64_t{image.step} < std::uint64_t{image.width} * pixel_bytes ||
+      std::uint64_t{image.height} * image.step != image.data.size()) {
+    return Reject(&stats_.rejected_images, from + " is malformed: its size, step and data do not agree", error);
+  }
   cv::Mat grey;
   try {
     // toCvCopy: the keyframe outlives the message.
@@ -301,7 +319,7 @@ bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage&
   // decoder applies; Validate then compares the decoded image).
   const bool sized = info.width > 0 && info.height > 0;
   const bool as_info = (width == info.width && height == info.height) || (width == info.height && height == info.width);
-  const bool plausible = width > 0 && height > 0 && std::uint64_t{width} * height <= kMaxCompressedPixels;
+  const bool plausible = width > 0 && height > 0 && std::uint64_t{width} * height <= kMaxKeyframePixels;
   if (!plausible || (sized && !as_info)) {
     return Reject(&stats_.rejected_images,
                   from + ": its " + format + " header declares " + std::to_string(width) + "x" +
