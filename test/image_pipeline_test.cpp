@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <memory>
 #include <random>
 
 #include "rotation_averaging/estimators/bundle_adjustment.h"
@@ -76,9 +77,6 @@ TEST(PairSelection, ParsesModes) {
   fs::remove(list);
 }
 
-// Four Strecha fountain-P11 images at 1/8 resolution (384x256): every pair
-// gets a relative pose with a covariance, and averaging matches the LIDAR
-// ground truth to a few hundredths of a degree.
 // Eight cameras along a path looking at a cloud of points (65 deg field of
 // view, 0.3 px noise, 10% wrong matches); every pair estimated with the
 // given focal length. Returns the matches and poses of the pairs.
@@ -159,6 +157,9 @@ TEST(ImagePipeline, FocalLengthIsEstimatedFromThePairs) {
   EXPECT_FALSE(EstimateFocalScale(two, k, options).estimated);
 }
 
+// Four Strecha fountain-P11 images at 1/8 resolution (384x256): every pair
+// gets a relative pose with a covariance, and averaging matches the LIDAR
+// ground truth to a few hundredths of a degree.
 TEST(ImagePipeline, FountainImagesGiveAccurateRotations) {
   const std::string dir = SharedDataPath("strecha/fountain-P11");
   if (!fs::exists(dir)) GTEST_SKIP() << "shared data absent: " << dir;
@@ -203,66 +204,83 @@ TEST(ImagePipeline, FountainImagesGiveAccurateRotations) {
 }
 
 
-// castle-P19 (a courtyard of repeated windows), its first ten images at a
-// quarter of the resolution: wrong matches that lie within a few pixels of
-// their epipolar lines take part in the robust estimation at a threshold of
-// 3 px, ten times the pixel noise, and pull pairs along their
-// rotation-translation valley. Repeating the robust estimation at 3 sigma of
-// the pair's measured noise (the default) must lower the median rotation
-// error of the pairs and their NEES against the ground truth.
-// The first ten castle-P19 images at a quarter of their size, their
-// features and ground truth; false (with a message) if the data is absent.
+// The first ten castle-P19 images (a courtyard of repeated windows) at a
+// quarter of their size: their features, ground truth and the front end's
+// view graph with the defaults. Built once per process and shared by the
+// castle tests below (feature extraction and the front end are most of their
+// time); null, with a message, if the data is absent or does not load.
 struct CastleSubset {
   ImagePipelineOptions options;
   std::vector<std::string> names;
   std::vector<ImageFeatures> features;
   Eigen::Matrix3d scaled_k;
   NamedOrientations gt;
+  ImagePipelineResult front;
 };
 
-bool LoadCastleSubset(CastleSubset* castle, std::string* why) {
-  const std::string dir = SharedDataPath("strecha/castle-P19");
-  if (!fs::exists(dir)) {
-    *why = "shared data absent: " + dir;
-    return false;
-  }
-  std::vector<std::string> images = ListImages(dir + "/images");
-  EXPECT_GE(images.size(), 10u);
-  images.resize(10);
-  CameraIntrinsics k;
-  EXPECT_TRUE(ReadCameraIntrinsics(dir + "/images/K.txt", &k, why)) << *why;
-  EXPECT_TRUE(ReadGroundTruth(dir, GroundTruthFormat::kStrecha, &castle->gt).ok());
-  castle->options.features.downsample = 0.25;
-  std::vector<std::string> read_errors;
-  castle->features = ExtractImageFeatures(images, k, castle->options.features, &castle->names, &read_errors);
-  EXPECT_TRUE(read_errors.empty()) << read_errors[0];
-  castle->scaled_k = FeatureIntrinsics(k, castle->options.features);
-  return true;
+const CastleSubset* LoadCastleSubset(std::string* why) {
+  static std::string failure;
+  static const std::unique_ptr<const CastleSubset> castle = [] () -> std::unique_ptr<const CastleSubset> {
+    const std::string dir = SharedDataPath("strecha/castle-P19");
+    if (!fs::exists(dir)) {
+      failure = "shared data absent: " + dir;
+      return nullptr;
+    }
+    auto c = std::make_unique<CastleSubset>();
+    std::vector<std::string> images = ListImages(dir + "/images");
+    CameraIntrinsics k;
+    std::string error;
+    if (images.size() < 10 || !ReadCameraIntrinsics(dir + "/images/K.txt", &k, &error) ||
+        !ReadGroundTruth(dir, GroundTruthFormat::kStrecha, &c->gt).ok()) {
+      failure = "castle-P19 in " + dir + " does not load: " + (error.empty() ? "fewer than 10 images or no ground truth" : error);
+      return nullptr;
+    }
+    images.resize(10);
+    c->options.features.downsample = 0.25;
+    std::vector<std::string> read_errors;
+    c->features = ExtractImageFeatures(images, k, c->options.features, &c->names, &read_errors);
+    if (!read_errors.empty()) {
+      failure = read_errors[0];
+      return nullptr;
+    }
+    c->scaled_k = FeatureIntrinsics(k, c->options.features);
+    c->front = BuildViewGraphFromFeatures(c->features, c->names, c->scaled_k, c->options);
+    return c;
+  }();
+  *why = failure;
+  return castle.get();
 }
 
+// Wrong matches of castle-P19 that lie within a few pixels of their epipolar
+// lines take part in the robust estimation at a threshold of 3 px, ten times
+// the pixel noise, and pull pairs along their rotation-translation valley.
+// Repeating the robust estimation at 3 sigma of the pair's measured noise
+// (the default) must lower the median rotation error of the pairs and their
+// NEES against the ground truth.
 TEST(ImagePipeline, NoiseScaledThresholdMakesCastlePairsMoreAccurate) {
-  CastleSubset castle;
   std::string why;
-  if (!LoadCastleSubset(&castle, &why)) GTEST_SKIP() << why;
-  const ImagePipelineOptions& options = castle.options;
-  const std::vector<std::string>& names = castle.names;
-  const NamedOrientations& gt = castle.gt;
+  const CastleSubset* castle = LoadCastleSubset(&why);
+  if (!castle) GTEST_SKIP() << why;
+  const std::vector<std::string>& names = castle->names;
+  const NamedOrientations& gt = castle->gt;
+  ASSERT_GT(castle->options.relative_pose.adaptive_threshold_sigmas, 0.0) << "the default is noise-scaled";
+  ImagePipelineOptions fixed_options = castle->options;
+  fixed_options.relative_pose.adaptive_threshold_sigmas = 0.0;
+  const ImagePipelineResult fixed_front =
+      BuildViewGraphFromFeatures(castle->features, names, castle->scaled_k, fixed_options);
   struct Scores {
     double median_error_deg, median_nees;
     int pairs;
   };
-  auto score = [&](double sigmas) {
-    ImagePipelineOptions o = options;
-    o.relative_pose.adaptive_threshold_sigmas = sigmas;
-    const ImagePipelineResult front = BuildViewGraphFromFeatures(castle.features, names, castle.scaled_k, o);
+  auto score = [&](const ImagePipelineResult& front, const RelativePoseOptions& o) {
     std::vector<double> errors, nees;
     for (const PairReport& p : front.pairs) {
       if (!p.pose.success) continue;
-      if (sigmas > 0.0) {
-        EXPECT_LE(p.pose.ransac_threshold_px, o.relative_pose.ransac_threshold_px);
-        EXPECT_GE(p.pose.ransac_threshold_px, o.relative_pose.min_adaptive_threshold_px);
+      if (o.adaptive_threshold_sigmas > 0.0) {
+        EXPECT_LE(p.pose.ransac_threshold_px, o.ransac_threshold_px);
+        EXPECT_GE(p.pose.ransac_threshold_px, o.min_adaptive_threshold_px);
       } else {
-        EXPECT_EQ(p.pose.ransac_threshold_px, o.relative_pose.ransac_threshold_px);
+        EXPECT_EQ(p.pose.ransac_threshold_px, o.ransac_threshold_px);
       }
       const Eigen::Matrix3d truth = gt.at(names[p.image2]) * gt.at(names[p.image1]).transpose();  // R_21
       const Eigen::Vector3d eta = LogSO3(truth.transpose() * p.pose.rotation);
@@ -274,7 +292,8 @@ TEST(ImagePipeline, NoiseScaledThresholdMakesCastlePairsMoreAccurate) {
     return Scores{errors.empty() ? 1e9 : errors[errors.size() / 2], nees.empty() ? 1e9 : nees[nees.size() / 2],
                   static_cast<int>(errors.size())};
   };
-  const Scores fixed = score(0.0), scaled = score(3.0);
+  const Scores fixed = score(fixed_front, fixed_options.relative_pose),
+               scaled = score(castle->front, castle->options.relative_pose);
   std::cout << "castle-P19 pairs, median error / NEES: fixed 3 px " << fixed.median_error_deg << " deg / "
             << fixed.median_nees << " (" << fixed.pairs << " pairs), noise-scaled " << scaled.median_error_deg
             << " deg / " << scaled.median_nees << " (" << scaled.pairs << " pairs)\n";
@@ -288,10 +307,10 @@ TEST(ImagePipeline, NoiseScaledThresholdMakesCastlePairsMoreAccurate) {
 // The averaging sees each pair through its covariance; refining on the
 // pairs' correspondences brings the orientations closer to the ground truth.
 TEST(ImagePipeline, RefiningOnCorrespondencesImprovesTheAveragingOfCastle) {
-  CastleSubset castle;
   std::string why;
-  if (!LoadCastleSubset(&castle, &why)) GTEST_SKIP() << why;
-  const ImagePipelineResult front = BuildViewGraphFromFeatures(castle.features, castle.names, castle.scaled_k, castle.options);
+  const CastleSubset* castle = LoadCastleSubset(&why);
+  if (!castle) GTEST_SKIP() << why;
+  const ImagePipelineResult& front = castle->front;
   const std::vector<EdgeCorrespondences> edges = CorrespondencesOfEdges(front);
   ASSERT_EQ(edges.size(), front.graph.NumEdges());
   for (std::size_t e = 0; e < edges.size(); ++e) {
@@ -314,11 +333,11 @@ TEST(ImagePipeline, RefiningOnCorrespondencesImprovesTheAveragingOfCastle) {
   ViewOrientations orientations;
   RotationAveragingSummary summary;
   ASSERT_TRUE(SolveRotationAveraging(front.graph, RotationAveragingOptions(), &orientations, &summary));
-  const double averaged = EvaluateOrientations(NameOrientations(front.graph, orientations), castle.gt).median_error_deg;
+  const double averaged = EvaluateOrientations(NameOrientations(front.graph, orientations), castle->gt).median_error_deg;
   CorrespondenceRefinementSummary refinement;
   ASSERT_TRUE(RefineRotationsWithCorrespondences(edges, CorrespondenceRefinementOptions(), &orientations, &refinement))
       << refinement.Report();
-  const double refined = EvaluateOrientations(NameOrientations(front.graph, orientations), castle.gt).median_error_deg;
+  const double refined = EvaluateOrientations(NameOrientations(front.graph, orientations), castle->gt).median_error_deg;
   std::cout << "castle-P19, 10 images at 1/4: averaging " << averaged << " deg, refined " << refined << " deg; "
             << refinement.Report() << "\n";
   EXPECT_EQ(refinement.views, 10);
@@ -328,19 +347,19 @@ TEST(ImagePipeline, RefiningOnCorrespondencesImprovesTheAveragingOfCastle) {
 // Bundle adjustment from the averaged orientations: the pairs' inliers
 // linked into tracks over the ten views, each point placed once.
 TEST(ImagePipeline, BundleAdjustmentImprovesTheAveragingOfCastle) {
-  CastleSubset castle;
   std::string why;
-  if (!LoadCastleSubset(&castle, &why)) GTEST_SKIP() << why;
-  const ImagePipelineResult front = BuildViewGraphFromFeatures(castle.features, castle.names, castle.scaled_k, castle.options);
+  const CastleSubset* castle = LoadCastleSubset(&why);
+  if (!castle) GTEST_SKIP() << why;
+  const ImagePipelineResult& front = castle->front;
   ViewOrientations orientations;
   RotationAveragingSummary summary;
   ASSERT_TRUE(SolveRotationAveraging(front.graph, RotationAveragingOptions(), &orientations, &summary));
-  const double averaged = EvaluateOrientations(NameOrientations(front.graph, orientations), castle.gt).median_error_deg;
+  const double averaged = EvaluateOrientations(NameOrientations(front.graph, orientations), castle->gt).median_error_deg;
   BundleAdjustmentSummary adjustment;
   ASSERT_TRUE(RefineRotationsWithBundleAdjustment(CorrespondencesOfEdges(front), BundleAdjustmentOptions(),
                                                   &orientations, &adjustment))
       << adjustment.Report();
-  const double adjusted = EvaluateOrientations(NameOrientations(front.graph, orientations), castle.gt).median_error_deg;
+  const double adjusted = EvaluateOrientations(NameOrientations(front.graph, orientations), castle->gt).median_error_deg;
   std::cout << "castle-P19, 10 images at 1/4: averaging " << averaged << " deg, bundle adjusted " << adjusted << " deg; "
             << adjustment.Report() << "\n";
   EXPECT_EQ(adjustment.views, 10);
