@@ -39,7 +39,10 @@ run() {  # target seed-dir extra-options...
   rss=$(sed -n 's/^stat::peak_rss_mb: *//p' "$OUT/runs/$target/fuzz.log")
   if grep -q "SUMMARY\|ERROR: libFuzzer\|invariant broken" "$OUT/runs/$target/fuzz.log"; then
     echo "fuzz: $target FAILED, input saved in $OUT/runs/$target (see fuzz.log):" >&2
-    grep -E "ERROR|SUMMARY|invariant|^    #[0-5] " "$OUT/runs/$target/fuzz.log" | head -20 >&2
+    # The report, then the first frames past libFuzzer's and the sanitizers' own.
+    grep -E "ERROR|SUMMARY|invariant" "$OUT/runs/$target/fuzz.log" | head -6 >&2
+    grep -E "^    #[0-9]+ " "$OUT/runs/$target/fuzz.log" | grep -vE " in (fuzzer::|__sanitizer|__asan|__ubsan|__lsan|malloc|calloc|realloc|operator new)" \
+      | head -14 >&2
     status=1
   else
     echo "fuzz: $target: ${execs:-0} inputs in ${SECONDS_BUDGET} s, peak RSS ${rss:-?} MB, no finding" \
