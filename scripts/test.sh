@@ -12,14 +12,16 @@ SANITIZERS=1
 bash scripts/setup.sh
 export PATH=/usr/bin:$PATH
 cmake --build build --target tests
-(cd build && ctest --output-on-failure)
+# As many tests at a time as cores (the node's load tests alone, see
+# CMakeLists.txt).
+(cd build && ctest --output-on-failure -j "$(nproc)")
 echo
 echo "== The results report in its quick form (scripts/report.sh --quick), so the report code never rots =="
 bash scripts/report.sh --quick
 if [ "$SANITIZERS" = 1 ]; then
   echo
   echo "== The test suite again with AddressSanitizer and UndefinedBehaviorSanitizer =="
-  bash scripts/test_sanitizers.sh
+  bash scripts/test_sanitizers.sh -j "$(nproc)"
   echo
   echo "== Fuzzing the file readers and the message path, 60 s each (libFuzzer) =="
   bash scripts/fuzz.sh 60
