@@ -117,6 +117,56 @@ TEST(BundleAdjustment, TracksPinRotationsBetterThanThePairsAlone) {
   EXPECT_LT(adjusted_sum, 0.7 * pairwise_sum) << adjusted_sum << " vs " << pairwise_sum;
 }
 
+// A camera that turned in place (the front end's rotation-only model: zero
+// translation) gives no direction between centres, but its matches are
+// observations of the same points. View 1 here is taken from view 0's centre,
+// 8 deg to the side, and only that pair relates it to the others: it joins
+// the tracks from view 0's centre, and the scale is held by a view that is
+// not at the first view's centre.
+TEST(BundleAdjustment, RotationOnlyPairsJoinTheTracks) {
+  const Scene base = MakeScene(6, 0.3, 7);
+  auto renumbered = [](ViewId v) { return v == 0 ? v : v + 1; };
+  Scene scene;
+  scene.points = base.points;
+  for (const auto& [id, r] : base.truth) scene.truth[renumbered(id)] = r;
+  const Eigen::Matrix3d turned = ExpSO3(Eigen::Vector3d(0.0, DegToRad(8.0), 0.0)) * base.truth.at(0);
+  scene.truth[1] = turned;
+  std::mt19937 rng(8);
+  std::normal_distribution<double> noise(0.0, 0.3 / kFocal);
+  std::vector<Eigen::Vector2d> seen;
+  for (const Eigen::Vector3d& p : base.points) {
+    seen.push_back((turned * (p - base.centres[0])).hnormalized() + Eigen::Vector2d(noise(rng), noise(rng)));
+  }
+  for (EdgeCorrespondences e : base.edges) {
+    e.view1 = renumbered(e.view1);
+    e.view2 = renumbered(e.view2);
+    scene.edges.push_back(std::move(e));
+  }
+  EdgeCorrespondences in_place = base.edges.front();  // view 0's keypoints, and view 1's
+  in_place.view2 = 1;
+  in_place.points2 = seen;
+  in_place.translation.setZero();
+  scene.edges.push_back(in_place);
+
+  ViewOrientations orientations = Perturbed(scene.truth, 0.5, 9);
+  const double start = MaxErrorDeg(orientations, scene.truth);
+  BundleAdjustmentSummary summary;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &orientations, &summary))
+      << summary.Report();
+  EXPECT_EQ(summary.views, 7);
+  EXPECT_EQ(summary.edges_used, 16);
+  EXPECT_EQ(summary.edges_rotation_only, 1);
+  EXPECT_EQ(summary.edges_skipped, 0);
+  EXPECT_EQ(summary.observations, 7u * 300u) << summary.Report();
+  EXPECT_NEAR(summary.final_rms_sigmas, 1.0, 0.15) << summary.Report();
+  EXPECT_LT(MaxErrorDeg(orientations, scene.truth), 0.05) << "from " << start << " deg; " << summary.Report();
+  // The pairwise refinement has no use for a pair without a direction.
+  ViewOrientations pairwise = Perturbed(scene.truth, 0.5, 9);
+  CorrespondenceRefinementSummary refinement;
+  ASSERT_TRUE(RefineRotationsWithCorrespondences(scene.edges, CorrespondenceRefinementOptions(), &pairwise, &refinement));
+  EXPECT_EQ(refinement.edges_skipped, 1) << refinement.Report();
+}
+
 TEST(BundleAdjustment, RepeatedStructureMatchesAreDroppedByTheirTracks) {
   // A quarter of pair (0, 3)'s matches go to the point one "window" to the
   // right (0.4 m along the façade), seen at its own keypoint in view 3: the

@@ -48,6 +48,10 @@ struct CentreDeviation {
   Eigen::Vector3d d_;
 };
 
+// A pair of the rotation-only model: its matches join the tracks, but it
+// gives no direction between the centres.
+bool RotationOnly(const EdgeCorrespondences& e) { return e.translation.isZero(0.0); }
+
 int Root(std::vector<int>* parent, int v) {
   while ((*parent)[v] != v) v = (*parent)[v] = (*parent)[(*parent)[v]];
   return v;
@@ -69,7 +73,6 @@ struct AdjustedView {
   Eigen::Vector3d angle_axis = Eigen::Vector3d::Zero();
   Eigen::Vector3d centre = Eigen::Vector3d::Zero();
   double sigma = 0.0;  // pixel noise over the focal length
-  int component = -1;
 };
 
 Eigen::Vector3d Ray(const AdjustedView& v, const Eigen::Vector2d& x) {
@@ -126,7 +129,8 @@ double WhitenedSquaredError(const AdjustedView& v, const Track& t, const Observa
 
 std::string BundleAdjustmentSummary::Report() const {
   std::ostringstream out;
-  out << "bundle adjustment: " << views << " views, " << edges_used << " edges (" << edges_skipped << " unusable), "
+  out << "bundle adjustment: " << views << " views, " << edges_used << " edges (" << edges_rotation_only
+      << " of the rotation-only model, " << edges_skipped << " unusable), "
       << tracks << " tracks (" << tracks_inconsistent << " inconsistent, " << tracks_short << " in too few views, "
       << tracks_unconstrained
       << " without parallax or behind a camera), " << observations << " observations (" << observations_dropped
@@ -159,10 +163,11 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
     if (e.view1 == e.view2 || a == orientations->end() || b == orientations->end() ||
         e.points1.size() != e.points2.size() ||
         static_cast<int>(e.points1.size()) < std::max(1, options.min_correspondences) ||
-        !CorrespondencesAreFinite(e) || !a->second.allFinite() || !b->second.allFinite()) {
+        !CorrespondencesAreFinite(e, true) || !a->second.allFinite() || !b->second.allFinite()) {
       ++summary->edges_skipped;
       continue;
     }
+    summary->edges_rotation_only += RotationOnly(e);
     used.push_back(&e);
     index.emplace(e.view1, 0);
     index.emplace(e.view2, 0);
@@ -228,20 +233,20 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
     tracks.push_back(std::move(track));
   }
 
-  // Components of the views through the edges: each gets its own gauge.
-  std::vector<int> component(views.size());
-  std::iota(component.begin(), component.end(), 0);
-  for (const EdgeCorrespondences* e : used) {
-    const int a = Root(&component, index[e->view1]), b = Root(&component, index[e->view2]);
-    if (a != b) component[std::max(a, b)] = std::min(a, b);
-  }
-  for (std::size_t v = 0; v < views.size(); ++v) views[v].component = Root(&component, static_cast<int>(v));
-
   ceres::Problem::Options problem_options;
   problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
 
-  // 2. Centres by least unsquared deviations, the orientations held.
+  // 2. Centres by least unsquared deviations, the orientations held, from
+  // the edges with a translation direction; each group of views they
+  // connect has its first view's centre held.
   {
+    std::vector<int> linked(views.size());
+    std::iota(linked.begin(), linked.end(), 0);
+    for (const EdgeCorrespondences* e : used) {
+      if (RotationOnly(*e)) continue;
+      const int a = Root(&linked, index[e->view1]), b = Root(&linked, index[e->view2]);
+      if (a != b) linked[std::max(a, b)] = std::min(a, b);
+    }
     ceres::Problem problem(problem_options);
     // sqrt(1 + r^2) - 1 on the norm of each edge's 3-vector: L1 beyond a
     // small fraction of the shortest baseline (s >= 1).
@@ -249,6 +254,7 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
     std::vector<double> scales(used.size(), 1.0);
     for (std::size_t k = 0; k < used.size(); ++k) {
       const EdgeCorrespondences& e = *used[k];
+      if (RotationOnly(e)) continue;
       AdjustedView& vi = views[index[e.view1]];
       AdjustedView& vj = views[index[e.view2]];
       const Eigen::Matrix3d r21 = vj.rotation * vi.rotation.transpose();
@@ -258,15 +264,33 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
                                &loss, vi.centre.data(), vj.centre.data(), &scales[k]);
       problem.SetParameterLowerBound(&scales[k], 0, 1.0);
     }
-    for (AdjustedView& v : views) {
-      if (v.component == index[v.id]) problem.SetParameterBlockConstant(v.centre.data());
+    for (std::size_t k = 0; k < views.size(); ++k) {
+      if (Root(&linked, static_cast<int>(k)) == static_cast<int>(k) && problem.HasParameterBlock(views[k].centre.data())) {
+        problem.SetParameterBlockConstant(views[k].centre.data());
+      }
     }
-    ceres::Solver::Options solver_options = SolverOptions(options.max_iterations);
-    solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-    ceres::Solver::Summary ceres_summary;
-    ceres::Solve(solver_options, &problem, &ceres_summary);
-    summary->iterations += static_cast<int>(ceres_summary.iterations.size()) - 1;
-    if (!ceres_summary.IsSolutionUsable()) return finish(false, "centres: " + ceres_summary.message);
+    if (problem.NumResidualBlocks() > 0) {
+      ceres::Solver::Options solver_options = SolverOptions(options.max_iterations);
+      solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+      ceres::Solver::Summary ceres_summary;
+      ceres::Solve(solver_options, &problem, &ceres_summary);
+      summary->iterations += static_cast<int>(ceres_summary.iterations.size()) - 1;
+      if (!ceres_summary.IsSolutionUsable()) return finish(false, "centres: " + ceres_summary.message);
+    }
+    // A view the directions leave out but a rotation-only pair links to one
+    // they place was taken from that view's centre.
+    std::vector<bool> placed(views.size());
+    for (std::size_t k = 0; k < views.size(); ++k) placed[k] = problem.HasParameterBlock(views[k].centre.data());
+    for (bool moved = true; moved;) {
+      moved = false;
+      for (const EdgeCorrespondences* e : used) {
+        const int a = index[e->view1], b = index[e->view2];
+        if (!RotationOnly(*e) || placed[a] == placed[b]) continue;
+        const int from = placed[a] ? a : b, to = placed[a] ? b : a;
+        views[to].centre = views[from].centre;
+        placed[to] = moved = true;
+      }
+    }
   }
 
   // 3. Points.
@@ -334,7 +358,9 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
       if (first[g] < 0) {
         first[g] = static_cast<int>(k);
         problem.SetParameterBlockConstant(v.centre.data());
-      } else if (!scaled[g]) {
+      } else if (!scaled[g] && (v.centre - views[first[g]].centre).norm() > 0.0) {
+        // (A view at its first view's centre, across a rotation-only pair,
+        // cannot hold the scale.)
         scaled[g] = true;
         int axis = 0;
         (v.centre - views[first[g]].centre).cwiseAbs().maxCoeff(&axis);

@@ -157,8 +157,9 @@ bool Pass(const std::vector<EdgeCorrespondences>& edges, const CorrespondenceRef
 
 }  // namespace
 
-bool CorrespondencesAreFinite(const EdgeCorrespondences& e) {
-  if (!std::isfinite(e.sigma) || !(e.sigma > 0.0) || !e.translation.allFinite() || !(e.translation.norm() > 0.0)) {
+bool CorrespondencesAreFinite(const EdgeCorrespondences& e, bool allow_rotation_only) {
+  if (!std::isfinite(e.sigma) || !(e.sigma > 0.0) || !e.translation.allFinite() ||
+      !(e.translation.norm() > 0.0 || (allow_rotation_only && e.translation.isZero(0.0)))) {
     return false;
   }
   for (std::size_t k = 0; k < e.points1.size(); ++k) {

@@ -19,7 +19,10 @@
 //   2. Camera centres with the orientations held: c_j - c_i = s_ij d_ij,
 //      s_ij >= 1, d_ij the direction the edge's matches give under the
 //      averaged orientations (least unsquared deviations, Ozyesil & Singer,
-//      CVPR 2015: convex, so no start is needed).
+//      CVPR 2015: convex, so no start is needed). A pair of the rotation-only
+//      model (zero translation: the camera turned in place) gives no
+//      direction; its matches join the tracks, and a view only it links to
+//      the others starts at its partner's centre.
 //   3. Points by the midpoint of their rays; tracks behind a camera or with
 //      too little parallax are left out.
 //   4. Reprojection errors, each whitened by its view's pixel noise (the
@@ -66,6 +69,7 @@ struct BundleAdjustmentOptions {
 struct BundleAdjustmentSummary {
   int views = 0;
   int edges_used = 0;
+  int edges_rotation_only = 0;  // of edges_used: in the tracks, not in the centres (step 2)
   int edges_skipped = 0;        // too few correspondences, unknown views, bad numbers
   int tracks = 0;               // triangulated and adjusted (final stage)
   int tracks_inconsistent = 0;  // holding two keypoints of one view

@@ -37,16 +37,19 @@ namespace rotation_averaging {
 struct EdgeCorrespondences {
   ViewId view1 = 0, view2 = 0;
   std::vector<Eigen::Vector2d> points1, points2;  // normalised image coordinates (K^-1 x, undistorted)
-  Eigen::Vector3d translation = Eigen::Vector3d::UnitX();  // start of t_21 (the two-view estimate)
+  // Start of t_21 (the two-view estimate); zero for a pair of the
+  // rotation-only model (no measurable translation, so no direction).
+  Eigen::Vector3d translation = Eigen::Vector3d::UnitX();
   // Standard deviation of the Sampson residual in normalised coordinates
   // (the two-view estimate's pixel noise over the focal length): each edge's
   // residuals are whitened by it, so noisy pairs count for less.
   double sigma = 0.0;
 };
 
-// True if the edge's sigma is positive and its translation and points are
-// finite.
-bool CorrespondencesAreFinite(const EdgeCorrespondences& e);
+// True if the edge's sigma is positive, its points are finite and its
+// translation is finite and not zero; with allow_rotation_only, a zero
+// translation (a pair of the rotation-only model) passes too.
+bool CorrespondencesAreFinite(const EdgeCorrespondences& e, bool allow_rotation_only = false);
 
 // The translation direction that best explains the edge's correspondences
 // under the relative rotation r21: x2^T [t]x R x1 = t . (R x1 x x2), so t is
