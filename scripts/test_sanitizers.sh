@@ -2,13 +2,14 @@
 # Builds the package with AddressSanitizer and UndefinedBehaviorSanitizer into
 # build-sanitize/ and runs every test with ctest (unit tests and the node's
 # rostests). Any sanitizer report fails the test that triggered it.
-#   bash scripts/test_sanitizers.sh      (after scripts/setup.sh; ~10 minutes on 2 cores)
+#   bash scripts/test_sanitizers.sh [ctest options]   (after scripts/setup.sh; ~25 minutes on 2 cores)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH=/usr/bin:$PATH
 cmake -S . -B build-sanitize -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DROTAVG_SANITIZE=ON \
   -DPYTHON_EXECUTABLE=/usr/bin/python3 > /dev/null
-cmake --build build-sanitize
+# Only what ctest runs: the test programs and what they start (the node, the
+# back ends, images_to_bag), not the benchmark and evaluation tools.
 cmake --build build-sanitize --target tests
 # halt_on_error: a report is a failure. Leak checking stays on; known leaks
 # of third-party libraries, if any, are listed in test/sanitizer_suppressions.txt.
