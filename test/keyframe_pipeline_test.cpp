@@ -146,9 +146,9 @@ void PutBigEndian16(std::uint32_t value, std::uint8_t* at) {
 }
 
 // The decoder allocates the size a header declares before it reads any
-// pixel: a header that disagrees with camera_info (or, without a camera_info
-// size, an implausible one) is refused before decoding, and formats other
-// than image_transport's PNG and JPEG are refused.
+// pixel: a header that disagrees with camera_info, or declares an
+// implausible size (whatever camera_info says), is refused before decoding,
+// and formats other than image_transport's PNG and JPEG are refused.
 TEST(KeyframePipeline, CompressedImagesAreCheckedBeforeDecoding) {
   KeyframePipeline pipeline(ReadPipelineConfig(NoParameters(), nullptr));
   PendingKeyframe k;

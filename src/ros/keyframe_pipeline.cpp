@@ -279,20 +279,23 @@ bool KeyframePipeline::DecodeImage(const sensor_msgs::Image& image, const sensor
   // cv_bridge compares height * step with the data's size, and step with
   // width * bytes per pixel, in 32 bits: a product that wraps around passes,
   // and the copy then reads gigabytes past the data. Checked in 64 bits first.
-  const std::string from = "image from " + image.header.frame_id + " (" + image.encoding + ", " +
-                           std::to_string(image.width) + "x" + std::to_string(image.height) + ", step " +
-                           std::to_string(image.step) + ", " + std::to_string(image.data.size()) + " bytes)";
+  // (The description is built only for a rejection, not for every image.)
+  auto from = [&image] {
+    return "image from " + image.header.frame_id + " (" + image.encoding + ", " + std::to_string(image.width) + "x" +
+           std::to_string(image.height) + ", step " + std::to_string(image.step) + ", " +
+           std::to_string(image.data.size()) + " bytes)";
+  };
   std::uint64_t pixel_bytes = 0;
   try {
     pixel_bytes = static_cast<std::uint64_t>(sensor_msgs::image_encodings::bitDepth(image.encoding) / 8) *
                   sensor_msgs::image_encodings::numChannels(image.encoding);
   } catch (const std::exception&) {
-    return Reject(&stats_.rejected_images, from + " has an unknown encoding", error);
+    return Reject(&stats_.rejected_images, from() + " has an unknown encoding", error);
   }
   if (image.width == 0 || image.height == 0 || std::uint64_t{image.width} * image.height > kMaxKeyframePixels ||
       std::uint64_t{image.step} < std::uint64_t{image.width} * pixel_bytes ||
       std::uint64_t{image.height} * image.step != image.data.size()) {
-    return Reject(&stats_.rejected_images, from + " is malformed: its size, step and data do not agree", error);
+    return Reject(&stats_.rejected_images, from() + " is malformed: its size, step and data do not agree", error);
   }
   cv::Mat grey;
   try {
@@ -309,11 +312,11 @@ bool KeyframePipeline::DecodeImage(const sensor_msgs::Image& image, const sensor
 bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage& image,
                                              const sensor_msgs::CameraInfo& info, PendingKeyframe* out,
                                              std::string* error) {
-  const std::string from = "compressed image from " + image.header.frame_id + " (" + image.format + ")";
+  auto from = [&image] { return "compressed image from " + image.header.frame_id + " (" + image.format + ")"; };
   std::uint32_t width = 0, height = 0;
   const std::string format = CompressedImageSize(image.data, &width, &height);
   if (format.empty()) {
-    return Reject(&stats_.rejected_images, from + " is neither PNG nor JPEG, or its header is cut short", error);
+    return Reject(&stats_.rejected_images, from() + " is neither PNG nor JPEG, or its header is cut short", error);
   }
   // camera_info's size, or its transpose (an EXIF orientation that the
   // decoder applies; Validate then compares the decoded image).
@@ -322,7 +325,7 @@ bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage&
   const bool plausible = width > 0 && height > 0 && std::uint64_t{width} * height <= kMaxKeyframePixels;
   if (!plausible || (sized && !as_info)) {
     return Reject(&stats_.rejected_images,
-                  from + ": its " + format + " header declares " + std::to_string(width) + "x" +
+                  from() + ": its " + format + " header declares " + std::to_string(width) + "x" +
                       std::to_string(height) + " pixels, " +
                       (plausible ? "not camera_info's " + std::to_string(info.width) + "x" + std::to_string(info.height)
                                  : "an empty or implausibly large image"),
@@ -336,7 +339,7 @@ bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage&
   }
   if (grey.empty()) {
     return Reject(&stats_.rejected_images,
-                  from + " does not decode", error);
+                  from() + " does not decode", error);
   }
   return Validate(image.header.frame_id, image.header.stamp, grey, info, out, error);
 }
