@@ -57,6 +57,13 @@ int Root(std::vector<int>* parent, int v) {
   return v;
 }
 
+// Joins the sets of a and b; the smaller root stays the root.
+void Unite(std::vector<int>* parent, int a, int b) {
+  a = Root(parent, a);
+  b = Root(parent, b);
+  if (a != b) (*parent)[std::max(a, b)] = std::min(a, b);
+}
+
 struct Observation {
   int view = 0;  // index into the views
   Eigen::Vector2d x;
@@ -209,8 +216,8 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   for (const EdgeCorrespondences* e : used) {
     const int v1 = index[e->view1], v2 = index[e->view2];
     for (std::size_t m = 0; m < e->points1.size(); ++m) {
-      const int a = Root(&parent, keypoint(v1, e->points1[m])), b = Root(&parent, keypoint(v2, e->points2[m]));
-      if (a != b) parent[std::max(a, b)] = std::min(a, b);
+      const int a = keypoint(v1, e->points1[m]), b = keypoint(v2, e->points2[m]);  // in this order: ids by arrival
+      Unite(&parent, a, b);
     }
   }
   std::map<int, Track> by_root;
@@ -244,8 +251,7 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
     std::iota(linked.begin(), linked.end(), 0);
     for (const EdgeCorrespondences* e : used) {
       if (RotationOnly(*e)) continue;
-      const int a = Root(&linked, index[e->view1]), b = Root(&linked, index[e->view2]);
-      if (a != b) linked[std::max(a, b)] = std::min(a, b);
+      Unite(&linked, index[e->view1], index[e->view2]);
     }
     ceres::Problem problem(problem_options);
     // sqrt(1 + r^2) - 1 on the norm of each edge's 3-vector: L1 beyond a
@@ -341,10 +347,7 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
     std::vector<int> group(views.size());
     std::iota(group.begin(), group.end(), 0);
     for (const Track& t : tracks) {
-      for (const Observation& o : t.observations) {
-        const int a = Root(&group, t.observations.front().view), b = Root(&group, o.view);
-        if (a != b) group[std::max(a, b)] = std::min(a, b);
-      }
+      for (const Observation& o : t.observations) Unite(&group, t.observations.front().view, o.view);
     }
     std::vector<int> first(views.size(), -1);
     std::vector<bool> scaled(views.size(), false);
