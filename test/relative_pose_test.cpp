@@ -4,7 +4,9 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
+#include <limits>
 #include <random>
+#include <string>
 
 #include "rotation_averaging/geometry/epipolar.h"
 #include "rotation_averaging/geometry/so3.h"
@@ -167,11 +169,25 @@ TEST(RelativePose, DegenerateInputsFailWithAReason) {
   std::uniform_real_distribution<double> u(0.0, 480.0);
   for (auto& p : p2) p = Eigen::Vector2d(u(rng), u(rng));
   EXPECT_FALSE(EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k).success);
-  // Mismatched lengths and singular intrinsics do not crash.
+  // Input that cannot be a pair of views is refused as such, with the reason.
   p2.pop_back();
-  EXPECT_FALSE(EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k).success);
+  RelativePoseResult invalid = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+  EXPECT_EQ(invalid.failure, TwoViewFailure::kInvalidInput);
+  EXPECT_NE(invalid.message.find("differ in length"), std::string::npos) << invalid.message;
   p2.push_back(p2.back());
-  EXPECT_FALSE(EstimateRelativePoseWithCovariance(p1, p2, Eigen::Matrix3d::Zero(), s.k).success);
+  EXPECT_EQ(EstimateRelativePoseWithCovariance(p1, p2, Eigen::Matrix3d::Zero(), s.k).failure,
+            TwoViewFailure::kInvalidInput);
+  Eigen::Matrix3d projective = s.k;
+  projective(2, 0) = 1e-3;
+  EXPECT_EQ(EstimateRelativePoseWithCovariance(p1, p2, s.k, projective).failure, TwoViewFailure::kInvalidInput);
+  Observe(s, 0.3, 0.0, rng, &p1, &p2);
+  p1[7].x() = std::numeric_limits<double>::quiet_NaN();
+  invalid = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+  EXPECT_EQ(invalid.failure, TwoViewFailure::kInvalidInput);
+  EXPECT_NE(invalid.message.find("correspondence 7"), std::string::npos) << invalid.message;
+  p1[7].x() = std::numeric_limits<double>::infinity();
+  EXPECT_EQ(EstimateRelativePoseWithCovariance(p2, p1, s.k, s.k).failure, TwoViewFailure::kInvalidInput);
+  EXPECT_STREQ(TwoViewFailureName(TwoViewFailure::kInvalidInput), "invalid_input");
 }
 
 // A camera that turned on the spot: the essential matrix has no translation to

@@ -198,6 +198,7 @@ const char* TwoViewFailureName(TwoViewFailure failure) {
     case TwoViewFailure::kNearPlanar: return "near_planar";
     case TwoViewFailure::kRefinementFailed: return "refinement_failed";
     case TwoViewFailure::kSingularInformation: return "singular_information";
+    case TwoViewFailure::kInvalidInput: return "invalid_input";
   }
   return "?";
 }
@@ -666,13 +667,28 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
                                                       const RelativePoseOptions& options) {
   const int n = static_cast<int>(std::min(points1.size(), points2.size()));
   if (points1.size() != points2.size()) {
-    return Fail(TwoViewFailure::kTooFewMatches, "point lists differ in length");
+    return Fail(TwoViewFailure::kInvalidInput, "point lists differ in length (" + std::to_string(points1.size()) +
+                                                   " and " + std::to_string(points2.size()) + ")");
+  }
+  // The robust estimator's own checks do not cover these: a NaN would reach
+  // its model scores, and a K that is no camera makes every residual wrong.
+  for (int i = 0; i < n; ++i) {
+    if (!points1[i].allFinite() || !points2[i].allFinite()) {
+      return Fail(TwoViewFailure::kInvalidInput, "correspondence " + std::to_string(i) + " is not finite");
+    }
+  }
+  for (const Eigen::Matrix3d* k : {&k1, &k2}) {
+    if (!k->allFinite() || !((*k)(0, 0) > 0.0) || !((*k)(1, 1) > 0.0) || (*k)(2, 0) != 0.0 || (*k)(2, 1) != 0.0 ||
+        std::abs((*k)(2, 2) - 1.0) > 1e-9) {
+      return Fail(TwoViewFailure::kInvalidInput, std::string(k == &k1 ? "K1" : "K2") +
+                                                     " is not intrinsics (finite, positive focal lengths, last row 0 0 1)");
+    }
   }
   if (n < std::max(options.min_inliers, 5)) {
     return Fail(TwoViewFailure::kTooFewMatches, std::to_string(n) + " correspondences");
   }
   const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
-  if (!k1_inv.allFinite() || !k2_inv.allFinite()) return Fail(TwoViewFailure::kEssentialFailed, "singular intrinsics");
+  if (!k1_inv.allFinite() || !k2_inv.allFinite()) return Fail(TwoViewFailure::kInvalidInput, "singular intrinsics");
   EssentialFit fit;
   RelativePoseResult essential = EstimateEssential(points1, points2, k1, k2, options, &fit);
   if (!options.rotation_model) return essential;

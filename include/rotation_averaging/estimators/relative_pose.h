@@ -56,7 +56,8 @@ enum class TwoViewFailure {
   kPureRotation,        // median parallax too small: translation unobservable, E ill-conditioned
   kNearPlanar,          // a homography explains the inliers (only if max_homography_inlier_ratio < 1)
   kRefinementFailed,    // the Sampson refinement diverged or produced non-finite numbers
-  kSingularInformation  // J^T J (nearly) singular: the rotation is not constrained
+  kSingularInformation,  // J^T J (nearly) singular: the rotation is not constrained
+  kInvalidInput          // point lists of different lengths, a non-finite point, or intrinsics that are not a camera
 };
 const char* TwoViewFailureName(TwoViewFailure failure);
 
@@ -130,7 +131,8 @@ struct RelativePoseResult {
 };
 
 // points1/points2: corresponding pixel coordinates (same length) in images
-// with intrinsics K1/K2 (undistorted).
+// with intrinsics K1/K2 (undistorted). Input that cannot be a pair of views
+// (kInvalidInput) fails with the reason, as any other failure does.
 RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::Vector2d>& points1,
                                                       const std::vector<Eigen::Vector2d>& points2,
                                                       const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
