@@ -1,4 +1,5 @@
-// Python bindings of the core library (module rotation_averaging._core; the
+// Python bindings of the core library and of the two-view estimation with
+// its rotation covariance (module rotation_averaging._core; the
 // package rotation_averaging re-exports it with a few conveniences, see
 // python/rotation_averaging/__init__.py). numpy arrays in, numpy arrays out;
 // errors are Python exceptions carrying the C++ message. Long solves release
@@ -14,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "rotation_averaging/estimators/relative_pose.h"
 #include "rotation_averaging/estimators/rotation_averaging.h"
 #include "rotation_averaging/eval/rotation_evaluation.h"
 #include "rotation_averaging/geometry/so3.h"
@@ -191,12 +193,12 @@ PyViewGraph FromArrays(const IdArray& view1, const IdArray& view2, const Array& 
   return g;
 }
 
-template <typename Enum>
-void EnumProperty(py::class_<ra::RotationAveragingOptions>& c, const char* name, Enum ra::RotationAveragingOptions::*field,
-                  const char* (*to_name)(Enum), bool (*parse)(const std::string&, Enum*), const char* choices) {
+template <typename Options, typename Enum>
+void EnumProperty(py::class_<Options>& c, const char* name, Enum Options::*field, const char* (*to_name)(Enum),
+                  bool (*parse)(const std::string&, Enum*), const char* choices) {
   c.def_property(
-      name, [field, to_name](const ra::RotationAveragingOptions& o) { return std::string(to_name(o.*field)); },
-      [field, parse, name, choices](ra::RotationAveragingOptions& o, const std::string& text) {
+      name, [field, to_name](const Options& o) { return std::string(to_name(o.*field)); },
+      [field, parse, name, choices](Options& o, const std::string& text) {
         if (!parse(text, &(o.*field))) {
           throw py::value_error("unknown " + std::string(name) + " '" + text + "' (" + choices + ")");
         }
@@ -291,6 +293,32 @@ py::dict EvaluationToDict(const ra::EvaluationResult& e) {
   return d;
 }
 
+// (n, 2) pixel coordinates.
+std::vector<Eigen::Vector2d> PointsFromArray(const Array& a, const char* what) {
+  if (a.ndim() != 2 || a.shape(1) != 2) throw py::value_error(std::string(what) + " must have shape (n, 2) (pixels)");
+  std::vector<Eigen::Vector2d> points(static_cast<std::size_t>(a.shape(0)));
+  auto r = a.unchecked<2>();
+  for (py::ssize_t k = 0; k < a.shape(0); ++k) points[k] = Eigen::Vector2d(r(k, 0), r(k, 1));
+  return points;
+}
+
+// Input that cannot be a pair of views is a ValueError, as everywhere in the
+// bindings; a pair without a pose (too few inliers, no parallax, ...) is a
+// result with success False and the reason.
+ra::RelativePoseResult RelativePose(const Array& points1, const Array& points2, const py::handle& k1_object,
+                                    const py::handle& k2_object, const ra::RelativePoseOptions& options) {
+  const std::vector<Eigen::Vector2d> p1 = PointsFromArray(points1, "points1"), p2 = PointsFromArray(points2, "points2");
+  const Eigen::Matrix3d k1 = ToMatrix3(k1_object, "K1");
+  const Eigen::Matrix3d k2 = k2_object.is_none() ? k1 : ToMatrix3(k2_object, "K2");
+  ra::RelativePoseResult result;
+  {
+    py::gil_scoped_release release;
+    result = ra::EstimateRelativePoseWithCovariance(p1, p2, k1, k2, options);
+  }
+  if (result.failure == ra::TwoViewFailure::kInvalidInput) throw py::value_error(result.message);
+  return result;
+}
+
 }  // namespace
 
 PYBIND11_MODULE(_core, m) {
@@ -374,6 +402,22 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
                                for (const auto& e : g.graph.Edges()) n.push_back(e.num_inliers);
                                return py::array_t<int>(n.size(), n.data());
                              })
+      .def(
+          "add_relative_pose",
+          [](PyViewGraph& g, ra::ViewId i, ra::ViewId j, const ra::RelativePoseResult& pose, const std::string& source,
+             std::uint32_t channel) {
+            if (!pose.success) {
+              throw py::value_error("edge " + std::to_string(i) + "-" + std::to_string(j) + ": the pair has no pose (" +
+                                    ra::TwoViewFailureName(pose.failure) + ": " + pose.message + ")");
+            }
+            if (!g.graph.HasView(i)) g.graph.AddView(i);
+            if (!g.graph.HasView(j)) g.graph.AddView(j);
+            AddEdgeOrThrow(&g, i, j, pose.EdgeRotation(), py::cast(pose.covariance), static_cast<int>(pose.inliers.size()),
+                           source, channel);
+          },
+          py::arg("view1"), py::arg("view2"), py::arg("pose"), py::arg("source") = "other", py::arg("channel") = 0,
+          "Adds the edge a relative_pose(points of view1, points of view2, ...) measures: R_12 = pose.rotation^T, "
+          "its covariance and inlier count. Raises ValueError if the pair has no pose or the graph rejects it.")
       .def("connected_components",
            [](const PyViewGraph& g) {
              std::vector<py::array_t<std::uint64_t>> out;
@@ -500,6 +544,78 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
         return "<Solution " + std::to_string(s.ids.size()) + " views, " + std::to_string(s.summary.components.size()) +
                " components, " + (s.success ? "success" : "failed") + ">";
       });
+
+  py::class_<ra::RelativePoseOptions> pose_options(
+      m, "RelativePoseOptions", "Every option of the two-view estimation (relative_pose.h); enumerations as strings.");
+  pose_options.def(py::init<>());
+  pose_options.def("copy", [](const ra::RelativePoseOptions& o) { return o; });
+  pose_options.def("__copy__", [](const ra::RelativePoseOptions& o) { return o; });
+  pose_options.def("__deepcopy__", [](const ra::RelativePoseOptions& o, py::dict) { return o; });
+  EnumProperty(pose_options, "covariance_model", &ra::RelativePoseOptions::covariance_model,
+               &ra::RotationCovarianceModelName, &ra::ParseRotationCovarianceModel, "marginal, conditional");
+#define ROTAVG_FIELD(name) pose_options.def_readwrite(#name, &ra::RelativePoseOptions::name)
+  ROTAVG_FIELD(ransac_threshold_px);
+  ROTAVG_FIELD(adaptive_threshold_sigmas);
+  ROTAVG_FIELD(min_adaptive_threshold_px);
+  ROTAVG_FIELD(ransac_confidence);
+  ROTAVG_FIELD(ransac_max_iterations);
+  ROTAVG_FIELD(min_inliers);
+  ROTAVG_FIELD(min_median_parallax_deg);
+  ROTAVG_FIELD(max_homography_inlier_ratio);
+  ROTAVG_FIELD(near_planar_report_ratio);
+  ROTAVG_FIELD(refine_max_iterations);
+  ROTAVG_FIELD(max_condition_number);
+  ROTAVG_FIELD(rotation_model);
+#undef ROTAVG_FIELD
+
+  py::class_<ra::RelativePoseResult>(m, "RelativePose", R"(A two-view relative pose and the covariance of its rotation.
+
+rotation maps camera-1 to camera-2 coordinates (x2 = R x1 + t, R = R_2 R_1^T for
+world-to-camera R_i); edge_rotation is the view-graph edge R_12 = rotation^T,
+and covariance (rad^2) is that of the edge's right perturbation, as
+ViewGraph.add_edge takes it.)")
+      .def_readonly("success", &ra::RelativePoseResult::success)
+      .def_property_readonly("failure",
+                             [](const ra::RelativePoseResult& p) { return std::string(ra::TwoViewFailureName(p.failure)); },
+                             "'none', or why the pair has no pose (too_few_matches, too_few_inliers, pure_rotation, ...)")
+      .def_readonly("message", &ra::RelativePoseResult::message)
+      .def_property_readonly("model", [](const ra::RelativePoseResult& p) { return std::string(ra::TwoViewModelName(p.model)); },
+                             "'essential' (general motion) or 'rotation' (the camera turned in place: no translation)")
+      .def_readonly("rotation", &ra::RelativePoseResult::rotation, "R_21, 3x3")
+      .def_readonly("translation", &ra::RelativePoseResult::translation, "unit t_21; zero for the rotation model")
+      .def_property_readonly("edge_rotation", &ra::RelativePoseResult::EdgeRotation, "R_12 = rotation^T")
+      .def_readonly("covariance", &ra::RelativePoseResult::covariance,
+                    "rad^2, per options.covariance_model (default: marginal over the translation)")
+      .def_readonly("covariance_marginal", &ra::RelativePoseResult::covariance_marginal)
+      .def_readonly("covariance_conditional", &ra::RelativePoseResult::covariance_conditional)
+      .def_readonly("covariance_paper", &ra::RelativePoseResult::covariance_paper,
+                    "(J_w^T J_w)^-1 unscaled (1/px^2), as the paper's code gives it")
+      .def_readonly("sigma_px", &ra::RelativePoseResult::sigma_px, "pixel noise measured from the inliers' residuals")
+      .def_readonly("median_parallax_deg", &ra::RelativePoseResult::median_parallax_deg)
+      .def_readonly("homography_inlier_ratio", &ra::RelativePoseResult::homography_inlier_ratio)
+      .def_property_readonly("inliers",
+                             [](const ra::RelativePoseResult& p) {
+                               return py::array_t<int>(static_cast<py::ssize_t>(p.inliers.size()), p.inliers.data());
+                             }, "indices into the points")
+      .def_readonly("ransac_threshold_px", &ra::RelativePoseResult::ransac_threshold_px)
+      .def_readonly("refine_iterations", &ra::RelativePoseResult::refine_iterations)
+      .def_readonly("gric_essential", &ra::RelativePoseResult::gric_essential)
+      .def_readonly("gric_rotation", &ra::RelativePoseResult::gric_rotation)
+      .def("__repr__", [](const ra::RelativePoseResult& p) {
+        std::ostringstream out;
+        if (p.success) {
+          out << "<RelativePose " << ra::TwoViewModelName(p.model) << ", " << p.inliers.size() << " inliers, "
+              << ra::LogSO3(p.rotation).norm() * 180.0 / M_PI << " deg, sigma " << p.sigma_px << " px>";
+        } else {
+          out << "<RelativePose failed: " << ra::TwoViewFailureName(p.failure) << " (" << p.message << ")>";
+        }
+        return out.str();
+      });
+
+  m.def("relative_pose", &RelativePose, py::arg("points1"), py::arg("points2"), py::arg("K1"), py::arg("K2") = py::none(),
+        py::arg("options") = ra::RelativePoseOptions(),
+        "Relative pose of two views from corresponding pixels (n, 2) of undistorted images with intrinsics K1, K2 "
+        "(K2 defaults to K1), with the covariance of its rotation. Releases the GIL.");
 
   m.def("solve", &Solve, py::arg("graph"), py::arg("options") = ra::RotationAveragingOptions(),
         py::arg("initial") = py::none(),
