@@ -670,8 +670,8 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
     return Fail(TwoViewFailure::kInvalidInput, "point lists differ in length (" + std::to_string(points1.size()) +
                                                    " and " + std::to_string(points2.size()) + ")");
   }
-  // The robust estimator's own checks do not cover these: a NaN would reach
-  // its model scores, and a K that is no camera makes every residual wrong.
+  // Refused here with the reason, not left to OpenCV's estimator, whose
+  // outcome on such input (if it fails at all) would not name the cause.
   for (int i = 0; i < n; ++i) {
     if (!points1[i].allFinite() || !points2[i].allFinite()) {
       return Fail(TwoViewFailure::kInvalidInput, "correspondence " + std::to_string(i) + " is not finite");
