@@ -19,6 +19,7 @@ pixels, and ViewGraph.add_relative_pose() adds it as an edge::
     pose = ra.relative_pose(pixels_i, pixels_j, K)       # (n, 2), (n, 2) matched pixels, undistorted
     if pose.success:
         graph.add_relative_pose(i, j, pose)             # R_ij = pose.rotation^T, pose.covariance
+    adjusted = ra.bundle_adjust(ra.solve(graph), [(i, j, pixels_i, pixels_j, pose), ...], K)
 
 Conventions: R_i world-to-camera; an edge (i, j) holds R_ij = R_i R_j^T; a
 covariance (rad^2) is that of a right perturbation in camera j's frame;
@@ -29,6 +30,8 @@ The ROS messages of the package are rotation_averaging.msg and .srv.
 """
 
 from rotation_averaging._core import (  # noqa: F401
+    BundleAdjustment,
+    BundleAdjustmentOptions,
     RelativePose,
     RelativePoseOptions,
     Solution,
@@ -49,6 +52,7 @@ from rotation_averaging._core import (  # noqa: F401
 from rotation_averaging import _core
 
 __all__ = [
+    "BundleAdjustment", "BundleAdjustmentOptions", "bundle_adjust", "make_bundle_adjustment_options",
     "RelativePose", "RelativePoseOptions", "Solution", "SolveOptions", "ViewGraph", "evaluate", "exp_so3", "log_so3",
     "loss_names", "make_options", "make_relative_pose_options", "read_graph", "read_ground_truth", "read_orientations",
     "relative_pose", "solve", "synthetic_graph", "weighting_names", "write_graph", "write_orientations",
@@ -107,3 +111,24 @@ def solve(graph, options=None, initial=None, **settings):
     Returns a Solution.
     """
     return _core.solve(graph, make_options(options, **settings), initial)
+
+
+def make_bundle_adjustment_options(options=None, **settings):
+    """A BundleAdjustmentOptions: a copy of `options` (or the defaults) with `settings` applied."""
+    return _with_settings(options, BundleAdjustmentOptions, settings, "bundle adjustment")
+
+
+def bundle_adjust(orientations, pairs, intrinsics, options=None, **settings):
+    """Bundle adjustment from averaged orientations, as `rotavg images` runs it.
+
+    orientations: a Solution or {view id: 3x3 world-to-camera}.
+    pairs: (view1, view2, points1, points2, pose) with pose = relative_pose(points1,
+    points2, ...); the pose's inliers are linked into tracks through the keypoints
+    they share, a keypoint being its pixel coordinates in its view (so each view's
+    keypoints must have the same coordinates in every pair).
+    intrinsics: one 3x3 K, or {view id: K}. settings: fields of BundleAdjustmentOptions.
+    Returns a BundleAdjustment: orientations, centres, summary, report().
+    """
+    if hasattr(orientations, "as_dict"):
+        orientations = orientations.as_dict()
+    return _core.bundle_adjust(orientations, list(pairs), intrinsics, make_bundle_adjustment_options(options, **settings))

@@ -1,20 +1,24 @@
-// Python bindings of the core library and of the two-view estimation with
-// its rotation covariance (module rotation_averaging._core; the
-// package rotation_averaging re-exports it with a few conveniences, see
+// Python bindings of the core library, the two-view estimation with its
+// rotation covariance and the bundle adjustment (module
+// rotation_averaging._core; the package rotation_averaging re-exports it with a few conveniences, see
 // python/rotation_averaging/__init__.py). numpy arrays in, numpy arrays out;
-// errors are Python exceptions carrying the C++ message. Long solves release
-// the GIL.
+// errors are Python exceptions carrying the C++ message. Solves, two-view
+// estimations and adjustments release the GIL.
 #include <pybind11/eigen.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <map>
 #include <sstream>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
+#include "rotation_averaging/estimators/bundle_adjustment.h"
 #include "rotation_averaging/estimators/relative_pose.h"
 #include "rotation_averaging/estimators/rotation_averaging.h"
 #include "rotation_averaging/eval/rotation_evaluation.h"
@@ -319,6 +323,86 @@ ra::RelativePoseResult RelativePose(const Array& points1, const Array& points2, 
   return result;
 }
 
+// The result of a bundle adjustment: orientations and centres per view id.
+struct BundleAdjustment {
+  ra::ViewOrientations orientations;
+  std::unordered_map<ra::ViewId, Eigen::Vector3d> centres;
+  ra::BundleAdjustmentSummary summary;
+  bool success = false;
+};
+
+// The pairs as the adjustment takes them: each pair's inliers in normalised
+// coordinates of its views' intrinsics, its translation and pixel noise.
+BundleAdjustment BundleAdjust(const py::dict& initial, const py::list& pairs, const py::object& intrinsics,
+                              const ra::BundleAdjustmentOptions& options) {
+  BundleAdjustment out;
+  for (const auto& [key, value] : initial) {
+    const ra::ViewId id = py::cast<ra::ViewId>(key);
+    out.orientations[id] = ToMatrix3(value, "orientations[" + std::to_string(id) + "]");
+    if (!ra::IsRotationMatrix(out.orientations[id], 1e-6)) {
+      throw py::value_error("orientations[" + std::to_string(id) + "] is not a rotation matrix");
+    }
+  }
+  // One K for every view, or {view id: K}.
+  std::map<ra::ViewId, Eigen::Matrix3d> per_view;
+  Eigen::Matrix3d shared = Eigen::Matrix3d::Identity();
+  const bool is_dict = py::isinstance<py::dict>(intrinsics);
+  if (is_dict) {
+    for (const auto& [key, value] : py::cast<py::dict>(intrinsics)) {
+      const ra::ViewId id = py::cast<ra::ViewId>(key);
+      per_view[id] = ToMatrix3(value, "intrinsics[" + std::to_string(id) + "]");
+    }
+  } else {
+    shared = ToMatrix3(intrinsics, "intrinsics");
+  }
+  const auto k_of = [&](ra::ViewId id) -> Eigen::Matrix3d {
+    if (!is_dict) return shared;
+    auto it = per_view.find(id);
+    if (it == per_view.end()) throw py::value_error("no intrinsics for view " + std::to_string(id));
+    return it->second;
+  };
+  std::vector<ra::EdgeCorrespondences> edges;
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
+    const py::tuple pair = py::cast<py::tuple>(pairs[k]);
+    const std::string where = "pairs[" + std::to_string(k) + "]";
+    if (pair.size() != 5) throw py::value_error(where + " must be (view1, view2, points1, points2, pose)");
+    ra::EdgeCorrespondences e;
+    e.view1 = py::cast<ra::ViewId>(pair[0]);
+    e.view2 = py::cast<ra::ViewId>(pair[1]);
+    const std::vector<Eigen::Vector2d> p1 = PointsFromArray(py::cast<Array>(pair[2]), "points1");
+    const std::vector<Eigen::Vector2d> p2 = PointsFromArray(py::cast<Array>(pair[3]), "points2");
+    const auto& pose = py::cast<const ra::RelativePoseResult&>(pair[4]);
+    if (!pose.success) throw py::value_error(where + ": the pair has no pose (" + pose.message + ")");
+    if (p1.size() != p2.size()) throw py::value_error(where + ": points1 and points2 differ in length");
+    const Eigen::Matrix3d k1 = k_of(e.view1), k2 = k_of(e.view2);
+    for (const Eigen::Matrix3d* kk : {&k1, &k2}) {
+      if (!kk->allFinite() || !((*kk)(0, 0) > 0.0) || !((*kk)(1, 1) > 0.0) || std::abs((*kk)(2, 2) - 1.0) > 1e-9) {
+        throw py::value_error(where + ": intrinsics that are not a camera");
+      }
+    }
+    const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+    for (int i : pose.inliers) {
+      if (i < 0 || static_cast<std::size_t>(i) >= p1.size()) {
+        throw py::value_error(where + ": the pose's inlier " + std::to_string(i) + " is beyond the " +
+                              std::to_string(p1.size()) + " points given (pass the points the pose was estimated from)");
+      }
+      e.points1.push_back((k1_inv * p1[i].homogeneous()).hnormalized());
+      e.points2.push_back((k2_inv * p2[i].homogeneous()).hnormalized());
+    }
+    e.translation = pose.translation;
+    // Pixels over the pair's mean focal length, with image_pipeline's floor
+    // for a noiseless pair.
+    const double focal = 0.25 * (k1(0, 0) + k1(1, 1) + k2(0, 0) + k2(1, 1));
+    e.sigma = std::max(pose.sigma_px, 1e-3) / focal;
+    edges.push_back(std::move(e));
+  }
+  {
+    py::gil_scoped_release release;
+    out.success = ra::RefineRotationsWithBundleAdjustment(edges, options, &out.orientations, &out.summary, &out.centres);
+  }
+  return out;
+}
+
 }  // namespace
 
 PYBIND11_MODULE(_core, m) {
@@ -616,6 +700,78 @@ ViewGraph.add_edge takes it.)")
         py::arg("options") = ra::RelativePoseOptions(),
         "Relative pose of two views from corresponding pixels (n, 2) of undistorted images with intrinsics K1, K2 "
         "(K2 defaults to K1), with the covariance of its rotation. Releases the GIL.");
+
+  py::class_<ra::BundleAdjustmentOptions> ba_options(m, "BundleAdjustmentOptions",
+                                                     "Every option of the bundle adjustment (bundle_adjustment.h).");
+  ba_options.def(py::init<>());
+  ba_options.def("copy", [](const ra::BundleAdjustmentOptions& o) { return o; });
+  ba_options.def("__copy__", [](const ra::BundleAdjustmentOptions& o) { return o; });
+  ba_options.def("__deepcopy__", [](const ra::BundleAdjustmentOptions& o, py::dict) { return o; });
+#define ROTAVG_FIELD(name) ba_options.def_readwrite(#name, &ra::BundleAdjustmentOptions::name)
+  ROTAVG_FIELD(loss_scale_sigmas);
+  ROTAVG_FIELD(outlier_sigmas);
+  ROTAVG_FIELD(min_track_views);
+  ROTAVG_FIELD(min_parallax_deg);
+  ROTAVG_FIELD(max_iterations);
+  ROTAVG_FIELD(min_correspondences);
+#undef ROTAVG_FIELD
+
+  py::class_<BundleAdjustment>(m, "BundleAdjustment", "Adjusted orientations and camera centres, and the summary.")
+      .def_readonly("success", &BundleAdjustment::success,
+                    "False if nothing could be adjusted or a solve failed (orientations are then the given ones)")
+      .def_property_readonly("orientations",
+                             [](const BundleAdjustment& b) {
+                               py::dict d;
+                               for (const auto& [id, r] : b.orientations) d[py::int_(id)] = Array(py::cast(r));
+                               return d;
+                             }, "{id: 3x3} world-to-camera, every view given (adjusted where the tracks reach it)")
+      .def_property_readonly("centres",
+                             [](const BundleAdjustment& b) {
+                               py::dict d;
+                               for (const auto& [id, c] : b.centres) d[py::int_(id)] = Array(py::cast(c));
+                               return d;
+                             }, "{id: (3,)} adjusted camera centres, up to one scale per group of connected views")
+      .def_property_readonly("summary",
+                             [](const BundleAdjustment& b) {
+                               const ra::BundleAdjustmentSummary& s = b.summary;
+                               py::dict d;
+                               d["views"] = s.views;
+                               d["edges_used"] = s.edges_used;
+                               d["edges_rotation_only"] = s.edges_rotation_only;
+                               d["edges_skipped"] = s.edges_skipped;
+                               d["tracks"] = s.tracks;
+                               d["tracks_inconsistent"] = s.tracks_inconsistent;
+                               d["tracks_short"] = s.tracks_short;
+                               d["tracks_unconstrained"] = s.tracks_unconstrained;
+                               d["observations"] = s.observations;
+                               d["observations_dropped"] = s.observations_dropped;
+                               d["initial_rms_sigmas"] = s.initial_rms_sigmas;
+                               d["final_rms_sigmas"] = s.final_rms_sigmas;
+                               d["iterations"] = s.iterations;
+                               d["time_s"] = s.time_s;
+                               d["converged"] = s.converged;
+                               d["status"] = s.status;
+                               return d;
+                             })
+      .def("report", [](const BundleAdjustment& b) { return b.summary.Report(); }, "The summary as rotavg images prints it")
+      .def("named",
+           [](const BundleAdjustment& b, const py::dict& names) {
+             py::dict d;
+             for (const auto& [id, r] : b.orientations) {
+               const py::int_ key(id);
+               d[names.contains(key) ? py::str(names[key]) : py::str(std::to_string(id))] = Array(py::cast(r));
+             }
+             return d;
+           },
+           py::arg("names") = py::dict(), "{view name: 3x3} for evaluate(); names: {id: name}, default the id")
+      .def("__repr__", [](const BundleAdjustment& b) { return "<BundleAdjustment " + b.summary.Report() + ">"; });
+
+  m.def("bundle_adjust", &BundleAdjust, py::arg("orientations"), py::arg("pairs"), py::arg("intrinsics"),
+        py::arg("options") = ra::BundleAdjustmentOptions(),
+        "Bundle adjustment from averaged orientations ({id: 3x3}) on the pairs' inlier correspondences: "
+        "pairs are (view1, view2, points1, points2, pose), pose = relative_pose(points1, points2, ...); "
+        "a keypoint is its pixel coordinates in its view, so give each view's keypoints the same coordinates in "
+        "every pair. intrinsics: one 3x3 K, or {id: K}. Releases the GIL.");
 
   m.def("solve", &Solve, py::arg("graph"), py::arg("options") = ra::RotationAveragingOptions(),
         py::arg("initial") = py::none(),

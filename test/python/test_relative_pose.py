@@ -164,3 +164,83 @@ def test_pairs_in_a_thread_pool_give_the_same_poses_as_one_by_one():
         np.testing.assert_array_equal(result.rotation, reference.rotation)
         np.testing.assert_array_equal(result.covariance, reference.covariance)
         np.testing.assert_array_equal(result.inliers, reference.inliers)
+
+
+def pairs_of_a_rig(rig, rng, outlier_ratio=0.05):
+    """Every pair of views, each view's keypoints observed once (the same pixels in
+    every pair, as a feature detector gives them), with wrong matches."""
+    rotations, centres, points = rig
+    observed = [project(r, c, points, rng, 0.5) for r, c in zip(rotations, centres)]
+    graph, pairs = ra.ViewGraph(), []
+    for i in range(len(rotations)):
+        for j in range(i + 1, len(rotations)):
+            common = np.flatnonzero(observed[i][1] & observed[j][1])[:600]
+            p1, p2 = observed[i][0][common], observed[j][0][common].copy()
+            wrong = rng.random(len(p2)) < outlier_ratio
+            p2[wrong] = rng.uniform([0, 0], [640, 480], size=(wrong.sum(), 2))
+            pose = ra.relative_pose(p1, p2, K)
+            if pose.success:
+                graph.add_relative_pose(i, j, pose)
+                pairs.append((i, j, p1, p2, pose))
+    return graph, pairs
+
+
+def test_bundle_adjustment_of_the_averaged_orientations_on_the_pairs_matches():
+    rng = np.random.default_rng(6)
+    rig = make_rig(rng, 6, baseline=1.0)
+    rotations, centres, _ = rig
+    graph, pairs = pairs_of_a_rig(rig, rng)
+    assert graph.num_edges == 15
+    solution = ra.solve(graph)
+    adjusted = ra.bundle_adjust(solution, pairs, K)
+    assert adjusted.success, adjusted.report()
+    s = adjusted.summary
+    assert s["edges_used"] == 15 and s["edges_skipped"] == 0
+    assert s["tracks"] > 300 and s["observations"] > 3 * s["tracks"]
+    assert 0.5 < s["final_rms_sigmas"] < 1.5, adjusted.report()
+    truth = {str(v): r for v, r in enumerate(rotations)}
+    assert ra.evaluate(adjusted.named(), truth)["median_error_deg"] < 0.1
+    # The orientations come from the matches, not from the start: started 0.5
+    # deg off in every view, the adjustment reaches the same solution (up to
+    # the gauge, which holds view 0 where it starts).
+    directions = np.random.default_rng(0).normal(size=(6, 3))
+    off = {v: ra.exp_so3(np.radians(0.5) * directions[v] / np.linalg.norm(directions[v])) @ r
+           for v, r in solution.as_dict().items()}
+    assert ra.evaluate({str(v): r for v, r in off.items()}, truth)["median_error_deg"] > 0.2
+    again = ra.bundle_adjust(off, pairs, K)
+    assert ra.evaluate(again.named(), adjusted.named())["median_error_deg"] < 0.005
+    # The centres, up to the gauge's similarity: distances from view 0 in the
+    # ratios of the truth's.
+    estimated = np.array([np.linalg.norm(adjusted.centres[v] - adjusted.centres[0]) for v in range(1, 6)])
+    true = np.array([np.linalg.norm(centres[v] - centres[0]) for v in range(1, 6)])
+    np.testing.assert_allclose(estimated / estimated[-1], true / true[-1], rtol=0.03)
+    # Intrinsics per view give the same adjustment as one K for all.
+    per_view = ra.bundle_adjust(solution.as_dict(), pairs, {v: K for v in range(6)})
+    for v in range(6):
+        np.testing.assert_array_equal(per_view.orientations[v], adjusted.orientations[v])
+    named = adjusted.named({v: f"cam{v}" for v in range(6)})
+    assert sorted(named) == [f"cam{v}" for v in range(6)]
+
+
+def test_bundle_adjustment_refuses_pairs_it_cannot_use():
+    rng = np.random.default_rng(7)
+    rig = make_rig(rng, 4, baseline=1.0)
+    graph, pairs = pairs_of_a_rig(rig, rng)
+    start = ra.solve(graph).as_dict()
+    i, j, p1, p2, pose = pairs[0]
+    with pytest.raises(ValueError, match="beyond the 10 points"):
+        ra.bundle_adjust(start, [(i, j, p1[:10], p2[:10], pose)], K)
+    failed = ra.relative_pose(p1[:10], p2[:10], K)
+    with pytest.raises(ValueError, match=r"pairs\[0\]: the pair has no pose"):
+        ra.bundle_adjust(start, [(i, j, p1, p2, failed)], K)
+    with pytest.raises(ValueError, match="no intrinsics for view 1"):
+        ra.bundle_adjust(start, pairs, {0: K})
+    with pytest.raises(ValueError, match=r"\(view1, view2, points1, points2, pose\)"):
+        ra.bundle_adjust(start, [(i, j, p1, p2)], K)
+    with pytest.raises(ValueError, match="not a rotation"):
+        ra.bundle_adjust({0: 2.0 * np.eye(3)}, pairs, K)
+    with pytest.raises(TypeError, match="unknown bundle adjustment option 'sigmas'"):
+        ra.bundle_adjust(start, pairs, K, sigmas=2.0)
+    # Views without an orientation leave their pairs out; the rest is adjusted.
+    partial = ra.bundle_adjust({v: r for v, r in start.items() if v != 3}, pairs, K)
+    assert partial.success and partial.summary["edges_used"] == 3 and 3 not in partial.orientations
