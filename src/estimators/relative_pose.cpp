@@ -351,6 +351,20 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
                   "refinement moved the rotation by " + std::to_string(RadToDeg(moved)) + " deg or diverged");
     }
 
+    // The Sampson error is the same for t and -t, so the refinement cannot
+    // tell them apart; cheirality can. A robust model off along the
+    // rotation-translation valley can have its points in front only with the
+    // mirrored translation, and the refinement then brings R back and keeps
+    // t mirrored: every point behind the cameras. So t takes the sign that
+    // puts more of the inliers in front.
+    int in_front_count = 0, behind_count = 0;
+    for (int i : inliers) {
+      const Eigen::Vector3d b1 = k1_inv * points1[i].homogeneous(), b2 = k2_inv * points2[i].homogeneous();
+      if (InFront(rotation, t, b1, b2)) ++in_front_count;
+      else if (InFront(rotation, -t, b1, b2)) ++behind_count;
+    }
+    if (behind_count > in_front_count) t = -t;
+
     // Re-select.
     const Eigen::Matrix3d f = FundamentalPx(k1_inv, k2_inv, rotation, t);
     std::vector<double> residual(n), absolute;
