@@ -95,7 +95,7 @@ def test_a_database_gives_orientations_by_image_name(scene, matches, capsys):
 def test_without_undistortion_the_same_matches_are_worse(scene, monkeypatch, capsys):
     """The camera's distortion is what the undistortion removes: the same database
     read as if the camera were a pinhole gives orientations several times further
-    off (the distortion reaches 5 px at the image corners)."""
+    off (the distortion moves the image corners by 20 px)."""
     folder, database, truth = scene
     with_model = str(folder / "with_model.csv")
     assert colmap_database.main([database, "--output", with_model, "--no-bundle-adjustment"]) == 0
