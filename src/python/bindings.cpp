@@ -197,6 +197,16 @@ PyViewGraph FromArrays(const IdArray& view1, const IdArray& view2, const Array& 
   return g;
 }
 
+// An options class: constructible with the defaults, and copied (never
+// shared) by copy(), copy.copy and copy.deepcopy.
+template <typename Options>
+void DefaultConstructibleCopyable(py::class_<Options>& c) {
+  c.def(py::init<>());
+  c.def("copy", [](const Options& o) { return o; });
+  c.def("__copy__", [](const Options& o) { return o; });
+  c.def("__deepcopy__", [](const Options& o, py::dict) { return o; });
+}
+
 template <typename Options, typename Enum>
 void EnumProperty(py::class_<Options>& c, const char* name, Enum Options::*field, const char* (*to_name)(Enum),
                   bool (*parse)(const std::string&, Enum*), const char* choices) {
@@ -516,10 +526,7 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
   py::class_<ra::RotationAveragingOptions> options(m, "SolveOptions",
                                                    "Every option of the C++ solver (rotation_averaging.h); "
                                                    "enumerations as strings.");
-  options.def(py::init<>());
-  options.def("copy", [](const ra::RotationAveragingOptions& o) { return o; });
-  options.def("__copy__", [](const ra::RotationAveragingOptions& o) { return o; });
-  options.def("__deepcopy__", [](const ra::RotationAveragingOptions& o, py::dict) { return o; });
+  DefaultConstructibleCopyable(options);
   EnumProperty(options, "solver", &ra::RotationAveragingOptions::solver, &ra::SolverTypeName, &ra::ParseSolverType,
                "irls, ceres, l1_irls");
   static const std::string loss_choices = LossChoices();
@@ -631,10 +638,7 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
 
   py::class_<ra::RelativePoseOptions> pose_options(
       m, "RelativePoseOptions", "Every option of the two-view estimation (relative_pose.h); enumerations as strings.");
-  pose_options.def(py::init<>());
-  pose_options.def("copy", [](const ra::RelativePoseOptions& o) { return o; });
-  pose_options.def("__copy__", [](const ra::RelativePoseOptions& o) { return o; });
-  pose_options.def("__deepcopy__", [](const ra::RelativePoseOptions& o, py::dict) { return o; });
+  DefaultConstructibleCopyable(pose_options);
   EnumProperty(pose_options, "covariance_model", &ra::RelativePoseOptions::covariance_model,
                &ra::RotationCovarianceModelName, &ra::ParseRotationCovarianceModel, "marginal, conditional");
 #define ROTAVG_FIELD(name) pose_options.def_readwrite(#name, &ra::RelativePoseOptions::name)
@@ -703,10 +707,7 @@ ViewGraph.add_edge takes it.)")
 
   py::class_<ra::BundleAdjustmentOptions> ba_options(m, "BundleAdjustmentOptions",
                                                      "Every option of the bundle adjustment (bundle_adjustment.h).");
-  ba_options.def(py::init<>());
-  ba_options.def("copy", [](const ra::BundleAdjustmentOptions& o) { return o; });
-  ba_options.def("__copy__", [](const ra::BundleAdjustmentOptions& o) { return o; });
-  ba_options.def("__deepcopy__", [](const ra::BundleAdjustmentOptions& o, py::dict) { return o; });
+  DefaultConstructibleCopyable(ba_options);
 #define ROTAVG_FIELD(name) ba_options.def_readwrite(#name, &ra::BundleAdjustmentOptions::name)
   ROTAVG_FIELD(loss_scale_sigmas);
   ROTAVG_FIELD(outlier_sigmas);
