@@ -333,6 +333,14 @@ ra::RelativePoseResult RelativePose(const Array& points1, const Array& points2, 
   return result;
 }
 
+// {view id: numpy array} of a map from view ids to Eigen values.
+template <typename Map>
+py::dict IdDict(const Map& values) {
+  py::dict d;
+  for (const auto& [id, value] : values) d[py::int_(id)] = Array(py::cast(value));
+  return d;
+}
+
 // The result of a bundle adjustment: orientations and centres per view id.
 struct BundleAdjustment {
   ra::ViewOrientations orientations;
@@ -720,18 +728,10 @@ ViewGraph.add_edge takes it.)")
   py::class_<BundleAdjustment>(m, "BundleAdjustment", "Adjusted orientations and camera centres, and the summary.")
       .def_readonly("success", &BundleAdjustment::success,
                     "False if nothing could be adjusted or a solve failed (orientations are then the given ones)")
-      .def_property_readonly("orientations",
-                             [](const BundleAdjustment& b) {
-                               py::dict d;
-                               for (const auto& [id, r] : b.orientations) d[py::int_(id)] = Array(py::cast(r));
-                               return d;
-                             }, "{id: 3x3} world-to-camera, every view given (adjusted where the tracks reach it)")
-      .def_property_readonly("centres",
-                             [](const BundleAdjustment& b) {
-                               py::dict d;
-                               for (const auto& [id, c] : b.centres) d[py::int_(id)] = Array(py::cast(c));
-                               return d;
-                             }, "{id: (3,)} adjusted camera centres, up to one scale per group of connected views")
+      .def_property_readonly("orientations", [](const BundleAdjustment& b) { return IdDict(b.orientations); },
+                             "{id: 3x3} world-to-camera, every view given (adjusted where the tracks reach it)")
+      .def_property_readonly("centres", [](const BundleAdjustment& b) { return IdDict(b.centres); },
+                             "{id: (3,)} adjusted camera centres, up to one scale per group of connected views")
       .def_property_readonly("summary",
                              [](const BundleAdjustment& b) {
                                const ra::BundleAdjustmentSummary& s = b.summary;
