@@ -12,7 +12,9 @@
 // Pipeline: essential matrix by OpenCV's USAC MAGSAC++ on normalised
 // coordinates, cheirality by recoverPose, then Levenberg-Marquardt refinement
 // of R and t (t on the unit sphere, closed-form derivatives) minimising the
-// Sampson error over the inliers, in pixels; then the same again at a threshold scaled to the pair's measured
+// Sampson error over the inliers, in pixels (the Sampson error is the same for
+// t and -t, so t keeps the sign that puts more inliers in front of the
+// cameras); then the same again at a threshold scaled to the pair's measured
 // pixel noise (adaptive_threshold_sigmas). With J the Jacobian of the Sampson residuals w.r.t. (omega, t) at the
 // optimum and sigma^2 the pixel noise variance estimated from the residuals:
 //   conditional (the paper's code, t held fixed):  C = (J_w^T J_w)^-1
