@@ -675,6 +675,11 @@ RelativePoseResult EstimateEssential(const std::vector<Eigen::Vector2d>& points1
 
 }  // namespace
 
+bool IsCameraIntrinsics(const Eigen::Matrix3d& k) {
+  return k.allFinite() && k(0, 0) > 0.0 && k(1, 1) > 0.0 && k(2, 0) == 0.0 && k(2, 1) == 0.0 &&
+         std::abs(k(2, 2) - 1.0) <= 1e-9;
+}
+
 RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::Vector2d>& points1,
                                                       const std::vector<Eigen::Vector2d>& points2,
                                                       const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
@@ -692,8 +697,7 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
     }
   }
   for (const Eigen::Matrix3d* k : {&k1, &k2}) {
-    if (!k->allFinite() || !((*k)(0, 0) > 0.0) || !((*k)(1, 1) > 0.0) || (*k)(2, 0) != 0.0 || (*k)(2, 1) != 0.0 ||
-        std::abs((*k)(2, 2) - 1.0) > 1e-9) {
+    if (!IsCameraIntrinsics(*k)) {
       return Fail(TwoViewFailure::kInvalidInput, std::string(k == &k1 ? "K1" : "K2") +
                                                      " is not intrinsics (finite, positive focal lengths, last row 0 0 1)");
     }

@@ -393,10 +393,8 @@ BundleAdjustment BundleAdjust(const py::dict& initial, const py::list& pairs, co
     if (!pose.success) throw py::value_error(where + ": the pair has no pose (" + pose.message + ")");
     if (p1.size() != p2.size()) throw py::value_error(where + ": points1 and points2 differ in length");
     const Eigen::Matrix3d k1 = k_of(e.view1), k2 = k_of(e.view2);
-    for (const Eigen::Matrix3d* kk : {&k1, &k2}) {
-      if (!kk->allFinite() || !((*kk)(0, 0) > 0.0) || !((*kk)(1, 1) > 0.0) || std::abs((*kk)(2, 2) - 1.0) > 1e-9) {
-        throw py::value_error(where + ": intrinsics that are not a camera");
-      }
+    if (!ra::IsCameraIntrinsics(k1) || !ra::IsCameraIntrinsics(k2)) {
+      throw py::value_error(where + ": intrinsics that are not a camera");
     }
     const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
     for (int i : pose.inliers) {

@@ -132,6 +132,10 @@ struct RelativePoseResult {
   Eigen::Matrix3d EdgeRotation() const { return rotation.transpose(); }
 };
 
+// True if k can be a pinhole camera's intrinsics: finite, positive focal
+// lengths, last row 0 0 1.
+bool IsCameraIntrinsics(const Eigen::Matrix3d& k);
+
 // points1/points2: corresponding pixel coordinates (same length) in images
 // with intrinsics K1/K2 (undistorted). Input that cannot be a pair of views
 // (kInvalidInput) fails with the reason, as any other failure does.
