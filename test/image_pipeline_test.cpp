@@ -42,6 +42,9 @@ TEST(CameraIntrinsics, ReadsColmapCamerasAndKMatrices) {
   std::ofstream(dir / "cameras.txt") << "# comment\n1 SIMPLE_RADIAL 1296 1936 2435.38 648 968 -0.0336422\n";
   std::ofstream(dir / "K.txt") << "2759.48 0 1520.69\n0 2764.16 1006.81\n0 0 1\n";
   std::ofstream(dir / "bad.txt") << "1 2 3\n";
+  std::ofstream(dir / "skewed_last_row.txt") << "2759.48 0 1520.69\n0 2764.16 1006.81\n0.001 0 1\n";
+  std::ofstream(dir / "negative_focal.txt") << "1 PINHOLE 1296 1936 -2435.38 2435.38 648 968\n";
+  std::ofstream(dir / "nan_distortion.txt") << "1 SIMPLE_RADIAL 1296 1936 2435.38 648 968 nan\n";
   CameraIntrinsics c;
   std::string error;
   ASSERT_TRUE(ReadCameraIntrinsics((dir / "cameras.txt").string(), &c, &error)) << error;
@@ -53,6 +56,12 @@ TEST(CameraIntrinsics, ReadsColmapCamerasAndKMatrices) {
   EXPECT_EQ(c.k1, 0.0);
   EXPECT_FALSE(ReadCameraIntrinsics((dir / "bad.txt").string(), &c, &error));
   EXPECT_NE(error.find("9 numbers"), std::string::npos);
+  // Not a camera: a last row other than 0 0 1, a negative focal length, a
+  // distortion that is not a number. Refused on reading, with the file named.
+  for (const char* name : {"skewed_last_row.txt", "negative_focal.txt", "nan_distortion.txt"}) {
+    EXPECT_FALSE(ReadCameraIntrinsics((dir / name).string(), &c, &error)) << name;
+    EXPECT_NE(error.find(name), std::string::npos) << error;
+  }
   fs::remove_all(dir);
 }
 

@@ -96,6 +96,11 @@ TEST(KeyframePipeline, BadImagesAreRejectedAndCounted) {
   sensor_msgs::CameraInfo no_k = Info(64, 48);
   no_k.K = {0, 0, 0, 0, 0, 0, 0, 0, 0};
   EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 3.0, 64, 48, "mono8"), no_k, &k, &error));
+  EXPECT_NE(error.find("no valid K"), std::string::npos) << error;
+  sensor_msgs::CameraInfo skewed_last_row = Info(64, 48);
+  skewed_last_row.K[6] = 0.01;  // a last row other than 0 0 1 is no pinhole camera
+  EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 3.5, 64, 48, "mono8"), skewed_last_row, &k, &error));
+  EXPECT_NE(error.find("no valid K"), std::string::npos) << error;
   EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 4.0, 64, 48, "mono8"), Info(80, 60), &k, &error));
   EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 5.0, 64, 48, "no_such_encoding"), Info(64, 48), &k, &error));
   sensor_msgs::Image short_data = Image("cam", 6.0, 64, 48, "mono8");
@@ -126,7 +131,7 @@ TEST(KeyframePipeline, BadImagesAreRejectedAndCounted) {
   jpeg.format = "jpeg";
   jpeg.data = {0xFF, 0xD8, 0x00, 0x01};  // a JPEG that stops after its marker
   EXPECT_FALSE(pipeline.DecodeCompressedImage(jpeg, Info(64, 48), &k, &error));
-  EXPECT_EQ(pipeline.Stats().rejected_images, 10u);
+  EXPECT_EQ(pipeline.Stats().rejected_images, 11u);
 }
 
 sensor_msgs::CompressedImage Compressed(double t, const std::string& extension) {

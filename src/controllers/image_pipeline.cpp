@@ -162,6 +162,10 @@ bool ReadCameraIntrinsics(const std::string& path, CameraIntrinsics* intrinsics,
           intrinsics->k2 = p[4];
         }
       }
+      if (!IsCameraIntrinsics(k) || !std::isfinite(intrinsics->k1) || !std::isfinite(intrinsics->k2)) {
+        *error = reader.Where(t[1] + " needs finite parameters and positive focal lengths");
+        return false;
+      }
       return true;
     }
     break;  // not a COLMAP camera line: try K.txt
@@ -195,8 +199,8 @@ bool ReadIntrinsics(const std::string& path, Eigen::Matrix3d* k, std::string* er
   }
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c) (*k)(r, c) = values[3 * r + c];
-  if (!((*k)(0, 0) > 0.0 && (*k)(1, 1) > 0.0 && std::abs((*k)(2, 2) - 1.0) < 1e-9)) {
-    *error = path + ": K must have positive focal lengths and K(2,2) = 1";
+  if (!IsCameraIntrinsics(*k)) {
+    *error = path + ": K must have positive focal lengths and a last row 0 0 1";
     return false;
   }
   return true;
@@ -390,15 +394,9 @@ std::vector<EdgeCorrespondences> CorrespondencesOfEdges(const ImagePipelineResul
   std::vector<EdgeCorrespondences> out;
   for (const PairReport& p : result.pairs) {
     if (!p.pose.success || p.inlier_points1.empty()) continue;
-    EdgeCorrespondences e;
-    e.view1 = static_cast<ViewId>(p.image1);
-    e.view2 = static_cast<ViewId>(p.image2);
-    e.points1 = p.inlier_points1;
-    e.points2 = p.inlier_points2;
-    e.translation = p.pose.translation;
-    // A floor keeps a noiseless (synthetic) pair finite.
-    e.sigma = std::max(p.pose.sigma_px, 1e-3) / focal;
-    out.push_back(std::move(e));
+    out.push_back(MakeEdgeCorrespondences(static_cast<ViewId>(p.image1), static_cast<ViewId>(p.image2),
+                                          p.inlier_points1, p.inlier_points2, p.pose.translation, p.pose.sigma_px,
+                                          focal));
   }
   return out;
 }

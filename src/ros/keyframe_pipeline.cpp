@@ -248,8 +248,12 @@ bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp
   if (grey.empty()) return Reject(&stats_.rejected_images, "empty image from " + frame, error);
   Eigen::Matrix3d k;
   for (int i = 0; i < 9; ++i) k(i / 3, i % 3) = info.K[i];
-  if (!k.allFinite() || !(k(0, 0) > 0.0) || !(k(1, 1) > 0.0) || std::abs(k(2, 2) - 1.0) > 1e-9) {
-    return Reject(&stats_.rejected_images, "camera_info of " + frame + " has no valid K", error);
+  // Refused here, once per image with its camera's name, rather than by the
+  // two-view estimation of every pair the keyframe would be tried in.
+  if (!IsCameraIntrinsics(k)) {
+    return Reject(&stats_.rejected_images,
+                  "camera_info of " + frame + " has no valid K (finite, positive focal lengths, last row 0 0 1)",
+                  error);
   }
   if (info.width > 0 && (static_cast<int>(info.width) != grey.cols || static_cast<int>(info.height) != grey.rows)) {
     return Reject(&stats_.rejected_images, "image of " + frame + " does not match its camera_info size", error);
