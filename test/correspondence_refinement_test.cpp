@@ -156,5 +156,26 @@ TEST(CorrespondenceRefinement, BadEdgesAreLeftOutAndNothingToRefineChangesNothin
   EXPECT_EQ(partial.count(3), 0u);
 }
 
+TEST(CorrespondenceRefinement, EdgeOfATwoViewEstimateIsWhitenedByItsPixelNoise) {
+  const std::vector<Eigen::Vector2d> p1 = {{0.1, 0.2}, {-0.3, 0.05}}, p2 = {{0.12, 0.18}, {-0.28, 0.07}};
+  const Eigen::Vector3d t(0.0, 0.6, 0.8);
+  const EdgeCorrespondences e = MakeEdgeCorrespondences(4, 7, p1, p2, t, 0.5, 1000.0);
+  EXPECT_EQ(e.view1, 4u);
+  EXPECT_EQ(e.view2, 7u);
+  EXPECT_EQ(e.points1, p1);
+  EXPECT_EQ(e.points2, p2);
+  EXPECT_EQ(e.translation, t);
+  EXPECT_DOUBLE_EQ(e.sigma, 0.5 / 1000.0);
+  EXPECT_TRUE(CorrespondencesAreFinite(e));
+  // A noiseless pair (sigma 0 px) is floored at 1e-3 px, so its weights stay finite.
+  const EdgeCorrespondences exact = MakeEdgeCorrespondences(4, 7, p1, p2, t, 0.0, 1000.0);
+  EXPECT_DOUBLE_EQ(exact.sigma, 1e-3 / 1000.0);
+  EXPECT_TRUE(CorrespondencesAreFinite(exact));
+  // The rotation-only model has no translation: valid only where allowed.
+  const EdgeCorrespondences rotation_only = MakeEdgeCorrespondences(4, 7, p1, p2, Eigen::Vector3d::Zero(), 0.5, 1000.0);
+  EXPECT_FALSE(CorrespondencesAreFinite(rotation_only));
+  EXPECT_TRUE(CorrespondencesAreFinite(rotation_only, true));
+}
+
 }  // namespace
 }  // namespace rotation_averaging

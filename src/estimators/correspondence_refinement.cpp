@@ -4,10 +4,12 @@
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <map>
 #include <sstream>
+#include <utility>
 
 #include "rotation_averaging/geometry/epipolar.h"
 
@@ -156,6 +158,19 @@ bool Pass(const std::vector<EdgeCorrespondences>& edges, const CorrespondenceRef
 }
 
 }  // namespace
+
+EdgeCorrespondences MakeEdgeCorrespondences(ViewId view1, ViewId view2, std::vector<Eigen::Vector2d> points1,
+                                            std::vector<Eigen::Vector2d> points2, const Eigen::Vector3d& translation,
+                                            double sigma_px, double focal_px) {
+  EdgeCorrespondences e;
+  e.view1 = view1;
+  e.view2 = view2;
+  e.points1 = std::move(points1);
+  e.points2 = std::move(points2);
+  e.translation = translation;
+  e.sigma = std::max(sigma_px, 1e-3) / focal_px;
+  return e;
+}
 
 bool CorrespondencesAreFinite(const EdgeCorrespondences& e, bool allow_rotation_only) {
   if (!std::isfinite(e.sigma) || !(e.sigma > 0.0) || !e.translation.allFinite() ||

@@ -384,33 +384,31 @@ BundleAdjustment BundleAdjust(const py::dict& initial, const py::list& pairs, co
     const py::tuple pair = py::cast<py::tuple>(pairs[k]);
     const std::string where = "pairs[" + std::to_string(k) + "]";
     if (pair.size() != 5) throw py::value_error(where + " must be (view1, view2, points1, points2, pose)");
-    ra::EdgeCorrespondences e;
-    e.view1 = py::cast<ra::ViewId>(pair[0]);
-    e.view2 = py::cast<ra::ViewId>(pair[1]);
+    const auto view1 = py::cast<ra::ViewId>(pair[0]);
+    const auto view2 = py::cast<ra::ViewId>(pair[1]);
     const std::vector<Eigen::Vector2d> p1 = PointsFromArray(py::cast<Array>(pair[2]), "points1");
     const std::vector<Eigen::Vector2d> p2 = PointsFromArray(py::cast<Array>(pair[3]), "points2");
     const auto& pose = py::cast<const ra::RelativePoseResult&>(pair[4]);
     if (!pose.success) throw py::value_error(where + ": the pair has no pose (" + pose.message + ")");
     if (p1.size() != p2.size()) throw py::value_error(where + ": points1 and points2 differ in length");
-    const Eigen::Matrix3d k1 = k_of(e.view1), k2 = k_of(e.view2);
+    const Eigen::Matrix3d k1 = k_of(view1), k2 = k_of(view2);
     if (!ra::IsCameraIntrinsics(k1) || !ra::IsCameraIntrinsics(k2)) {
       throw py::value_error(where + ": intrinsics that are not a camera");
     }
     const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+    std::vector<Eigen::Vector2d> inliers1, inliers2;
     for (int i : pose.inliers) {
       if (i < 0 || static_cast<std::size_t>(i) >= p1.size()) {
         throw py::value_error(where + ": the pose's inlier " + std::to_string(i) + " is beyond the " +
                               std::to_string(p1.size()) + " points given (pass the points the pose was estimated from)");
       }
-      e.points1.push_back((k1_inv * p1[i].homogeneous()).hnormalized());
-      e.points2.push_back((k2_inv * p2[i].homogeneous()).hnormalized());
+      inliers1.push_back((k1_inv * p1[i].homogeneous()).hnormalized());
+      inliers2.push_back((k2_inv * p2[i].homogeneous()).hnormalized());
     }
-    e.translation = pose.translation;
-    // Pixels over the pair's mean focal length, with image_pipeline's floor
-    // for a noiseless pair.
+    // Pixels over the pair's mean focal length.
     const double focal = 0.25 * (k1(0, 0) + k1(1, 1) + k2(0, 0) + k2(1, 1));
-    e.sigma = std::max(pose.sigma_px, 1e-3) / focal;
-    edges.push_back(std::move(e));
+    edges.push_back(ra::MakeEdgeCorrespondences(view1, view2, std::move(inliers1), std::move(inliers2),
+                                                pose.translation, pose.sigma_px, focal));
   }
   {
     py::gil_scoped_release release;

@@ -46,6 +46,14 @@ struct EdgeCorrespondences {
   double sigma = 0.0;
 };
 
+// The edge of a two-view estimate: its inliers in normalised coordinates, its
+// translation t_21 as the start (zero for the rotation-only model), and its
+// pixel noise sigma_px over the focal length focal_px. sigma_px is floored at
+// 1e-3 px so that a noiseless (synthetic) pair keeps finite weights.
+EdgeCorrespondences MakeEdgeCorrespondences(ViewId view1, ViewId view2, std::vector<Eigen::Vector2d> points1,
+                                            std::vector<Eigen::Vector2d> points2, const Eigen::Vector3d& translation,
+                                            double sigma_px, double focal_px);
+
 // True if the edge's sigma is positive, its points are finite and its
 // translation is finite and not zero; with allow_rotation_only, a zero
 // translation (a pair of the rotation-only model) passes too.
