@@ -163,7 +163,7 @@ bool ReadCameraIntrinsics(const std::string& path, CameraIntrinsics* intrinsics,
         }
       }
       if (!IsCameraIntrinsics(k) || !std::isfinite(intrinsics->k1) || !std::isfinite(intrinsics->k2)) {
-        *error = reader.Where(t[1] + " needs finite parameters and positive focal lengths");
+        *error = reader.Where(t[1] + " needs finite parameters and a K that is a camera's (" + kCameraIntrinsicsRule + ")");
         return false;
       }
       return true;
@@ -200,7 +200,7 @@ bool ReadIntrinsics(const std::string& path, Eigen::Matrix3d* k, std::string* er
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c) (*k)(r, c) = values[3 * r + c];
   if (!IsCameraIntrinsics(*k)) {
-    *error = path + ": K must have positive focal lengths and a last row 0 0 1";
+    *error = path + ": K must be a camera's (" + kCameraIntrinsicsRule + ")";
     return false;
   }
   return true;
@@ -227,13 +227,8 @@ PairReport EstimatePair(int image1, int image2, const std::vector<Eigen::Vector2
   report.matches = static_cast<int>(points1.size());
   report.pose = EstimateRelativePoseWithCovariance(points1, points2, k, k, options);
   if (report.pose.success) {
-    const Eigen::Matrix3d k_inv = k.inverse();
-    report.inlier_points1.reserve(report.pose.inliers.size());
-    report.inlier_points2.reserve(report.pose.inliers.size());
-    for (int m : report.pose.inliers) {
-      report.inlier_points1.push_back((k_inv * points1[m].homogeneous()).hnormalized());
-      report.inlier_points2.push_back((k_inv * points2[m].homogeneous()).hnormalized());
-    }
+    report.inlier_points1 = NormalisedPoints(points1, k, report.pose.inliers);
+    report.inlier_points2 = NormalisedPoints(points2, k, report.pose.inliers);
   }
   return report;
 }

@@ -675,9 +675,20 @@ RelativePoseResult EstimateEssential(const std::vector<Eigen::Vector2d>& points1
 
 }  // namespace
 
+const char* const kCameraIntrinsicsRule = "finite, positive focal lengths, last row 0 0 1";
+
 bool IsCameraIntrinsics(const Eigen::Matrix3d& k) {
   return k.allFinite() && k(0, 0) > 0.0 && k(1, 1) > 0.0 && k(2, 0) == 0.0 && k(2, 1) == 0.0 &&
          std::abs(k(2, 2) - 1.0) <= 1e-9;
+}
+
+std::vector<Eigen::Vector2d> NormalisedPoints(const std::vector<Eigen::Vector2d>& points_px, const Eigen::Matrix3d& k,
+                                              const std::vector<int>& indices) {
+  const Eigen::Matrix3d k_inv = k.inverse();
+  std::vector<Eigen::Vector2d> out;
+  out.reserve(indices.size());
+  for (int i : indices) out.push_back((k_inv * points_px[i].homogeneous()).hnormalized());
+  return out;
 }
 
 RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::Vector2d>& points1,
@@ -698,8 +709,8 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
   }
   for (const Eigen::Matrix3d* k : {&k1, &k2}) {
     if (!IsCameraIntrinsics(*k)) {
-      return Fail(TwoViewFailure::kInvalidInput, std::string(k == &k1 ? "K1" : "K2") +
-                                                     " is not intrinsics (finite, positive focal lengths, last row 0 0 1)");
+      return Fail(TwoViewFailure::kInvalidInput,
+                  std::string(k == &k1 ? "K1" : "K2") + " is not intrinsics (" + kCameraIntrinsicsRule + ")");
     }
   }
   if (n < std::max(options.min_inliers, 5)) {

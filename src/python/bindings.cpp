@@ -393,22 +393,19 @@ BundleAdjustment BundleAdjust(const py::dict& initial, const py::list& pairs, co
     if (p1.size() != p2.size()) throw py::value_error(where + ": points1 and points2 differ in length");
     const Eigen::Matrix3d k1 = k_of(view1), k2 = k_of(view2);
     if (!ra::IsCameraIntrinsics(k1) || !ra::IsCameraIntrinsics(k2)) {
-      throw py::value_error(where + ": intrinsics that are not a camera");
+      throw py::value_error(where + ": intrinsics that are not a camera (" + ra::kCameraIntrinsicsRule + ")");
     }
-    const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
-    std::vector<Eigen::Vector2d> inliers1, inliers2;
     for (int i : pose.inliers) {
       if (i < 0 || static_cast<std::size_t>(i) >= p1.size()) {
         throw py::value_error(where + ": the pose's inlier " + std::to_string(i) + " is beyond the " +
                               std::to_string(p1.size()) + " points given (pass the points the pose was estimated from)");
       }
-      inliers1.push_back((k1_inv * p1[i].homogeneous()).hnormalized());
-      inliers2.push_back((k2_inv * p2[i].homogeneous()).hnormalized());
     }
     // Pixels over the pair's mean focal length.
     const double focal = 0.25 * (k1(0, 0) + k1(1, 1) + k2(0, 0) + k2(1, 1));
-    edges.push_back(ra::MakeEdgeCorrespondences(view1, view2, std::move(inliers1), std::move(inliers2),
-                                                pose.translation, pose.sigma_px, focal));
+    edges.push_back(ra::MakeEdgeCorrespondences(view1, view2, ra::NormalisedPoints(p1, k1, pose.inliers),
+                                                ra::NormalisedPoints(p2, k2, pose.inliers), pose.translation,
+                                                pose.sigma_px, focal));
   }
   {
     py::gil_scoped_release release;

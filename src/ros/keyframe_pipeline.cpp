@@ -252,7 +252,7 @@ bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp
   // two-view estimation of every pair the keyframe would be tried in.
   if (!IsCameraIntrinsics(k)) {
     return Reject(&stats_.rejected_images,
-                  "camera_info of " + frame + " has no valid K (finite, positive focal lengths, last row 0 0 1)",
+                  "camera_info of " + frame + " has no valid K (" + kCameraIntrinsicsRule + ")",
                   error);
   }
   if (info.width > 0 && (static_cast<int>(info.width) != grey.cols || static_cast<int>(info.height) != grey.rows)) {
