@@ -97,6 +97,12 @@ done
 field() {  # file, label
   sed -n "s/^$2: \([0-9.a-z]*\).*/\1/p" "$1"
 }
+view_error() {  # scores file, view name: the view's error to 4 decimals, or - if it has none
+  local e
+  e=$(sed -n "s/^view $2 \([0-9.e+-]*\)$/\1/p" "$1" 2>/dev/null || true)
+  if [ -n "$e" ]; then printf '%.4f' "$e"; else echo -; fi
+}
+whole_seconds() { printf '%.0f' "$(cat "$1")"; }
 
 {
   echo "# Rotation averaging from images against COLMAP's bundle adjustment"
@@ -120,12 +126,12 @@ field() {  # file, label
   for s in "${SCENES[@]}"; do
     W="$OUT/$s"
     views=$(field "$W/rotavg_scores.txt" "views in ground truth")
-    ours="$(field "$W/rotavg_scores.txt" "median error") | $(field "$W/rotavg_scores.txt" "mean error") | $(field "$W/rotavg_scores.txt" "AUC@2") | $(printf '%.0f' "$(cat "$W/rotavg_seconds.txt")") | $(field "$W/averaging_scores.txt" "median error") | $(field "$W/averaging_scores.txt" "mean error")"
-    ours+=" | $(sed -n 's/^relative poses: \([0-9]* of [0-9]*\).*/\1/p' "$W/colmap_matches.log") | $(field "$W/colmap_matches_scores.txt" "median error") | $(field "$W/colmap_matches_scores.txt" "mean error") | $(printf '%.0f' "$(cat "$W/colmap_matches_seconds.txt")")"
+    ours="$(field "$W/rotavg_scores.txt" "median error") | $(field "$W/rotavg_scores.txt" "mean error") | $(field "$W/rotavg_scores.txt" "AUC@2") | $(whole_seconds "$W/rotavg_seconds.txt") | $(field "$W/averaging_scores.txt" "median error") | $(field "$W/averaging_scores.txt" "mean error")"
+    ours+=" | $(sed -n 's/^relative poses: \([0-9]* of [0-9]*\).*/\1/p' "$W/colmap_matches.log") | $(field "$W/colmap_matches_scores.txt" "median error") | $(field "$W/colmap_matches_scores.txt" "mean error") | $(whole_seconds "$W/colmap_matches_seconds.txt")"
     if [ -f "$W/colmap_failed.txt" ]; then
-      echo "| $s | $views | mapper did not finish | - | - | - | > $(printf '%.0f' "$(cat "$W/colmap_seconds.txt")") | $ours |"
+      echo "| $s | $views | mapper did not finish | - | - | - | > $(whole_seconds "$W/colmap_seconds.txt") | $ours |"
     else
-      echo "| $s | $views | $(field "$W/colmap_scores.txt" "views common") | $(field "$W/colmap_scores.txt" "median error") | $(field "$W/colmap_scores.txt" "mean error") | $(field "$W/colmap_scores.txt" "AUC@2") | $(printf '%.0f' "$(cat "$W/colmap_seconds.txt")") | $ours |"
+      echo "| $s | $views | $(field "$W/colmap_scores.txt" "views common") | $(field "$W/colmap_scores.txt" "median error") | $(field "$W/colmap_scores.txt" "mean error") | $(field "$W/colmap_scores.txt" "AUC@2") | $(whole_seconds "$W/colmap_seconds.txt") | $ours |"
     fi
   done
   echo
@@ -150,11 +156,8 @@ field() {  # file, label
     echo "| view | COLMAP | rotavg | averaging alone | on COLMAP's matches |"
     echo "|---|---|---|---|---|"
     while read -r _ name error; do
-      other=$(sed -n "s/^view $name \([0-9.e+-]*\)$/\1/p" "$W/colmap_scores.txt" 2>/dev/null || true)
-      alone=$(sed -n "s/^view $name \([0-9.e+-]*\)$/\1/p" "$W/averaging_scores.txt")
-      on_matches=$(sed -n "s/^view $name \([0-9.e+-]*\)$/\1/p" "$W/colmap_matches_scores.txt")
-      printf '| %s | %s | %.4f | %.4f | %s |\n' "$name" "$( [ -n "$other" ] && printf '%.4f' "$other" || echo -)" "$error" \
-        "$alone" "$( [ -n "$on_matches" ] && printf '%.4f' "$on_matches" || echo -)"
+      printf '| %s | %s | %.4f | %s | %s |\n' "$name" "$(view_error "$W/colmap_scores.txt" "$name")" "$error" \
+        "$(view_error "$W/averaging_scores.txt" "$name")" "$(view_error "$W/colmap_matches_scores.txt" "$name")"
     done < <(grep '^view ' "$W/rotavg_scores.txt")
   done
 } > results/colmap.md
