@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <random>
 
 #include "rotation_averaging/geometry/so3.h"
@@ -41,6 +42,95 @@ TEST(Evaluation, AlignmentIsRobustToOutlierViews) {
   EXPECT_LT(r.auc[0].second, 70.0 / 101.0);
   EXPECT_GT(r.auc[0].second, 0.6);
   EXPECT_NE(r.ToJson().find("\"median_error_deg\""), std::string::npos);
+}
+
+// Edges whose errors are drawn from their own anisotropic covariances, in the
+// right perturbation R_12 = R_12_true Exp(eta).
+struct CalibrationScene {
+  ViewGraph graph;
+  NamedOrientations truth;
+};
+CalibrationScene MakeCalibrationScene(std::mt19937* rng, int num_views) {
+  std::normal_distribution<double> normal;
+  auto gaussian = [&] { return Eigen::Vector3d(normal(*rng), normal(*rng), normal(*rng)); };
+  CalibrationScene scene;
+  for (int i = 0; i < num_views; ++i) {
+    scene.graph.AddView(i, "v" + std::to_string(i));
+    scene.truth["v" + std::to_string(i)] = ExpSO3(gaussian());
+  }
+  for (int i = 0; i < num_views; ++i) {
+    for (int j = i + 1; j < num_views; ++j) {
+      // Standard deviations 0.001 and 0.1 rad along random axes: the wrong
+      // perturbation side (left instead of right) would be far off.
+      const Eigen::Matrix3d axes = ExpSO3(gaussian());
+      const Eigen::Vector3d sd(0.001, 0.01, 0.1);
+      RelativeRotation e;
+      e.view1 = i;
+      e.view2 = j;
+      e.has_covariance = true;
+      e.covariance = axes * sd.cwiseAbs2().asDiagonal() * axes.transpose();
+      const Eigen::Vector3d eta = axes * sd.cwiseProduct(gaussian());
+      const std::string a = "v" + std::to_string(i), b = "v" + std::to_string(j);
+      e.rotation = scene.truth[a] * scene.truth[b].transpose() * ExpSO3(eta);
+      scene.graph.AddEdge(e);
+    }
+  }
+  return scene;
+}
+
+TEST(EdgeCalibration, CovariancesThatDescribeTheErrorsAreCalibrated) {
+  std::mt19937 rng(11);
+  const CalibrationScene scene = MakeCalibrationScene(&rng, 40);  // 780 edges
+  const EdgeCalibration c = EvaluateEdgeCovariances(scene.graph, scene.truth);
+  EXPECT_EQ(c.edges, 780u);
+  EXPECT_EQ(c.edges_scored, 780u);
+  EXPECT_NEAR(c.nees_median, 2.37, 0.3);
+  EXPECT_NEAR(c.nees_mean, 3.0, 0.35);
+  EXPECT_NEAR(c.within_95, 0.95, 0.025);
+  EXPECT_NE(c.ToText().find("NEES median"), std::string::npos);
+}
+
+TEST(EdgeCalibration, OverconfidentCovariancesAndTheFloor) {
+  std::mt19937 rng(12);
+  CalibrationScene scene = MakeCalibrationScene(&rng, 30);
+  const EdgeCalibration calibrated = EvaluateEdgeCovariances(scene.graph, scene.truth);
+  // Covariances ten times too confident in standard deviation: NEES x100.
+  ViewGraph overconfident;
+  for (const View& v : scene.graph.Views()) overconfident.AddView(v.id, v.name);
+  for (RelativeRotation e : scene.graph.Edges()) {
+    e.covariance *= 0.01;
+    overconfident.AddEdge(e);
+  }
+  const EdgeCalibration c = EvaluateEdgeCovariances(overconfident, scene.truth);
+  EXPECT_NEAR(c.nees_median / calibrated.nees_median, 100.0, 1e-6);
+  EXPECT_LT(c.within_95, 0.2);
+  // A floor can only lower every edge's NEES; one far above every standard
+  // deviation leaves them near zero.
+  const EdgeCalibration floored = EvaluateEdgeCovariances(overconfident, scene.truth, 0.01);
+  ASSERT_EQ(floored.scored.size(), c.scored.size());
+  for (std::size_t k = 0; k < c.scored.size(); ++k) EXPECT_LE(floored.scored[k].nees, c.scored[k].nees * (1 + 1e-12));
+  EXPECT_LT(EvaluateEdgeCovariances(overconfident, scene.truth, 10.0).nees_mean, 1e-3);
+  EXPECT_DOUBLE_EQ(floored.floor_rad, 0.01);
+}
+
+TEST(EdgeCalibration, EdgesWithoutCovarianceOrGroundTruthAreNotScored) {
+  std::mt19937 rng(13);
+  CalibrationScene scene = MakeCalibrationScene(&rng, 4);  // 6 edges
+  scene.truth.erase("v3");                                 // 3 of them lose a view
+  RelativeRotation plain;
+  plain.view1 = 0;
+  plain.view2 = 1;
+  plain.rotation = scene.truth["v0"] * scene.truth["v1"].transpose();
+  plain.has_covariance = false;
+  plain.channel = 1;
+  ASSERT_EQ(scene.graph.AddEdge(plain, nullptr, DuplicatePolicy::kKeepBoth), AddEdgeResult::kAdded);
+  const EdgeCalibration c = EvaluateEdgeCovariances(scene.graph, scene.truth);
+  EXPECT_EQ(c.edges, scene.graph.NumEdges());
+  EXPECT_EQ(c.edges_scored, 3u);
+  for (const EdgeCalibration::Edge& e : c.scored) EXPECT_TRUE(e.name1 != "v3" && e.name2 != "v3");
+  const EdgeCalibration none = EvaluateEdgeCovariances(scene.graph, NamedOrientations());
+  EXPECT_EQ(none.edges_scored, 0u);
+  EXPECT_TRUE(std::isnan(none.nees_median));
 }
 
 }  // namespace

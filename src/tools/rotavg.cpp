@@ -7,6 +7,7 @@
 //                [--gt PATH [--gt-format ...]] --output orientations.csv
 //   rotavg eval --estimate orientations.csv|images.txt [--estimate-format csv|colmap] --gt PATH
 //               [--gt-format auto|csv|strecha|colmap|chain] [--json] [--per-view]
+//   rotavg eval --graph graph.txt --gt PATH [--floor-deg S] [--per-edge]
 //   rotavg images ...  runs rotavg_images (beside this program) with the same arguments
 //   rotavg vocabulary ...  runs rotavg_vocabulary likewise
 //
@@ -16,6 +17,7 @@
 
 #include <cerrno>
 #include <chrono>
+#include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -52,6 +54,11 @@ const char* kUsage = R"(usage:
       prints views in ground truth / estimated / common, median and mean error, AUC@2/5/10/20 (--per-view:
       then each view's error); --estimate-format csv (default) or colmap (a COLMAP text model's images.txt,
       or its folder: another tool's reconstruction scored the same way)
+  rotavg eval --graph graph.txt --gt PATH [--graph-format F] [--floor-deg S] [--per-edge]
+      calibration of the edges' covariances against the ground truth: each edge's error and
+      NEES = eta^T C^-1 eta (median 2.37, mean 3 and 95% below 7.81 if calibrated), as given and with
+      the covariance floor that rotavg images adds (estimated by solving the graph as it does, or
+      --floor-deg); --per-edge: then "edge NAME1 NAME2 ERROR_DEG NEES NEES_WITH_FLOOR" per edge
   rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
                [--pairs exhaustive|sequential:N|list:FILE] [--covariance marginal|conditional] [--graph-out graph.txt]
                [--output orientations.csv] [--gt PATH] [--verbose] [all averaging options of solve]
@@ -103,12 +110,84 @@ int Solve(int argc, char** argv) {
   return rc != 0 ? rc : (ok ? 0 : 1);
 }
 
+// The covariance floor `rotavg images` adds to this graph's edges: that of
+// its largest component when solved with its averaging defaults.
+double ImagesCovarianceFloor(const ra::ViewGraph& graph) {
+  ra::RotationAveragingOptions options;
+  options.self_calibration = ra::CovarianceSelfCalibration::kFloor;
+  ra::ViewOrientations orientations;
+  ra::RotationAveragingSummary summary;
+  ra::SolveRotationAveraging(graph, options, &orientations, &summary);
+  const ra::ComponentSummary* largest = nullptr;
+  for (const ra::ComponentSummary& c : summary.components)
+    if (!largest || c.num_views > largest->num_views) largest = &c;
+  return largest ? largest->covariance_floor_rad : 0.0;
+}
+
+// eval --graph: how well the edges' covariances predict their errors against
+// the ground truth, as given and with the floor the averaging adds.
+int EvalGraph(const Args& args, const ra::NamedOrientations& gt) {
+  ra::GraphFormat format;
+  if (!ra::ParseGraphFormat(args.Get("--graph-format", "auto"), &format)) return Fail("unknown --graph-format");
+  ra::ViewGraph graph;
+  const ra::ReadReport report = ra::ReadViewGraph(args.Get("--graph"), format, &graph);
+  if (!report.ok()) return Fail(report.error);
+  double floor_rad = 0.0;
+  if (args.Has("--floor-deg")) {
+    char* end = nullptr;
+    const std::string text = args.Get("--floor-deg");
+    const double floor_deg = std::strtod(text.c_str(), &end);
+    if (end == text.c_str() || *end != '\0' || !(floor_deg >= 0.0) || !std::isfinite(floor_deg)) {
+      return Fail("--floor-deg must be a finite number >= 0, got '" + text + "'");
+    }
+    floor_rad = floor_deg * M_PI / 180.0;
+  } else {
+    floor_rad = ImagesCovarianceFloor(graph);
+  }
+  const ra::EdgeCalibration raw = ra::EvaluateEdgeCovariances(graph, gt);
+  if (raw.edges_scored == 0) {
+    return Fail("no edge of " + args.Get("--graph") + " has a covariance and both views in the ground truth");
+  }
+  const ra::EdgeCalibration floored = ra::EvaluateEdgeCovariances(graph, gt, floor_rad);
+  std::cout << "covariances as given\n" << raw.ToText() << "\n\ncovariances with the floor ("
+            << (args.Has("--floor-deg") ? "--floor-deg" : "estimated by the averaging, as rotavg images does")
+            << ")\n" << floored.ToText() << std::endl;
+  if (args.Has("--per-edge")) {
+    std::cout << std::defaultfloat << std::setprecision(10);
+    for (std::size_t k = 0; k < raw.scored.size(); ++k) {
+      const ra::EdgeCalibration::Edge& e = raw.scored[k];
+      std::cout << "edge " << e.name1 << " " << e.name2 << " " << e.error_deg << " " << e.nees << " "
+                << floored.scored[k].nees << "\n";
+    }
+  }
+  return 0;
+}
+
 int EvalCommand(int argc, char** argv) {
   Args args;
   std::string error;
-  if (!ParseArgs(argc, argv, 2, {"--json", "--per-view"}, &args, &error)) return Fail(error);
-  if (!CheckKnown(args, {"--estimate", "--estimate-format", "--gt", "--gt-format"}, &error)) return Fail(error);
-  if (!args.Has("--estimate") || !args.Has("--gt")) return Fail("eval needs --estimate and --gt\n" + std::string(kUsage));
+  if (!ParseArgs(argc, argv, 2, {"--json", "--per-view", "--per-edge"}, &args, &error)) return Fail(error);
+  if (!CheckKnown(args, {"--estimate", "--estimate-format", "--gt", "--gt-format", "--graph", "--graph-format",
+                         "--floor-deg"},
+                  &error)) {
+    return Fail(error);
+  }
+  if (!args.Has("--gt") || (!args.Has("--estimate") && !args.Has("--graph"))) {
+    return Fail("eval needs --gt and --estimate or --graph (or both)\n" + std::string(kUsage));
+  }
+  if (args.Has("--graph")) {
+    if (args.Has("--json")) return Fail("--json scores an --estimate; the edge calibration of --graph is text only");
+    ra::GroundTruthFormat gt_format;
+    if (!ra::ParseGroundTruthFormat(args.Get("--gt-format", "auto"), &gt_format)) {
+      return Fail("unknown --gt-format " + args.Get("--gt-format"));
+    }
+    ra::NamedOrientations gt;
+    const ra::ReadReport report = ra::ReadGroundTruth(args.Get("--gt"), gt_format, &gt);
+    if (!report.ok()) return Fail(report.error);
+    const int rc = EvalGraph(args, gt);
+    if (rc != 0 || !args.Has("--estimate")) return rc;
+    std::cout << "\n";
+  }
   // Another tool's reconstruction (COLMAP's images.txt) is scored by the same
   // alignment and errors as ours.
   const std::string estimate_format = args.Get("--estimate-format", "csv");
@@ -200,6 +279,12 @@ int main(int argc, char** argv) {
     return argc < 2 ? 2 : 0;
   }
   const std::string command = argv[1];
+  // "rotavg eval --help": the usage, not a complaint that --help has no value.
+  if (argc >= 3 && (std::string(argv[2]) == "--help" || std::string(argv[2]) == "-h") && command != "images" &&
+      command != "vocabulary") {
+    std::cout << kUsage;
+    return 0;
+  }
   try {
     if (command == "solve") return Solve(argc, argv);
     if (command == "eval") return EvalCommand(argc, argv);

@@ -234,6 +234,48 @@ def test_command_line_scores_a_colmap_model_as_it_scores_our_csv(tmp_path, synth
     assert bad.returncode != 0 and "unknown --estimate-format bundler" in bad.stderr
 
 
+@pytest.mark.skipif(not ROTAVG, reason="ROTAVG_BINARY not set")
+def test_command_line_scores_the_edges_covariances_against_ground_truth(tmp_path, synthetic):
+    graph, truth, _ = synthetic
+    graph_path, truth_csv = str(tmp_path / "graph.txt"), str(tmp_path / "truth.csv")
+    ra.write_graph(graph_path, graph)
+    ra.write_orientations(truth_csv, truth)
+
+    def per_edge(*arguments):
+        run = subprocess.run([ROTAVG, "eval", "--graph", graph_path, "--gt", truth_csv, "--per-edge", *arguments],
+                             check=True, capture_output=True, text=True)
+        assert "NEES median" in run.stdout
+        return {tuple(line.split()[1:3]): [float(v) for v in line.split()[3:]]
+                for line in run.stdout.splitlines() if line.startswith("edge ")}
+
+    given = per_edge("--floor-deg", "0")
+    names = dict(zip(graph.view_ids, graph.view_names))
+    assert len(given) == graph.num_edges
+    # Each edge's error in its right perturbation, where its covariance lives.
+    for (i, j), r, c in zip(graph.edge_views, graph.edge_rotations, graph.edge_covariances):
+        a, b = names[i], names[j]
+        eta = ra.log_so3((truth[a] @ truth[b].T).T @ r)
+        error_deg, nees, nees_floor = given[(a, b)]
+        assert abs(error_deg - np.degrees(np.linalg.norm(eta))) < 1e-6 * max(1.0, error_deg)
+        assert abs(nees - eta @ np.linalg.solve(c, eta)) < 1e-6 * max(1.0, nees)
+        assert nees_floor == nees
+    floor = np.radians(0.5)
+    floored = per_edge("--floor-deg", "0.5")
+    for (i, j), r, c in zip(graph.edge_views, graph.edge_rotations, graph.edge_covariances):
+        a, b = names[i], names[j]
+        eta = ra.log_so3((truth[a] @ truth[b].T).T @ r)
+        expected = eta @ np.linalg.solve(c + floor * floor * np.eye(3), eta)
+        assert abs(floored[(a, b)][2] - expected) < 1e-6 * max(1.0, expected)
+    # Without --floor-deg, the floor the averaging estimates: never a larger NEES.
+    estimated = per_edge()
+    assert all(estimated[k][2] <= given[k][1] * (1 + 1e-9) for k in given)
+    bad = subprocess.run([ROTAVG, "eval", "--graph", graph_path, "--gt", truth_csv, "--floor-deg", "-1"],
+                         capture_output=True, text=True)
+    assert bad.returncode != 0 and "--floor-deg must be a finite number >= 0" in bad.stderr
+    usage = subprocess.run([ROTAVG, "eval", "--help"], capture_output=True, text=True)
+    assert usage.returncode == 0 and "rotavg eval --graph" in usage.stdout
+
+
 def test_solves_in_threads_agree_with_sequential_ones(synthetic):
     graph, _, _ = synthetic
     expected = ra.solve(graph).rotations
