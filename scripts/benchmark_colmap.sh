@@ -8,6 +8,9 @@
 # the given intrinsics (one PINHOLE camera), with its defaults otherwise (it
 # refines the focal length in its bundle adjustment).
 # lund_door is left out: its reference poses are a COLMAP reconstruction.
+# It also scores rotavg's pairs (their covariances) against the reference,
+# COLMAP's model and our bundle adjustment on COLMAP's features, and estimates
+# each estimate's own error from their differences (three-cornered hat).
 #   bash scripts/benchmark_colmap.sh      (about 20 minutes on 2 cores)
 #   bash scripts/benchmark_colmap.sh --rotavg-only   (rotavg again, COLMAP's last runs kept)
 #   bash scripts/benchmark_colmap.sh --report-only   (results/colmap.md from the last runs)
@@ -81,7 +84,7 @@ for s in "${SCENES[@]}"; do
   echo "$(seconds) - $start" | bc > "$W/rotavg_seconds.txt"
   "$BIN/rotavg" eval --estimate "$W/rotavg.csv" --gt "$C" --per-view > "$W/rotavg_scores.txt"
   "$BIN/rotavg" images --images "$C/images" --intrinsics "$C/images/K.txt" --no-bundle-adjustment \
-    --output "$W/averaging.csv" > "$W/averaging.log"
+    --output "$W/averaging.csv" --graph-out "$W/graph.txt" > "$W/averaging.log"
   "$BIN/rotavg" eval --estimate "$W/averaging.csv" --gt "$C" --per-view > "$W/averaging_scores.txt"
   # The back end alone: the package's two-view estimation, averaging and
   # bundle adjustment on COLMAP's own features and verified matches
@@ -94,6 +97,24 @@ for s in "${SCENES[@]}"; do
   "$BIN/rotavg" eval --estimate "$W/colmap_matches.csv" --gt "$C" --per-view > "$W/colmap_matches_scores.txt"
 done
 
+# Which reference can check the pairs' covariances (also with --report-only,
+# from the last runs): rotavg's pairs (the averaging's graph) scored against
+# the LIDAR-registered cameras, COLMAP's model and our bundle adjustment on
+# COLMAP's features; rotavg and the averaging alone against COLMAP's model,
+# for the three-cornered hat of the report.
+for s in "${SCENES[@]}"; do
+  W="$OUT/$s"
+  rm -f "$W"/edges_vs_*.txt "$W/rotavg_vs_colmap.txt" "$W/averaging_vs_colmap.txt"
+  [ -f "$W/graph.txt" ] || continue
+  "$BIN/rotavg" eval --graph "$W/graph.txt" --gt "$DATA/strecha/$s" > "$W/edges_vs_reference.txt"
+  "$BIN/rotavg" eval --graph "$W/graph.txt" --gt "$W/colmap_matches.csv" > "$W/edges_vs_colmap_matches.txt"
+  if [ ! -f "$W/colmap_failed.txt" ]; then
+    "$BIN/rotavg" eval --graph "$W/graph.txt" --gt "$W/images.txt" > "$W/edges_vs_colmap.txt"
+    "$BIN/rotavg" eval --estimate "$W/rotavg.csv" --gt "$W/images.txt" > "$W/rotavg_vs_colmap.txt"
+    "$BIN/rotavg" eval --estimate "$W/averaging.csv" --gt "$W/images.txt" > "$W/averaging_vs_colmap.txt"
+  fi
+done
+
 field() {  # file, label
   sed -n "s/^$2: \([0-9.a-z]*\).*/\1/p" "$1"
 }
@@ -103,6 +124,16 @@ view_error() {  # scores file, view name: the view's error to 4 decimals, or - i
   if [ -n "$e" ]; then printf '%.4f' "$e"; else echo -; fi
 }
 whole_seconds() { printf '%.0f' "$(cat "$1")"; }
+# An edge calibration file's figure after its label, in the block with the
+# floor (the second) or as given (the first).
+floored() { sed -n "s/^$2: \([0-9.a-z]*\).*/\1/p" "$1" | tail -1; }
+# The three-cornered hat: from the differences d_ab, d_ac, d_bc of three
+# independent estimates, a's own error sqrt((d_ab^2 + d_ac^2 - d_bc^2) / 2);
+# below what the differences resolve ("~0") when that is negative.
+hat() {
+  awk -v ab="$1" -v ac="$2" -v bc="$3" 'BEGIN { v = (ab * ab + ac * ac - bc * bc) / 2;
+    if (v <= 0) print "~0"; else printf "%.4f", sqrt(v) }'
+}
 
 {
   echo "# Rotation averaging from images against COLMAP's bundle adjustment"
@@ -145,6 +176,55 @@ whole_seconds() { printf '%.0f' "$(cat "$1")"; }
     fx=${k[0]} fy=${k[4]}
     refined=$(grep -v '^#' "$OUT/$s/cameras.txt" | head -1 | awk '{printf "%.1f, %.1f", $5, $6}')
     echo "| $s | $fx, $fy | $refined |"
+  done
+  echo
+  echo "## Which reference can check the two-view covariances?"
+  echo
+  echo "The pairs' covariances (with the floor \`rotavg images\` adds) are too confident against the"
+  echo "LIDAR-registered cameras (frontend.md, \"Calibration\"). A pair's error against a reference is its"
+  echo "own plus the reference's: the reference has to be more accurate than the pairs claim to be."
+  echo "Three estimates of the orientations that share only the images and the given K are rotavg"
+  echo "(our features, matching and back end), COLMAP (its own SIFT, matching and bundle adjustment, which"
+  echo "also refines the focal length) and the reference. Their median view errors against one another"
+  echo "(\`rotavg eval\`) give, if their errors are independent and isotropic (so that the squared"
+  echo "medians add), each one's own median error: the three-cornered hat,"
+  echo "e_a = sqrt((d_ab^2 + d_ac^2 - d_bc^2) / 2). What rotavg and COLMAP share (the images and the given"
+  echo "K) is counted as the reference's error."
+  echo
+  echo "| scene | rotavg - reference | COLMAP - reference | rotavg - COLMAP | rotavg's own | COLMAP's own | the reference's own | averaging alone - reference | averaging alone - COLMAP |"
+  echo "|---|---|---|---|---|---|---|---|---|"
+  for s in "${SCENES[@]}"; do
+    W="$OUT/$s"
+    [ -f "$W/rotavg_vs_colmap.txt" ] || continue
+    ar=$(field "$W/rotavg_scores.txt" "median error")
+    cr=$(field "$W/colmap_scores.txt" "median error")
+    ac=$(field "$W/rotavg_vs_colmap.txt" "median error")
+    echo "| $s | $ar | $cr | $ac | $(hat "$ar" "$ac" "$cr") | $(hat "$cr" "$ac" "$ar") | $(hat "$ar" "$cr" "$ac") | $(field "$W/averaging_scores.txt" "median error") | $(field "$W/averaging_vs_colmap.txt" "median error") |"
+  done
+  echo
+  echo "\"~0\": below what the differences resolve. The last two columns score the averaging alone"
+  echo "(without the bundle adjustment) against the reference and against COLMAP's model, an estimate"
+  echo "independent of ours."
+  echo
+  echo "The pairs of rotavg's averaging (\`rotavg eval --graph graph.txt --gt ...\`) against three"
+  echo "references: NEES = eta^T (C + s^2 I)^-1 eta with the floor s of \`rotavg images\` (calibrated:"
+  echo "median 2.37, 95% of pairs below 7.81). \"Our bundle adjustment on COLMAP's matches\" is the column"
+  echo "\"on COLMAP's matches\" above: other features than the pairs', the same back end and K."
+  echo
+  echo "| scene | pairs | floor (deg) | against the reference: median pair error (deg) | NEES median | within 95% | against COLMAP's model: median error | NEES median | within 95% | against our bundle adjustment on COLMAP's matches: median error | NEES median | within 95% |"
+  echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
+  for s in "${SCENES[@]}"; do
+    W="$OUT/$s"
+    [ -f "$W/edges_vs_reference.txt" ] || continue
+    row="| $s | $(floored "$W/edges_vs_reference.txt" "edges scored") | $(floored "$W/edges_vs_reference.txt" "covariance floor")"
+    for f in edges_vs_reference edges_vs_colmap edges_vs_colmap_matches; do
+      if [ -f "$W/$f.txt" ]; then
+        row+=" | $(floored "$W/$f.txt" "median edge error") | $(floored "$W/$f.txt" "NEES median") | $(floored "$W/$f.txt" "NEES within the 95% quantile") %"
+      else
+        row+=" | - | - | -"
+      fi
+    done
+    echo "$row |"
   done
   echo
   echo "Per view (deg), COLMAP / rotavg / the averaging alone / rotavg on COLMAP's matches:"
