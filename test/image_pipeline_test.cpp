@@ -49,10 +49,14 @@ TEST(CameraIntrinsics, ReadsColmapCamerasAndKMatrices) {
   std::string error;
   ASSERT_TRUE(ReadCameraIntrinsics((dir / "cameras.txt").string(), &c, &error)) << error;
   EXPECT_DOUBLE_EQ(c.k(0, 0), 2435.38);
-  EXPECT_DOUBLE_EQ(c.k(1, 2), 968.0);
+  // COLMAP's pixel convention (top-left pixel centre at (0.5, 0.5)) in
+  // OpenCV's (at (0, 0)), as the keypoints are.
+  EXPECT_DOUBLE_EQ(c.k(0, 2), 647.5);
+  EXPECT_DOUBLE_EQ(c.k(1, 2), 967.5);
   EXPECT_DOUBLE_EQ(c.k1, -0.0336422);
   ASSERT_TRUE(ReadCameraIntrinsics((dir / "K.txt").string(), &c, &error)) << error;
   EXPECT_DOUBLE_EQ(c.k(1, 1), 2764.16);
+  EXPECT_DOUBLE_EQ(c.k(0, 2), 1520.69);  // K.txt is in OpenCV's convention already
   EXPECT_EQ(c.k1, 0.0);
   EXPECT_FALSE(ReadCameraIntrinsics((dir / "bad.txt").string(), &c, &error));
   EXPECT_NE(error.find("9 numbers"), std::string::npos);

@@ -162,6 +162,10 @@ bool ReadCameraIntrinsics(const std::string& path, CameraIntrinsics* intrinsics,
           intrinsics->k2 = p[4];
         }
       }
+      // COLMAP puts the centre of the top-left pixel at (0.5, 0.5); OpenCV's
+      // keypoints, K.txt and camera_info put it at (0, 0).
+      k(0, 2) -= 0.5;
+      k(1, 2) -= 0.5;
       if (!IsCameraIntrinsics(k) || !std::isfinite(intrinsics->k1) || !std::isfinite(intrinsics->k2)) {
         *error = reader.Where(t[1] + " needs finite parameters and a K that is a camera's (" + kCameraIntrinsicsRule + ")");
         return false;

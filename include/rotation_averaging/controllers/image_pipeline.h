@@ -38,7 +38,10 @@ struct CameraIntrinsics {
 };
 
 // Reads intrinsics from a K.txt (3x3, row-major) or a COLMAP cameras.txt
-// (first camera; SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL or RADIAL).
+// (first camera; SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL or RADIAL). K is in
+// OpenCV's pixel convention (the centre of the top-left pixel at (0, 0)): a
+// COLMAP principal point, whose convention puts it at (0.5, 0.5), is moved
+// by half a pixel.
 bool ReadCameraIntrinsics(const std::string& path, CameraIntrinsics* intrinsics, std::string* error);
 
 // Self-calibration of the focal length for images whose intrinsics are not
