@@ -126,7 +126,7 @@ view_error() {  # scores file, view name: the view's error to 4 decimals, or - i
 whole_seconds() { printf '%.0f' "$(cat "$1")"; }
 # An edge calibration file's figure after its label, in the block with the
 # floor (the second) or as given (the first).
-floored() { sed -n "s/^$2: \([0-9.a-z]*\).*/\1/p" "$1" | tail -1; }
+floored() { field "$1" "$2" | tail -1; }
 # The three-cornered hat: from the differences d_ab, d_ac, d_bc of three
 # independent estimates, a's own error sqrt((d_ab^2 + d_ac^2 - d_bc^2) / 2);
 # below what the differences resolve ("~0") when that is negative.

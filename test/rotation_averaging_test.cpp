@@ -738,5 +738,17 @@ TEST(SyntheticGraph, LocalityKeepsEdgesWithinTheGridWindow) {
   }
 }
 
+TEST(RotationAveragingSummary, LargestComponentFloorIsThatOfTheComponentWithMostViews) {
+  RotationAveragingSummary summary;
+  EXPECT_EQ(summary.LargestComponentFloorRad(), 0.0);  // no component
+  ComponentSummary small, large;
+  small.num_views = 3;
+  small.covariance_floor_rad = 0.02;
+  large.num_views = 12;
+  large.covariance_floor_rad = 0.001;
+  summary.components = {small, large, small};
+  EXPECT_EQ(summary.LargestComponentFloorRad(), 0.001);
+}
+
 }  // namespace
 }  // namespace rotation_averaging

@@ -183,6 +183,13 @@ bool RotationAveragingSummary::Success() const {
   return true;
 }
 
+double RotationAveragingSummary::LargestComponentFloorRad() const {
+  const ComponentSummary* largest = nullptr;
+  for (const ComponentSummary& c : components)
+    if (!largest || c.num_views > largest->num_views) largest = &c;
+  return largest ? largest->covariance_floor_rad : 0.0;
+}
+
 std::string RotationAveragingSummary::Report() const {
   std::ostringstream out;
   std::size_t views = 0, edges_in = 0;

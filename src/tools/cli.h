@@ -108,14 +108,25 @@ inline std::vector<std::string> Concat(std::vector<std::string> a, const std::ve
   return a;
 }
 
+// The ground truth of --gt and --gt-format; false (with `error`) if either is wrong.
+inline bool ReadGroundTruthArg(const std::string& gt_path, const std::string& gt_format_text, ra::NamedOrientations* gt,
+                               std::string* error) {
+  ra::GroundTruthFormat gt_format;
+  if (!ra::ParseGroundTruthFormat(gt_format_text, &gt_format)) {
+    *error = "unknown --gt-format " + gt_format_text;
+    return false;
+  }
+  const ra::ReadReport report = ra::ReadGroundTruth(gt_path, gt_format, gt);
+  if (!report.ok()) *error = report.error;
+  return report.ok();
+}
+
 // per_view (text only): then one line "view NAME ERROR_DEG" per common view.
 inline int Evaluate(const ra::NamedOrientations& estimate, const std::string& gt_path, const std::string& gt_format_text,
              bool json, bool per_view = false) {
-  ra::GroundTruthFormat gt_format;
-  if (!ra::ParseGroundTruthFormat(gt_format_text, &gt_format)) return Fail("unknown --gt-format " + gt_format_text);
   ra::NamedOrientations gt;
-  const ra::ReadReport report = ra::ReadGroundTruth(gt_path, gt_format, &gt);
-  if (!report.ok()) return Fail(report.error);
+  std::string error;
+  if (!ReadGroundTruthArg(gt_path, gt_format_text, &gt, &error)) return Fail(error);
   const ra::EvaluationResult result = ra::EvaluateOrientations(estimate, gt);
   std::cout << (json ? result.ToJson() : result.ToText()) << std::endl;
   if (per_view && !json) {

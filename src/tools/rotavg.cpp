@@ -118,10 +118,7 @@ double ImagesCovarianceFloor(const ra::ViewGraph& graph) {
   ra::ViewOrientations orientations;
   ra::RotationAveragingSummary summary;
   ra::SolveRotationAveraging(graph, options, &orientations, &summary);
-  const ra::ComponentSummary* largest = nullptr;
-  for (const ra::ComponentSummary& c : summary.components)
-    if (!largest || c.num_views > largest->num_views) largest = &c;
-  return largest ? largest->covariance_floor_rad : 0.0;
+  return summary.LargestComponentFloorRad();
 }
 
 // eval --graph: how well the edges' covariances predict their errors against
@@ -177,13 +174,8 @@ int EvalCommand(int argc, char** argv) {
   }
   if (args.Has("--graph")) {
     if (args.Has("--json")) return Fail("--json scores an --estimate; the edge calibration of --graph is text only");
-    ra::GroundTruthFormat gt_format;
-    if (!ra::ParseGroundTruthFormat(args.Get("--gt-format", "auto"), &gt_format)) {
-      return Fail("unknown --gt-format " + args.Get("--gt-format"));
-    }
     ra::NamedOrientations gt;
-    const ra::ReadReport report = ra::ReadGroundTruth(args.Get("--gt"), gt_format, &gt);
-    if (!report.ok()) return Fail(report.error);
+    if (!ReadGroundTruthArg(args.Get("--gt"), args.Get("--gt-format", "auto"), &gt, &error)) return Fail(error);
     const int rc = EvalGraph(args, gt);
     if (rc != 0 || !args.Has("--estimate")) return rc;
     std::cout << "\n";

@@ -55,14 +55,6 @@ ra::RotationAveragingOptions ImagesDefaults() {
   return o;
 }
 
-// The covariance floor of a solve: that of its largest component (rad).
-double CovarianceFloor(const ra::RotationAveragingSummary& summary) {
-  const ra::ComponentSummary* largest = nullptr;
-  for (const ra::ComponentSummary& c : summary.components)
-    if (!largest || c.num_views > largest->num_views) largest = &c;
-  return largest ? largest->covariance_floor_rad : 0.0;
-}
-
 struct Scene {
   std::string name, images, intrinsics, ground_truth;
   bool exact_intrinsics;     // K comes with the ground truth (Strecha), not from a reconstruction
@@ -354,7 +346,7 @@ int main(int argc, char** argv) {
         ra::ViewOrientations out;
         ra::RotationAveragingSummary summary;
         ra::SolveRotationAveraging(WithCovariance(front, 0), ImagesDefaults(), &out, &summary);
-        floor_rad = CovarianceFloor(summary);
+        floor_rad = summary.LargestComponentFloorRad();
       }
       // Calibration: eta = Log(R_ij_true^T R_ij_est) for every successful pair.
       std::vector<double> nees_m, nees_c, nees_f, err, std_m, std_c, sigmas;

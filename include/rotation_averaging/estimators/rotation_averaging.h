@@ -284,6 +284,9 @@ struct RotationAveragingSummary {
   std::vector<std::string> warnings;
   bool Success() const;
   std::string Report() const;  // multi-line text for logs and the CLI
+  // The covariance floor of the largest component, rad (0: none, or no
+  // component): the one floor of a graph that holds one scene.
+  double LargestComponentFloorRad() const;
 };
 
 // Solves every connected component of two or more views. On input
