@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <map>
 #include <random>
 
 #include "rotation_averaging/geometry/so3.h"
@@ -113,6 +114,45 @@ TEST(EdgeCalibration, OverconfidentCovariancesAndTheFloor) {
   EXPECT_DOUBLE_EQ(floored.floor_rad, 0.01);
 }
 
+TEST(EdgeCalibration, PerViewOffsetsSeparateAReferencesErrorFromThePairs) {
+  std::mt19937 rng(14);
+  const CalibrationScene scene = MakeCalibrationScene(&rng, 30);  // 435 edges
+  // A reference whose every view is off by 0.05 rad about a random axis,
+  // most edges' standard deviations or more: the pairs look over-confident.
+  std::normal_distribution<double> normal;
+  NamedOrientations reference;
+  std::map<std::string, Eigen::Vector3d> offset;
+  for (const auto& [name, r] : scene.truth) {
+    offset[name] = 0.05 * Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+    reference[name] = ExpSO3(offset[name]) * r;
+  }
+  const EdgeCalibration truth = EvaluateEdgeCovariances(scene.graph, scene.truth);
+  const EdgeCalibration c = EvaluateEdgeCovariances(scene.graph, reference);
+  EXPECT_GT(c.nees_median, 50.0 * truth.nees_median);
+  // The offsets explain the reference's error: what remains is the pairs'
+  // own, about as against the truth (the fit takes 29 of 435 edges' worth).
+  EXPECT_NEAR(c.nees_median_after_view_offsets / truth.nees_median, 1.0, 0.2);
+  EXPECT_NEAR(c.median_error_after_view_offsets_deg / truth.median_error_deg, 1.0, 0.2);
+  // ... and the same whatever the reference: the views' offsets absorb it.
+  EXPECT_NEAR(c.nees_median_after_view_offsets / truth.nees_median_after_view_offsets, 1.0, 0.05);
+  EXPECT_LE(truth.nees_median_after_view_offsets, truth.nees_median);
+  // The fitted offsets are the reference's, reversed (up to the world
+  // rotation common to all views, which no edge sees).
+  ASSERT_EQ(c.view_offsets.size(), 30u);
+  double agreement = 0.0;
+  for (const EdgeCalibration::ViewOffset& v : c.view_offsets) {
+    agreement += -v.offset_deg.dot(offset[v.name]) / (v.offset_deg.norm() * offset[v.name].norm());
+    EXPECT_NEAR(v.offset_deg.norm(), 0.05 * 180.0 / M_PI, 0.4 * 0.05 * 180.0 / M_PI);
+  }
+  EXPECT_GT(agreement / 30.0, 0.9);
+  EXPECT_NEAR(c.median_view_offset_deg, 0.05 * 180.0 / M_PI, 0.2 * 0.05 * 180.0 / M_PI);
+  EXPECT_LT(truth.median_view_offset_deg, 0.2 * c.median_view_offset_deg);
+  // A floor only lowers NEES.
+  const EdgeCalibration floored = EvaluateEdgeCovariances(scene.graph, reference, 0.01);
+  EXPECT_LT(floored.nees_median_after_view_offsets, c.nees_median_after_view_offsets);
+  EXPECT_NE(c.ToText().find("after per-view offsets"), std::string::npos);
+}
+
 TEST(EdgeCalibration, EdgesWithoutCovarianceOrGroundTruthAreNotScored) {
   std::mt19937 rng(13);
   CalibrationScene scene = MakeCalibrationScene(&rng, 4);  // 6 edges
@@ -131,6 +171,9 @@ TEST(EdgeCalibration, EdgesWithoutCovarianceOrGroundTruthAreNotScored) {
   const EdgeCalibration none = EvaluateEdgeCovariances(scene.graph, NamedOrientations());
   EXPECT_EQ(none.edges_scored, 0u);
   EXPECT_TRUE(std::isnan(none.nees_median));
+  EXPECT_TRUE(std::isnan(none.nees_median_after_view_offsets));
+  EXPECT_TRUE(std::isnan(none.median_view_offset_deg));
+  EXPECT_TRUE(none.view_offsets.empty());
 }
 
 }  // namespace

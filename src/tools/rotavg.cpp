@@ -58,7 +58,11 @@ const char* kUsage = R"(usage:
       calibration of the edges' covariances against the ground truth: each edge's error and
       NEES = eta^T C^-1 eta (median 2.37, mean 3 and 95% below 7.81 if calibrated), as given and with
       the covariance floor that rotavg images adds (estimated by solving the graph as it does, or
-      --floor-deg); --per-edge: then "edge NAME1 NAME2 ERROR_DEG NEES NEES_WITH_FLOOR" per edge
+      --floor-deg); then the same after the per-view offsets that best explain the errors (an error
+      all of a view's pairs share: the reference's own, or one of that image that its pairs inherit;
+      neither their consistency nor the floor can see it); --per-edge: then
+      "edge NAME1 NAME2 ERROR_DEG NEES NEES_WITH_FLOOR" per edge and
+      "view NAME OFFSET_DEG X Y Z" per view (the offset as a rotation vector in the camera frame)
   rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
                [--pairs exhaustive|sequential:N|list:FILE] [--covariance marginal|conditional] [--graph-out graph.txt]
                [--output orientations.csv] [--gt PATH] [--verbose] [all averaging options of solve]
@@ -155,6 +159,10 @@ int EvalGraph(const Args& args, const ra::NamedOrientations& gt) {
       const ra::EdgeCalibration::Edge& e = raw.scored[k];
       std::cout << "edge " << e.name1 << " " << e.name2 << " " << e.error_deg << " " << e.nees << " "
                 << floored.scored[k].nees << "\n";
+    }
+    for (const ra::EdgeCalibration::ViewOffset& v : raw.view_offsets) {
+      std::cout << "view " << v.name << " " << v.offset_deg.norm() << " " << v.offset_deg.x() << " "
+                << v.offset_deg.y() << " " << v.offset_deg.z() << "\n";
     }
   }
   return 0;

@@ -251,6 +251,14 @@ def test_command_line_scores_the_edges_covariances_against_ground_truth(tmp_path
     given = per_edge("--floor-deg", "0")
     names = dict(zip(graph.view_ids, graph.view_names))
     assert len(given) == graph.num_edges
+    # Every view's offset, as a rotation vector whose norm is the offset.
+    run = subprocess.run([ROTAVG, "eval", "--graph", graph_path, "--gt", truth_csv, "--per-edge"],
+                         check=True, capture_output=True, text=True)
+    offsets = {line.split()[1]: [float(v) for v in line.split()[2:]]
+               for line in run.stdout.splitlines() if line.startswith("view ")}
+    assert sorted(offsets) == sorted(graph.view_names)
+    assert all(abs(o[0] - np.linalg.norm(o[1:])) < 1e-6 * max(1.0, o[0]) for o in offsets.values())
+    assert "NEES median after per-view offsets" in run.stdout
     # Each edge's error in its right perturbation, where its covariance lives.
     for (i, j), r, c in zip(graph.edge_views, graph.edge_rotations, graph.edge_covariances):
         a, b = names[i], names[j]

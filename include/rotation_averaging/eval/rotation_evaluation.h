@@ -57,11 +57,35 @@ EvaluationResult EvaluateOrientations(const NamedOrientations& estimate, const N
 // covariances give chi-square with 3 degrees of freedom: mean 3, median 2.37,
 // 95% of edges below 7.81. No alignment is needed: relative rotations do not
 // depend on the world frame. The reference's own error counts as the edges'.
+//
+// The errors are then split into what belongs to views and what to pairs:
+// the offsets d_k (a left perturbation of each view's true rotation,
+// R_k -> Exp(d_k) R_k) that best explain every scored edge's error,
+// eta_12 ~ R_2 R_1^T d_1 - d_2, fitted by least absolute whitened edge error
+// (sum of sqrt(r^T (C + s^2 I)^-1 r), iteratively reweighted; the offsets'
+// common rotation of the world left free). This is the averaging of the
+// pairs, linearised at the reference: what remains is the pairs'
+// disagreement with each other, the same whatever the reference. An offset that all of a view's pairs share leaves the pairs
+// consistent with each other, so neither the averaging's residuals nor the
+// covariance floor estimated from them can see it: it is either the
+// reference's own error for that view, or an effect of that image (its
+// intrinsics, a lens shift) that every pair of it inherits. The fit has
+// 3 (views - 1) parameters per connected set of views for 3 values per edge,
+// so it also absorbs a part of independent pair errors, the more the fewer
+// edges a view has.
 struct EdgeCalibration {
   struct Edge {
     std::string name1, name2;
     double error_deg = 0.0;
     double nees = 0.0;
+    double error_after_view_offsets_deg = 0.0;
+    double nees_after_view_offsets = 0.0;
+  };
+  struct ViewOffset {
+    std::string name;
+    // d_k in the view's camera frame, after the alignment of the views'
+    // orientations to the reference that EvaluateOrientations uses.
+    Eigen::Vector3d offset_deg = Eigen::Vector3d::Zero();
   };
   std::size_t edges = 0;              // in the graph
   std::size_t edges_scored = 0;       // with a covariance and both views in the ground truth
@@ -70,7 +94,11 @@ struct EdgeCalibration {
   double nees_median = 0.0;
   double nees_mean = 0.0;
   double within_95 = 0.0;             // fraction of scored edges with NEES <= 7.81
+  double median_view_offset_deg = 0.0;               // median |d_k| over the views; NaN if no edge is scored
+  double median_error_after_view_offsets_deg = 0.0;  // NaN if no edge is scored
+  double nees_median_after_view_offsets = 0.0;
   std::vector<Edge> scored;           // in the graph's edge order
+  std::vector<ViewOffset> view_offsets;  // views of the scored edges, in the graph's view order
   std::string ToText() const;
 };
 EdgeCalibration EvaluateEdgeCovariances(const ViewGraph& graph, const NamedOrientations& ground_truth,
