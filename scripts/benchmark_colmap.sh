@@ -227,6 +227,27 @@ hat() {
     echo "$row |"
   done
   echo
+  echo "The same errors split into views and pairs: the per-view offsets that best explain every pair's"
+  echo "error against a reference (one rotation per view, fitted on the pairs' whitened errors with the"
+  echo "floor; in effect the averaging of the pairs about that reference), and the pairs' NEES after them."
+  echo "What a view's offset holds, all of its pairs share: the reference's own error for that view, or"
+  echo "one that every pair of that image inherits. The pairs' consistency with each other, and the floor"
+  echo "estimated from it, cannot see it, and no covariance of a single pair can express it. What remains"
+  echo "after the offsets is the same against any reference (the fit takes 3 (views - 1) of the"
+  echo "3 x pairs values, about a fifth here, so calibrated pairs would give a median a little below 2.37)."
+  echo
+  echo "| scene | NEES median after the per-view offsets | median pair error after them (deg) | median per-view offset (deg): against the reference | against COLMAP's model | against our bundle adjustment on COLMAP's matches |"
+  echo "|---|---|---|---|---|---|"
+  for s in "${SCENES[@]}"; do
+    W="$OUT/$s"
+    [ -f "$W/edges_vs_reference.txt" ] || continue
+    row="| $s | $(floored "$W/edges_vs_reference.txt" "NEES median after per-view offsets") | $(floored "$W/edges_vs_reference.txt" "median edge error after per-view offsets")"
+    for f in edges_vs_reference edges_vs_colmap edges_vs_colmap_matches; do
+      if [ -f "$W/$f.txt" ]; then row+=" | $(floored "$W/$f.txt" "median per-view offset")"; else row+=" | -"; fi
+    done
+    echo "$row |"
+  done
+  echo
   echo "Per view (deg), COLMAP / rotavg / the averaging alone / rotavg on COLMAP's matches:"
   for s in "${SCENES[@]}"; do
     W="$OUT/$s"
