@@ -3,10 +3,10 @@
 #include <Eigen/Sparse>
 #include <Eigen/SparseCholesky>
 #include <algorithm>
-#include <map>
 #include <cmath>
 #include <iomanip>
 #include <limits>
+#include <map>
 #include <numeric>
 #include <sstream>
 
@@ -214,12 +214,14 @@ EdgeCalibration EvaluateEdgeCovariances(const ViewGraph& graph, const NamedOrien
   result.floor_rad = floor_rad;
   const Eigen::Matrix3d floor = floor_rad * floor_rad * Eigen::Matrix3d::Identity();
   std::vector<double> errors, nees;
-  // For the per-view offsets: each scored edge's views (dense indices), A = R_2 R_1^T, eta, covariance.
+  // For the per-view offsets, per scored edge: its views (dense indices),
+  // A = R_2 R_1^T, its measured rotation, (C + s^2 I)^-1, and its error eta
+  // (then its residual once the views are offset).
   std::map<std::string, int> view_index;
   std::vector<std::string> view_names;
   std::vector<std::pair<int, int>> pairs;
-  std::vector<Eigen::Matrix3d> transports, covariances, measured;
-  std::vector<Eigen::Vector3d> etas;
+  std::vector<Eigen::Matrix3d> transports, measured, information;
+  std::vector<Eigen::Vector3d> residuals;
   auto index_of = [&](const std::string& name) {
     const auto [it, inserted] = view_index.emplace(name, static_cast<int>(view_names.size()));
     if (inserted) view_names.push_back(name);
@@ -241,9 +243,9 @@ EdgeCalibration EvaluateEdgeCovariances(const ViewGraph& graph, const NamedOrien
     nees.push_back(n);
     pairs.emplace_back(index_of(v1->name), index_of(v2->name));
     transports.push_back(b->second * a->second.transpose());
-    covariances.push_back(e.covariance + floor);
     measured.push_back(e.rotation);
-    etas.push_back(eta);
+    information.push_back((e.covariance + floor).inverse());
+    residuals.push_back(eta);
   }
   result.edges_scored = nees.size();
   if (nees.empty()) {
@@ -253,15 +255,11 @@ EdgeCalibration EvaluateEdgeCovariances(const ViewGraph& graph, const NamedOrien
             std::numeric_limits<double>::quiet_NaN();
     return result;
   }
-  // Ordered by the graph's views for the report.
-  std::vector<Eigen::Matrix3d> information;
-  for (const Eigen::Matrix3d& c : covariances) information.push_back(c.inverse());
   // The fit is linear in the offsets about the reference; it is repeated
   // about the offset views until they stop moving, so that offsets larger
   // than the edges' standard deviations are not mistaken for pair errors.
   std::vector<Eigen::Matrix3d> moved(view_names.size());
   for (std::size_t v = 0; v < view_names.size(); ++v) moved[v] = ground_truth.at(view_names[v]);
-  std::vector<Eigen::Vector3d> residuals = etas;
   for (int round = 0; round < 20; ++round) {
     const std::vector<Eigen::Vector3d> step =
         FitViewOffsets(static_cast<int>(view_names.size()), pairs, transports, residuals, information);

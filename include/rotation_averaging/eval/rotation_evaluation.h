@@ -63,16 +63,17 @@ EvaluationResult EvaluateOrientations(const NamedOrientations& estimate, const N
 // R_k -> Exp(d_k) R_k) that best explain every scored edge's error,
 // eta_12 ~ R_2 R_1^T d_1 - d_2, fitted by least absolute whitened edge error
 // (sum of sqrt(r^T (C + s^2 I)^-1 r), iteratively reweighted; the offsets'
-// common rotation of the world left free). This is the averaging of the
-// pairs, linearised at the reference: what remains is the pairs'
-// disagreement with each other, the same whatever the reference. An offset that all of a view's pairs share leaves the pairs
-// consistent with each other, so neither the averaging's residuals nor the
-// covariance floor estimated from them can see it: it is either the
-// reference's own error for that view, or an effect of that image (its
-// intrinsics, a lens shift) that every pair of it inherits. The fit has
-// 3 (views - 1) parameters per connected set of views for 3 values per edge,
-// so it also absorbs a part of independent pair errors, the more the fewer
-// edges a view has.
+// common rotation of the world left free), linearised about the reference
+// and fitted again about the offset views until they settle. This is the
+// averaging of the pairs started from the reference: what remains is the
+// pairs' disagreement with each other, the same whatever the reference. An
+// offset that all of a view's pairs share leaves the pairs consistent with
+// each other, so neither the averaging's residuals nor the covariance floor
+// estimated from them can see it: it is either the reference's own error for
+// that view, or an effect of that image (its intrinsics, a lens shift) that
+// every pair of it inherits. The fit has 3 (views - 1) parameters per
+// connected set of views for 3 values per edge, so it also absorbs a part of
+// independent pair errors, the more the fewer edges a view has.
 struct EdgeCalibration {
   struct Edge {
     std::string name1, name2;
