@@ -98,6 +98,10 @@ TEST_F(Recovery, SigkilledNodeRestartsFromItsAutosave) {
   NamedOrientations before;
   ASSERT_TRUE(WaitFor(rig.truth.size(), &before));
   ros::WallDuration(1.0).sleep();  // at least one autosave after the solve
+  // Compared with what the node holds when it is killed: the first solution
+  // with every keyframe may be a local re-solve that the full solves after it
+  // refine (under the sanitizers it came 0.55 deg from the restarted node's).
+  ASSERT_TRUE(WaitFor(rig.truth.size(), &before));
   ASSERT_TRUE(std::filesystem::exists(save));
   kill(a, SIGKILL);
   int status = 0;
