@@ -46,33 +46,37 @@ TEST(Evaluation, AlignmentIsRobustToOutlierViews) {
 }
 
 // Edges whose errors are drawn from their own anisotropic covariances, in the
-// right perturbation R_12 = R_12_true Exp(eta).
+// right perturbation R_12 = R_12_true Exp(eta). With `view_sd`, every pair of
+// a view also sees that view turned, by the same d_k ~ N(0, view_sd^2 I) in
+// all of them (`seen`): an error the pairs share.
 struct CalibrationScene {
   ViewGraph graph;
-  NamedOrientations truth;
+  NamedOrientations truth, seen;
 };
-CalibrationScene MakeCalibrationScene(std::mt19937* rng, int num_views) {
+CalibrationScene MakeCalibrationScene(std::mt19937* rng, int num_views, double view_sd = 0.0,
+                                      const Eigen::Vector3d& pair_sd = Eigen::Vector3d(0.001, 0.01, 0.1)) {
   std::normal_distribution<double> normal;
   auto gaussian = [&] { return Eigen::Vector3d(normal(*rng), normal(*rng), normal(*rng)); };
   CalibrationScene scene;
   for (int i = 0; i < num_views; ++i) {
-    scene.graph.AddView(i, "v" + std::to_string(i));
-    scene.truth["v" + std::to_string(i)] = ExpSO3(gaussian());
+    const std::string name = "v" + std::to_string(i);
+    scene.graph.AddView(i, name);
+    scene.truth[name] = ExpSO3(gaussian());
+    scene.seen[name] = view_sd > 0.0 ? ExpSO3(view_sd * gaussian()) * scene.truth[name] : scene.truth[name];
   }
   for (int i = 0; i < num_views; ++i) {
     for (int j = i + 1; j < num_views; ++j) {
-      // Standard deviations 0.001 and 0.1 rad along random axes: the wrong
-      // perturbation side (left instead of right) would be far off.
+      // Standard deviations along random axes (by default 0.001 to 0.1 rad:
+      // the wrong perturbation side, left instead of right, would be far off).
       const Eigen::Matrix3d axes = ExpSO3(gaussian());
-      const Eigen::Vector3d sd(0.001, 0.01, 0.1);
       RelativeRotation e;
       e.view1 = i;
       e.view2 = j;
       e.has_covariance = true;
-      e.covariance = axes * sd.cwiseAbs2().asDiagonal() * axes.transpose();
-      const Eigen::Vector3d eta = axes * sd.cwiseProduct(gaussian());
+      e.covariance = axes * pair_sd.cwiseAbs2().asDiagonal() * axes.transpose();
+      const Eigen::Vector3d eta = axes * pair_sd.cwiseProduct(gaussian());
       const std::string a = "v" + std::to_string(i), b = "v" + std::to_string(j);
-      e.rotation = scene.truth[a] * scene.truth[b].transpose() * ExpSO3(eta);
+      e.rotation = scene.seen[a] * scene.seen[b].transpose() * ExpSO3(eta);
       scene.graph.AddEdge(e);
     }
   }
@@ -151,6 +155,34 @@ TEST(EdgeCalibration, PerViewOffsetsSeparateAReferencesErrorFromThePairs) {
   const EdgeCalibration floored = EvaluateEdgeCovariances(scene.graph, reference, 0.01);
   EXPECT_LT(floored.nees_median_after_view_offsets, c.nees_median_after_view_offsets);
   EXPECT_NE(c.ToText().find("after per-view offsets"), std::string::npos);
+}
+
+TEST(EdgeCalibration, TheViewTermFromAnAdjustmentCalibratesPairsThatShareAnErrorPerView) {
+  // Each view's pairs all see it turned by d_k ~ N(0, 0.01^2 I) rad (as if
+  // its keypoints were shifted), beyond their own noise (sd 0.001-0.004
+  // rad): the pairs agree with each other, not with the true poses.
+  std::mt19937 rng(15);
+  const double view_sd = 0.01;
+  const CalibrationScene scene = MakeCalibrationScene(&rng, 40, view_sd, Eigen::Vector3d(0.001, 0.002, 0.004));
+  const ViewGraph& graph = scene.graph;
+  const NamedOrientations& truth = scene.truth;
+  const NamedOrientations& seen = scene.seen;
+  // An adjustment that recovered the true poses sees the views' offsets;
+  // the pairs' own scale comes back from their median.
+  const double view_rad = ViewTermRad(EvaluateEdgeCovariances(graph, truth));
+  EXPECT_NEAR(view_rad, view_sd, 0.25 * view_sd);
+  // Against the truth, the pairs alone are far too confident; with the view
+  // term on both views they are calibrated.
+  const EdgeCalibration alone = EvaluateEdgeCovariances(graph, truth);
+  const EdgeCalibration with_views = EvaluateEdgeCovariances(graph, truth, FloorWithViewTermRad(0.0, view_rad));
+  EXPECT_GT(alone.nees_median, 20.0);
+  EXPECT_NEAR(with_views.nees_median, 2.37, 0.6);
+  EXPECT_NEAR(with_views.within_95, 0.95, 0.04);
+  
+  // An adjustment that shares the pairs' per-view error sees no view term.
+  EXPECT_LT(ViewTermRad(EvaluateEdgeCovariances(graph, seen)), 0.2 * view_sd);
+  EXPECT_DOUBLE_EQ(FloorWithViewTermRad(0.003, 0.002), std::sqrt(0.003 * 0.003 + 2 * 0.002 * 0.002));
+  EXPECT_TRUE(std::isnan(ViewTermRad(EdgeCalibration())));
 }
 
 TEST(EdgeCalibration, EdgesWithoutCovarianceOrGroundTruthAreNotScored) {

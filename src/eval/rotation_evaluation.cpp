@@ -327,4 +327,18 @@ std::string EdgeCalibration::ToText() const {
   return out.str();
 }
 
+double ViewTermRad(const EdgeCalibration& against_adjusted) {
+  std::vector<double> squared;
+  for (const EdgeCalibration::ViewOffset& v : against_adjusted.view_offsets) {
+    squared.push_back((v.offset_deg * M_PI / 180.0).squaredNorm());
+  }
+  if (squared.empty()) return std::numeric_limits<double>::quiet_NaN();
+  constexpr double kChiSquare3Median = 2.3660;
+  return std::sqrt(MedianOf(squared) / kChiSquare3Median);
+}
+
+double FloorWithViewTermRad(double floor_rad, double view_term_rad) {
+  return std::sqrt(floor_rad * floor_rad + 2.0 * view_term_rad * view_term_rad);
+}
+
 }  // namespace rotation_averaging

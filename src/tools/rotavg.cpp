@@ -7,7 +7,7 @@
 //                [--gt PATH [--gt-format ...]] --output orientations.csv
 //   rotavg eval --estimate orientations.csv|images.txt [--estimate-format csv|colmap] --gt PATH
 //               [--gt-format auto|csv|strecha|colmap|chain] [--json] [--per-view]
-//   rotavg eval --graph graph.txt --gt PATH [--floor-deg S] [--per-edge]
+//   rotavg eval --graph graph.txt --gt PATH [--floor-deg S] [--view-term-from ADJUSTED.csv] [--per-edge]
 //   rotavg images ...  runs rotavg_images (beside this program) with the same arguments
 //   rotavg vocabulary ...  runs rotavg_vocabulary likewise
 //
@@ -54,13 +54,17 @@ const char* kUsage = R"(usage:
       prints views in ground truth / estimated / common, median and mean error, AUC@2/5/10/20 (--per-view:
       then each view's error); --estimate-format csv (default) or colmap (a COLMAP text model's images.txt,
       or its folder: another tool's reconstruction scored the same way)
-  rotavg eval --graph graph.txt --gt PATH [--graph-format F] [--floor-deg S] [--per-edge]
+  rotavg eval --graph graph.txt --gt PATH [--graph-format F] [--floor-deg S] [--view-term-from ADJUSTED.csv]
+              [--per-edge]
       calibration of the edges' covariances against the ground truth: each edge's error and
       NEES = eta^T C^-1 eta (median 2.37, mean 3 and 95% below 7.81 if calibrated), as given and with
       the covariance floor that rotavg images adds (estimated by solving the graph as it does, or
       --floor-deg); then the same after the per-view offsets that best explain the errors (an error
       all of a view's pairs share: the reference's own, or one of that image that its pairs inherit;
-      neither their consistency nor the floor can see it); --per-edge: then
+      neither their consistency nor the floor can see it); --view-term-from: then the same with the
+      view term added to both views of each pair, estimated from the per-view offsets against ADJUSTED
+      (orientations of a bundle adjustment of the same images, e.g. the output of rotavg images, as it
+      prints it); --per-edge: then
       "edge NAME1 NAME2 ERROR_DEG NEES NEES_WITH_FLOOR" per edge and
       "view NAME OFFSET_DEG X Y Z" per view (the offset as a rotation vector in the camera frame)
   rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
@@ -153,6 +157,23 @@ int EvalGraph(const Args& args, const ra::NamedOrientations& gt) {
   std::cout << "covariances as given\n" << raw.ToText() << "\n\ncovariances with the floor ("
             << (args.Has("--floor-deg") ? "--floor-deg" : "estimated by the averaging, as rotavg images does")
             << ")\n" << floored.ToText() << std::endl;
+  if (args.Has("--view-term-from")) {
+    // The error each view's pairs share, as rotavg images estimates it: from
+    // the views' offsets against a bundle adjustment of the same images.
+    ra::NamedOrientations adjusted;
+    std::string error;
+    if (!ReadGroundTruthArg(args.Get("--view-term-from"), "auto", &adjusted, &error)) return Fail(error);
+    const double view_rad = ra::ViewTermRad(ra::EvaluateEdgeCovariances(graph, adjusted, floor_rad));
+    if (!std::isfinite(view_rad)) {
+      return Fail("no edge of " + args.Get("--graph") + " has a covariance and both views in " +
+                  args.Get("--view-term-from"));
+    }
+    const ra::EdgeCalibration viewed =
+        ra::EvaluateEdgeCovariances(graph, gt, ra::FloorWithViewTermRad(floor_rad, view_rad));
+    std::cout << "\ncovariances with the floor and the view term (" << std::fixed << std::setprecision(4)
+              << view_rad * 180.0 / M_PI << " deg per axis, from the per-view offsets against "
+              << args.Get("--view-term-from") << ")\n" << viewed.ToText() << std::endl;
+  }
   if (args.Has("--per-edge")) {
     std::cout << std::defaultfloat << std::setprecision(10);
     for (std::size_t k = 0; k < raw.scored.size(); ++k) {
@@ -173,7 +194,7 @@ int EvalCommand(int argc, char** argv) {
   std::string error;
   if (!ParseArgs(argc, argv, 2, {"--json", "--per-view", "--per-edge"}, &args, &error)) return Fail(error);
   if (!CheckKnown(args, {"--estimate", "--estimate-format", "--gt", "--gt-format", "--graph", "--graph-format",
-                         "--floor-deg"},
+                         "--floor-deg", "--view-term-from"},
                   &error)) {
     return Fail(error);
   }

@@ -2,6 +2,7 @@
 // (features, matching, relative poses with rotation covariances). A program of
 // its own because it needs OpenCV, which `rotavg solve` and `eval` do not load.
 // Run as `rotavg images ARGS` or `rotavg_images ARGS`; `--help` lists them.
+#include <cmath>
 #include <iomanip>
 #include <iostream>
 #include <string>
@@ -10,6 +11,7 @@
 #include "cli.h"
 #include "rotation_averaging/controllers/image_pipeline.h"
 #include "rotation_averaging/estimators/bundle_adjustment.h"
+#include "rotation_averaging/eval/rotation_evaluation.h"
 #include "rotation_averaging/geometry/so3.h"
 
 namespace {
@@ -26,7 +28,8 @@ const char* kUsage = R"(usage:
       features, matching, relative poses with rotation covariances, averaging (--refine: then the
       orientations refined on every pair's inlier correspondences), then bundle adjustment from the averaged
       orientations: the pairs' inliers linked into tracks, camera centres and points estimated and everything
-      adjusted on the reprojection errors (--no-bundle-adjustment: the averaging's orientations); prints
+      adjusted on the reprojection errors (--no-bundle-adjustment: the averaging's orientations), and the
+      view term, the error all pairs of a view share, from the views' offsets against it; prints
       per-stage timings and per-pair statistics; --graph-out writes the view graph for `rotavg solve`;
       --no-rotation-model: every pair through the essential matrix (pairs without parallax fail instead of
       using the rotation-only model);
@@ -116,6 +119,19 @@ int Images(int argc, char** argv) {
     ra::RefineRotationsWithBundleAdjustment(ra::CorrespondencesOfEdges(front), ra::BundleAdjustmentOptions(),
                                             &orientations, &adjustment);
     std::cout << adjustment.Report() << std::endl;
+    // What every pair of a view shares, the averaging cannot see and the
+    // adjustment removes: its size says how far the pairs' covariances
+    // (with the floor) understate their errors against the true poses.
+    const double floor_rad = summary.LargestComponentFloorRad();
+    const double view_rad = ra::ViewTermRad(
+        ra::EvaluateEdgeCovariances(front.graph, ra::NameOrientations(front.graph, orientations), floor_rad));
+    if (std::isfinite(view_rad)) {
+      std::cout << "view term: " << view_rad * 180.0 / M_PI
+                << " deg per axis (the error all pairs of a view share, from the views' offsets against the "
+                   "bundle adjustment); with the floor, a pair's covariance against the true poses: C + s^2 I, s = "
+                << ra::FloorWithViewTermRad(floor_rad, view_rad) * 180.0 / M_PI << " deg"
+                << std::endl;
+    }
   }
   const int rc = WriteAndScore(args, ra::NameOrientations(front.graph, orientations));
   return rc != 0 ? rc : (ok ? 0 : 1);

@@ -280,6 +280,19 @@ def test_command_line_scores_the_edges_covariances_against_ground_truth(tmp_path
     bad = subprocess.run([ROTAVG, "eval", "--graph", graph_path, "--gt", truth_csv, "--floor-deg", "-1"],
                          capture_output=True, text=True)
     assert bad.returncode != 0 and "--floor-deg must be a finite number >= 0" in bad.stderr
+    # The view term from the offsets against an adjustment (here the truth,
+    # floor 0: the offsets --per-edge prints): sqrt(median |d|^2 / 2.366).
+    run = subprocess.run([ROTAVG, "eval", "--graph", graph_path, "--gt", truth_csv, "--floor-deg", "0", "--per-edge",
+                          "--view-term-from", truth_csv], check=True, capture_output=True, text=True)
+    offsets = [float(line.split()[2]) for line in run.stdout.splitlines() if line.startswith("view ")]
+    block = run.stdout.split("covariances with the floor and the view term (")[1]
+    view_deg = float(block.split()[0])
+    assert abs(view_deg - np.sqrt(np.median(np.square(offsets)) / 2.366)) < 1e-4 * max(1.0, view_deg) + 5e-5
+    floor_line = next(line for line in block.splitlines() if line.startswith("covariance floor:"))
+    assert abs(float(floor_line.split()[2]) - np.sqrt(2.0) * view_deg) < 2e-4
+    missing = subprocess.run([ROTAVG, "eval", "--graph", graph_path, "--gt", truth_csv,
+                              "--view-term-from", str(tmp_path / "none.csv")], capture_output=True, text=True)
+    assert missing.returncode != 0 and "none.csv" in missing.stderr
     usage = subprocess.run([ROTAVG, "eval", "--help"], capture_output=True, text=True)
     assert usage.returncode == 0 and "rotavg eval --graph" in usage.stdout
 

@@ -105,6 +105,21 @@ struct EdgeCalibration {
 EdgeCalibration EvaluateEdgeCovariances(const ViewGraph& graph, const NamedOrientations& ground_truth,
                                         double floor_rad = 0.0);
 
+// The view term: the standard deviation per axis of an error that all of a
+// view's pairs share, estimated from the views' offsets against orientations
+// that can see it (`against_adjusted`: EvaluateEdgeCovariances against a
+// bundle adjustment of the same images, which ties each view's points and
+// centre to the other views', where every pair's summary has its own
+// translation and depths). As an isotropic Gaussian's, from the median of
+// |d_k|^2 (2.366 s^2 for three degrees of freedom), so that a view the
+// adjustment moved for another reason (a pair with wrong matches) does not
+// set it. NaN without offsets. No covariance of a single pair can hold it,
+// and the floor cannot see it (see above); a pair's error against a
+// reference then has covariance C + (floor^2 + 2 view^2) I, each of its two
+// views adding its share: FloorWithViewTermRad.
+double ViewTermRad(const EdgeCalibration& against_adjusted);
+double FloorWithViewTermRad(double floor_rad, double view_term_rad);
+
 }  // namespace rotation_averaging
 
 #endif  // ROTATION_AVERAGING_EVAL_ROTATION_EVALUATION_H_
