@@ -106,10 +106,11 @@ for s in "${SCENES[@]}"; do
   W="$OUT/$s"
   rm -f "$W"/edges_vs_*.txt "$W/rotavg_vs_colmap.txt" "$W/averaging_vs_colmap.txt"
   [ -f "$W/graph.txt" ] || continue
-  "$BIN/rotavg" eval --graph "$W/graph.txt" --gt "$DATA/strecha/$s" > "$W/edges_vs_reference.txt"
-  "$BIN/rotavg" eval --graph "$W/graph.txt" --gt "$W/colmap_matches.csv" > "$W/edges_vs_colmap_matches.txt"
+  VIEWS=(--view-term-from "$W/rotavg.csv")
+  "$BIN/rotavg" eval --graph "$W/graph.txt" --gt "$DATA/strecha/$s" "${VIEWS[@]}" > "$W/edges_vs_reference.txt"
+  "$BIN/rotavg" eval --graph "$W/graph.txt" --gt "$W/colmap_matches.csv" "${VIEWS[@]}" > "$W/edges_vs_colmap_matches.txt"
   if [ ! -f "$W/colmap_failed.txt" ]; then
-    "$BIN/rotavg" eval --graph "$W/graph.txt" --gt "$W/images.txt" > "$W/edges_vs_colmap.txt"
+    "$BIN/rotavg" eval --graph "$W/graph.txt" --gt "$W/images.txt" "${VIEWS[@]}" > "$W/edges_vs_colmap.txt"
     "$BIN/rotavg" eval --estimate "$W/rotavg.csv" --gt "$W/images.txt" > "$W/rotavg_vs_colmap.txt"
     "$BIN/rotavg" eval --estimate "$W/averaging.csv" --gt "$W/images.txt" > "$W/averaging_vs_colmap.txt"
   fi
@@ -126,7 +127,10 @@ view_error() {  # scores file, view name: the view's error to 4 decimals, or - i
 whole_seconds() { printf '%.0f' "$(cat "$1")"; }
 # An edge calibration file's figure after its label, in the block with the
 # floor (the second) or as given (the first).
-floored() { field "$1" "$2" | tail -1; }
+# eval --graph prints the covariances as given, with the floor, then with the
+# floor and the view term.
+floored() { field "$1" "$2" | sed -n 2p; }
+viewed() { field "$1" "$2" | sed -n 3p; }
 # The three-cornered hat: from the differences d_ab, d_ac, d_bc of three
 # independent estimates, a's own error sqrt((d_ab^2 + d_ac^2 - d_bc^2) / 2);
 # below what the differences resolve ("~0") when that is negative.
@@ -244,6 +248,30 @@ hat() {
     row="| $s | $(floored "$W/edges_vs_reference.txt" "NEES median after per-view offsets") | $(floored "$W/edges_vs_reference.txt" "median edge error after per-view offsets")"
     for f in edges_vs_reference edges_vs_colmap edges_vs_colmap_matches; do
       if [ -f "$W/$f.txt" ]; then row+=" | $(floored "$W/$f.txt" "median per-view offset")"; else row+=" | -"; fi
+    done
+    echo "$row |"
+  done
+  echo
+  echo "The bundle adjustment \`rotavg images\` runs can see that shared error: it ties each view's points"
+  echo "and centre to the other views', where each pair's summary has a translation and depths of its"
+  echo "own. The view term v is the standard deviation per axis of the views' offsets against it"
+  echo "(robustly: median |d|^2 over the views = 2.366 v^2 for an isotropic Gaussian), as \`rotavg images\`"
+  echo "prints it; added to both views of each pair, a pair's covariance is C + (s^2 + 2 v^2) I"
+  echo "(\`rotavg eval --graph graph.txt --gt ... --view-term-from rotavg.csv\`). It uses no reference."
+  echo
+  echo "| scene | view term v (deg per axis) | NEES median with the floor and the view term: against the reference | within 95% | against COLMAP's model | within 95% | against our bundle adjustment on COLMAP's matches | within 95% |"
+  echo "|---|---|---|---|---|---|---|---|"
+  for s in "${SCENES[@]}"; do
+    W="$OUT/$s"
+    [ -f "$W/edges_vs_reference.txt" ] || continue
+    v=$(sed -n 's/^covariances with the floor and the view term (\([0-9.]*\) deg.*/\1/p' "$W/edges_vs_reference.txt")
+    row="| $s | $v"
+    for f in edges_vs_reference edges_vs_colmap edges_vs_colmap_matches; do
+      if [ -f "$W/$f.txt" ]; then
+        row+=" | $(viewed "$W/$f.txt" "NEES median") | $(viewed "$W/$f.txt" "NEES within the 95% quantile") %"
+      else
+        row+=" | - | -"
+      fi
     done
     echo "$row |"
   done
