@@ -149,6 +149,13 @@ int EvalGraph(const Args& args, const ra::NamedOrientations& gt) {
   } else {
     floor_rad = ImagesCovarianceFloor(graph);
   }
+  // The orientations the view term is estimated against (a bundle adjustment
+  // of the same images), read before anything is printed.
+  ra::NamedOrientations adjusted;
+  if (args.Has("--view-term-from")) {
+    std::string error;
+    if (!ReadGroundTruthArg(args.Get("--view-term-from"), "auto", &adjusted, &error)) return Fail(error);
+  }
   const ra::EdgeCalibration raw = ra::EvaluateEdgeCovariances(graph, gt);
   if (raw.edges_scored == 0) {
     return Fail("no edge of " + args.Get("--graph") + " has a covariance and both views in the ground truth");
@@ -160,9 +167,6 @@ int EvalGraph(const Args& args, const ra::NamedOrientations& gt) {
   if (args.Has("--view-term-from")) {
     // The error each view's pairs share, as rotavg images estimates it: from
     // the views' offsets against a bundle adjustment of the same images.
-    ra::NamedOrientations adjusted;
-    std::string error;
-    if (!ReadGroundTruthArg(args.Get("--view-term-from"), "auto", &adjusted, &error)) return Fail(error);
     const double view_rad = ra::ViewTermRad(ra::EvaluateEdgeCovariances(graph, adjusted, floor_rad));
     if (!std::isfinite(view_rad)) {
       return Fail("no edge of " + args.Get("--graph") + " has a covariance and both views in " +

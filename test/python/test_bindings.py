@@ -292,7 +292,7 @@ def test_command_line_scores_the_edges_covariances_against_ground_truth(tmp_path
     assert abs(float(floor_line.split()[2]) - np.sqrt(2.0) * view_deg) < 2e-4
     missing = subprocess.run([ROTAVG, "eval", "--graph", graph_path, "--gt", truth_csv,
                               "--view-term-from", str(tmp_path / "none.csv")], capture_output=True, text=True)
-    assert missing.returncode != 0 and "none.csv" in missing.stderr
+    assert missing.returncode != 0 and "none.csv" in missing.stderr and missing.stdout == ""
     usage = subprocess.run([ROTAVG, "eval", "--help"], capture_output=True, text=True)
     assert usage.returncode == 0 and "rotavg eval --graph" in usage.stdout
 
