@@ -125,10 +125,9 @@ view_error() {  # scores file, view name: the view's error to 4 decimals, or - i
   if [ -n "$e" ]; then printf '%.4f' "$e"; else echo -; fi
 }
 whole_seconds() { printf '%.0f' "$(cat "$1")"; }
-# An edge calibration file's figure after its label, in the block with the
-# floor (the second) or as given (the first).
-# eval --graph prints the covariances as given, with the floor, then with the
-# floor and the view term.
+# An edge calibration file's figure after its label: eval --graph prints the
+# covariances as given, with the floor (floored), then with the floor and the
+# view term (viewed).
 floored() { field "$1" "$2" | sed -n 2p; }
 viewed() { field "$1" "$2" | sed -n 3p; }
 # The three-cornered hat: from the differences d_ab, d_ac, d_bc of three

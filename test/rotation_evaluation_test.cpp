@@ -169,16 +169,15 @@ TEST(EdgeCalibration, TheViewTermFromAnAdjustmentCalibratesPairsThatShareAnError
   const NamedOrientations& seen = scene.seen;
   // An adjustment that recovered the true poses sees the views' offsets;
   // the pairs' own scale comes back from their median.
-  const double view_rad = ViewTermRad(EvaluateEdgeCovariances(graph, truth));
+  const EdgeCalibration alone = EvaluateEdgeCovariances(graph, truth);
+  const double view_rad = ViewTermRad(alone);
   EXPECT_NEAR(view_rad, view_sd, 0.25 * view_sd);
   // Against the truth, the pairs alone are far too confident; with the view
   // term on both views they are calibrated.
-  const EdgeCalibration alone = EvaluateEdgeCovariances(graph, truth);
   const EdgeCalibration with_views = EvaluateEdgeCovariances(graph, truth, FloorWithViewTermRad(0.0, view_rad));
   EXPECT_GT(alone.nees_median, 20.0);
   EXPECT_NEAR(with_views.nees_median, 2.37, 0.6);
   EXPECT_NEAR(with_views.within_95, 0.95, 0.04);
-  
   // An adjustment that shares the pairs' per-view error sees no view term.
   EXPECT_LT(ViewTermRad(EvaluateEdgeCovariances(graph, seen)), 0.2 * view_sd);
   EXPECT_DOUBLE_EQ(FloorWithViewTermRad(0.003, 0.002), std::sqrt(0.003 * 0.003 + 2 * 0.002 * 0.002));
