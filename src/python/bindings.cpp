@@ -655,6 +655,7 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
   ROTAVG_FIELD(refine_max_iterations);
   ROTAVG_FIELD(max_condition_number);
   ROTAVG_FIELD(rotation_model);
+  ROTAVG_FIELD(jackknife_grid);
 #undef ROTAVG_FIELD
 
   py::class_<ra::RelativePoseResult>(m, "RelativePose", R"(A two-view relative pose and the covariance of its rotation.

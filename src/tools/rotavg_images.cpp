@@ -20,7 +20,8 @@ using namespace rotation_averaging_cli;  // NOLINT: the tool's own helpers
 
 const char* kUsage = R"(usage:
   rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
-               [--pairs exhaustive|sequential:N|list:FILE] [--covariance marginal|conditional] [--graph-out graph.txt]
+               [--pairs exhaustive|sequential:N|list:FILE] [--covariance marginal|conditional] [--jackknife-grid N]
+               [--graph-out graph.txt]
                [--output orientations.csv] [--gt PATH [--gt-format F]] [--verbose] [--json] [--refine]
                [--no-bundle-adjustment] [--no-rotation-model] [--no-focal-calibration]
                [the averaging options of rotavg solve: --solver --loss --weighting --sigma-max --normalization
@@ -33,6 +34,9 @@ const char* kUsage = R"(usage:
       per-stage timings and per-pair statistics; --graph-out writes the view graph for `rotavg solve`;
       --no-rotation-model: every pair through the essential matrix (pairs without parallax fail instead of
       using the rotation-only model);
+      --jackknife-grid N: each pair's marginal covariance is at least the jackknife's that leaves out one cell
+      of an N x N grid over its inliers at a time (default 4; 0: the pixel model alone, every residual
+      independent);
       --no-focal-calibration: trust the focal length of the intrinsics (by default it is estimated from the
       pairs and, when it differs by more than 0.5% and its uncertainty, corrected and the pairs estimated again)
 )";
@@ -43,7 +47,7 @@ int Images(int argc, char** argv) {
   if (!ParseArgs(argc, argv, 1, {"--no-gnc", "--json", "--verbose", "--refine", "--no-bundle-adjustment", "--no-rotation-model", "--no-focal-calibration"}, &args, &error)) return Fail(error);
   if (!CheckKnown(args,
                   Concat({"--images", "--intrinsics", "--downsample", "--features", "--max-features", "--pairs",
-                          "--covariance", "--graph-out", "--output", "--gt", "--gt-format"},
+                          "--covariance", "--jackknife-grid", "--graph-out", "--output", "--gt", "--gt-format"},
                          kAveragingFlags),
                   &error)) {
     return Fail(error);
@@ -62,6 +66,10 @@ int Images(int argc, char** argv) {
   }
   if (!ra::ParseRotationCovarianceModel(args.Get("--covariance", "marginal"), &pipeline.relative_pose.covariance_model)) {
     return Fail("--covariance must be marginal or conditional");
+  }
+  pipeline.relative_pose.jackknife_grid = std::atoi(args.Get("--jackknife-grid", "4").c_str());
+  if (pipeline.relative_pose.jackknife_grid < 0 || pipeline.relative_pose.jackknife_grid > 16) {
+    return Fail("--jackknife-grid must be in [0, 16] (0: the pixel model's covariance alone)");
   }
   pipeline.relative_pose.rotation_model = !args.Has("--no-rotation-model");
   // Image folders come with intrinsics of any quality; the correction is

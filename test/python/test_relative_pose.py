@@ -264,3 +264,17 @@ def test_a_robust_model_with_the_mirrored_translation_still_gives_the_pose(seed,
     assert eta @ np.linalg.solve(pose.covariance, eta) < 16.3  # chi-square(3) 99.9 %
     t_true = -rotations[view + 1] @ (centres[view + 1] - centres[view])
     assert pose.translation @ t_true / np.linalg.norm(t_true) > 0.999
+
+
+def test_the_cell_jackknife_only_widens_the_marginal_covariance():
+    rng = np.random.default_rng(5)
+    rig = make_rig(rng, 2, baseline=1.0)
+    p1, p2, _ = matches(rig, 0, 1, rng)
+    default = ra.relative_pose(p1, p2, K)
+    pixel = ra.relative_pose(p1, p2, K, jackknife_grid=0)
+    assert default.success and pixel.success
+    np.testing.assert_allclose(default.rotation, pixel.rotation, atol=1e-12)
+    np.testing.assert_allclose(default.covariance_conditional, pixel.covariance_conditional)
+    # At least as large in every direction, and larger in some.
+    assert np.linalg.eigvalsh(default.covariance - pixel.covariance).min() > -1e-12 * np.trace(pixel.covariance)
+    assert np.trace(default.covariance) > np.trace(pixel.covariance)

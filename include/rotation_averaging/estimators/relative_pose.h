@@ -99,6 +99,16 @@ struct RelativePoseOptions {
   int refine_max_iterations = 50;      // Levenberg-Marquardt iterations of the Sampson refinement
   double max_condition_number = 1e10;  // of J^T J; larger: rejected as singular
   RotationCovarianceModel covariance_model = RotationCovarianceModel::kMarginal;
+  // The marginal covariance is at least the delete-one-cell jackknife's over a
+  // jackknife_grid x jackknife_grid partition of the inliers in image 1 (in
+  // every direction: the larger of the two). The pixel model treats every
+  // residual as independent; errors shared by a region of the image (a group
+  // of wrong matches on a repeated structure, a local bias of the keypoints)
+  // move the rotation together, and only leaving the region out shows it.
+  // A 4 x 4 grid gives up to 16 cells, 15 degrees of freedom for a 3 x 3
+  // covariance. 0 or 1: the pixel model alone. The conditional covariance
+  // (the paper's) is always the pixel model's.
+  int jackknife_grid = 4;
   // Model selection with the rotation-only homography (see above). Off: pairs
   // without parallax fail with kPureRotation.
   bool rotation_model = true;
