@@ -190,7 +190,7 @@ TEST(ImagePipeline, FountainImagesGiveAccurateRotations) {
   for (const RelativeRotation& e : front.graph.Edges()) {
     EXPECT_TRUE(e.has_covariance);
     EXPECT_GT(e.num_inliers, 20);
-    EXPECT_LT(std::sqrt(e.covariance.trace()), 0.02);  // rad (about 1 deg): well-constrained pairs at 1/8
+    EXPECT_LT(std::sqrt(e.covariance.trace()), 0.01);  // rad: well-constrained pairs
   }
   ViewOrientations out;
   RotationAveragingSummary summary;

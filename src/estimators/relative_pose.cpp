@@ -487,6 +487,7 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
   result.covariance_conditional = sigma2 * result.covariance_paper;
   result.covariance_marginal = sigma2 * jtj_inv.topLeftCorner<3, 3>();
   result.covariance_marginal = 0.5 * (result.covariance_marginal + result.covariance_marginal.transpose()).eval();
+  result.covariance_marginal_pixel = result.covariance_marginal;
   if (options.jackknife_grid > 1 && result.covariance_marginal.allFinite()) {
     result.covariance_marginal =
         LoewnerMax(result.covariance_marginal, CellJackknifeCovariance(points1, points2, result.inliers, k1_inv, k2_inv,
@@ -659,6 +660,7 @@ RelativePoseResult EstimateRotationOnly(const std::vector<Eigen::Vector2d>& poin
   result.covariance_paper = information_inv;
   result.covariance_marginal = sigma2 * information_inv;
   result.covariance_marginal = 0.5 * (result.covariance_marginal + result.covariance_marginal.transpose()).eval();
+  result.covariance_marginal_pixel = result.covariance_marginal;
   result.covariance_conditional = result.covariance_marginal;  // no translation to condition on
   result.covariance = result.covariance_marginal;
   return result;

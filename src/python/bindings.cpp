@@ -678,6 +678,7 @@ ViewGraph.add_edge takes it.)")
                     "rad^2, per options.covariance_model (default: marginal over the translation)")
       .def_readonly("covariance_marginal", &ra::RelativePoseResult::covariance_marginal)
       .def_readonly("covariance_conditional", &ra::RelativePoseResult::covariance_conditional)
+      .def_readonly("covariance_marginal_pixel", &ra::RelativePoseResult::covariance_marginal_pixel)
       .def_readonly("covariance_paper", &ra::RelativePoseResult::covariance_paper,
                     "(J_w^T J_w)^-1 unscaled (1/px^2), as the paper's code gives it")
       .def_readonly("sigma_px", &ra::RelativePoseResult::sigma_px, "pixel noise measured from the inliers' residuals")

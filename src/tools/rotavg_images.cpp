@@ -67,6 +67,9 @@ int Images(int argc, char** argv) {
   if (!ra::ParseRotationCovarianceModel(args.Get("--covariance", "marginal"), &pipeline.relative_pose.covariance_model)) {
     return Fail("--covariance must be marginal or conditional");
   }
+  // Photographs of real scenes: errors shared by regions of an image
+  // (repeated structure) are the rule (results/README.md, "What the far-off
+  // pairs hold").
   pipeline.relative_pose.jackknife_grid = std::atoi(args.Get("--jackknife-grid", "4").c_str());
   if (pipeline.relative_pose.jackknife_grid < 0 || pipeline.relative_pose.jackknife_grid > 16) {
     return Fail("--jackknife-grid must be in [0, 16] (0: the pixel model's covariance alone)");

@@ -270,11 +270,13 @@ def test_the_cell_jackknife_only_widens_the_marginal_covariance():
     rng = np.random.default_rng(5)
     rig = make_rig(rng, 2, baseline=1.0)
     p1, p2, _ = matches(rig, 0, 1, rng)
-    default = ra.relative_pose(p1, p2, K)
-    pixel = ra.relative_pose(p1, p2, K, jackknife_grid=0)
-    assert default.success and pixel.success
-    np.testing.assert_allclose(default.rotation, pixel.rotation, atol=1e-12)
-    np.testing.assert_allclose(default.covariance_conditional, pixel.covariance_conditional)
+    pixel = ra.relative_pose(p1, p2, K)  # the library's default: the pixel model alone
+    jackknife = ra.relative_pose(p1, p2, K, jackknife_grid=4)
+    assert pixel.success and jackknife.success
+    np.testing.assert_allclose(jackknife.rotation, pixel.rotation, atol=1e-12)
+    np.testing.assert_allclose(jackknife.covariance_conditional, pixel.covariance_conditional)
+    np.testing.assert_allclose(jackknife.covariance_marginal_pixel, pixel.covariance)
+    np.testing.assert_allclose(pixel.covariance_marginal_pixel, pixel.covariance)
     # At least as large in every direction, and larger in some.
-    assert np.linalg.eigvalsh(default.covariance - pixel.covariance).min() > -1e-12 * np.trace(pixel.covariance)
-    assert np.trace(default.covariance) > np.trace(pixel.covariance)
+    assert np.linalg.eigvalsh(jackknife.covariance - pixel.covariance).min() > -1e-12 * np.trace(pixel.covariance)
+    assert np.trace(jackknife.covariance) > np.trace(pixel.covariance)
