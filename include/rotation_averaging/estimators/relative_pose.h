@@ -107,11 +107,11 @@ struct RelativePoseOptions {
   // move the rotation together, and only leaving the region out shows it.
   // A 4 x 4 grid gives up to 16 cells, 15 degrees of freedom for a 3 x 3
   // covariance. 0 or 1: the pixel model alone, the default of the library and
-  // the node: where the noise is independent the jackknife adds only its own
-  // sampling noise to the weights (the demo's rendered rig: median 0.0139 ->
-  // 0.0167 deg, results/README.md, "What the far-off pairs hold"). `rotavg
-  // images` uses 4. The conditional covariance (the paper's) is always the
-  // pixel model's.
+  // the node: on the demo's rendered rig the jackknife costs accuracy (median
+  // 0.0139 -> 0.0167 deg) and on the Strecha scenes played through the node it
+  // gains at most 0.0012 deg (results/README.md, "What the far-off pairs
+  // hold"). `rotavg images` uses 4. The conditional covariance (the paper's) is
+  // always the pixel model's.
   int jackknife_grid = 0;
   // Model selection with the rotation-only homography (see above). Off: pairs
   // without parallax fail with kPureRotation.
