@@ -488,11 +488,6 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
   result.covariance_marginal = sigma2 * jtj_inv.topLeftCorner<3, 3>();
   result.covariance_marginal = 0.5 * (result.covariance_marginal + result.covariance_marginal.transpose()).eval();
   result.covariance_marginal_pixel = result.covariance_marginal;
-  if (options.jackknife_grid > 1 && result.covariance_marginal.allFinite()) {
-    result.covariance_marginal =
-        LoewnerMax(result.covariance_marginal, CellJackknifeCovariance(points1, points2, result.inliers, k1_inv, k2_inv,
-                                                                       rotation, t, options.jackknife_grid));
-  }
   result.covariance = options.covariance_model == RotationCovarianceModel::kConditional ? result.covariance_conditional
                                                                                        : result.covariance_marginal;
   return result;
@@ -710,10 +705,10 @@ constexpr double kRotationModelMinHomographyRatio = 0.5;
 
 // The essential-matrix model at the first threshold, then again at the
 // pair's own noise level; the inputs are checked by the caller.
-RelativePoseResult EstimateEssential(const std::vector<Eigen::Vector2d>& points1,
-                                     const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
-                                     const Eigen::Matrix3d& k2, const RelativePoseOptions& options,
-                                     EssentialFit* fit) {
+RelativePoseResult EstimateEssentialPixelModel(const std::vector<Eigen::Vector2d>& points1,
+                                               const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
+                                               const Eigen::Matrix3d& k2, const RelativePoseOptions& options,
+                                               EssentialFit* fit) {
   const int n = static_cast<int>(points1.size());
   const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
   RelativePoseResult first = EstimateAtThreshold(points1, points2, k1, k2, options.ransac_threshold_px, options, fit);
@@ -743,6 +738,23 @@ RelativePoseResult EstimateEssential(const std::vector<Eigen::Vector2d>& points1
   if (!second.success) return first;
   for (int& i : second.inliers) i = candidates[i];
   return second;
+}
+
+// The essential-matrix pose, its marginal covariance widened by the cell
+// jackknife (RelativePoseOptions::jackknife_grid) once, on the pose that is
+// returned: of the two robust estimations above, only one is kept.
+RelativePoseResult EstimateEssential(const std::vector<Eigen::Vector2d>& points1,
+                                     const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
+                                     const Eigen::Matrix3d& k2, const RelativePoseOptions& options,
+                                     EssentialFit* fit) {
+  RelativePoseResult result = EstimateEssentialPixelModel(points1, points2, k1, k2, options, fit);
+  if (!result.success || options.jackknife_grid < 2 || !result.covariance_marginal.allFinite()) return result;
+  result.covariance_marginal =
+      LoewnerMax(result.covariance_marginal,
+                 CellJackknifeCovariance(points1, points2, result.inliers, k1.inverse(), k2.inverse(), result.rotation,
+                                         result.translation, options.jackknife_grid));
+  if (options.covariance_model == RotationCovarianceModel::kMarginal) result.covariance = result.covariance_marginal;
+  return result;
 }
 
 }  // namespace

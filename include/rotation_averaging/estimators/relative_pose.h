@@ -99,9 +99,10 @@ struct RelativePoseOptions {
   int refine_max_iterations = 50;      // Levenberg-Marquardt iterations of the Sampson refinement
   double max_condition_number = 1e10;  // of J^T J; larger: rejected as singular
   RotationCovarianceModel covariance_model = RotationCovarianceModel::kMarginal;
-  // The marginal covariance is at least the delete-one-cell jackknife's over a
-  // jackknife_grid x jackknife_grid partition of the inliers in image 1 (in
-  // every direction: the larger of the two). The pixel model treats every
+  // The marginal covariance of an essential-matrix pose (the rotation-only
+  // model's stays the pixel model's) is at least the delete-one-cell
+  // jackknife's over a jackknife_grid x jackknife_grid partition of the
+  // inliers in image 1 (in every direction: the larger of the two). The pixel model treats every
   // residual as independent; errors shared by a region of the image (a group
   // of wrong matches on a repeated structure, a local bias of the keypoints)
   // move the rotation together, and only leaving the region out shows it.
