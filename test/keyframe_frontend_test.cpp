@@ -10,6 +10,8 @@
 #include <set>
 #include <tuple>
 
+#include <Eigen/Eigenvalues>
+
 #include "rotation_averaging/controllers/image_pipeline.h"
 #include "rotation_averaging/eval/rotation_evaluation.h"
 #include "rotation_averaging/features/vocabulary.h"
@@ -273,8 +275,10 @@ TEST(KeyframeFrontend, VocabularyClosesLoopsOnEveryLapWithCompactKeyframes) {
 // The edges of the rendered rig's loop with `threads` threads; with
 // `alternate`, the cameras of every other capture arrive in reverse order.
 std::vector<KeyframeRelativeRotation> RigEdges(const RigScene& scene, int threads, bool vocabulary,
-                                               bool alternate = false) {
+                                               bool alternate = false,
+                                               int loop_jackknife_grid = KeyframeFrontendOptions().loop_jackknife_grid) {
   KeyframeFrontendOptions options;
+  options.loop_jackknife_grid = loop_jackknife_grid;
   options.num_threads = threads;
   options.features.max_features = 600;
   if (vocabulary) options.vocabulary = TestVocabulary();
@@ -315,6 +319,49 @@ TEST(KeyframeFrontend, EdgesDoNotDependOnTheThreadCount) {
       EXPECT_EQ(a.source, b.source);
     }
   }
+}
+
+// Loop closures carry the cell jackknife's covariance, the other pairs the
+// pixel model's: the same pairs verified with and without it have the same
+// rotations, the sequential and rig edges the same covariances, and every
+// loop closure a covariance at least as wide in every direction.
+TEST(KeyframeFrontend, LoopClosuresCarryTheCellJackknifeCovariance) {
+  RigSceneOptions scene_options;
+  scene_options.num_captures = 16;
+  scene_options.WithWidth(480);
+  const RigScene scene(scene_options);
+  using Key = std::pair<std::string, std::string>;
+  auto keyed = [](const std::vector<KeyframeRelativeRotation>& edges) {
+    std::map<Key, KeyframeRelativeRotation> out;
+    for (const KeyframeRelativeRotation& e : edges) {
+      out.emplace(Key{OnlineAverager::KeyframeName(e.keyframe1), OnlineAverager::KeyframeName(e.keyframe2)}, e);
+    }
+    return out;
+  };
+  ASSERT_GT(KeyframeFrontendOptions().loop_jackknife_grid, 1) << "the node's loop closures use the jackknife";
+  const std::map<Key, KeyframeRelativeRotation> pixel = keyed(RigEdges(scene, 2, true, false, 0));
+  const std::map<Key, KeyframeRelativeRotation> jackknife = keyed(RigEdges(scene, 2, true, false, 4));
+  int loops = 0, other = 0, wider = 0;
+  for (const auto& [key, e] : jackknife) {
+    auto it = pixel.find(key);
+    if (it == pixel.end()) continue;  // a loop the consistency check kept with the wider covariance only
+    const KeyframeRelativeRotation& p = it->second;
+    EXPECT_TRUE(e.rotation == p.rotation) << key.first << " - " << key.second;
+    EXPECT_EQ(e.num_inliers, p.num_inliers);
+    if (e.source != EdgeSource::kLoopClosure) {
+      ++other;
+      EXPECT_TRUE(e.covariance == p.covariance) << key.first << " - " << key.second;
+      continue;
+    }
+    ++loops;
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> difference(e.covariance - p.covariance);
+    EXPECT_GE(difference.eigenvalues().minCoeff(), -1e-9 * p.covariance.trace()) << key.first << " - " << key.second;
+    wider += e.covariance.trace() > 1.01 * p.covariance.trace();
+  }
+  std::cout << "loop closures in both runs " << loops << ", widened " << wider << "; other edges " << other << "\n";
+  EXPECT_GT(other, 20);
+  EXPECT_GE(loops, 3);
+  EXPECT_GE(2 * wider, loops) << "most loop closures are widened by the jackknife";
 }
 
 // The cameras of one capture reach a live node in either order (their topics

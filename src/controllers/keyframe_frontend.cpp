@@ -96,8 +96,11 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
       pa.push_back(first_features.keypoints_px[i]);
       pb.push_back(second.features.keypoints_px[j]);
     }
-    const RelativePoseResult pose =
-        EstimateRelativePoseWithCovariance(pa, pb, first.k, second.k, options_.relative_pose);
+    RelativePoseOptions relative_pose = options_.relative_pose;
+    if (tasks[t].source == EdgeSource::kLoopClosure) {
+      relative_pose.jackknife_grid = std::max(relative_pose.jackknife_grid, options_.loop_jackknife_grid);
+    }
+    const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, first.k, second.k, relative_pose);
     PairOutcome& out = outcomes[t];
     if (!pose.success) {
       out.failure = TwoViewFailureName(pose.failure);

@@ -160,6 +160,7 @@ PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std
   f.min_loop_inliers = Param(params, "min_loop_inliers", f.min_loop_inliers);
   f.relative_pose.jackknife_grid =
       std::clamp(Param(params, "covariance_jackknife_grid", f.relative_pose.jackknife_grid), 0, 16);
+  f.loop_jackknife_grid = std::clamp(Param(params, "loop_covariance_jackknife_grid", f.loop_jackknife_grid), 0, 16);
   f.retrieval_sample = Param(params, "retrieval_sample", f.retrieval_sample);
   f.compact_features = std::max(20, Param(params, "compact_features", f.compact_features));
   f.match_compact_by_vocabulary = Param(params, "match_by_vocabulary", f.match_compact_by_vocabulary);

@@ -34,7 +34,14 @@ struct Pair {
   int a, b;  // image indices, a < b
   int inliers;
   double error_deg;
+  double nees;  // whitened squared error against the edge's covariance; -1 without one
 };
+
+double Median(std::vector<double> values) {
+  std::sort(values.begin(), values.end());
+  const std::size_t n = values.size();
+  return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+}
 
 // Edges of a graph file as image-index pairs with their error against the
 // ground truth (given in the same image order).
@@ -72,8 +79,16 @@ bool LoadPairs(const std::string& path, bool keyframe_names, const std::vector<E
   for (const ra::RelativeRotation& e : graph.Edges()) {
     if (filter_source && e.source != only) continue;
     const int a = index[e.view1], b = index[e.view2];
-    const double err = ra::RadToDeg(ra::AngularDistanceRad(e.rotation, truth[a] * truth[b].transpose()));
-    pairs->push_back(Pair{std::min(a, b), std::max(a, b), e.num_inliers, err});
+    const Eigen::Matrix3d true_rotation = truth[a] * truth[b].transpose();
+    const double err = ra::RadToDeg(ra::AngularDistanceRad(e.rotation, true_rotation));
+    double nees = -1.0;
+    if (e.has_covariance) {
+      // Right perturbation: R_true = R_12 Exp(delta).
+      const Eigen::Vector3d delta = ra::LogSO3(e.rotation.transpose() * true_rotation);
+      const Eigen::LDLT<Eigen::Matrix3d> ldlt(e.covariance);
+      if (ldlt.info() == Eigen::Success && ldlt.isPositive()) nees = delta.dot(ldlt.solve(delta));
+    }
+    pairs->push_back(Pair{std::min(a, b), std::max(a, b), e.num_inliers, err, nees});
   }
   return true;
 }
@@ -147,13 +162,24 @@ int main(int argc, char** argv) {
     kept.push_back(static_cast<double>(p.inliers) / it->second);
     std::cout << " (" << p.a << "," << p.b << ") " << p.inliers << "/" << it->second;
   }
+  char text[32];
   if (!kept.empty()) {
-    std::sort(kept.begin(), kept.end());
-    const std::size_t n = kept.size();
-    const double median = n % 2 ? kept[n / 2] : 0.5 * (kept[n / 2 - 1] + kept[n / 2]);
-    char text[32];
-    std::snprintf(text, sizeof(text), "%.2f", median);
+    std::snprintf(text, sizeof(text), "%.2f", Median(kept));
     std::cout << "; median fraction " << text;
+  }
+  // How far the found loops are from what their covariances say (3 on
+  // average when calibrated; the 50% quantile of chi2(3) is 2.37).
+  std::vector<double> nees;
+  std::cout << "\nwhitened squared errors (NEES) of the found loops:";
+  for (const Pair& p : found) {
+    if (p.nees < 0.0) continue;
+    nees.push_back(p.nees);
+    std::snprintf(text, sizeof(text), "%.1f", p.nees);
+    std::cout << " (" << p.a << "," << p.b << ") " << text;
+  }
+  if (!nees.empty()) {
+    std::snprintf(text, sizeof(text), "%.1f", Median(nees));
+    std::cout << "; median " << text;
   }
   std::cout << std::endl;
   return 0;

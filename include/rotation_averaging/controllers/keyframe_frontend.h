@@ -59,11 +59,11 @@ struct KeyframeFrontendOptions {
   // Features a keyframe keeps beyond the recent window (vocabulary only):
   // first those that were inliers of the most verified pairs (seen from
   // other views, they are what a revisit matches), then the strongest.
-  // Twice as many fit in 200 KB and find more loop closures (entry-P10 5 of
-  // 5 instead of 4, castle-P19 4 of 5 instead of 2), but those loop pairs err
-  // several times what their covariances give, and the averaging got worse
-  // with them (castle-P19 mean 0.25 -> 0.52 deg, entry-P10 median 0.03 ->
-  // 0.13 deg; results/replay.md, "Twice the features per compact keyframe").
+  // Twice as many fit in 200 KB and find one more loop closure on
+  // castle-P19 (5 of 5), but those loop pairs err several times what their
+  // covariances give, and the averaging got worse with them (castle-P19 mean
+  // 0.28 -> 0.59 deg, entry-P10 median 0.035 -> 0.14 deg; results/replay.md,
+  // "Twice the features per compact keyframe").
   int compact_features = 1000;
   // Pairs with a compact keyframe (loop closures) match features only within
   // the same first-level branch of the vocabulary tree, as ORB-SLAM matches
@@ -76,9 +76,15 @@ struct KeyframeFrontendOptions {
   int min_retrieval_votes = 15;         // voting: candidates with fewer votes are not verified
   // Loop closures need more evidence than sequential edges: repetitive
   // structure makes wrong but geometrically consistent pairs with few
-  // inliers. On castle-P19 (1/4 scale) the loop pairs with <= 42 inliers
-  // erred 1.4-46 deg and those with >= 63 mostly 0.25-0.5 deg.
-  int min_loop_inliers = 60;
+  // inliers (on castle-P19 at 1/4 scale, played as a bag: a loop 82 deg off
+  // with 24 inliers to a compact keyframe). Above that, the weak loops are
+  // right but err several times what the pixel model gives (0.3-0.9 deg);
+  // the cell jackknife (loop_jackknife_grid) widens their covariances to
+  // cover that, which is what lets the threshold be this low: entry-P10's
+  // median is 0.035 deg with it at 40, 0.19 deg without it at 40 and 0.034
+  // deg without it at 60, where one of its five loop pairs is missed
+  // (results/replay.md, "Loop closures and their covariances").
+  int min_loop_inliers = 40;
   // A compact keyframe keeps a part of the correspondences a loop pair would
   // have with all of its features (about three quarters, median over the
   // Strecha loop pairs in results/replay.md), so a loop closure to one needs
@@ -91,6 +97,16 @@ struct KeyframeFrontendOptions {
   // with fewer than half of the others are dropped; of two that disagree,
   // the one with more inliers is kept.
   double loop_consistency_deg = 1.0;
+  // Loop-closure pairs get the cell jackknife's covariance
+  // (RelativePoseOptions::jackknife_grid) with this grid, whatever
+  // relative_pose says: they are the wide-baseline pairs, where groups of
+  // matches on repeated structure share their error and the pixel model is
+  // over-confident (median NEES of the loop closures found on castle-P19 35
+  // with the pixel model, 18 with the jackknife; entry-P10 575 and 12;
+  // results/replay.md). Sequential and
+  // rig pairs keep relative_pose's setting: on the demo's rendered rig the
+  // jackknife on every pair costs accuracy. 0: the pixel model for loops too.
+  int loop_jackknife_grid = 4;
 };
 
 struct KeyframeFrontendStats {

@@ -107,12 +107,13 @@ struct RelativePoseOptions {
   // of wrong matches on a repeated structure, a local bias of the keypoints)
   // move the rotation together, and only leaving the region out shows it.
   // A 4 x 4 grid gives up to 16 cells, 15 degrees of freedom for a 3 x 3
-  // covariance. 0 or 1: the pixel model alone, the default of the library and
-  // the node: on the demo's rendered rig the jackknife costs accuracy (median
-  // 0.0139 -> 0.0167 deg) and on the Strecha scenes played through the node it
-  // gains at most 0.0012 deg (results/README.md, "What the far-off pairs
-  // hold"). `rotavg images` uses 4. The conditional covariance (the paper's) is
-  // always the pixel model's.
+  // covariance. 0 or 1: the pixel model alone, the default of the library
+  // and, for sequential and rig pairs, of the node: on the demo's rendered
+  // rig the jackknife on every pair costs accuracy (median 0.0139 -> 0.0167
+  // deg; results/README.md, "What the far-off pairs hold"). The node's loop
+  // closures get it (KeyframeFrontendOptions::loop_jackknife_grid), and
+  // `rotavg images` uses 4 for every pair. The conditional covariance (the
+  // paper's) is always the pixel model's.
   int jackknife_grid = 0;
   // Model selection with the rotation-only homography (see above). Off: pairs
   // without parallax fail with kPureRotation.
