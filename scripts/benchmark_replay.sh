@@ -49,56 +49,44 @@ for s in "${SCENES[@]}"; do
   done
 done
 
+value() {  # file, sed pattern whose first group is the value
+  sed -n "s/$2/\1/p" "$1"
+}
+RECALL='^recall of the correct verifiable loop pairs: \(.*\)$'
+MEDIAN='^median error: \([0-9.]*\) deg'
+MEAN='^mean error: \([0-9.]*\) deg'
+
+auc() {  # file, threshold in degrees
+  sed -n "s/^AUC@$2: \([0-9.]*\) %/\1/p" "$1"
+}
+
 recall_row() {  # scene
-  local v="$OUT/$1_vocabulary_recall.txt" w="$OUT/$1_voting_recall.txt"
-  local images pairs found_v found_w recall_v recall_w kept
-  images=$(ls "$DATA/strecha/$1/images" | grep -ci '\.jpg$\|\.png$')
-  pairs=$(sed -n 's/^loop pairs .*: \([0-9]*\), of them correct (< 2 deg): \([0-9]*\)$/\1 (\2 correct)/p' "$v")
-  found_v=$(sed -n 's/^found by retrieval: \(.*\)$/\1/p' "$v")
-  found_w=$(sed -n 's/^found by retrieval: \(.*\)$/\1/p' "$w")
-  recall_v=$(sed -n 's/^recall of the correct verifiable loop pairs: \(.*\)$/\1/p' "$v")
-  recall_w=$(sed -n 's/^recall of the correct verifiable loop pairs: \(.*\)$/\1/p' "$w")
-  kept=$(sed -n 's/.*median fraction \([0-9.]*\).*/\1/p' "$v")
-  echo "| $1 | $images | $pairs | $found_v | $recall_v | ${kept:--} | $found_w | $recall_w |"
+  local v="$OUT/$1_vocabulary_recall.txt" w="$OUT/$1_voting_recall.txt" found='^found by retrieval: \(.*\)$'
+  echo "| $1 | $(ls "$DATA/strecha/$1/images" | grep -ci '\.jpg$\|\.png$') |" \
+    "$(sed -n 's/^loop pairs .*: \([0-9]*\), of them correct (< 2 deg): \([0-9]*\)$/\1 (\2 correct)/p' "$v") |" \
+    "$(value "$v" "$found") | $(value "$v" "$RECALL") | $(value "$v" '.*median fraction \([0-9.]*\).*' | grep . || echo -) |" \
+    "$(value "$w" "$found") | $(value "$w" "$RECALL") |"
 }
 
 compact_row() {  # scene, mode, compact features
   local f="$OUT/$1_$2.txt" r="$OUT/$1_$2_recall.txt"
-  local kb recall median mean auc2
-  kb=$(sed -n 's/.*compact, \([0-9.]*\) KB each.*/\1/p' "$f")
-  recall=$(sed -n 's/^recall of the correct verifiable loop pairs: \(.*\)$/\1/p' "$r")
-  median=$(sed -n 's/^median error: \([0-9.]*\) deg/\1/p' "$f")
-  mean=$(sed -n 's/^mean error: \([0-9.]*\) deg/\1/p' "$f")
-  auc2=$(sed -n 's/^AUC@2: \([0-9.]*\) %/\1/p' "$f")
-  echo "| $1 | $3 | ${kb:--} | $recall | $median | $mean | $auc2 |"
+  echo "| $1 | $3 | $(value "$f" '.*compact, \([0-9.]*\) KB each.*' | grep . || echo -) | $(value "$r" "$RECALL") |" \
+    "$(value "$f" "$MEDIAN") | $(value "$f" "$MEAN") | $(auc "$f" 2) |"
 }
 
 loop_row() {  # scene, mode, setting
   local f="$OUT/$1_$2.txt" r="$OUT/$1_$2_recall.txt"
-  local found recall nees median mean auc2
-  found=$(sed -n 's/^found by retrieval: \(.*\)$/\1/p' "$r")
-  recall=$(sed -n 's/^recall of the correct verifiable loop pairs: \(.*\)$/\1/p' "$r")
-  nees=$(sed -n 's/^whitened squared errors.*; median \([0-9.]*\)$/\1/p' "$r")
-  median=$(sed -n 's/^median error: \([0-9.]*\) deg/\1/p' "$f")
-  mean=$(sed -n 's/^mean error: \([0-9.]*\) deg/\1/p' "$f")
-  auc2=$(sed -n 's/^AUC@2: \([0-9.]*\) %/\1/p' "$f")
-  echo "| $1 | $3 | $found | $recall | ${nees:--} | $median | $mean | $auc2 |"
+  echo "| $1 | $3 | $(value "$r" '^found by retrieval: \(.*\)$') | $(value "$r" "$RECALL") |" \
+    "$(value "$r" '^whitened squared errors.*; median \([0-9.]*\)$' | grep . || echo -) |" \
+    "$(value "$f" "$MEDIAN") | $(value "$f" "$MEAN") | $(auc "$f" 2) |"
 }
 
 row() {  # name, summary file
   local f="$2"
-  local speed wall cpu mem kf median auc2 auc5 auc10
-  speed=$(sed -n 's/.*(\([0-9.]*\)x real time).*/\1/p' "$f")
-  wall=$(sed -n 's/.*wall time: \([0-9.]*\) s.*/\1/p' "$f")
-  bag=$(sed -n 's/^bag time: \([0-9.]*\) s.*/\1/p' "$f")
-  cpu=$(sed -n 's/.*CPU time: \([0-9.]*\) s.*/\1/p' "$f")
-  mem=$(sed -n 's/.*peak memory: \([0-9.]*\) MiB.*/\1/p' "$f")
-  kf=$(sed -n 's/^keyframes: \([0-9]*\) .*/\1/p' "$f")
-  median=$(sed -n 's/^median error: \([0-9.]*\) deg/\1/p' "$f")
-  auc2=$(sed -n 's/^AUC@2: \([0-9.]*\) %/\1/p' "$f")
-  auc5=$(sed -n 's/^AUC@5: \([0-9.]*\) %/\1/p' "$f")
-  auc10=$(sed -n 's/^AUC@10: \([0-9.]*\) %/\1/p' "$f")
-  echo "| $1 | $kf | $bag | $wall | ${speed}x | $cpu | $mem | $median | $auc2 | $auc5 | $auc10 |"
+  echo "| $1 | $(value "$f" '^keyframes: \([0-9]*\) .*') | $(value "$f" '^bag time: \([0-9.]*\) s.*') |" \
+    "$(value "$f" '.*wall time: \([0-9.]*\) s.*') | $(value "$f" '.*(\([0-9.]*\)x real time).*')x |" \
+    "$(value "$f" '.*CPU time: \([0-9.]*\) s.*') | $(value "$f" '.*peak memory: \([0-9.]*\) MiB.*') |" \
+    "$(value "$f" "$MEDIAN") | $(auc "$f" 2) | $(auc "$f" 5) | $(auc "$f" 10) |"
 }
 
 {

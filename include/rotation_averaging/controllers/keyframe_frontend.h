@@ -76,14 +76,15 @@ struct KeyframeFrontendOptions {
   int min_retrieval_votes = 15;         // voting: candidates with fewer votes are not verified
   // Loop closures need more evidence than sequential edges: repetitive
   // structure makes wrong but geometrically consistent pairs with few
-  // inliers (on castle-P19 at 1/4 scale, played as a bag: a loop 82 deg off
-  // with 24 inliers to a compact keyframe). Above that, the weak loops are
-  // right but err several times what the pixel model gives (0.3-0.9 deg);
-  // the cell jackknife (loop_jackknife_grid) widens their covariances to
-  // cover that, which is what lets the threshold be this low: entry-P10's
-  // median is 0.035 deg with it at 40, 0.19 deg without it at 40 and 0.034
-  // deg without it at 60, where one of its five loop pairs is missed
-  // (results/replay.md, "Loop closures and their covariances").
+  // inliers (on castle-P19 at 1/4 scale, played as a bag at a threshold of
+  // 30: a loop 82.5 deg off with 24 inliers to a compact keyframe). Above
+  // 40, the weak loops are right but err several times what the pixel model
+  // gives (0.3-0.95 deg); the cell jackknife (loop_jackknife_grid) widens
+  // their covariances to cover that, which is what lets the threshold be
+  // this low: entry-P10's median is 0.035 deg with it at 40, 0.19 deg
+  // without it at 40 and 0.034 deg without it at 60, where one of its five
+  // loop pairs is missed (results/replay.md, "Loop closures and their
+  // covariances").
   int min_loop_inliers = 40;
   // A compact keyframe keeps a part of the correspondences a loop pair would
   // have with all of its features (about three quarters, median over the
