@@ -8,8 +8,11 @@
 #      accuracy;
 #   2. three laps of the room (180 captures): loop closures found on each lap;
 #   3. the 60-capture demo bag with retrieval by vocabulary and by voting over
-#      every keyframe (`vocabulary: none`), in the same run.
-#   bash scripts/benchmark_long_run.sh        (about 12 minutes on 2 cores)
+#      every keyframe (`vocabulary: none`), in the same run;
+#   4. 200 captures, and the 400 and 200 captures with loop closures on the
+#      pixel model's covariance at 60 inliers (loop_covariance_jackknife_grid
+#      0, min_loop_inliers 60): what the defaults cost or gain there.
+#   bash scripts/benchmark_long_run.sh        (about 18 minutes on 2 cores)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh > /dev/null
@@ -29,7 +32,9 @@ replay() {  # bag, config, output name
 LONG=build/demo/demo_400.bag
 LAPS=build/demo/demo_3laps_180.bag
 DEMO=build/demo/demo_60.bag
+MID=build/demo/demo_200.bag
 render "$LONG" 400 1
+render "$MID" 200 1
 render "$LAPS" 180 3
 render "$DEMO" 60 1
 replay "$LONG" config/demo.yaml long
@@ -37,6 +42,10 @@ replay "$LAPS" config/demo.yaml laps
 replay "$DEMO" config/demo.yaml demo
 { cat config/demo.yaml; echo "vocabulary: none"; } > "$OUT/voting.yaml"
 replay "$DEMO" "$OUT/voting.yaml" demo_voting
+replay "$MID" config/demo.yaml mid
+{ cat config/demo.yaml; echo "loop_covariance_jackknife_grid: 0"; echo "min_loop_inliers: 60"; } > "$OUT/pixel60.yaml"
+replay "$LONG" "$OUT/pixel60.yaml" long_pixel60
+replay "$MID" "$OUT/pixel60.yaml" mid_pixel60
 cp "$OUT/long/frontend_cost.png" results/plots/long_run_frontend_cost.png
 
 field() {  # summary file, sed expression
@@ -76,6 +85,13 @@ lap_table() {
   row "180 captures, three laps" "$OUT/laps.txt"
   row "60 captures (the demo)" "$OUT/demo.txt"
   row "60 captures, voting over every keyframe (\`vocabulary: none\`)" "$OUT/demo_voting.txt"
+  row "200 captures, one lap" "$OUT/mid.txt"
+  row "400 captures, loop closures with the pixel model at 60 inliers" "$OUT/long_pixel60.txt"
+  row "200 captures, the same" "$OUT/mid_pixel60.txt"
+  echo
+  echo "The last two rows: loop closures on the pixel model's covariance (\`loop_covariance_jackknife_grid: 0\`)"
+  echo "at \`min_loop_inliers: 60\`, against the defaults (the cell jackknife's covariance at 40; results/README.md,"
+  echo "\"Loop closures and their covariances\")."
   echo
   echo "## Cost per keyframe against the keyframe count (400 captures)"
   echo
@@ -95,7 +111,7 @@ lap_table() {
   lap_table
   echo
   echo "## Summaries"
-  for name in long laps demo demo_voting; do
+  for name in long laps demo demo_voting mid long_pixel60 mid_pixel60; do
     echo
     echo "### $name"
     echo

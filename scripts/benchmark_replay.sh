@@ -4,7 +4,7 @@
 # bags (one camera, images at a quarter of full width), with scores against
 # ground truth, the speed against real time (bags at one capture per second)
 # and the loop-closure recall of the retrieval.
-#   bash scripts/benchmark_replay.sh        (about three minutes)
+#   bash scripts/benchmark_replay.sh        (about five minutes)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh > /dev/null

@@ -16,7 +16,7 @@
 #   long_run.md        the keyframe front end over 800 keyframes and three laps
 # results/README.md is the written summary of these files.
 #
-#   bash scripts/report.sh            about 45 minutes on 2 cores (the COLMAP comparison about 17 of them; 1,000,000 views alone: 3-4, beside the front end)
+#   bash scripts/report.sh            about 50 minutes on 2 cores (the COLMAP comparison about 17 of them; 1,000,000 views alone: 3-4, beside the front end)
 #   bash scripts/report.sh --quick    under 3 minutes; small sizes, written to build/report_quick/
 #                                     (CI runs it so the report code never rots)
 # Real data comes from ../shared/data (ROTAVG_DATA_DIR to override); parts that
