@@ -1,19 +1,19 @@
 # Included by rotation_averagingConfig.cmake (devel and install spaces).
 #
 # ${catkin_LIBRARIES} after find_package(catkin COMPONENTS rotation_averaging)
-# links all three libraries of the package and their ROS dependencies. A
-# program that needs only part of it links one of these instead, and loads
-# only that part's dependencies:
+# links both libraries with public headers and their dependencies. A program
+# that needs only the averaging links rotation_averaging::core instead, and
+# loads neither OpenCV nor ROS:
 #
-#   rotation_averaging::core      averaging, view graphs, losses, scoring, file I/O (Eigen; no OpenCV, no ROS)
+#   rotation_averaging::core      averaging, view graphs, losses, scoring, file I/O (Eigen)
+#                                 headers: rotation_averaging/core/...
 #   rotation_averaging::frontend  the image front end on top of it (OpenCV)
-#   rotation_averaging::ros       message conversions, bag replay (roscpp, rosbag, ...)
+#                                 headers: rotation_averaging/frontend/...
 #
 # Each carries the include directories its headers need.
 
-set(_rotavg_parts core frontend ros)
 set(_rotavg_previous "")
-foreach(_rotavg_part ${_rotavg_parts})
+foreach(_rotavg_part core frontend)
   set(_rotavg_target rotation_averaging::${_rotavg_part})
   if(NOT TARGET ${_rotavg_target})
     unset(_rotavg_lib CACHE)
@@ -32,11 +32,10 @@ foreach(_rotavg_part ${_rotavg_parts})
   endif()
   set(_rotavg_previous ${_rotavg_target})
 endforeach()
-# The ROS part also needs what its headers' ROS dependencies export.
-set(_rotavg_ros_deps ${rotation_averaging_LIBRARIES})
-list(FILTER _rotavg_ros_deps EXCLUDE REGEX "librotation_averaging_(core|frontend|ros)\\.")
-set_property(TARGET rotation_averaging::ros APPEND PROPERTY INTERFACE_LINK_LIBRARIES ${_rotavg_ros_deps})
-unset(_rotavg_ros_deps)
-unset(_rotavg_parts)
+# The front end's headers include OpenCV's: link what catkin exports for them.
+set(_rotavg_opencv ${rotation_averaging_LIBRARIES})
+list(FILTER _rotavg_opencv INCLUDE REGEX "opencv")
+set_property(TARGET rotation_averaging::frontend APPEND PROPERTY INTERFACE_LINK_LIBRARIES ${_rotavg_opencv})
+unset(_rotavg_opencv)
 unset(_rotavg_previous)
 unset(_rotavg_target)

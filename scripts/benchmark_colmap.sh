@@ -14,18 +14,14 @@
 #   bash scripts/benchmark_colmap.sh      (about 20 minutes on 2 cores)
 #   bash scripts/benchmark_colmap.sh --rotavg-only   (rotavg again, COLMAP's last runs kept)
 #   bash scripts/benchmark_colmap.sh --report-only   (results/colmap.md from the last runs)
-set -euo pipefail
+source "$(dirname "$0")/common.sh"
 MODE=${1:-}
-cd "$(dirname "$0")/.."
 bash scripts/setup.sh > /dev/null
 if ! command -v colmap > /dev/null; then
   DEBIAN_FRONTEND=noninteractive apt-get install -y colmap > /dev/null
 fi
-export PATH=/usr/bin:$PATH
 export QT_QPA_PLATFORM=offscreen  # colmap's command line needs no display
-BIN=build/devel/lib/rotation_averaging
 OUT=build/benchmark_colmap
-DATA=${ROTAVG_DATA_DIR:-../shared/data}
 mkdir -p "$OUT"
 
 seconds() { date +%s.%N; }
@@ -91,7 +87,7 @@ for s in "${SCENES[@]}"; do
   # (examples/python/colmap_database.py), so that the features and matching
   # are the same as COLMAP's.
   start=$(seconds)
-  build/devel/env.sh python3 examples/python/colmap_database.py "$W/database.db" \
+  $DEVEL/env.sh python3 examples/python/colmap_database.py "$W/database.db" \
     --output "$W/colmap_matches.csv" > "$W/colmap_matches.log"
   echo "$(seconds) - $start" | bc > "$W/colmap_matches_seconds.txt"
   "$BIN/rotavg" eval --estimate "$W/colmap_matches.csv" --gt "$C" --per-view > "$W/colmap_matches_scores.txt"

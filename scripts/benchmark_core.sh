@@ -2,7 +2,6 @@
 # Regenerates results/core_benchmark.md: solver speed and memory on the real
 # graphs in ../shared/data, sphere2500 accuracy and synthetic accuracy.
 # Pass --quick for a fast smoke run (1 repeat, no memory figures).
-set -euo pipefail
-cd "$(dirname "$0")/.."
+source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh
-build/devel/lib/rotation_averaging/rotavg_benchmark --data ../shared/data --output results/core_benchmark.md "$@"
+$BIN/rotavg_benchmark --data "$DATA" --output results/core_benchmark.md "$@"

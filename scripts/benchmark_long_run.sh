@@ -13,11 +13,8 @@
 #      pixel model's covariance at 60 inliers (loop_covariance_jackknife_grid
 #      0, min_loop_inliers 60): what the defaults cost or gain there.
 #   bash scripts/benchmark_long_run.sh        (about 18 minutes on 2 cores)
-set -euo pipefail
-cd "$(dirname "$0")/.."
+source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
-export PATH=/usr/bin:$PATH
-BIN=build/devel/lib/rotation_averaging
 OUT=build/benchmark_long_run
 mkdir -p "$OUT" build/demo results/plots
 

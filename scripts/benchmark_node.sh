@@ -3,13 +3,10 @@
 # to the keyframe's frame in tf2 (1,000 and 10,000 keyframes in the graph) and
 # the relative-pose message rate the node takes in. Starts its own master on a
 # private port, the node and the benchmark client, and stops them at the end.
-set -euo pipefail
-cd "$(dirname "$0")/.."
+source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh
-export PATH=/usr/bin:$PATH
 export ROS_MASTER_URI=http://127.0.0.1:11399
 export ROS_HOSTNAME=127.0.0.1
-BIN=build/devel/lib/rotation_averaging
 SOLVE_PERIOD=0.05
 rosmaster --core -p 11399 >/tmp/rotavg_bench_master.log 2>&1 &
 MASTER=$!

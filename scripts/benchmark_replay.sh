@@ -5,14 +5,10 @@
 # ground truth, the speed against real time (bags at one capture per second)
 # and the loop-closure recall of the retrieval.
 #   bash scripts/benchmark_replay.sh        (about five minutes)
-set -euo pipefail
-cd "$(dirname "$0")/.."
+source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
-export PATH=/usr/bin:$PATH
-BIN=build/devel/lib/rotation_averaging
 OUT=build/benchmark_replay
 mkdir -p "$OUT" build/demo
-DATA=${ROTAVG_DATA_DIR:-../shared/data}
 
 DEMO=build/demo/demo_60.bag
 [ -f "$DEMO" ] || "$BIN/rotation_averaging_make_demo_bag" --output "$DEMO" --captures 60 --cameras 2 > /dev/null

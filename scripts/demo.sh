@@ -8,8 +8,7 @@
 #   bash scripts/demo.sh [--captures N] [--fresh]
 #
 # Outputs go to build/demo/ (the bag) and build/demo/replay/ (results).
-set -euo pipefail
-cd "$(dirname "$0")/.."
+source "$(dirname "$0")/common.sh"
 CAPTURES=60
 FRESH=0
 while [ $# -gt 0 ]; do
@@ -21,8 +20,6 @@ while [ $# -gt 0 ]; do
 done
 
 bash scripts/setup.sh
-export PATH=/usr/bin:$PATH
-BIN=build/devel/lib/rotation_averaging
 DEMO=build/demo
 mkdir -p "$DEMO"
 BAG="$DEMO/demo_${CAPTURES}.bag"
@@ -41,4 +38,4 @@ echo "== Replaying it through the node's pipeline (config/demo.yaml) =="
 "$BIN/rotation_averaging_replay" --bag "$BAG" --config config/demo.yaml --gt "$BAG" --output-dir "$DEMO/replay"
 echo
 echo "The plot of the errors per keyframe and their distribution: $DEMO/replay/errors.png"
-echo "Replay your own bags the same way (see README.md, 'Replaying bags')."
+echo "Replay your own bags the same way (README.md, "Replaying bags")."

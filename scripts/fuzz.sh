@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# libFuzzer targets built with clang, ASan and UBSan into build-fuzz/
+# libFuzzer targets built with clang, ASan and UBSan into build/fuzz/
 # (cmake -DROTAVG_FUZZ=ON, only the fuzz targets), each run for a fixed budget
 # from its seed corpus:
 #   fuzz_readers   every file reader (1DSfM, g2o, TORO, iRotAvg, the package's
@@ -10,14 +10,12 @@
 #                  through the KeyframePipeline, the averager and the output
 #                  messages; seeds in test/fuzz/corpus_messages
 # A crash, leak, broken invariant, timeout or out-of-memory fails the run and
-# leaves the input in build-fuzz/runs/<target>/ (turn it into a regression test).
-# Executions and time per target go to build-fuzz/fuzz_stats.txt.
+# leaves the input in build/fuzz/runs/<target>/ (turn it into a regression test).
+# Executions and time per target go to build/fuzz/fuzz_stats.txt.
 #   bash scripts/fuzz.sh [seconds per target]   (default 60; after scripts/setup.sh)
-set -euo pipefail
-cd "$(dirname "$0")/.."
-export PATH=/usr/bin:$PATH
+source "$(dirname "$0")/common.sh"
 SECONDS_BUDGET=${1:-60}
-OUT=$(pwd)/build-fuzz
+OUT=$(pwd)/build/fuzz
 mkdir -p "$OUT"
 CC=clang CXX=clang++ cmake -S . -B "$OUT" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DROTAVG_FUZZ=ON \
   -DCATKIN_ENABLE_TESTING=OFF -DPYTHON_EXECUTABLE=/usr/bin/python3 > "$OUT/configure.log" 2>&1 \

@@ -21,14 +21,10 @@
 #                                     (CI runs it so the report code never rots)
 # Real data comes from ../shared/data (ROTAVG_DATA_DIR to override); parts that
 # need it say so and are skipped when it is absent.
-set -euo pipefail
-cd "$(dirname "$0")/.."
+source "$(dirname "$0")/common.sh"
 QUICK=0
 [ "${1:-}" = "--quick" ] && QUICK=1
 bash scripts/setup.sh > /dev/null
-export PATH=/usr/bin:$PATH
-BIN=build/devel/lib/rotation_averaging
-DATA=${ROTAVG_DATA_DIR:-../shared/data}
 start=$(date +%s)
 step() { echo "== $1 ($(( $(date +%s) - start )) s so far)"; }
 if [ "$QUICK" = 1 ]; then

@@ -1,27 +1,25 @@
 #!/usr/bin/env bash
 # Builds the package with AddressSanitizer and UndefinedBehaviorSanitizer into
-# build-sanitize/ and runs every test with ctest (unit tests and the node's
+# build/sanitize/ and runs every test with ctest (unit tests and the node's
 # rostests). Any sanitizer report fails the test that triggered it.
 #   bash scripts/test_sanitizers.sh [ctest options]   (after scripts/setup.sh; ~25 minutes on 2 cores)
-set -euo pipefail
-cd "$(dirname "$0")/.."
-export PATH=/usr/bin:$PATH
-cmake -S . -B build-sanitize -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DROTAVG_SANITIZE=ON \
+source "$(dirname "$0")/common.sh"
+cmake -S . -B build/sanitize -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DROTAVG_SANITIZE=ON \
   -DPYTHON_EXECUTABLE=/usr/bin/python3 > /dev/null
 # Only what ctest runs: the test programs and what they start (the node, the
 # back ends, images_to_bag), not the benchmark and evaluation tools.
-cmake --build build-sanitize --target tests
+cmake --build build/sanitize --target tests
 # halt_on_error: a report is a failure. Leak checking stays on; known leaks
 # of third-party libraries, if any, are listed in test/sanitizer_suppressions.txt.
 # Reports of every process (also the nodes that rostest launches, whose
 # stderr ctest does not see) go to files, and any file fails the run.
-REPORTS=$(pwd)/build-sanitize/sanitizer_reports
+REPORTS=$(pwd)/build/sanitize/sanitizer_reports
 rm -rf "$REPORTS" && mkdir -p "$REPORTS"
 export ASAN_OPTIONS="halt_on_error=1:detect_leaks=1:abort_on_error=0:exitcode=23:log_path=$REPORTS/asan"
 export UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1:exitcode=23:log_path=$REPORTS/ubsan"
 export LSAN_OPTIONS="suppressions=$(pwd)/test/sanitizer_suppressions.txt:print_suppressions=0"
 status=0
-(cd build-sanitize && ctest --output-on-failure "$@") || status=$?
+(cd build/sanitize && ctest --output-on-failure "$@") || status=$?
 # LeakSanitizer's stop-the-world at exit now and then crashes in its own
 # tracer thread ("Tracer caught signal 11", google/sanitizers#1353): no
 # finding, but the process fails (seen at the exit of image_pipeline_test in
@@ -48,7 +46,7 @@ for attempt in 1 2; do
   [ "$status" != 0 ] || break
   echo "running the failed tests again ($attempt of 2)" >&2
   status=0
-  (cd build-sanitize && ctest --output-on-failure --rerun-failed) || status=$?
+  (cd build/sanitize && ctest --output-on-failure --rerun-failed) || status=$?
 done
 if [ -n "$(ls -A "$REPORTS")" ]; then
   echo "sanitizer reports:" >&2

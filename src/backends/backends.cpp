@@ -1,5 +1,5 @@
 // The entry point the core looks up after loading this library
-// (rotation_averaging/util/backends.h).
+// (src/core/util/backends.h).
 #include "backends/backends_internal.h"
 
 extern "C" __attribute__((visibility("default"))) const rotation_averaging::Backends* rotation_averaging_backends() {

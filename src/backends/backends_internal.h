@@ -1,11 +1,11 @@
 // Private to the back-end library (librotation_averaging_backends.so): what
-// its entry point hands to the core (rotation_averaging/util/backends.h).
+// its entry point hands to the core (src/core/util/backends.h).
 #ifndef ROTATION_AVERAGING_SRC_BACKENDS_BACKENDS_INTERNAL_H_
 #define ROTATION_AVERAGING_SRC_BACKENDS_BACKENDS_INTERNAL_H_
 
 #include <memory>
 
-#include "rotation_averaging/util/backends.h"
+#include "core/util/backends.h"
 
 namespace rotation_averaging {
 

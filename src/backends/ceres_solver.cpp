@@ -7,8 +7,8 @@
 #include <cmath>
 
 #include "backends/backends_internal.h"
-#include "rotation_averaging/estimators/component_problem.h"
-#include "rotation_averaging/geometry/so3.h"
+#include "core/estimators/component_problem.h"
+#include "rotation_averaging/core/geometry/so3.h"
 
 namespace rotation_averaging {
 namespace {

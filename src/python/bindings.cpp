@@ -18,14 +18,14 @@
 #include <unordered_map>
 #include <vector>
 
-#include "rotation_averaging/estimators/bundle_adjustment.h"
-#include "rotation_averaging/estimators/relative_pose.h"
-#include "rotation_averaging/estimators/rotation_averaging.h"
-#include "rotation_averaging/eval/rotation_evaluation.h"
-#include "rotation_averaging/geometry/so3.h"
-#include "rotation_averaging/io/graph_io.h"
-#include "rotation_averaging/io/orientation_io.h"
-#include "rotation_averaging/scene/synthetic_graph.h"
+#include "rotation_averaging/frontend/estimators/bundle_adjustment.h"
+#include "rotation_averaging/frontend/estimators/relative_pose.h"
+#include "rotation_averaging/core/estimators/rotation_averaging.h"
+#include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "rotation_averaging/core/geometry/so3.h"
+#include "rotation_averaging/core/io/graph_io.h"
+#include "rotation_averaging/core/io/orientation_io.h"
+#include "rotation_averaging/core/scene/synthetic_graph.h"
 
 namespace py = pybind11;
 namespace ra = rotation_averaging;

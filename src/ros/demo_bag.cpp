@@ -1,4 +1,4 @@
-#include "rotation_averaging/ros/demo_bag.h"
+#include "ros/demo_bag.h"
 
 #include <rosbag/bag.h>
 #include <rosbag/exceptions.h>
@@ -11,8 +11,8 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "rotation_averaging/Orientations.h"
-#include "rotation_averaging/geometry/so3.h"
-#include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/core/geometry/so3.h"
+#include "ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {

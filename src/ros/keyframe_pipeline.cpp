@@ -1,4 +1,4 @@
-#include "rotation_averaging/ros/keyframe_pipeline.h"
+#include "ros/keyframe_pipeline.h"
 
 #include <cv_bridge/cv_bridge.h>
 #include <sensor_msgs/image_encodings.h>
@@ -6,12 +6,13 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <filesystem>
 #include <opencv2/imgcodecs.hpp>
 #include <string>
 #include <vector>
 
-#include "rotation_averaging/geometry/so3.h"
-#include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/core/geometry/so3.h"
+#include "ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {
@@ -84,11 +85,13 @@ constexpr std::uint64_t kMaxKeyframePixels = std::uint64_t{1} << 27;
 }  // namespace
 
 std::string DefaultVocabularyPath() {
-#ifdef ROTAVG_DEFAULT_VOCABULARY
+  // The devel space's, where the build trains it; else the install space's,
+  // where `make install` copies it. Both paths are set by src/ros/CMakeLists.txt.
+  std::error_code ec;
+  if (!std::filesystem::exists(ROTAVG_DEFAULT_VOCABULARY, ec) && std::filesystem::exists(ROTAVG_INSTALLED_VOCABULARY, ec)) {
+    return ROTAVG_INSTALLED_VOCABULARY;
+  }
   return ROTAVG_DEFAULT_VOCABULARY;
-#else
-  return "";
-#endif
 }
 
 std::string KeyframeFrameName(const std::string& format, const KeyframeKey& key) {
@@ -171,7 +174,7 @@ PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std
     const std::string linear = ": loop-closure candidates are searched for in every keyframe, a cost that grows with the map";
     if (c.vocabulary.empty() || c.vocabulary == "none") {
       c.vocabulary.clear();
-      warn("no vocabulary set" + linear + " (train one with `rotavg vocabulary`, see README)");
+      warn("no vocabulary set" + linear + " (train one with `rotavg vocabulary`, see docs/method.md)");
     } else if (f.features.type != FeatureType::kSift) {
       warn("the vocabulary describes SIFT, not " + features + linear);
     } else {

@@ -1,9 +1,9 @@
-#include "rotation_averaging/ros/msg_conversion.h"
+#include "ros/msg_conversion.h"
 
 #include <algorithm>
 #include <cmath>
 
-#include "rotation_averaging/geometry/so3.h"
+#include "rotation_averaging/core/geometry/so3.h"
 
 namespace rotation_averaging {
 

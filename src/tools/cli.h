@@ -1,8 +1,8 @@
 // Command-line helpers shared by rotavg and rotavg_images: a minimal
 // "--flag value" parser, the averaging options both accept, writing and
 // scoring a solution.
-#ifndef ROTATION_AVERAGING_TOOLS_CLI_H_
-#define ROTATION_AVERAGING_TOOLS_CLI_H_
+#ifndef ROTATION_AVERAGING_SRC_TOOLS_CLI_H_
+#define ROTATION_AVERAGING_SRC_TOOLS_CLI_H_
 
 #include <algorithm>
 #include <cstdlib>
@@ -11,10 +11,10 @@
 #include <string>
 #include <vector>
 
-#include "rotation_averaging/estimators/rotation_averaging.h"
-#include "rotation_averaging/eval/rotation_evaluation.h"
-#include "rotation_averaging/io/graph_io.h"
-#include "rotation_averaging/io/orientation_io.h"
+#include "rotation_averaging/core/estimators/rotation_averaging.h"
+#include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "rotation_averaging/core/io/graph_io.h"
+#include "rotation_averaging/core/io/orientation_io.h"
 
 namespace rotation_averaging_cli {
 
@@ -163,4 +163,4 @@ inline int RunCommand(int argc, char** argv, const char* usage, int (*command)(i
 
 }  // namespace rotation_averaging_cli
 
-#endif  // ROTATION_AVERAGING_TOOLS_CLI_H_
+#endif  // ROTATION_AVERAGING_SRC_TOOLS_CLI_H_

@@ -27,7 +27,7 @@
 #include <vector>
 
 #include "cli.h"
-#include "rotation_averaging/scene/synthetic_graph.h"
+#include "rotation_averaging/core/scene/synthetic_graph.h"
 
 namespace {
 
@@ -295,7 +295,7 @@ int RunProgram(const char* name, int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  // The solver holds OpenBLAS to one thread (see util/backends.h). Said here,
+  // The solver holds OpenBLAS to one thread (see src/core/util/backends.h). Said here,
   // before any thread exists, so that OpenBLAS never starts its pool of
   // workers when a solve loads it, nor in the programs this one runs.
   setenv("OPENBLAS_NUM_THREADS", "1", /*overwrite=*/0);

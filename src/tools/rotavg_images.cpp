@@ -9,10 +9,10 @@
 #include <vector>
 
 #include "cli.h"
-#include "rotation_averaging/controllers/image_pipeline.h"
-#include "rotation_averaging/estimators/bundle_adjustment.h"
-#include "rotation_averaging/eval/rotation_evaluation.h"
-#include "rotation_averaging/geometry/so3.h"
+#include "rotation_averaging/frontend/controllers/image_pipeline.h"
+#include "rotation_averaging/frontend/estimators/bundle_adjustment.h"
+#include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "rotation_averaging/core/geometry/so3.h"
 
 namespace {
 

@@ -12,9 +12,9 @@
 #include <vector>
 
 #include "cli.h"
-#include "rotation_averaging/features/features.h"
-#include "rotation_averaging/features/vocabulary.h"
-#include "rotation_averaging/util/parallel_for.h"
+#include "rotation_averaging/frontend/features/features.h"
+#include "rotation_averaging/frontend/features/vocabulary.h"
+#include "core/util/parallel_for.h"
 
 namespace {
 

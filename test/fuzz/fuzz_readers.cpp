@@ -9,8 +9,8 @@
 #include <fstream>
 #include <string>
 
-#include "rotation_averaging/io/graph_io.h"
-#include "rotation_averaging/io/orientation_io.h"
+#include "rotation_averaging/core/io/graph_io.h"
+#include "rotation_averaging/core/io/orientation_io.h"
 
 namespace ra = rotation_averaging;
 

@@ -318,6 +318,8 @@ def test_shared_pose_graph_with_ground_truth():
     garage = os.path.join(DATA, "pose_graphs", "sphere2500.g2o")
     chain = os.path.join(DATA, "pose_graphs", "sphere2500_groundtruth.txt")
     if not (os.path.exists(garage) and os.path.exists(chain)):
+        if os.environ.get("ROTAVG_REQUIRE_DATA") == "1":
+            pytest.fail(f"shared data not found under {DATA} (ROTAVG_REQUIRE_DATA=1; set ROTAVG_DATA_DIR)")
         pytest.skip(f"shared data not found under {DATA} (set ROTAVG_DATA_DIR)")
     graph = ra.read_graph(garage)
     assert (graph.num_views, graph.num_edges) == (2500, 4949)

@@ -19,9 +19,9 @@
 
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePose.h"
-#include "rotation_averaging/geometry/so3.h"
-#include "rotation_averaging/ros/msg_conversion.h"
-#include "rotation_averaging/scene/rig_scene.h"
+#include "rotation_averaging/core/geometry/so3.h"
+#include "ros/msg_conversion.h"
+#include "frontend/scene/rig_scene.h"
 
 namespace rotation_averaging {
 namespace {

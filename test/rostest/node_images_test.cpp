@@ -3,7 +3,7 @@
 // the first images and its orientations on tf must match the ground truth.
 #include <cv_bridge/cv_bridge.h>
 #include <gtest/gtest.h>
-#include "../test_data.h"
+#include "common/test_data.h"
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/CompressedImage.h>
@@ -19,11 +19,11 @@
 
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/SaveGraph.h"
-#include "rotation_averaging/controllers/image_pipeline.h"
-#include "rotation_averaging/eval/rotation_evaluation.h"
-#include "rotation_averaging/geometry/so3.h"
-#include "rotation_averaging/io/orientation_io.h"
-#include "rotation_averaging/io/text_lines.h"
+#include "rotation_averaging/frontend/controllers/image_pipeline.h"
+#include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "rotation_averaging/core/geometry/so3.h"
+#include "rotation_averaging/core/io/orientation_io.h"
+#include "core/io/text_lines.h"
 
 namespace rotation_averaging {
 namespace {
@@ -32,7 +32,7 @@ namespace fs = std::filesystem;
 
 TEST(NodeImages, CastleKeyframesCloseTheLoopAndMatchGroundTruth) {
   const std::string dir = SharedDataPath("strecha/castle-P19");
-  if (!fs::exists(dir)) GTEST_SKIP() << "shared data absent: " << dir;
+  ROTAVG_REQUIRE_SHARED_DATA(dir);
   const std::vector<std::string> images = ListImages(dir + "/images");
   ASSERT_EQ(images.size(), 19u);
   CameraIntrinsics intrinsics;

@@ -24,9 +24,9 @@
 
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePoseArray.h"
-#include "rotation_averaging/eval/rotation_evaluation.h"
-#include "rotation_averaging/geometry/so3.h"
-#include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "rotation_averaging/core/geometry/so3.h"
+#include "ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {

@@ -13,11 +13,11 @@
 #include <fstream>
 #include <mutex>
 
-#include "../synthetic_rig.h"
+#include "common/synthetic_rig.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePoseArray.h"
-#include "rotation_averaging/eval/rotation_evaluation.h"
-#include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {

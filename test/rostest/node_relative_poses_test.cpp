@@ -14,7 +14,7 @@
 #include <limits>
 #include <mutex>
 
-#include "../synthetic_rig.h"
+#include "common/synthetic_rig.h"
 #include <diagnostic_msgs/DiagnosticArray.h>
 #include <dynamic_reconfigure/Reconfigure.h>
 
@@ -24,8 +24,8 @@
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/SaveGraph.h"
-#include "rotation_averaging/eval/rotation_evaluation.h"
-#include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {

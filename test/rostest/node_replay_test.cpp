@@ -15,12 +15,12 @@
 
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/SaveGraph.h"
-#include "rotation_averaging/geometry/so3.h"
-#include "rotation_averaging/io/graph_io.h"
-#include "rotation_averaging/io/orientation_io.h"
-#include "rotation_averaging/ros/bag_replay.h"
-#include "rotation_averaging/ros/demo_bag.h"
-#include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/core/geometry/so3.h"
+#include "rotation_averaging/core/io/graph_io.h"
+#include "rotation_averaging/core/io/orientation_io.h"
+#include "ros/bag_replay.h"
+#include "ros/demo_bag.h"
+#include "ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {

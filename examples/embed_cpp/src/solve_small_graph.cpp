@@ -5,9 +5,9 @@
 #include <cmath>
 #include <cstdio>
 
-#include <rotation_averaging/estimators/rotation_averaging.h>
-#include <rotation_averaging/geometry/so3.h>
-#include <rotation_averaging/scene/view_graph.h>
+#include "rotation_averaging/core/estimators/rotation_averaging.h"
+#include "rotation_averaging/core/geometry/so3.h"
+#include "rotation_averaging/core/scene/view_graph.h"
 
 namespace ra = rotation_averaging;
 

@@ -1,0 +1,180 @@
+// Public header of rotation_averaging::frontend (docs/embedding.md).
+// From images to a view graph with rotation covariances: features, pair
+// selection, matching, relative pose with covariance per pair.
+#ifndef ROTATION_AVERAGING_FRONTEND_CONTROLLERS_IMAGE_PIPELINE_H_
+#define ROTATION_AVERAGING_FRONTEND_CONTROLLERS_IMAGE_PIPELINE_H_
+
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "rotation_averaging/frontend/estimators/correspondence_refinement.h"
+#include "rotation_averaging/frontend/estimators/relative_pose.h"
+#include "rotation_averaging/frontend/features/features.h"
+#include "rotation_averaging/core/scene/view_graph.h"
+
+namespace rotation_averaging {
+
+struct PairSelection {
+  enum class Mode { kExhaustive, kSequential, kList } mode = Mode::kExhaustive;
+  int window = 5;                                // kSequential: each image with the next `window`
+  std::vector<std::pair<int, int>> pairs;        // kList: image indices
+  std::vector<std::pair<std::string, std::string>> named_pairs;  // kList: image file names
+  // "exhaustive", "sequential:N" or "list:FILE" (FILE: one "name1 name2" per
+  // line, image file names without folder). False (with `error`) if invalid.
+  static bool Parse(const std::string& text, PairSelection* selection, std::string* error = nullptr);
+};
+
+// Pinhole intrinsics of the full-resolution images plus radial distortion
+// (COLMAP SIMPLE_RADIAL / RADIAL): in normalised coordinates
+// x_distorted = x (1 + k1 r^2 + k2 r^4). Keypoints are undistorted before the
+// relative pose.
+struct CameraIntrinsics {
+  Eigen::Matrix3d k = Eigen::Matrix3d::Identity();
+  double k1 = 0.0, k2 = 0.0;
+  // Undistorts a pixel of an image whose intrinsics are `scaled_k`.
+  Eigen::Vector2d Undistort(const Eigen::Vector2d& pixel, const Eigen::Matrix3d& scaled_k) const;
+};
+
+// Reads intrinsics from a K.txt (3x3, row-major) or a COLMAP cameras.txt
+// (first camera; SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL or RADIAL). K is in
+// OpenCV's pixel convention (the centre of the top-left pixel at (0, 0)): a
+// COLMAP principal point, whose convention puts it at (0.5, 0.5), is moved
+// by half a pixel.
+bool ReadCameraIntrinsics(const std::string& path, CameraIntrinsics* intrinsics, std::string* error);
+
+// Self-calibration of the focal length for images whose intrinsics are not
+// trusted. A focal length 1% off moves two-view rotations by about 1% of
+// their angle (results/frontend.md, "What moves the two-view rotations"),
+// while an essential matrix in the wrong focal length fits the matches less
+// well: the scale a of the focal length (f -> a f, principal point kept)
+// that minimises the Sampson errors of every pair's inliers, each pair's
+// pose re-refined at each a (a profile likelihood), estimates it.
+struct FocalCalibrationOptions {
+  bool enabled = false;  // the library and the node trust K; `rotavg images` turns it on
+  // Applied only when the estimate is further from 1 than this and than 3
+  // of its standard deviations. The estimate has a bias the pixel noise
+  // does not explain: on the Strecha scenes at full resolution, whose
+  // intrinsics come with the ground truth, it lands 0.05-0.31% from 1
+  // (results/frontend.md, "What moves the two-view rotations"), so a smaller
+  // correction would as likely add an error as remove one.
+  double min_correction = 0.005;
+  double search_range = 0.15;  // scales in [1 - range, 1 + range]
+  int min_inliers = 50;        // pairs (essential-matrix model) with fewer are not used
+  int min_pairs = 3;
+  int num_threads = 0;         // 0: the machine's cores; the result does not depend on it
+};
+
+struct ImagePipelineOptions {
+  FeatureOptions features;
+  MatchOptions matching;
+  RelativePoseOptions relative_pose;
+  PairSelection pairs;
+  FocalCalibrationOptions focal;
+};
+
+struct FocalCalibration {
+  bool estimated = false;          // enough pairs to estimate it
+  double scale = 1.0;              // estimated true / given focal length
+  // Of scale: the larger of the profile's curvature (pixel noise alone) and a
+  // jackknife over four groups of pairs (how much the pairs disagree).
+  double standard_deviation = 0.0;
+  int pairs = 0;                   // pairs used
+  bool applied = false;            // the pairs were estimated again with the corrected focal length
+  std::string Report() const;
+};
+
+struct PairReport {
+  int image1 = 0, image2 = 0;
+  int matches = 0;
+  RelativePoseResult pose;  // R_21 with covariance, inliers, failure reason
+  // The inlier correspondences of a successful pair in normalised image
+  // coordinates (K^-1 x), for RefineRotationsWithCorrespondences.
+  std::vector<Eigen::Vector2d> inlier_points1, inlier_points2;
+  double milliseconds = 0.0;  // matching + relative pose + covariance
+};
+
+struct ImagePipelineResult {
+  ViewGraph graph;                 // view id = image index, name = file name
+  Eigen::Matrix3d k = Eigen::Matrix3d::Identity();  // pinhole matrix of the keypoints
+  std::vector<PairReport> pairs;   // every pair tried
+  std::vector<int> features_per_image;
+  double features_s = 0.0, matching_s = 0.0, relative_pose_s = 0.0;
+  std::map<std::string, int> failures;  // reason -> count
+  int near_planar_pairs = 0;            // kept pairs a homography explains (see RelativePoseOptions)
+  int rotation_model_pairs = 0;         // kept pairs whose rotation comes from the rotation-only model
+  FocalCalibration focal;               // ImagePipelineOptions::focal
+  double focal_s = 0.0;                 // its estimation and the pairs estimated again
+  std::vector<std::string> errors;      // images that could not be read
+  std::string Report() const;
+};
+
+// Lists the images (jpg, jpeg, png, ppm, pgm, tif, tiff, bmp) of a folder,
+// sorted by name.
+std::vector<std::string> ListImages(const std::string& directory);
+
+// Reads a 3x3 intrinsics matrix (nine numbers, row-major, whitespace separated).
+bool ReadIntrinsics(const std::string& path, Eigen::Matrix3d* k, std::string* error);
+
+// The pinhole matrix of the images features are detected in (intrinsics.k
+// scaled by options.downsample).
+Eigen::Matrix3d FeatureIntrinsics(const CameraIntrinsics& intrinsics, const FeatureOptions& options);
+
+// Features of images that share `intrinsics` (of the full-resolution images),
+// keypoints undistorted, in the coordinates of FeatureIntrinsics. `names`
+// gets the file names; an image that cannot be read gets no features and a
+// line in `errors`.
+std::vector<ImageFeatures> ExtractImageFeatures(const std::vector<std::string>& image_paths,
+                                                const CameraIntrinsics& intrinsics, const FeatureOptions& options,
+                                                std::vector<std::string>* names, std::vector<std::string>* errors);
+
+// Runs the front end over images that share the intrinsics `k` (of the
+// full-resolution images). Edge (i, j) stores R_ij = R_i R_j^T and the
+// covariance of its right perturbation (frontend/estimators/relative_pose.h).
+ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& image_paths,
+                                             const CameraIntrinsics& intrinsics, const ImagePipelineOptions& options);
+
+// Same, from features already extracted (e.g. by the node); `k` is the
+// pinhole matrix at the resolution the features were detected in, the
+// keypoints are already undistorted.
+ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>& features,
+                                               const std::vector<std::string>& names, const Eigen::Matrix3d& k,
+                                               const ImagePipelineOptions& options);
+
+// Relative pose of images (image1, image2) from matched keypoints (pixels of
+// the images with pinhole matrix k), with the inlier points kept in
+// normalised coordinates.
+PairReport EstimatePair(int image1, int image2, const std::vector<Eigen::Vector2d>& points1,
+                        const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k,
+                        const RelativePoseOptions& options);
+
+// One pair for EstimateFocalScale: its matched keypoints (pixels of images
+// with the pinhole matrix k) and the pose estimated from them with k.
+struct FocalPair {
+  const std::vector<Eigen::Vector2d>* points1 = nullptr;
+  const std::vector<Eigen::Vector2d>* points2 = nullptr;
+  const RelativePoseResult* pose = nullptr;
+};
+
+// Estimates the scale of the focal length of `k` from the successful
+// essential-matrix pairs (FocalCalibrationOptions). `applied` is left false:
+// the caller decides, with ShouldApplyFocalScale.
+FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const Eigen::Matrix3d& k,
+                                    const FocalCalibrationOptions& options);
+bool ShouldApplyFocalScale(const FocalCalibration& calibration, const FocalCalibrationOptions& options);
+
+// The edge of one successful pair (i, j).
+RelativeRotation EdgeFromPair(const PairReport& pair);
+
+// The correspondences of the pairs that gave an edge of result.graph, for
+// RefineRotationsWithCorrespondences. Every edge, including those the
+// averaging down-weighted as outliers: the averaging judges an edge by its
+// covariance, and a covariance that is too confident (the pair's cost is a
+// long curved valley) makes a correct pair look like an outlier there; the
+// refinement judges each edge by its own matches.
+std::vector<EdgeCorrespondences> CorrespondencesOfEdges(const ImagePipelineResult& result);
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_FRONTEND_CONTROLLERS_IMAGE_PIPELINE_H_

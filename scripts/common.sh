@@ -1,0 +1,12 @@
+# Sourced by every script in scripts/ (`source "$(dirname "$0")/common.sh"`):
+# strict mode, the repository root as working directory, Debian's python3 ahead
+# of any other on PATH (ROS tools run on it), and where the build puts things.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+export PATH=/usr/bin:$PATH
+# The CMake build tree, and the devel space beside it: outside build/, because
+# rosrun skips every file under <package>/build/.
+BUILD=build
+DEVEL=devel
+BIN=$DEVEL/lib/rotation_averaging
+DATA=${ROTAVG_DATA_DIR:-../shared/data}

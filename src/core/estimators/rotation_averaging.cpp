@@ -1,0 +1,610 @@
+#include "rotation_averaging/core/estimators/rotation_averaging.h"
+
+#include <Eigen/Eigenvalues>
+#include <chrono>
+#include <limits>
+#include <algorithm>
+#include <cmath>
+#include <iomanip>
+#include <iterator>
+#include <sstream>
+
+#include "core/estimators/component_problem.h"
+#include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/backends.h"
+
+namespace rotation_averaging {
+namespace {
+
+template <typename Enum, std::size_t N>
+bool ParseByName(const std::string& text, const Enum (&all)[N], const char* (*name)(Enum), Enum* out) {
+  for (Enum e : all) {
+    if (text == name(e)) {
+      *out = e;
+      return true;
+    }
+  }
+  return false;
+}
+
+constexpr EdgeWeighting kAllWeightings[] = {EdgeWeighting::kNone, EdgeWeighting::kInliers, EdgeWeighting::kTrace,
+                                            EdgeWeighting::kFrobenius, EdgeWeighting::kCovariance};
+constexpr SpanningTreeWeight kAllTreeWeights[] = {SpanningTreeWeight::kAuto, SpanningTreeWeight::kUniform,
+                                                 SpanningTreeWeight::kInliers, SpanningTreeWeight::kInformation};
+constexpr SolverType kAllSolvers[] = {SolverType::kIrls, SolverType::kCeres, SolverType::kL1Irls};
+constexpr CovarianceNormalization kAllNormalizations[] = {CovarianceNormalization::kStandardDeviations,
+                                                          CovarianceNormalization::kPaper};
+constexpr CovarianceSelfCalibration kAllSelfCalibrations[] = {CovarianceSelfCalibration::kLossScale,
+                                                              CovarianceSelfCalibration::kFloor};
+
+// Covariance floor (CovarianceSelfCalibration::kFloor): at most this many
+// estimate-and-solve rounds; a floor within this fraction of the last one
+// has settled.
+constexpr int kCovarianceFloorRounds = 5;
+constexpr double kCovarianceFloorSettled = 0.05;
+
+bool IsRedescending(LossType type) {
+  return type == LossType::kMagsac || type == LossType::kTukey || type == LossType::kGemanMcClure;
+}
+
+// Default scales. Whitened residuals in standard deviations (calibrated
+// covariances): inlier |D^T r| follows chi(3), whose 99% quantile is 3.37, so
+// sigma_max = 3 keeps inliers whose covariance is up to ~3x too optimistic
+// while cutting at 3.37 * 3 = 10 standard deviations. Unweighted residuals
+// in radians: 5 degrees (the L1-IRLS baseline's Geman-McClure scale).
+constexpr double kScaleStandardDeviations = 3.0;
+constexpr double kScalePaper = 0.02;
+constexpr double kScaleRadians = 5.0 * kPi / 180.0;
+
+double DefaultScaleFor(EdgeWeighting weighting, CovarianceNormalization normalization) {
+  if (weighting == EdgeWeighting::kCovariance) {
+    return normalization == CovarianceNormalization::kPaper ? kScalePaper : kScaleStandardDeviations;
+  }
+  return kScaleRadians;
+}
+
+// Residuals of the problem's edges at its rotations: those the last IRLS
+// solve on `workspace` ended with when they are for these rotations (they
+// do not depend on the loss or the information), computed otherwise.
+std::vector<Eigen::Vector3d> CurrentResiduals(const ComponentProblem& problem, const IrlsWorkspace& workspace) {
+  if (workspace.residuals.size() == problem.edges.size() && workspace.residual_rotations == problem.rotations) {
+    return workspace.residuals;
+  }
+  std::vector<Eigen::Vector3d> residuals;
+  residuals.reserve(problem.edges.size());
+  for (const ComponentEdge& e : problem.edges) residuals.push_back(problem.Residual(e));
+  return residuals;
+}
+
+// sigma_hat = sqrt(median |D^T r|^2 / 2.366): the scale of the whitened
+// residuals (1 for calibrated covariances; 2.366 is the median of chi2(3)).
+double WhitenedResidualScale(const ComponentProblem& problem, const std::vector<Eigen::Vector3d>& residuals) {
+  std::vector<double> s;
+  s.reserve(problem.edges.size());
+  for (std::size_t k = 0; k < problem.edges.size(); ++k)
+    s.push_back((problem.edges[k].sqrt_information * residuals[k]).squaredNorm());
+  if (s.empty()) return 1.0;
+  std::nth_element(s.begin(), s.begin() + s.size() / 2, s.end());
+  return std::sqrt(s[s.size() / 2] / 2.366);
+}
+
+// Fraction of edges whose whitened residual at the current (spanning-tree)
+// estimate lies beyond the MAGSAC cut-off k * scale.
+double TreeDisagreement(const ComponentProblem& problem, double scale) {
+  if (problem.edges.empty()) return 0.0;
+  const double cutoff = MagsacLoss::kChiQuantile * MagsacLoss::kChiQuantile * scale * scale;
+  std::size_t beyond = 0;
+  for (const ComponentEdge& e : problem.edges) {
+    if ((e.sqrt_information * problem.Residual(e)).squaredNorm() > cutoff) ++beyond;
+  }
+  return static_cast<double>(beyond) / problem.edges.size();
+}
+
+// Solves a copy of the problem whose edges carry isotropic information
+// s(W) I (a scalar-Laplacian IRLS solve, cheap) and takes its rotations as
+// the new start when the solve ends finite. Returns its iterations.
+template <typename IsotropicScale>
+int SolveSurrogate(const RotationAveragingOptions& options, const RobustLoss& loss, IsotropicScale scale_of,
+                   ComponentProblem* problem, IrlsWorkspace* workspace) {
+  ComponentProblem surrogate = *problem;
+  for (ComponentEdge& e : surrogate.edges) {
+    const double s = scale_of(e.information);
+    e.information = s * Eigen::Matrix3d::Identity();
+    e.sqrt_information = std::sqrt(s) * Eigen::Matrix3d::Identity();
+  }
+  ComponentSummary summary;
+  SolveComponentIrls(options, loss, &surrogate, &summary, workspace);
+  bool finite = std::isfinite(summary.final_cost);
+  for (const Eigen::Matrix3d& r : surrogate.rotations) finite = finite && r.allFinite();
+  if (finite) problem->rotations = surrogate.rotations;
+  return summary.iterations;
+}
+
+}  // namespace
+
+const char* EdgeWeightingName(EdgeWeighting w) {
+  switch (w) {
+    case EdgeWeighting::kNone: return "none";
+    case EdgeWeighting::kInliers: return "inliers";
+    case EdgeWeighting::kTrace: return "trace";
+    case EdgeWeighting::kFrobenius: return "frobenius";
+    case EdgeWeighting::kCovariance: return "covariance";
+  }
+  return "?";
+}
+bool ParseEdgeWeighting(const std::string& text, EdgeWeighting* w) {
+  return ParseByName(text, kAllWeightings, &EdgeWeightingName, w);
+}
+const char* SolverTypeName(SolverType s) {
+  switch (s) {
+    case SolverType::kIrls: return "irls";
+    case SolverType::kCeres: return "ceres";
+    case SolverType::kL1Irls: return "l1_irls";
+  }
+  return "?";
+}
+bool ParseSolverType(const std::string& text, SolverType* s) { return ParseByName(text, kAllSolvers, &SolverTypeName, s); }
+const char* CovarianceNormalizationName(CovarianceNormalization n) {
+  return n == CovarianceNormalization::kPaper ? "paper" : "std";
+}
+bool ParseCovarianceNormalization(const std::string& text, CovarianceNormalization* n) {
+  return ParseByName(text, kAllNormalizations, &CovarianceNormalizationName, n);
+}
+const char* SpanningTreeWeightName(SpanningTreeWeight w) {
+  switch (w) {
+    case SpanningTreeWeight::kAuto: return "auto";
+    case SpanningTreeWeight::kUniform: return "uniform";
+    case SpanningTreeWeight::kInliers: return "inliers";
+    case SpanningTreeWeight::kInformation: return "information";
+  }
+  return "?";
+}
+bool ParseSpanningTreeWeight(const std::string& text, SpanningTreeWeight* w) {
+  return ParseByName(text, kAllTreeWeights, &SpanningTreeWeightName, w);
+}
+const char* CovarianceSelfCalibrationName(CovarianceSelfCalibration c) {
+  return c == CovarianceSelfCalibration::kFloor ? "floor" : "loss_scale";
+}
+bool ParseCovarianceSelfCalibration(const std::string& text, CovarianceSelfCalibration* c) {
+  return ParseByName(text, kAllSelfCalibrations, &CovarianceSelfCalibrationName, c);
+}
+const std::vector<EdgeWeighting>& AllEdgeWeightings() {
+  static const std::vector<EdgeWeighting> kAll(std::begin(kAllWeightings), std::end(kAllWeightings));
+  return kAll;
+}
+
+double DefaultLossScale(const RotationAveragingOptions& options) {
+  return DefaultScaleFor(options.weighting, options.covariance_normalization);
+}
+
+bool RotationAveragingSummary::Success() const {
+  for (const ComponentSummary& c : components)
+    if (!std::isfinite(c.final_cost)) return false;
+  return true;
+}
+
+double RotationAveragingSummary::LargestComponentFloorRad() const {
+  const ComponentSummary* largest = nullptr;
+  for (const ComponentSummary& c : components)
+    if (!largest || c.num_views > largest->num_views) largest = &c;
+  return largest ? largest->covariance_floor_rad : 0.0;
+}
+
+std::string RotationAveragingSummary::Report() const {
+  std::ostringstream out;
+  std::size_t views = 0, edges_in = 0;
+  int iterations = 0;
+  double initial = 0.0, final_cost = 0.0;
+  for (const ComponentSummary& c : components) {
+    views += c.num_views;
+    edges_in += c.num_edges;
+    iterations += c.iterations;
+    initial += c.initial_cost;
+    final_cost += c.final_cost;
+  }
+  out << "components solved: " << components.size() << " (" << views << " views, " << edges_in << " edges)";
+  if (num_isolated_views) out << ", isolated views not oriented: " << num_isolated_views;
+  out << "\niterations: " << iterations << "\ninitial cost: " << std::setprecision(8) << initial
+      << "\nfinal cost: " << final_cost << "\nloss scale: " << loss_scale << "\noutlier edges (weight < 0.01): "
+      << num_outlier_edges << "\nsolve time: " << std::setprecision(4) << solve_time_s << " s";
+  for (std::size_t k = 0; k < components.size() && k < 5; ++k) {
+    const ComponentSummary& c = components[k];
+    out << "\n  component " << k << ": " << c.num_views << " views, " << c.num_edges << " edges, " << c.iterations
+        << " iterations (" << c.factorizations << " factorisations, " << c.preconditioned_solves
+        << " preconditioned solves, " << c.multigrid_solves << " multigrid solves, " << c.extrapolations << " extrapolations), loss scale " << c.loss_scale << " (residual scale " << c.noise_scale;
+    if (c.covariance_floor_rad > 0.0) out << ", covariance floor " << RadToDeg(c.covariance_floor_rad) << " deg";
+    out << "), " << c.status;
+  }
+  if (components.size() > 5) out << "\n  ... " << components.size() - 5 << " more components";
+  for (const std::string& w : warnings) out << "\nwarning: " << w;
+  return out.str();
+}
+
+void SolveComponentCeres(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
+                         ComponentSummary* summary) {
+  // Ceres is in the back-end library (src/core/util/backends.h); if it cannot be
+  // loaded (a warning says why), IRLS minimises the same cost.
+  const Backends* backends = LoadBackends();
+  if (backends && backends->solve_component_ceres) {
+    backends->solve_component_ceres(options, loss, problem, summary);
+    return;
+  }
+  SolveComponentIrls(options, loss, problem, summary);
+  summary->status = "Ceres solver unavailable, solved by IRLS: " + summary->status;
+}
+
+namespace {
+
+// Whether the warm start covers enough of the component (see warm_start_min_fraction).
+bool AllWarm(const ComponentProblem& problem, double min_fraction) {
+  std::size_t warm = 0;
+  for (bool h : problem.has_initial) warm += h;
+  return warm == problem.has_initial.size() ||
+         (warm > 0 && static_cast<double>(warm) >= min_fraction * static_cast<double>(problem.has_initial.size()));
+}
+
+// Initialises one component problem (spanning tree from its warm views) and
+// solves it with the options' robust start, loss and auto-scaling; writes
+// its per-edge results into summary->edges (by graph_index) and, when asked,
+// its posterior covariances.
+ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWeighting weighting, double scale,
+                                bool covariances, ComponentProblem* problem_in, RotationAveragingSummary* summary) {
+  ComponentProblem& problem = *problem_in;
+  ComponentSummary cs;
+  cs.num_views = problem.view_ids.size();
+  cs.num_edges = problem.edges.size();
+  const bool all_warm = AllWarm(problem, options.warm_start_min_fraction);
+  InitializeBySpanningTree(&problem);
+  cs.gauge_view = problem.view_ids[problem.gauge];
+  const std::vector<Eigen::Matrix3d> initial_rotations = problem.rotations;
+  double component_scale = scale;
+  std::unique_ptr<RobustLoss> component_loss = CreateLoss(options.loss, scale);
+
+  IrlsWorkspace workspace;
+  if (options.solver == SolverType::kL1Irls) {
+    SolveComponentL1Irls(options, &problem, &cs);
+  } else {
+    auto solve_with = [&](const RotationAveragingOptions& o, const RobustLoss& l) {
+      if (o.solver == SolverType::kCeres) {
+        SolveComponentCeres(o, l, &problem, &cs);
+      } else {
+        SolveComponentIrls(o, l, &problem, &cs, &workspace);
+      }
+    };
+    auto solve = [&](const RobustLoss& l) { solve_with(options, l); };
+    // The robust start and the solve under the final loss, from the
+    // component's start. Returns the start's cost under that loss when the
+    // solve reports it, NaN otherwise.
+    auto solve_from_start = [&]() {
+      problem.rotations = initial_rotations;
+      // A start that already agrees with (almost) every edge needs neither
+      // the L1 start nor graduated non-convexity.
+      const bool needs_robust_start =
+          !all_warm && TreeDisagreement(problem, scale) > options.l1_initialization_min_disagreement;
+      if (options.l1_initialization && needs_robust_start) {
+        // Unweighted, so the start does not depend on the covariances and
+        // always takes the scalar-Laplacian path of the IRLS solver.
+        RotationAveragingOptions l1_options = options;
+        l1_options.max_iterations = options.l1_init_max_iterations;
+        l1_options.function_tolerance = options.l1_init_function_tolerance;
+        l1_options.linear_solve_tolerance = options.robust_start_linear_solve_tolerance;
+        cs.iterations += SolveSurrogate(l1_options, SoftL1Loss(options.l1_init_smoothing_rad),
+                                        [](const Eigen::Matrix3d&) { return 1.0; }, &problem, &workspace);
+      } else if (!all_warm && !needs_robust_start && options.isotropic_presolve_max_anisotropy > 1.0) {
+        // Stops at the first edge beyond the limit.
+        double max_anisotropy = 1.0;
+        for (const ComponentEdge& e : problem.edges) {
+          max_anisotropy = std::max(max_anisotropy, InformationAnisotropy(e.information));
+          if (max_anisotropy > options.isotropic_presolve_max_anisotropy) break;
+        }
+        if (max_anisotropy > 1.0 + 1e-9 && max_anisotropy <= options.isotropic_presolve_max_anisotropy) {
+          RotationAveragingOptions iso_options = options;
+          iso_options.function_tolerance = options.isotropic_presolve_function_tolerance;
+          cs.iterations += SolveSurrogate(iso_options, *component_loss,
+                                          [](const Eigen::Matrix3d& w) { return w.trace() / 3.0; }, &problem,
+                                          &workspace);
+        }
+      }
+      // Graduated non-convexity for redescending losses started from a tree.
+      if (IsRedescending(options.loss) && needs_robust_start && options.gnc_initial_scale_factor > 1.0 &&
+          options.gnc_scale_step > 1.0) {
+        // Intermediate stages only need to move into the right basin: a few
+        // iterations each, not convergence.
+        RotationAveragingOptions stage_options = options;
+        stage_options.max_iterations = std::min(options.max_iterations, options.gnc_stage_max_iterations);
+        stage_options.linear_solve_tolerance = options.robust_start_linear_solve_tolerance;
+        for (double s = scale * options.gnc_initial_scale_factor; s > scale * 1.0001; s /= options.gnc_scale_step) {
+          solve_with(stage_options, *CreateLoss(options.loss, s));
+        }
+      }
+      // The IRLS solve reports the cost of its start under its loss: when
+      // nothing ran before it and the loss stays, that is the start's cost
+      // under the final loss, which the report below needs.
+      const bool from_initial = options.solver == SolverType::kIrls && problem.rotations == initial_rotations;
+      solve(*component_loss);
+      return from_initial ? cs.initial_cost : std::numeric_limits<double>::quiet_NaN();
+    };
+    double initial_cost = solve_from_start();
+    // Self-calibration of the covariance scale (see auto_scale_threshold).
+    if (weighting == EdgeWeighting::kCovariance &&
+        options.covariance_normalization == CovarianceNormalization::kStandardDeviations &&
+        options.auto_scale_threshold > 0.0 && options.loss_scale <= 0.0) {
+      cs.noise_scale = WhitenedResidualScale(problem, CurrentResiduals(problem, workspace));
+      // The floor is estimated whatever the residual scale: it is zero when
+      // the residuals fit the covariances. The first residuals come from a
+      // solve that trusted the optimistic covariances (and so rejected
+      // correct edges and leaned on others), which inflates them; as in
+      // Helmert's variance component estimation, each floor is estimated
+      // from the solve weighted by the one before, until it settles.
+      if (options.self_calibration == CovarianceSelfCalibration::kFloor) {
+        const std::vector<ComponentEdge> unfloored = problem.edges;
+        int free_views = 0;
+        for (int v = 0; v < static_cast<int>(problem.view_ids.size()); ++v) free_views += !problem.IsFixed(v);
+        double variance = 0.0;
+        for (int round = 0; round < kCovarianceFloorRounds; ++round) {
+          const double next = EstimateCovarianceFloor(unfloored, CurrentResiduals(problem, workspace), free_views);
+          if (!(next > 0.0) || (variance > 0.0 && std::abs(next - variance) <= kCovarianceFloorSettled * variance)) {
+            break;
+          }
+          variance = next;
+          problem.edges = WithCovarianceFloor(unfloored, variance);
+          workspace.median_anisotropy = -1.0;  // of the information it was computed from
+          // Afresh: the first solve's basin was chosen under the optimistic
+          // covariances (an edge they made rigid can have pulled a view off).
+          initial_cost = solve_from_start();
+        }
+        if (variance > 0.0) {
+          cs.covariance_floor_rad = std::sqrt(variance);
+          cs.noise_scale = WhitenedResidualScale(problem, CurrentResiduals(problem, workspace));
+        }
+      }
+      // Still optimistic (or kLossScale): widen the loss.
+      if (cs.noise_scale > options.auto_scale_threshold) {
+        component_scale = scale * cs.noise_scale;
+        component_loss = CreateLoss(options.loss, component_scale);
+        solve(*component_loss);
+        initial_cost = std::numeric_limits<double>::quiet_NaN();
+      }
+    }
+    // Both costs are reported under the final loss. The robust start (L1,
+    // graduated non-convexity from a wider scale, the re-solve after
+    // auto-scaling) can settle in a basin that costs more under the final
+    // loss than the starting point itself: a loop whose misclosure is either
+    // one outlier edge or noise spread over all of them. Then the start is
+    // refined under the final loss as well and the lower of the two kept, so
+    // a solve never ends above its start.
+    cs.initial_cost = std::isfinite(initial_cost)
+                          ? initial_cost
+                          : ComponentProblem::CostOf(problem.edges, initial_rotations, *component_loss);
+    if (cs.final_cost > cs.initial_cost * (1.0 + 1e-9) + 1e-300) {
+      const std::vector<Eigen::Matrix3d> ended = problem.rotations;
+      const double ended_cost = cs.final_cost;
+      const std::string ended_status = cs.status;
+      const bool ended_converged = cs.converged;
+      const double start_cost = cs.initial_cost;
+      problem.rotations = initial_rotations;
+      solve(*component_loss);
+      cs.initial_cost = start_cost;
+      cs.refined_start = true;
+      if (!(cs.final_cost < ended_cost)) {
+        problem.rotations = ended;
+        cs.final_cost = ended_cost;
+        cs.status = ended_status;
+        cs.converged = ended_converged;
+      }
+      std::ostringstream note;
+      note << std::setprecision(6) << "; the robust solve ended above its start (" << ended_cost << " > "
+           << cs.initial_cost << " under the final loss): the start refined under it gives " << cs.final_cost;
+      cs.status += note.str();
+    }
+  }
+
+  // A solve that produced non-finite numbers keeps the initial orientations.
+  bool finite = true;
+  for (const Eigen::Matrix3d& r : problem.rotations) finite = finite && r.allFinite();
+  if (!finite || !std::isfinite(cs.final_cost)) {
+    problem.rotations = initial_rotations;
+    cs.status = "solve failed (non-finite result); kept the initial orientations: " + cs.status;
+    cs.converged = false;
+    cs.final_cost = problem.Cost(*component_loss);
+    summary->warnings.push_back(cs.status);
+  }
+  if (finite && covariances && options.solver != SolverType::kL1Irls && options.posterior_covariance_max_views > 0 &&
+      static_cast<int>(problem.view_ids.size()) <= options.posterior_covariance_max_views) {
+    std::vector<Eigen::Matrix3d> view_covariances;
+    if (ComputeViewCovariances(problem, *component_loss, &view_covariances)) {
+      for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
+        summary->view_covariances[problem.view_ids[v]] = view_covariances[v];
+      }
+    } else {
+      summary->warnings.push_back("posterior covariances of a component of " +
+                                  std::to_string(problem.view_ids.size()) +
+                                  " views skipped (normal matrix singular or its factor too dense)");
+    }
+  }
+  // Per-edge results under the final loss and the weighting of the options
+  // (the L1-IRLS baseline reports its own unweighted residuals).
+  const std::vector<Eigen::Vector3d> residuals = CurrentResiduals(problem, workspace);
+  for (std::size_t k = 0; k < problem.edges.size(); ++k) {
+    const ComponentEdge& e = problem.edges[k];
+    EdgeResult& er = summary->edges[e.graph_index];
+    const Eigen::Vector3d& r = residuals[k];
+    er.residual_rad = r.norm();
+    er.whitened_squared = (e.sqrt_information * r).squaredNorm();
+    er.robust_weight = options.solver == SolverType::kL1Irls
+                           ? GemanMcClureLoss(DegToRad(options.l1_irls_sigma_deg)).Weight(er.whitened_squared)
+                           : component_loss->Weight(er.whitened_squared);
+    er.solved = true;
+    if (er.robust_weight < 0.01) ++summary->num_outlier_edges;
+  }
+  cs.loss_scale = options.solver == SolverType::kL1Irls ? DegToRad(options.l1_irls_sigma_deg) : component_scale;
+  return cs;
+}
+
+}  // namespace
+
+bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptions& options,
+                            ViewOrientations* orientations, RotationAveragingSummary* summary) {
+  const auto start = std::chrono::steady_clock::now();
+  *summary = RotationAveragingSummary();
+  EdgeWeighting weighting = options.weighting;
+  std::vector<ComponentProblem> problems =
+      BuildComponentProblems(graph, options, *orientations, &summary->warnings, &weighting);
+  const double scale =
+      options.loss_scale > 0.0 ? options.loss_scale : DefaultScaleFor(weighting, options.covariance_normalization);
+  summary->loss_scale = scale;
+
+  std::size_t solved_views = 0;
+  summary->edges.assign(graph.NumEdges(), EdgeResult());
+  for (ComponentProblem& problem : problems) {
+    summary->components.push_back(SolveComponent(options, weighting, scale, /*covariances=*/true, &problem, summary));
+    for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
+      (*orientations)[problem.view_ids[v]] = problem.rotations[v];
+    }
+    solved_views += problem.view_ids.size();
+  }
+  summary->num_isolated_views = graph.NumViews() - solved_views;
+  summary->solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return summary->Success();
+}
+
+LocalSolveOutcome SolveRotationAveragingLocally(const ViewGraph& graph, const std::vector<ViewId>& changed,
+                                                const LocalSolveOptions& local,
+                                                const RotationAveragingOptions& options,
+                                                ViewOrientations* orientations, RotationAveragingSummary* summary) {
+  const auto start = std::chrono::steady_clock::now();
+  *summary = RotationAveragingSummary();
+  if (options.solver == SolverType::kL1Irls) return LocalSolveOutcome::kNeedsFullSolve;
+  const std::vector<RelativeRotation>& edges = graph.Edges();
+  // Incident edges per view (ids need not be dense).
+  std::unordered_map<ViewId, int> index;
+  index.reserve(graph.NumViews());
+  for (const View& v : graph.Views()) index.emplace(v.id, static_cast<int>(index.size()));
+  const int n = static_cast<int>(index.size());
+  std::vector<int> offsets(n + 1, 0), incident(2 * edges.size());
+  std::vector<std::pair<int, int>> ends(edges.size());
+  for (std::size_t k = 0; k < edges.size(); ++k) {
+    ends[k] = {index.at(edges[k].view1), index.at(edges[k].view2)};
+    ++offsets[ends[k].first + 1];
+    ++offsets[ends[k].second + 1];
+  }
+  for (int v = 0; v < n; ++v) offsets[v + 1] += offsets[v];
+  {
+    std::vector<int> fill(offsets.begin(), offsets.end() - 1);
+    for (std::size_t k = 0; k < edges.size(); ++k) {
+      incident[fill[ends[k].first]++] = static_cast<int>(k);
+      incident[fill[ends[k].second]++] = static_cast<int>(k);
+    }
+  }
+  // The region: breadth-first from the changed views, `hops` deep, at most
+  // max_views views (nearest first).
+  std::vector<int> depth(n, -1);
+  std::vector<int> region;
+  for (ViewId id : changed) {
+    auto it = index.find(id);
+    if (it == index.end() || depth[it->second] >= 0) continue;
+    depth[it->second] = 0;
+    region.push_back(it->second);
+  }
+  if (region.empty()) return LocalSolveOutcome::kNothingToSolve;
+  if (region.size() > local.max_views) return LocalSolveOutcome::kNeedsFullSolve;
+  for (std::size_t head = 0; head < region.size() && region.size() < local.max_views; ++head) {
+    const int v = region[head];
+    if (depth[v] >= local.hops) break;  // breadth-first: every later view is as deep
+    for (int p = offsets[v]; p < offsets[v + 1] && region.size() < local.max_views; ++p) {
+      const int u = ends[incident[p]].first == v ? ends[incident[p]].second : ends[incident[p]].first;
+      if (depth[u] < 0) {
+        depth[u] = depth[v] + 1;
+        region.push_back(u);
+      }
+    }
+  }
+  std::vector<char> in_region(n, 0);
+  for (int v : region) in_region[v] = 1;
+  // The sub-graph: every edge with an end in the region whose other end is in
+  // the region or already oriented (a boundary view, held fixed).
+  ViewGraph sub(graph.Validation());
+  std::vector<std::size_t> sub_to_graph;
+  std::vector<char> added(n, 0), taken(edges.size(), 0);
+  const std::vector<View>& views = graph.Views();
+  auto add_view = [&](int v) {
+    if (!added[v]) {
+      sub.AddView(views[v].id, views[v].name);
+      added[v] = 1;
+    }
+  };
+  for (int v : region) {
+    for (int p = offsets[v]; p < offsets[v + 1]; ++p) {
+      const int k = incident[p];
+      const int u = ends[k].first == v ? ends[k].second : ends[k].first;
+      if (taken[k] || (!in_region[u] && !orientations->count(views[u].id))) continue;
+      taken[k] = 1;
+      add_view(v);
+      add_view(u);
+      if (sub.AddEdge(edges[k], nullptr, DuplicatePolicy::kKeepBoth) != AddEdgeResult::kRejected) {
+        sub_to_graph.push_back(static_cast<std::size_t>(k));
+      }
+    }
+  }
+  // Components of the sub-graph; views outside the region are held fixed.
+  EdgeWeighting weighting = options.weighting;
+  std::vector<ComponentProblem> problems =
+      BuildComponentProblems(sub, options, *orientations, &summary->warnings, &weighting);
+  std::vector<int>* labels = local.component_labels;
+  auto label_of = [labels](ViewId id) {
+    return labels && id < labels->size() ? (*labels)[id] : -1;
+  };
+  std::vector<int> problem_label(problems.size(), -1);
+  for (std::size_t p = 0; p < problems.size(); ++p) {
+    ComponentProblem& problem = problems[p];
+    problem.fixed.assign(problem.view_ids.size(), false);
+    for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
+      const ViewId id = problem.view_ids[v];
+      problem.fixed[v] = !in_region[index.at(id)];
+      const int label = label_of(id);
+      if (label < 0) continue;
+      // New edges that join components solved apart (each in its own gauge)
+      // need a full solve of the joined component.
+      if (problem_label[p] >= 0 && problem_label[p] != label) return LocalSolveOutcome::kNeedsFullSolve;
+      problem_label[p] = label;
+    }
+    for (ComponentEdge& e : problem.edges) e.graph_index = sub_to_graph[e.graph_index];
+  }
+  const double default_scale =
+      options.loss_scale > 0.0 ? options.loss_scale : DefaultScaleFor(weighting, options.covariance_normalization);
+  summary->loss_scale = default_scale;
+  summary->edges.assign(edges.size(), EdgeResult());
+  int next_label = 0;
+  if (labels) {
+    for (int l : *labels) next_label = std::max(next_label, l + 1);
+  }
+  for (std::size_t p = 0; p < problems.size(); ++p) {
+    ComponentProblem& problem = problems[p];
+    RotationAveragingOptions component_options = options;
+    const int label = problem_label[p];
+    if (options.loss_scale <= 0.0 && local.label_loss_scale && label >= 0 &&
+        static_cast<std::size_t>(label) < local.label_loss_scale->size() && (*local.label_loss_scale)[label] > 0.0) {
+      component_options.loss_scale = (*local.label_loss_scale)[label];
+    }
+    const double scale = component_options.loss_scale > 0.0 ? component_options.loss_scale : default_scale;
+    summary->components.push_back(
+        SolveComponent(component_options, weighting, scale, /*covariances=*/false, &problem, summary));
+    for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
+      if (!problem.fixed[v]) (*orientations)[problem.view_ids[v]] = problem.rotations[v];
+    }
+    if (labels) {
+      const int l = label >= 0 ? label : next_label++;
+      for (ViewId id : problem.view_ids) {
+        if (id >= labels->size()) {
+          if (id > 2 * graph.NumViews() + 1024) continue;  // sparse ids are not labelled
+          labels->resize(id + 1, -1);
+        }
+        (*labels)[id] = l;
+      }
+    }
+  }
+  summary->solve_time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return summary->Success() ? LocalSolveOutcome::kSolved : LocalSolveOutcome::kFailed;
+}
+
+}  // namespace rotation_averaging

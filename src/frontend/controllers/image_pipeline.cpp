@@ -1,0 +1,545 @@
+#include "rotation_averaging/frontend/controllers/image_pipeline.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <iomanip>
+#include <limits>
+#include <opencv2/imgcodecs.hpp>
+#include <sstream>
+
+#include "frontend/geometry/epipolar.h"
+#include "rotation_averaging/core/geometry/so3.h"
+#include "core/io/text_lines.h"
+#include "core/util/parallel_for.h"
+
+namespace rotation_averaging {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
+
+std::vector<std::pair<int, int>> SelectPairs(int n, const PairSelection& selection,
+                                             const std::vector<std::string>& names, std::vector<std::string>* errors) {
+  std::vector<std::pair<int, int>> pairs;
+  switch (selection.mode) {
+    case PairSelection::Mode::kExhaustive:
+      for (int i = 0; i < n; ++i)
+        for (int j = i + 1; j < n; ++j) pairs.emplace_back(i, j);
+      break;
+    case PairSelection::Mode::kSequential:
+      for (int i = 0; i < n; ++i)
+        for (int j = i + 1; j < n && j <= i + selection.window; ++j) pairs.emplace_back(i, j);
+      break;
+    case PairSelection::Mode::kList: {
+      for (const auto& [i, j] : selection.pairs) {
+        if (i >= 0 && j >= 0 && i < n && j < n && i != j) pairs.emplace_back(std::min(i, j), std::max(i, j));
+      }
+      for (const auto& [a, b] : selection.named_pairs) {
+        const auto ia = std::find(names.begin(), names.end(), a), ib = std::find(names.begin(), names.end(), b);
+        if (ia == names.end() || ib == names.end() || ia == ib) {
+          errors->push_back("pair list: '" + a + " " + b + "' does not name two different images");
+          continue;
+        }
+        const int i = static_cast<int>(ia - names.begin()), j = static_cast<int>(ib - names.begin());
+        pairs.emplace_back(std::min(i, j), std::max(i, j));
+      }
+      std::sort(pairs.begin(), pairs.end());
+      pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
+      break;
+    }
+  }
+  return pairs;
+}
+
+}  // namespace
+
+bool PairSelection::Parse(const std::string& text, PairSelection* selection, std::string* error) {
+  if (text.rfind("list:", 0) == 0) {
+    LineReader reader(text.substr(5));
+    if (!reader.IsOpen()) {
+      if (error) *error = "cannot open pair list " + text.substr(5);
+      return false;
+    }
+    std::string line;
+    selection->named_pairs.clear();
+    while (reader.Next(&line)) {
+      if (IsBlankOrComment(line)) continue;
+      const std::vector<std::string> t = SplitTokens(line);
+      if (t.size() != 2) {
+        if (error) *error = reader.Where("expected 'image1 image2'");
+        return false;
+      }
+      selection->named_pairs.emplace_back(t[0], t[1]);
+    }
+    selection->mode = Mode::kList;
+    return true;
+  }
+  if (text == "exhaustive") {
+    selection->mode = Mode::kExhaustive;
+    return true;
+  }
+  if (text.rfind("sequential:", 0) == 0) {
+    int window = 0;
+    if (!ParseInt(text.substr(11), &window) || window < 1) return false;
+    selection->mode = Mode::kSequential;
+    selection->window = window;
+    return true;
+  }
+  return false;
+}
+
+std::vector<std::string> ListImages(const std::string& directory) {
+  std::vector<std::string> images;
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator(directory, ec)) {
+    std::string ext = entry.path().extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+    if (ext == ".jpg" || ext == ".jpeg" || ext == ".png" || ext == ".ppm" || ext == ".pgm" || ext == ".tif" ||
+        ext == ".tiff" || ext == ".bmp") {
+      images.push_back(entry.path().string());
+    }
+  }
+  std::sort(images.begin(), images.end());
+  return images;
+}
+
+Eigen::Vector2d CameraIntrinsics::Undistort(const Eigen::Vector2d& pixel, const Eigen::Matrix3d& scaled_k) const {
+  if (k1 == 0.0 && k2 == 0.0) return pixel;
+  const Eigen::Vector3d d = scaled_k.inverse() * pixel.homogeneous();
+  const Eigen::Vector2d distorted = d.hnormalized();
+  Eigen::Vector2d x = distorted;
+  for (int it = 0; it < 20; ++it) {  // fixed point: x = x_d / (1 + k1 r^2 + k2 r^4)
+    const double r2 = x.squaredNorm();
+    x = distorted / (1.0 + k1 * r2 + k2 * r2 * r2);
+  }
+  return (scaled_k * x.homogeneous()).hnormalized();
+}
+
+bool ReadCameraIntrinsics(const std::string& path, CameraIntrinsics* intrinsics, std::string* error) {
+  LineReader reader(path);
+  if (!reader.IsOpen()) {
+    *error = "cannot open " + path;
+    return false;
+  }
+  std::string line;
+  while (reader.Next(&line)) {
+    if (IsBlankOrComment(line)) continue;
+    const std::vector<std::string> t = SplitTokens(line);
+    if (t.size() >= 5 && (t[1] == "SIMPLE_PINHOLE" || t[1] == "PINHOLE" || t[1] == "SIMPLE_RADIAL" || t[1] == "RADIAL")) {
+      std::vector<double> p;
+      for (std::size_t i = 4; i < t.size(); ++i) {
+        double v;
+        if (!ParseDouble(t[i], &v)) {
+          *error = reader.Where("'" + t[i] + "' is not a number");
+          return false;
+        }
+        p.push_back(v);
+      }
+      const std::size_t needed = t[1] == "SIMPLE_PINHOLE" ? 3 : t[1] == "PINHOLE" ? 4 : t[1] == "SIMPLE_RADIAL" ? 4 : 5;
+      if (p.size() != needed) {
+        *error = reader.Where(t[1] + " needs " + std::to_string(needed) + " parameters");
+        return false;
+      }
+      Eigen::Matrix3d& k = intrinsics->k;
+      k.setIdentity();
+      if (t[1] == "PINHOLE") {
+        k(0, 0) = p[0];
+        k(1, 1) = p[1];
+        k(0, 2) = p[2];
+        k(1, 2) = p[3];
+      } else {
+        k(0, 0) = k(1, 1) = p[0];
+        k(0, 2) = p[1];
+        k(1, 2) = p[2];
+        if (t[1] == "SIMPLE_RADIAL") intrinsics->k1 = p[3];
+        if (t[1] == "RADIAL") {
+          intrinsics->k1 = p[3];
+          intrinsics->k2 = p[4];
+        }
+      }
+      // COLMAP puts the centre of the top-left pixel at (0.5, 0.5); OpenCV's
+      // keypoints, K.txt and camera_info put it at (0, 0).
+      k(0, 2) -= 0.5;
+      k(1, 2) -= 0.5;
+      if (!IsCameraIntrinsics(k) || !std::isfinite(intrinsics->k1) || !std::isfinite(intrinsics->k2)) {
+        *error = reader.Where(t[1] + " needs finite parameters and a K that is a camera's (" + kCameraIntrinsicsRule + ")");
+        return false;
+      }
+      return true;
+    }
+    break;  // not a COLMAP camera line: try K.txt
+  }
+  intrinsics->k1 = intrinsics->k2 = 0.0;
+  return ReadIntrinsics(path, &intrinsics->k, error);
+}
+
+bool ReadIntrinsics(const std::string& path, Eigen::Matrix3d* k, std::string* error) {
+  LineReader reader(path);
+  if (!reader.IsOpen()) {
+    *error = "cannot open " + path;
+    return false;
+  }
+  std::vector<double> values;
+  std::string line;
+  while (reader.Next(&line)) {
+    if (IsBlankOrComment(line)) continue;
+    for (const std::string& t : SplitTokens(line)) {
+      double v;
+      if (!ParseDouble(t, &v) || !std::isfinite(v)) {
+        *error = reader.Where("'" + t + "' is not a finite number");
+        return false;
+      }
+      values.push_back(v);
+    }
+  }
+  if (values.size() != 9) {
+    *error = path + ": expected 9 numbers (3x3 K), found " + std::to_string(values.size());
+    return false;
+  }
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) (*k)(r, c) = values[3 * r + c];
+  if (!IsCameraIntrinsics(*k)) {
+    *error = path + ": K must be a camera's (" + kCameraIntrinsicsRule + ")";
+    return false;
+  }
+  return true;
+}
+
+RelativeRotation EdgeFromPair(const PairReport& pair) {
+  RelativeRotation edge;
+  edge.view1 = static_cast<ViewId>(pair.image1);
+  edge.view2 = static_cast<ViewId>(pair.image2);
+  edge.rotation = pair.pose.EdgeRotation();
+  edge.has_covariance = true;
+  edge.covariance = pair.pose.covariance;
+  edge.num_inliers = static_cast<int>(pair.pose.inliers.size());
+  edge.source = pair.image2 == pair.image1 + 1 ? EdgeSource::kSequential : EdgeSource::kOther;
+  return edge;
+}
+
+PairReport EstimatePair(int image1, int image2, const std::vector<Eigen::Vector2d>& points1,
+                        const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k,
+                        const RelativePoseOptions& options) {
+  PairReport report;
+  report.image1 = image1;
+  report.image2 = image2;
+  report.matches = static_cast<int>(points1.size());
+  report.pose = EstimateRelativePoseWithCovariance(points1, points2, k, k, options);
+  if (report.pose.success) {
+    report.inlier_points1 = NormalisedPoints(points1, k, report.pose.inliers);
+    report.inlier_points2 = NormalisedPoints(points2, k, report.pose.inliers);
+  }
+  return report;
+}
+
+namespace {
+// Inliers of a pair in the focal-length profile: within this many of its
+// noise standard deviations (the two-view refinement's own rule), and at
+// least this many pixels (its smallest adaptive threshold).
+constexpr double kFocalInlierSigmas = 3.0;
+constexpr double kFocalMinThresholdPx = 0.5;
+// Groups of pairs (by index modulo) the jackknife leaves out in turn.
+constexpr int kFocalJackknifeGroups = 4;
+}  // namespace
+
+FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const Eigen::Matrix3d& k,
+                                    const FocalCalibrationOptions& options) {
+  FocalCalibration out;
+  // Each pair's matches, the inliers of its pose, its noise and threshold.
+  struct Used {
+    const FocalPair* pair;
+    double sigma, threshold;
+  };
+  std::vector<Used> used;
+  for (const FocalPair& p : pairs) {
+    if (!p.pose || !p.points1 || !p.points2 || !p.pose->success || p.pose->model != TwoViewModel::kEssential ||
+        !(p.pose->sigma_px > 0.0) || static_cast<int>(p.pose->inliers.size()) < options.min_inliers) {
+      continue;
+    }
+    used.push_back({&p, p.pose->sigma_px, std::max(kFocalInlierSigmas * p.pose->sigma_px, kFocalMinThresholdPx)});
+  }
+  out.pairs = static_cast<int>(used.size());
+  if (out.pairs < std::max(1, options.min_pairs)) return out;
+  const int threads = ResolveThreadCount(options.num_threads);
+  // The profile: at each a, every pair's pose is refined from its estimate
+  // on the matches within its threshold, which are selected again at the
+  // refined pose (twice), and scored by the truncated squared Sampson error
+  // of all its matches in units of its noise. Selecting the inliers anew
+  // matters: those the pose kept in the given focal length favour it.
+  std::vector<double> per_pair(used.size());
+  // The profile over the pairs not in `left_out` (a group of the jackknife
+  // below; -1: none).
+  auto cost = [&](double a, int left_out) {
+    Eigen::Matrix3d ka = k;
+    ka(0, 0) *= a;
+    ka(1, 1) *= a;
+    const Eigen::Matrix3d ka_inv = ka.inverse();
+    ParallelFor(static_cast<int>(used.size()), threads, [&](int u) {
+      per_pair[u] = 0.0;
+      if (u % kFocalJackknifeGroups == left_out) return;
+      const FocalPair& p = *used[u].pair;
+      const std::vector<Eigen::Vector2d>& all1 = *p.points1;
+      const std::vector<Eigen::Vector2d>& all2 = *p.points2;
+      Eigen::Matrix3d rotation = p.pose->rotation;
+      Eigen::Vector3d translation = p.pose->translation;
+      std::vector<int> inliers = p.pose->inliers;
+      const double threshold = used[u].threshold;
+      double truncated = 0.0;
+      for (int round = 0; round < 3; ++round) {
+        if (static_cast<int>(inliers.size()) < options.min_inliers / 2) break;
+        RefinePoseOnInliers(all1, all2, inliers, ka, ka, &rotation, &translation);
+        const Eigen::Matrix3d f = ka_inv.transpose() * Hat(translation) * rotation * ka_inv;
+        inliers.clear();
+        truncated = 0.0;
+        for (std::size_t m = 0; m < all1.size() && m < all2.size(); ++m) {
+          const double r = SampsonError<double>(f, all1[m].homogeneous(), all2[m].homogeneous());
+          if (std::abs(r) < threshold) inliers.push_back(static_cast<int>(m));
+          truncated += std::min(r * r, threshold * threshold);
+        }
+      }
+      per_pair[u] = truncated / (used[u].sigma * used[u].sigma);
+    });
+    double sum = 0.0;
+    for (double c : per_pair) sum += c;
+    return sum;
+  };
+  // The minimum of the profile: a coarse scan, then golden-section search in
+  // the best cell's neighbours. NaN when it lies on the edge of the range.
+  const double range = std::clamp(options.search_range, 0.01, 0.5), step = 0.02;
+  const int cells = static_cast<int>(std::ceil(range / step));
+  auto minimise = [&](int left_out) {
+    int best = -cells;
+    double best_cost = std::numeric_limits<double>::infinity();
+    for (int c = -cells; c <= cells; ++c) {
+      const double value = cost(1.0 + c * step, left_out);
+      if (value < best_cost) {
+        best_cost = value;
+        best = c;
+      }
+    }
+    if (!std::isfinite(best_cost) || best == -cells || best == cells) return std::numeric_limits<double>::quiet_NaN();
+    double lo = 1.0 + (best - 1) * step, hi = 1.0 + (best + 1) * step;
+    const double ratio = 0.5 * (std::sqrt(5.0) - 1.0);
+    double x1 = hi - ratio * (hi - lo), x2 = lo + ratio * (hi - lo);
+    double f1 = cost(x1, left_out), f2 = cost(x2, left_out);
+    while (hi - lo > 1e-4) {
+      if (f1 < f2) {
+        hi = x2;
+        x2 = x1;
+        f2 = f1;
+        x1 = hi - ratio * (hi - lo);
+        f1 = cost(x1, left_out);
+      } else {
+        lo = x1;
+        x1 = x2;
+        f1 = f2;
+        x2 = lo + ratio * (hi - lo);
+        f2 = cost(x2, left_out);
+      }
+    }
+    return 0.5 * (lo + hi);
+  };
+  out.scale = minimise(-1);
+  if (!std::isfinite(out.scale)) {
+    out.scale = 1.0;
+    return out;
+  }
+  // Standard deviation: the larger of the chi-square profile's curvature
+  // (pixel noise alone) and a delete-a-group jackknife over the pairs, which
+  // also sees how much the pairs disagree on it.
+  const double h = 1e-3, centre = cost(out.scale, -1);
+  const double curvature = (cost(out.scale + h, -1) - 2.0 * centre + cost(out.scale - h, -1)) / (h * h);
+  double deviation = curvature > 0.0 ? std::sqrt(2.0 / curvature) : std::numeric_limits<double>::infinity();
+  if (out.pairs >= 2 * kFocalJackknifeGroups) {
+    std::vector<double> partial;
+    for (int g = 0; g < kFocalJackknifeGroups; ++g) partial.push_back(minimise(g));
+    double mean = 0.0;
+    for (double x : partial) mean += x / kFocalJackknifeGroups;
+    double spread = 0.0;
+    for (double x : partial) spread += (x - mean) * (x - mean);
+    const double jackknife = std::sqrt((kFocalJackknifeGroups - 1.0) / kFocalJackknifeGroups * spread);
+    deviation = std::isfinite(jackknife) ? std::max(deviation, jackknife) : std::numeric_limits<double>::infinity();
+  }
+  out.standard_deviation = deviation;
+  out.estimated = std::isfinite(out.standard_deviation);
+  return out;
+}
+
+bool ShouldApplyFocalScale(const FocalCalibration& calibration, const FocalCalibrationOptions& options) {
+  const double correction = std::abs(calibration.scale - 1.0);
+  return calibration.estimated && correction > options.min_correction &&
+         correction > 3.0 * calibration.standard_deviation;
+}
+
+std::string FocalCalibration::Report() const {
+  std::ostringstream out;
+  out << std::setprecision(4);
+  if (!estimated) {
+    out << "focal length: not estimated (" << pairs << " pairs with enough inliers)";
+  } else {
+    out << "focal length: estimated x" << scale << " (+- " << standard_deviation << ", " << pairs << " pairs), "
+        << (applied ? "applied: pairs estimated again" : "kept as given (too small or too uncertain a correction)");
+  }
+  return out.str();
+}
+
+std::vector<EdgeCorrespondences> CorrespondencesOfEdges(const ImagePipelineResult& result) {
+  const double focal = 0.5 * (result.k(0, 0) + result.k(1, 1));
+  std::vector<EdgeCorrespondences> out;
+  for (const PairReport& p : result.pairs) {
+    if (!p.pose.success || p.inlier_points1.empty()) continue;
+    out.push_back(MakeEdgeCorrespondences(static_cast<ViewId>(p.image1), static_cast<ViewId>(p.image2),
+                                          p.inlier_points1, p.inlier_points2, p.pose.translation, p.pose.sigma_px,
+                                          focal));
+  }
+  return out;
+}
+
+ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>& features,
+                                               const std::vector<std::string>& names, const Eigen::Matrix3d& k,
+                                               const ImagePipelineOptions& options) {
+  ImagePipelineResult result;
+  result.k = k;
+  const int n = static_cast<int>(features.size());
+  for (int i = 0; i < n; ++i) {
+    result.graph.AddView(static_cast<ViewId>(i), i < static_cast<int>(names.size()) ? names[i] : "");
+    result.features_per_image.push_back(static_cast<int>(features[i].keypoints_px.size()));
+  }
+  // One nearest-neighbour index per image, reused by every pair it is in.
+  const auto index_start = Clock::now();
+  std::vector<std::unique_ptr<FeatureIndex>> indices;
+  for (const ImageFeatures& f : features) indices.push_back(std::make_unique<FeatureIndex>(f));
+  result.matching_s += Seconds(index_start);
+  // The relative pose of one pair into the graph and the counts.
+  auto add_pair = [&](int i, int j, const std::vector<Eigen::Vector2d>& p1, const std::vector<Eigen::Vector2d>& p2,
+                      const Eigen::Matrix3d& pair_k, Clock::time_point start) {
+    const auto pose_start = Clock::now();
+    PairReport report = EstimatePair(i, j, p1, p2, pair_k, options.relative_pose);
+    result.relative_pose_s += Seconds(pose_start);
+    report.milliseconds = 1e3 * Seconds(start);
+    if (report.pose.success) {
+      if (report.pose.homography_inlier_ratio >= options.relative_pose.near_planar_report_ratio) ++result.near_planar_pairs;
+      if (report.pose.model == TwoViewModel::kRotation) ++result.rotation_model_pairs;
+      std::string why;
+      if (result.graph.AddEdge(EdgeFromPair(report), &why) == AddEdgeResult::kRejected) {
+        report.pose.success = false;
+        report.pose.message = "edge rejected: " + why;
+        ++result.failures["edge_rejected"];
+      }
+    } else {
+      ++result.failures[TwoViewFailureName(report.pose.failure)];
+    }
+    result.pairs.push_back(std::move(report));
+  };
+  // The matched keypoints of every pair, kept for a second estimation with a
+  // corrected focal length.
+  struct Matched {
+    int i, j;
+    std::vector<Eigen::Vector2d> p1, p2;
+  };
+  std::vector<Matched> matched;
+  for (const auto& [i, j] : SelectPairs(n, options.pairs, names, &result.errors)) {
+    const auto start = Clock::now();
+    const std::vector<std::pair<int, int>> matches =
+        MatchFeatures(features[i], *indices[i], features[j], *indices[j], options.matching);
+    result.matching_s += Seconds(start);
+    Matched m{i, j, {}, {}};
+    m.p1.reserve(matches.size());
+    m.p2.reserve(matches.size());
+    for (const auto& [a, b] : matches) {
+      m.p1.push_back(features[i].keypoints_px[a]);
+      m.p2.push_back(features[j].keypoints_px[b]);
+    }
+    add_pair(i, j, m.p1, m.p2, k, start);
+    if (options.focal.enabled) matched.push_back(std::move(m));
+  }
+  if (options.focal.enabled) {
+    const auto focal_start = Clock::now();
+    std::vector<FocalPair> focal_pairs;
+    for (std::size_t p = 0; p < matched.size(); ++p) {
+      focal_pairs.push_back({&matched[p].p1, &matched[p].p2, &result.pairs[p].pose});
+    }
+    result.focal = EstimateFocalScale(focal_pairs, k, options.focal);
+    if (ShouldApplyFocalScale(result.focal, options.focal)) {
+      result.focal.applied = true;
+      result.k = k;
+      result.k(0, 0) *= result.focal.scale;
+      result.k(1, 1) *= result.focal.scale;
+      // Every pair again, from its matches, in the corrected focal length.
+      ViewGraph graph;
+      for (const View& v : result.graph.Views()) graph.AddView(v.id, v.name);
+      result.graph = std::move(graph);
+      result.pairs.clear();
+      result.failures.clear();
+      result.near_planar_pairs = 0;
+      result.rotation_model_pairs = 0;
+      for (const Matched& m : matched) add_pair(m.i, m.j, m.p1, m.p2, result.k, Clock::now());
+    }
+    result.focal_s = Seconds(focal_start);
+  }
+  return result;
+}
+
+Eigen::Matrix3d FeatureIntrinsics(const CameraIntrinsics& intrinsics, const FeatureOptions& options) {
+  return ScaleIntrinsics(intrinsics.k, options.downsample > 0.0 ? options.downsample : 1.0);
+}
+
+std::vector<ImageFeatures> ExtractImageFeatures(const std::vector<std::string>& image_paths,
+                                                const CameraIntrinsics& intrinsics, const FeatureOptions& options,
+                                                std::vector<std::string>* names, std::vector<std::string>* errors) {
+  std::vector<ImageFeatures> features(image_paths.size());
+  const Eigen::Matrix3d scaled_k = FeatureIntrinsics(intrinsics, options);
+  names->clear();
+  for (std::size_t i = 0; i < image_paths.size(); ++i) {
+    names->push_back(fs::path(image_paths[i]).filename().string());
+    const cv::Mat image = cv::imread(image_paths[i], cv::IMREAD_GRAYSCALE);
+    if (image.empty()) {
+      errors->push_back("cannot read image " + image_paths[i]);
+      continue;
+    }
+    features[i] = ExtractFeatures(image, options);
+    for (Eigen::Vector2d& p : features[i].keypoints_px) p = intrinsics.Undistort(p, scaled_k);
+  }
+  return features;
+}
+
+ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& image_paths,
+                                             const CameraIntrinsics& intrinsics, const ImagePipelineOptions& options) {
+  std::vector<std::string> names, errors;
+  const auto start = Clock::now();
+  const std::vector<ImageFeatures> features =
+      ExtractImageFeatures(image_paths, intrinsics, options.features, &names, &errors);
+  const double features_s = Seconds(start);
+  ImagePipelineResult result =
+      BuildViewGraphFromFeatures(features, names, FeatureIntrinsics(intrinsics, options.features), options);
+  result.features_s = features_s;
+  result.errors = std::move(errors);
+  return result;
+}
+
+std::string ImagePipelineResult::Report() const {
+  std::ostringstream out;
+  const int n = static_cast<int>(features_per_image.size());
+  int ok = 0;
+  for (const PairReport& p : pairs) ok += p.pose.success;
+  double mean_features = 0.0;
+  for (int f : features_per_image) mean_features += f;
+  out << std::fixed << std::setprecision(1) << "images: " << n << ", features per image: "
+      << (n ? mean_features / n : 0.0) << "\npairs: " << pairs.size() << " tried, " << ok << " with a relative pose";
+  for (const auto& [reason, count] : failures) out << "\n  rejected (" << reason << "): " << count;
+  if (near_planar_pairs) out << "\n  kept, near-planar (homography explains >= 95% of the inliers): " << near_planar_pairs;
+  if (rotation_model_pairs) out << "\n  kept, rotation-only model (no measurable translation): " << rotation_model_pairs;
+  out << "\ntime: features " << features_s << " s (" << (n ? 1e3 * features_s / n : 0.0) << " ms/image), matching "
+      << matching_s << " s, relative pose + covariance " << relative_pose_s << " s ("
+      << (pairs.empty() ? 0.0 : 1e3 * (matching_s + relative_pose_s) / pairs.size()) << " ms/pair)";
+  if (focal.pairs > 0 || focal.estimated) out << "\n" << focal.Report() << " (" << focal_s << " s)";
+  for (const std::string& e : errors) out << "\nerror: " << e;
+  return out.str();
+}
+
+}  // namespace rotation_averaging

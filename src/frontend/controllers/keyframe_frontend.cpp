@@ -1,0 +1,447 @@
+#include "frontend/controllers/keyframe_frontend.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <set>
+
+#include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/parallel_for.h"
+
+namespace rotation_averaging {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
+
+}  // namespace
+
+struct KeyframeFrontend::Keyframe {
+  KeyframeKey key;
+  int camera_position = 0;               // index in by_camera_[key.frame_id]
+  bool has_sequential = false;           // sequential edge from the previous keyframe of its camera
+  Eigen::Matrix3d sequential_rotation;   // R_prev,this
+  Eigen::Matrix3d sequential_covariance;
+  ImageFeatures features;              // all of them, or the compact set once out of the recent window
+  std::unique_ptr<FeatureIndex> index;  // null once compact
+  bool compact = false;
+  bool bridged = false;                 // its previous pair failed and an older one of the window verified
+  BowVector bow;                        // with a vocabulary
+  // Per feature: inliers of the verified pairs it took part in. Features
+  // seen again from other views are the ones a later revisit will match.
+  std::vector<std::uint16_t> inlier_hits;
+  Eigen::Matrix3d k;  // intrinsics of the (resized) image the features come from
+};
+
+KeyframeFrontend::KeyframeFrontend(const KeyframeFrontendOptions& options) : options_(options) {
+  // A SIFT vocabulary describes SIFT descriptors only.
+  if (options_.vocabulary && (options_.features.type != FeatureType::kSift || options_.vocabulary->Dimension() != 128)) {
+    options_.vocabulary.reset();
+  }
+  if (options_.vocabulary) inverted_index_ = std::make_unique<InvertedIndex>(options_.vocabulary->NumWords());
+}
+KeyframeFrontend::~KeyframeFrontend() = default;
+
+std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const std::vector<PairTask>& tasks,
+                                                                         const Keyframe& newer) {
+  const auto start = Clock::now();
+  std::vector<PairOutcome> outcomes(tasks.size());
+  // A compact keyframe is matched within the vocabulary's branches (no
+  // index to build); without branch matching it gets a temporary index,
+  // built here on one thread: FLANN draws its trees from the global
+  // std::rand, which threads would race for.
+  auto by_branch = [&](const Keyframe& a) {
+    return a.compact && options_.match_compact_by_vocabulary && options_.vocabulary &&
+           a.features.words.size() == a.features.keypoints_px.size() &&
+           newer.features.words.size() == newer.features.keypoints_px.size();
+  };
+  std::vector<int> newer_branches;  // its two nearest, for matches across a boundary
+  for (const PairTask& task : tasks) {
+    if (!by_branch(*keyframes_[task.older])) continue;
+    newer_branches = options_.vocabulary->NearestCells(newer.features.descriptors, 2);
+    break;
+  }
+  std::vector<ImageFeatures> matchable(tasks.size());
+  std::vector<std::unique_ptr<FeatureIndex>> temporary(tasks.size());
+  for (std::size_t t = 0; t < tasks.size(); ++t) {
+    const Keyframe& a = *keyframes_[tasks[t].older];
+    if (!a.compact || by_branch(a)) continue;
+    matchable[t] = MatchableFeatures(a.features);
+    temporary[t] = std::make_unique<FeatureIndex>(matchable[t]);
+  }
+  ParallelFor(static_cast<int>(tasks.size()), ResolveThreadCount(options_.num_threads), [&](int t) {
+    const Keyframe& a = *keyframes_[tasks[t].older];
+    const ImageFeatures& a_features = a.compact && temporary[t] ? matchable[t] : a.features;
+    // A pair within one capture is estimated in the order of the camera
+    // frames, whichever image came first (see PairTask::newer_first).
+    const bool swap = tasks[t].newer_first && !a.compact;
+    std::vector<std::pair<int, int>> matches;
+    if (swap) {
+      matches = MatchFeatures(newer.features, *newer.index, a.features, *a.index, options_.matching);
+    } else if (by_branch(a)) {
+      std::vector<int> a_branches;
+      for (int w : a.features.words) a_branches.push_back(options_.vocabulary->CellOf(w));
+      matches = MatchFeaturesByGroup(a.features, a_branches, newer.features, newer_branches, options_.matching);
+    } else {
+      matches = MatchFeatures(a_features, a.compact ? *temporary[t] : *a.index, newer.features, *newer.index,
+                              options_.matching);
+    }
+    const Keyframe& first = swap ? newer : a;
+    const Keyframe& second = swap ? a : newer;
+    const ImageFeatures& first_features = swap ? newer.features : a_features;
+    std::vector<Eigen::Vector2d> pa, pb;
+    pa.reserve(matches.size());
+    pb.reserve(matches.size());
+    for (const auto& [i, j] : matches) {
+      pa.push_back(first_features.keypoints_px[i]);
+      pb.push_back(second.features.keypoints_px[j]);
+    }
+    RelativePoseOptions relative_pose = options_.relative_pose;
+    if (tasks[t].source == EdgeSource::kLoopClosure) {
+      relative_pose.jackknife_grid = std::max(relative_pose.jackknife_grid, options_.loop_jackknife_grid);
+    }
+    const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, first.k, second.k, relative_pose);
+    PairOutcome& out = outcomes[t];
+    if (!pose.success) {
+      out.failure = TwoViewFailureName(pose.failure);
+      return;
+    }
+    // The pose maps the first camera to the second; the edge is (first, second).
+    out.success = true;
+    out.rotation_model = pose.model == TwoViewModel::kRotation;
+    out.edge.keyframe1 = first.key;
+    out.edge.keyframe2 = second.key;
+    out.edge.rotation = pose.EdgeRotation();
+    out.edge.has_covariance = true;
+    out.edge.covariance = pose.covariance;
+    out.edge.num_inliers = static_cast<int>(pose.inliers.size());
+    out.inlier_features.reserve(pose.inliers.size());
+    for (int m : pose.inliers) {
+      const auto& [i, j] = matches[m];
+      out.inlier_features.emplace_back(swap ? j : i, swap ? i : j);
+    }
+    out.edge.source = tasks[t].source;
+  });
+  stats_.pairs_s += Seconds(start);
+  return outcomes;
+}
+
+void KeyframeFrontend::CountInliers(const PairTask& task, const PairOutcome& outcome, Keyframe* newer) {
+  Keyframe& older = *keyframes_[task.older];
+  const bool older_full = !older.compact && older.inlier_hits.size() == older.features.keypoints_px.size();
+  for (const auto& [i, j] : outcome.inlier_features) {
+    if (older_full && older.inlier_hits[i] < std::numeric_limits<std::uint16_t>::max()) ++older.inlier_hits[i];
+    if (newer->inlier_hits[j] < std::numeric_limits<std::uint16_t>::max()) ++newer->inlier_hits[j];
+  }
+}
+
+void KeyframeFrontend::Count(const PairOutcome& outcome) {
+  if (outcome.success) {
+    stats_.rotation_model_edges += outcome.rotation_model;
+  } else {
+    ++stats_.failed_pairs;
+    ++stats_.failures[outcome.failure];
+  }
+}
+
+bool KeyframeFrontend::ChainRotation(int a, int b, Eigen::Matrix3d* r_ab) const {
+  const Keyframe& ka = *keyframes_[a];
+  const Keyframe& kb = *keyframes_[b];
+  if (ka.key.frame_id != kb.key.frame_id) return false;
+  const std::vector<int>& chain = by_camera_.at(ka.key.frame_id);
+  Eigen::Matrix3d r = Eigen::Matrix3d::Identity();
+  for (int p = ka.camera_position + 1; p <= kb.camera_position; ++p) {
+    const Keyframe& k = *keyframes_[chain[p]];
+    if (!k.has_sequential) return false;
+    r = r * k.sequential_rotation;  // R_a,p = R_a,p-1 R_p-1,p
+  }
+  *r_ab = r;
+  return true;
+}
+
+void KeyframeFrontend::FilterInconsistentLoops(std::vector<KeyframeRelativeRotation>* loops,
+                                               const std::vector<int>& old_ends) {
+  const int n = static_cast<int>(loops->size());
+  if (n < 2) return;
+  std::vector<int> agree(n, 0), compared(n, 0);
+  for (int i = 0; i < n; ++i) {
+    for (int j = i + 1; j < n; ++j) {
+      // Order the old ends along the chain: a (earlier), c (later).
+      const bool i_first = keyframes_[old_ends[i]]->camera_position <= keyframes_[old_ends[j]]->camera_position;
+      const int a = i_first ? i : j, c = i_first ? j : i;
+      Eigen::Matrix3d r_ac;
+      if (!ChainRotation(old_ends[a], old_ends[c], &r_ac)) continue;
+      const Eigen::Matrix3d predicted = r_ac * (*loops)[c].rotation;  // R_ab = R_ac R_cb
+      const double angle = AngularDistanceRad(predicted, (*loops)[a].rotation);
+      const double spread = std::sqrt(((*loops)[a].covariance + (*loops)[c].covariance).trace());
+      const bool ok = angle <= DegToRad(options_.loop_consistency_deg) + 3.0 * spread;
+      ++compared[i];
+      ++compared[j];
+      if (ok) {
+        ++agree[i];
+        ++agree[j];
+      }
+    }
+  }
+  std::vector<bool> keep(n, true);
+  if (n == 2) {
+    if (compared[0] > 0 && agree[0] == 0) keep[(*loops)[0].num_inliers >= (*loops)[1].num_inliers ? 1 : 0] = false;
+  } else {
+    for (int i = 0; i < n; ++i) keep[i] = compared[i] == 0 || 2 * agree[i] >= compared[i];
+  }
+  std::vector<KeyframeRelativeRotation> kept;
+  for (int i = 0; i < n; ++i) {
+    if (keep[i]) kept.push_back((*loops)[i]);
+    else ++stats_.loops_rejected_inconsistent;
+  }
+  loops->swap(kept);
+}
+
+std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
+                                                                    const Eigen::Matrix3d& k) {
+  std::vector<KeyframeRelativeRotation> edges;
+  auto kf = std::make_unique<Keyframe>();
+  kf->key = key;
+  const auto start = Clock::now();
+  kf->features = ExtractFeatures(image, options_.features);
+  kf->index = std::make_unique<FeatureIndex>(kf->features);
+  kf->inlier_hits.assign(kf->features.keypoints_px.size(), 0);
+  const double s = options_.features.downsample > 0.0 ? options_.features.downsample : 1.0;
+  kf->k = ScaleIntrinsics(k, s);
+  stats_.last_features_s = Seconds(start);
+  stats_.features_s += stats_.last_features_s;
+  stats_.last_retrieval_s = stats_.last_pairs_s = 0.0;
+  if (options_.vocabulary) {
+    // Words first: retrieval scores them, and pairs with a compact keyframe
+    // are matched within the vocabulary's branches.
+    const auto words_start = Clock::now();
+    kf->features.words = options_.vocabulary->Assign(kf->features.descriptors);
+    kf->bow = options_.vocabulary->Describe(kf->features.words);
+    stats_.last_retrieval_s = Seconds(words_start);
+  }
+  const double pairs_before = stats_.pairs_s;
+  ++stats_.keyframes;
+  if (kf->features.keypoints_px.size() < 20) {
+    keyframes_.push_back(std::move(kf));
+    by_camera_[key.frame_id].push_back(static_cast<int>(keyframes_.size()) - 1);
+    return edges;
+  }
+
+  CompactDue(key.stamp_ns);
+  std::set<int> related;
+  std::vector<PairTask> tasks;
+  // Sequential: the previous keyframe of this camera.
+  const std::vector<int>& same = by_camera_[key.frame_id];
+  kf->camera_position = static_cast<int>(same.size());
+  const int window = std::min(std::max(1, options_.covisibility_window), static_cast<int>(same.size()));
+  for (int r = 1; r <= window; ++r) related.insert(same[same.size() - r]);
+  if (!same.empty()) tasks.push_back({same.back(), EdgeSource::kSequential});
+  // Rig: the other cameras' keyframes of the same capture.
+  const std::int64_t tolerance_ns = static_cast<std::int64_t>(options_.rig_stamp_tolerance_s * 1e9);
+  for (const auto& [camera, indices] : by_camera_) {
+    if (camera == key.frame_id) continue;
+    for (auto it = indices.rbegin(); it != indices.rend(); ++it) {
+      const Keyframe& other = *keyframes_[*it];
+      if (std::llabs(other.key.stamp_ns - key.stamp_ns) <= tolerance_ns) {
+        // Two cameras with known extrinsics need no image edge.
+        if (rig_calibrated_.count(camera) && rig_calibrated_.count(key.frame_id)) {
+          ++stats_.rig_pairs_skipped;
+        } else {
+          tasks.push_back({*it, EdgeSource::kRig, key.frame_id < camera});
+        }
+        related.insert(*it);
+      }
+      if (other.key.stamp_ns < key.stamp_ns - tolerance_ns) break;  // older captures of that camera
+    }
+  }
+  // Loop-closure candidates: retrieval does not depend on this keyframe's
+  // pairs, so all of them are verified in one batch on the thread pool.
+  std::vector<PairTask> candidates;
+  if (options_.max_loop_candidates > 0) {
+    const auto retrieval_start = Clock::now();
+    std::set<int> excluded = related;
+    for (int r = 0; r < options_.loop_exclude_recent && r < static_cast<int>(same.size()); ++r) {
+      excluded.insert(same[same.size() - 1 - r]);
+    }
+    const std::vector<int> retrieved = options_.vocabulary
+                                           ? RetrieveByVocabulary(*kf, excluded, same.empty() ? -1 : same.back())
+                                           : RetrieveByVoting(*kf, excluded);
+    stats_.last_retrieval_s += Seconds(retrieval_start);
+    stats_.retrieval_s += stats_.last_retrieval_s;
+    for (int c : retrieved) candidates.push_back({c, EdgeSource::kLoopClosure});
+    stats_.loop_candidates_tried += candidates.size();
+  }
+  // Older keyframes of the window bridge a failed previous pair. Failures
+  // come in runs (a stretch of pure rotation, a blurred stretch): when the
+  // previous keyframe of this camera needed a bridge, they are verified in
+  // the same batch, which costs idle threads rather than a second round.
+  std::vector<PairTask> fallback;
+  for (int r = 2; r <= window; ++r) fallback.push_back({same[same.size() - r], EdgeSource::kSequential});
+  const bool speculate = !fallback.empty() && keyframes_[same.back()]->bridged;
+  std::vector<PairTask> batch = tasks;
+  batch.insert(batch.end(), candidates.begin(), candidates.end());
+  if (speculate) batch.insert(batch.end(), fallback.begin(), fallback.end());
+  const std::vector<PairOutcome> verified_batch = VerifyPairs(batch, *kf);
+  std::vector<PairOutcome> outcomes(verified_batch.begin(), verified_batch.begin() + tasks.size());
+  const std::vector<PairOutcome> verified_loops(verified_batch.begin() + tasks.size(),
+                                                verified_batch.begin() + tasks.size() + candidates.size());
+  for (const PairOutcome& o : outcomes) Count(o);
+  if (!same.empty() && !outcomes[0].success && !fallback.empty()) {
+    // The previous pair failed: the newest older keyframe of the window that
+    // verifies keeps the chain whole.
+    const std::vector<PairOutcome> verified =
+        speculate ? std::vector<PairOutcome>(verified_batch.end() - fallback.size(), verified_batch.end())
+                  : VerifyPairs(fallback, *kf);
+    for (const PairOutcome& o : verified) Count(o);
+    for (std::size_t f = 0; f < fallback.size(); ++f) {
+      if (!verified[f].success) continue;
+      tasks.push_back(fallback[f]);
+      outcomes.push_back(verified[f]);
+      ++stats_.chain_bridged;
+      kf->bridged = true;
+      break;
+    }
+  }
+  for (std::size_t t = 0; t < tasks.size(); ++t) {
+    if (!outcomes[t].success) continue;
+    const KeyframeRelativeRotation& e = outcomes[t].edge;
+    edges.push_back(e);
+    CountInliers(tasks[t], outcomes[t], kf.get());
+    if (tasks[t].source == EdgeSource::kRig) {
+      ++stats_.rig_edges;
+      continue;
+    }
+    ++stats_.sequential_edges;
+    if (tasks[t].older == same.back()) {  // the previous keyframe: the chain loop closures are checked along
+      kf->has_sequential = true;
+      kf->sequential_rotation = e.rotation;
+      kf->sequential_covariance = e.covariance;
+    }
+  }
+  // Loop closures: enough inliers, and consistent with each other.
+  std::vector<KeyframeRelativeRotation> loops;
+  std::vector<int> old_ends;
+  for (std::size_t c = 0; c < candidates.size(); ++c) {
+    Count(verified_loops[c]);
+    if (!verified_loops[c].success) continue;
+    const double needed = keyframes_[candidates[c].older]->compact
+                              ? options_.compact_loop_inlier_fraction * options_.min_loop_inliers
+                              : options_.min_loop_inliers;
+    if (verified_loops[c].edge.num_inliers < needed) {
+      ++stats_.failed_pairs;
+      ++stats_.failures["loop_too_few_inliers"];
+      continue;
+    }
+    loops.push_back(verified_loops[c].edge);
+    old_ends.push_back(candidates[c].older);
+  }
+  FilterInconsistentLoops(&loops, old_ends);
+  for (const KeyframeRelativeRotation& e : loops) {
+    edges.push_back(e);
+    ++stats_.loop_closure_edges;
+    for (std::size_t c = 0; c < candidates.size(); ++c) {
+      const KeyframeKey& k1 = keyframes_[candidates[c].older]->key;
+      if (k1.frame_id == e.keyframe1.frame_id && k1.stamp_ns == e.keyframe1.stamp_ns) {
+        CountInliers(candidates[c], verified_loops[c], kf.get());
+      }
+    }
+  }
+  if (inverted_index_) inverted_index_->Add(static_cast<int>(keyframes_.size()), kf->bow);
+  stats_.keyframe_bytes += KeyframeBytes(*kf);
+  keyframes_.push_back(std::move(kf));
+  std::vector<int>& chain = by_camera_[key.frame_id];
+  chain.push_back(static_cast<int>(keyframes_.size()) - 1);
+  // The keyframe leaving this camera's recent window: rig, sequential and
+  // bridging pairs only reach into the window, loop closures need less. It
+  // is compacted once a later capture arrives, so that every camera's image
+  // of this capture sees the same keyframes whatever order they came in.
+  const int recent = std::max(1, options_.covisibility_window);
+  if (options_.vocabulary && static_cast<int>(chain.size()) > recent) {
+    due_compaction_.push_back({chain[chain.size() - 1 - recent], key.stamp_ns});
+  }
+  stats_.last_pairs_s = stats_.pairs_s - pairs_before;
+  return edges;
+}
+
+std::string KeyframeFrontend::RetrievalName() const {
+  return options_.vocabulary
+             ? "vocabulary of " + std::to_string(options_.vocabulary->NumWords()) + " words (inverted index)"
+             : "voting over every keyframe (no vocabulary)";
+}
+
+std::size_t KeyframeFrontend::KeyframeBytes(const Keyframe& keyframe) const {
+  // The bag of words, and its entries in the inverted index.
+  return FeatureMemoryBytes(keyframe.features) + 2 * keyframe.bow.size() * sizeof(std::pair<int, float>);
+}
+
+void KeyframeFrontend::CompactDue(std::int64_t stamp_ns) {
+  const std::int64_t tolerance_ns = static_cast<std::int64_t>(options_.rig_stamp_tolerance_s * 1e9);
+  std::vector<std::pair<int, std::int64_t>> later;
+  for (const auto& [index, capture_ns] : due_compaction_) {
+    if (capture_ns < stamp_ns - tolerance_ns) {
+      Compact(keyframes_[index].get());
+    } else {
+      later.emplace_back(index, capture_ns);
+    }
+  }
+  due_compaction_.swap(later);
+}
+
+void KeyframeFrontend::Compact(Keyframe* keyframe) {
+  if (keyframe->compact) return;
+  stats_.keyframe_bytes -= KeyframeBytes(*keyframe);
+  keyframe->features = CompactFeatures(keyframe->features, options_.compact_features, keyframe->inlier_hits);
+  keyframe->inlier_hits.clear();
+  keyframe->inlier_hits.shrink_to_fit();
+  keyframe->index.reset();
+  keyframe->compact = true;
+  stats_.keyframe_bytes += KeyframeBytes(*keyframe);
+  stats_.compact_bytes += KeyframeBytes(*keyframe);
+  ++stats_.compacted_keyframes;
+}
+
+std::vector<int> KeyframeFrontend::RetrieveByVocabulary(const Keyframe& kf, const std::set<int>& excluded,
+                                                        int previous) {
+  double min_score = 0.0;
+  if (previous >= 0 && options_.min_retrieval_score_ratio > 0.0) {
+    min_score = options_.min_retrieval_score_ratio * BowScore(kf.bow, keyframes_[previous]->bow);
+  }
+  const std::vector<std::pair<double, int>> hits =
+      inverted_index_->Query(kf.bow, options_.max_loop_candidates, min_score, [&](int id) {
+        return excluded.count(id) > 0 || keyframes_[id]->features.keypoints_px.size() < 20;
+      });
+  std::vector<int> out;
+  for (const auto& [score, id] : hits) out.push_back(id);
+  return out;
+}
+
+std::vector<int> KeyframeFrontend::RetrieveByVoting(const Keyframe& kf, const std::set<int>& excluded) {
+  const cv::Mat& d = kf.features.descriptors;
+  cv::Mat sample;
+  if (d.rows <= options_.retrieval_sample) {
+    sample = d;
+  } else {
+    sample.create(options_.retrieval_sample, d.cols, d.type());
+    for (int r = 0; r < options_.retrieval_sample; ++r) {
+      d.row(static_cast<int>(static_cast<long long>(r) * d.rows / options_.retrieval_sample)).copyTo(sample.row(r));
+    }
+  }
+  std::vector<int> counts(keyframes_.size(), 0);
+  ParallelFor(static_cast<int>(keyframes_.size()), ResolveThreadCount(options_.num_threads), [&](int i) {
+    if (excluded.count(i) || keyframes_[i]->features.keypoints_px.size() < 20) return;
+    const std::vector<int> nn = keyframes_[i]->index->RatioMatches(sample, options_.matching.ratio);
+    counts[i] = static_cast<int>(std::count_if(nn.begin(), nn.end(), [](int j) { return j >= 0; }));
+  });
+  std::vector<std::pair<int, int>> votes;  // (votes, keyframe index)
+  for (int i = 0; i < static_cast<int>(counts.size()); ++i) {
+    if (counts[i] >= options_.min_retrieval_votes) votes.emplace_back(counts[i], i);
+  }
+  std::sort(votes.rbegin(), votes.rend());
+  std::vector<int> out;
+  for (int c = 0; c < options_.max_loop_candidates && c < static_cast<int>(votes.size()); ++c) {
+    out.push_back(votes[c].second);
+  }
+  return out;
+}
+
+}  // namespace rotation_averaging

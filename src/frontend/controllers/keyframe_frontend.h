@@ -1,0 +1,201 @@
+// Internal to the package: may change between versions.
+// Keyframe front end for the live node, free of ROS: each keyframe image is
+// described once and related to
+//  * the previous keyframe of the same camera (sequential edge) or, when that
+//    pair fails, the newest of the `covisibility_window` last keyframes that
+//    verifies: one failed pair does not cut the chain,
+//  * the keyframes of the other cameras captured within a stamp tolerance
+//    (rig edges),
+//  * up to `max_loop_candidates` older keyframes found by image retrieval
+//    (loop-closure edges), each verified by a relative pose.
+// Retrieval with a vocabulary (frontend/features/vocabulary.h): the keyframes whose
+// tf-idf bag of words scores highest against the new one's in an inverted
+// index. Its cost hardly grows with the map, and keyframes that have left the
+// recent window keep only their `compact_features` best features (SIFT
+// descriptors packed at 4 bits per value, and their words), about 105 KB
+// each, and are matched within
+// the vocabulary tree's branches. Without a vocabulary: a fixed sample of
+// the new keyframe's descriptors is matched against every older keyframe's
+// nearest-neighbour index, whose cost and memory grow with the map (every
+// keyframe keeps all its features and an index).
+// Pair verification and retrieval run on `num_threads` threads; the edges and
+// their order do not depend on the thread count, nor on the order in which
+// the cameras' images of one capture arrive.
+#ifndef ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_FRONTEND_H_
+#define ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_FRONTEND_H_
+
+#include <map>
+#include <set>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "rotation_averaging/core/controllers/online_averager.h"
+#include "rotation_averaging/frontend/estimators/relative_pose.h"
+#include "rotation_averaging/frontend/features/features.h"
+#include "rotation_averaging/frontend/features/vocabulary.h"
+
+namespace rotation_averaging {
+
+struct KeyframeFrontendOptions {
+  FeatureOptions features;              // downsample applies to the incoming images
+  MatchOptions matching;
+  RelativePoseOptions relative_pose;
+  double rig_stamp_tolerance_s = 0.005;  // cameras of one capture: stamps within this
+  // Keyframes of the same camera a new one may be related to: the previous
+  // one, or when that pair fails, the newest older one in this window that
+  // verifies. With 1, every failed pair (motion blur, a view that turned
+  // away) splits the graph. Relating every keyframe to all of the window was
+  // measured and is worse: the longer pairs err more than their covariances
+  // say (castle-P19 at 1/4: median whitened error 71 for neighbours, 324 for
+  // pairs three apart), and the median went from 0.12 to 0.31 deg on
+  // castle-P19 and from 0.0195 to 0.0233 deg on the demo bag.
+  int covisibility_window = 3;
+  int num_threads = 0;                  // pair verification and retrieval; 0: the machine's cores
+  int max_loop_candidates = 3;          // verified per keyframe
+  int loop_exclude_recent = 5;          // keyframes of the same camera too recent to be loop closures
+  // Retrieval by vocabulary (null: by voting, linear in the map; see above).
+  std::shared_ptr<const Vocabulary> vocabulary;
+  // Features a keyframe keeps beyond the recent window (vocabulary only):
+  // first those that were inliers of the most verified pairs (seen from
+  // other views, they are what a revisit matches), then the strongest.
+  // Twice as many fit in 200 KB and find one more loop closure on
+  // castle-P19 (5 of 5), but those loop pairs err several times what their
+  // covariances give, and the averaging got worse with them (castle-P19 mean
+  // 0.28 -> 0.59 deg, entry-P10 median 0.035 -> 0.14 deg; results/replay.md,
+  // "Twice the features per compact keyframe").
+  int compact_features = 1000;
+  // Pairs with a compact keyframe (loop closures) match features only within
+  // the same first-level branch of the vocabulary tree, as ORB-SLAM matches
+  // by vocabulary, instead of a kd-tree search over all of them.
+  bool match_compact_by_vocabulary = true;
+  // Candidates must score at least this fraction of the new keyframe's score
+  // with its previous keyframe (a view it certainly overlaps).
+  double min_retrieval_score_ratio = 0.0;
+  int retrieval_sample = 300;           // voting: descriptors of the new keyframe used
+  int min_retrieval_votes = 15;         // voting: candidates with fewer votes are not verified
+  // Loop closures need more evidence than sequential edges: repetitive
+  // structure makes wrong but geometrically consistent pairs with few
+  // inliers (on castle-P19 at 1/4 scale, played as a bag at a threshold of
+  // 30: a loop 82.5 deg off with 24 inliers to a compact keyframe). Above
+  // 40, the weak loops are right but err several times what the pixel model
+  // gives (0.3-0.95 deg); the cell jackknife (loop_jackknife_grid) widens
+  // their covariances to cover that, which is what lets the threshold be
+  // this low: entry-P10's median is 0.035 deg with it at 40, 0.19 deg
+  // without it at 40 and 0.034 deg without it at 60, where one of its five
+  // loop pairs is missed (results/replay.md, "Loop closures and their
+  // covariances").
+  int min_loop_inliers = 40;
+  // A compact keyframe keeps a part of the correspondences a loop pair would
+  // have with all of its features (about three quarters, median over the
+  // Strecha loop pairs in results/replay.md), so a loop closure to one needs
+  // this fraction of min_loop_inliers: the same evidence.
+  double compact_loop_inlier_fraction = 0.75;
+  // Loop closures found for one keyframe check each other through the chain
+  // of sequential edges between their old ends: R_a1b ~ R_a1a2 R_a2b. Two
+  // loops agree when that prediction is within this angle (plus three
+  // predicted standard deviations). With three or more, the loops that agree
+  // with fewer than half of the others are dropped; of two that disagree,
+  // the one with more inliers is kept.
+  double loop_consistency_deg = 1.0;
+  // Loop-closure pairs get the cell jackknife's covariance
+  // (RelativePoseOptions::jackknife_grid) with this grid, whatever
+  // relative_pose says: they are the wide-baseline pairs, where groups of
+  // matches on repeated structure share their error and the pixel model is
+  // over-confident (median NEES of the loop closures found on castle-P19 35
+  // with the pixel model, 18 with the jackknife; entry-P10 575 and 12;
+  // results/replay.md). Sequential and
+  // rig pairs keep relative_pose's setting: on the demo's rendered rig the
+  // jackknife on every pair costs accuracy. 0: the pixel model for loops too.
+  int loop_jackknife_grid = 4;
+};
+
+struct KeyframeFrontendStats {
+  std::uint64_t keyframes = 0;
+  std::uint64_t sequential_edges = 0, rig_edges = 0, loop_closure_edges = 0;
+  std::uint64_t rig_pairs_skipped = 0;   // same capture, both cameras with known extrinsics
+  std::uint64_t chain_bridged = 0;         // previous pair failed, an older keyframe of the window verified
+  std::uint64_t rotation_model_edges = 0;  // edges from the rotation-only two-view model (no parallax)
+  std::uint64_t loop_candidates_tried = 0;
+  std::uint64_t loops_rejected_inconsistent = 0;
+  std::uint64_t failed_pairs = 0;
+  std::map<std::string, std::uint64_t> failures;  // two-view failure reason -> count
+  double features_s = 0.0, retrieval_s = 0.0, pairs_s = 0.0;  // wall time
+  double last_features_s = 0.0, last_retrieval_s = 0.0, last_pairs_s = 0.0;  // of the latest keyframe
+  std::uint64_t compacted_keyframes = 0;
+  // Features and retrieval data held (bag of words and its postings; not the
+  // nearest-neighbour indices of the recent window), and of that, by the
+  // compact keyframes.
+  std::size_t keyframe_bytes = 0, compact_bytes = 0;
+};
+
+class KeyframeFrontend {
+ public:
+  explicit KeyframeFrontend(const KeyframeFrontendOptions& options);
+  ~KeyframeFrontend();
+
+  // Adds a keyframe (8-bit image, intrinsics of that image, no distortion)
+  // and returns the verified relative rotations it produced. Images that
+  // yield too few features give no edges.
+  std::vector<KeyframeRelativeRotation> AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
+                                                    const Eigen::Matrix3d& k);
+  const KeyframeFrontendStats& Stats() const { return stats_; }
+  // A camera whose rotation within the rig is known (extrinsics): pairs of
+  // such cameras in one capture are not matched (the rig model relates them).
+  void SetRigCalibrated(const std::string& camera_frame) { rig_calibrated_.insert(camera_frame); }
+  std::size_t NumKeyframes() const { return keyframes_.size(); }
+  bool UsesVocabulary() const { return options_.vocabulary != nullptr; }
+  // "vocabulary of N words (inverted index)" or "voting over every keyframe (no vocabulary)".
+  std::string RetrievalName() const;
+
+ private:
+  struct Keyframe;
+  // R_ab composed along the sequential edges of one camera (a before b);
+  // false if the chain between them is broken.
+  bool ChainRotation(int a, int b, Eigen::Matrix3d* r_ab) const;
+  void FilterInconsistentLoops(std::vector<KeyframeRelativeRotation>* loops, const std::vector<int>& old_ends);
+  struct PairTask {
+    int older = 0;  // index into keyframes_ (the edge's first keyframe)
+    EdgeSource source = EdgeSource::kSequential;
+    // The new keyframe is the edge's first: two cameras of one capture are
+    // related in the order of their frame ids, not of their arrival.
+    bool newer_first = false;
+  };
+  // Keeps only what loop-closure verification needs of a keyframe that left
+  // the recent window.
+  void Compact(Keyframe* keyframe);
+  // Compacts the keyframes that left their window in a capture older than
+  // `stamp_ns` (beyond the rig tolerance).
+  void CompactDue(std::int64_t stamp_ns);
+  // Loop-closure candidates of `kf` among keyframes outside `excluded`.
+  std::vector<int> RetrieveByVocabulary(const Keyframe& kf, const std::set<int>& excluded, int previous);
+  std::vector<int> RetrieveByVoting(const Keyframe& kf, const std::set<int>& excluded);
+  std::size_t KeyframeBytes(const Keyframe& keyframe) const;
+  struct PairOutcome {
+    bool success = false;
+    KeyframeRelativeRotation edge;
+    bool rotation_model = false;
+    std::string failure;
+    std::vector<std::pair<int, int>> inlier_features;  // (older's feature, newer's feature)
+  };
+  // Counts the inliers of a pair whose edge is used on both keyframes' features.
+  void CountInliers(const PairTask& task, const PairOutcome& outcome, Keyframe* newer);
+  // Verifies every task against `newer` (on the thread pool); the outcomes
+  // are in task order. Count adds an outcome whose result is used to the
+  // statistics (speculative ones are not counted when not needed).
+  std::vector<PairOutcome> VerifyPairs(const std::vector<PairTask>& tasks, const Keyframe& newer);
+  void Count(const PairOutcome& outcome);
+
+  KeyframeFrontendOptions options_;
+  std::vector<std::unique_ptr<Keyframe>> keyframes_;
+  std::map<std::string, std::vector<int>> by_camera_;  // indices into keyframes_, in arrival order
+  KeyframeFrontendStats stats_;
+  std::set<std::string> rig_calibrated_;
+  std::unique_ptr<InvertedIndex> inverted_index_;  // with a vocabulary
+  // (keyframe, stamp of the capture that pushed it out of its window)
+  std::vector<std::pair<int, std::int64_t>> due_compaction_;
+};
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_FRONTEND_H_

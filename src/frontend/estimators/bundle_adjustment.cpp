@@ -1,0 +1,436 @@
+#include "rotation_averaging/frontend/estimators/bundle_adjustment.h"
+
+#include <ceres/ceres.h>
+#include <ceres/rotation.h>
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <numeric>
+#include <sstream>
+#include <tuple>
+
+namespace rotation_averaging {
+namespace {
+
+// Whitened reprojection error of one observation: the point X in the camera
+// with angle-axis orientation w (world to camera) and centre c projects to
+// (y0 / y2, y1 / y2), y = R(w) (X - c).
+struct WhitenedReprojection {
+  WhitenedReprojection(const Eigen::Vector2d& x, double inverse_sigma) : x_(x), inverse_sigma_(inverse_sigma) {}
+
+  template <typename T>
+  bool operator()(const T* w, const T* c, const T* point, T* residual) const {
+    const T d[3] = {point[0] - c[0], point[1] - c[1], point[2] - c[2]};
+    T y[3];
+    ceres::AngleAxisRotatePoint(w, d, y);
+    residual[0] = T(inverse_sigma_) * (y[0] / y[2] - T(x_.x()));
+    residual[1] = T(inverse_sigma_) * (y[1] / y[2] - T(x_.y()));
+    return true;
+  }
+
+  Eigen::Vector2d x_;
+  double inverse_sigma_;
+};
+
+// c_j - c_i - s d: the least-unsquared-deviations residual of one edge.
+struct CentreDeviation {
+  explicit CentreDeviation(const Eigen::Vector3d& d) : d_(d) {}
+
+  template <typename T>
+  bool operator()(const T* ci, const T* cj, const T* s, T* residual) const {
+    for (int k = 0; k < 3; ++k) residual[k] = cj[k] - ci[k] - s[0] * T(d_[k]);
+    return true;
+  }
+
+  Eigen::Vector3d d_;
+};
+
+// A pair of the rotation-only model: its matches join the tracks, but it
+// gives no direction between the centres.
+bool RotationOnly(const EdgeCorrespondences& e) { return e.translation.isZero(0.0); }
+
+int Root(std::vector<int>* parent, int v) {
+  while ((*parent)[v] != v) v = (*parent)[v] = (*parent)[(*parent)[v]];
+  return v;
+}
+
+// Joins the sets of a and b; the smaller root stays the root.
+void Unite(std::vector<int>* parent, int a, int b) {
+  a = Root(parent, a);
+  b = Root(parent, b);
+  if (a != b) (*parent)[std::max(a, b)] = std::min(a, b);
+}
+
+struct Observation {
+  int view = 0;  // index into the views
+  Eigen::Vector2d x;
+};
+
+struct Track {
+  std::vector<Observation> observations;
+  Eigen::Vector3d point = Eigen::Vector3d::Zero();
+};
+
+struct AdjustedView {
+  ViewId id = 0;
+  Eigen::Matrix3d rotation;
+  Eigen::Vector3d angle_axis = Eigen::Vector3d::Zero();
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  double sigma = 0.0;  // pixel noise over the focal length
+};
+
+Eigen::Vector3d Ray(const AdjustedView& v, const Eigen::Vector2d& x) {
+  return (v.rotation.transpose() * x.homogeneous()).normalized();
+}
+
+ceres::Solver::Options SolverOptions(int max_iterations) {
+  ceres::Solver::Options options;
+  options.linear_solver_type = ceres::SPARSE_SCHUR;
+  options.max_num_iterations = std::max(1, max_iterations);
+  // One thread: Ceres sums the gradient and the Schur complement over
+  // threads in the order they finish, so more threads give results that
+  // differ in the last bits from run to run.
+  options.num_threads = 1;
+  options.logging_type = ceres::SILENT;
+  return options;
+}
+
+// Midpoint of the track's rays: the point nearest to all of them. False if
+// the rays are nearly parallel or the point is behind a camera.
+bool Triangulate(const std::vector<AdjustedView>& views, double min_parallax_rad, Track* track) {
+  Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d b = Eigen::Vector3d::Zero();
+  double max_angle = 0.0;
+  std::vector<Eigen::Vector3d> rays;
+  for (const Observation& o : track->observations) {
+    const AdjustedView& v = views[o.view];
+    const Eigen::Vector3d r = Ray(v, o.x);
+    const Eigen::Matrix3d p = Eigen::Matrix3d::Identity() - r * r.transpose();
+    a += p;
+    b += p * v.centre;
+    for (const Eigen::Vector3d& earlier : rays) {
+      max_angle = std::max(max_angle, std::acos(std::clamp(r.dot(earlier), -1.0, 1.0)));
+    }
+    rays.push_back(r);
+  }
+  if (max_angle < min_parallax_rad) return false;
+  const Eigen::Vector3d point = a.ldlt().solve(b);
+  if (!point.allFinite()) return false;
+  for (const Observation& o : track->observations) {
+    const AdjustedView& v = views[o.view];
+    if ((v.rotation * (point - v.centre)).z() <= 0.0) return false;
+  }
+  track->point = point;
+  return true;
+}
+
+double WhitenedSquaredError(const AdjustedView& v, const Track& t, const Observation& o) {
+  const Eigen::Vector3d y = v.rotation * (t.point - v.centre);
+  return ((y.head<2>() / y.z() - o.x) / v.sigma).squaredNorm();
+}
+
+}  // namespace
+
+std::string BundleAdjustmentSummary::Report() const {
+  std::ostringstream out;
+  out << "bundle adjustment: " << views << " views, " << edges_used << " edges (" << edges_rotation_only
+      << " of the rotation-only model, " << edges_skipped << " unusable), "
+      << tracks << " tracks (" << tracks_inconsistent << " inconsistent, " << tracks_short << " in too few views, "
+      << tracks_unconstrained
+      << " without parallax or behind a camera), " << observations << " observations (" << observations_dropped
+      << " dropped), rms reprojection error " << initial_rms_sigmas << " sigma at the centres from the pairs, "
+      << final_rms_sigmas << " sigma adjusted, "
+      << iterations << " iterations, " << time_s << " s" << (converged ? "" : " (not converged)");
+  if (!status.empty()) out << ": " << status;
+  return out.str();
+}
+
+bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>& edges,
+                                         const BundleAdjustmentOptions& options, ViewOrientations* orientations,
+                                         BundleAdjustmentSummary* summary,
+                                         std::unordered_map<ViewId, Eigen::Vector3d>* centres) {
+  const auto start = std::chrono::steady_clock::now();
+  *summary = BundleAdjustmentSummary();
+  auto finish = [&](bool ok, const std::string& status) {
+    summary->status = status;
+    summary->time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return ok;
+  };
+
+  // Views in id order (the gauge and the solves do not depend on hashing),
+  // and the usable edges.
+  std::map<ViewId, int> index;
+  std::vector<AdjustedView> views;
+  std::vector<const EdgeCorrespondences*> used;
+  for (const EdgeCorrespondences& e : edges) {
+    const auto a = orientations->find(e.view1), b = orientations->find(e.view2);
+    if (e.view1 == e.view2 || a == orientations->end() || b == orientations->end() ||
+        e.points1.size() != e.points2.size() ||
+        static_cast<int>(e.points1.size()) < std::max(1, options.min_correspondences) ||
+        !CorrespondencesAreFinite(e, true) || !a->second.allFinite() || !b->second.allFinite()) {
+      ++summary->edges_skipped;
+      continue;
+    }
+    summary->edges_rotation_only += RotationOnly(e);
+    used.push_back(&e);
+    index.emplace(e.view1, 0);
+    index.emplace(e.view2, 0);
+  }
+  if (used.empty()) return finish(false, "no edge with enough correspondences between oriented views");
+  for (auto& [id, k] : index) {
+    k = static_cast<int>(views.size());
+    AdjustedView v;
+    v.id = id;
+    v.rotation = orientations->at(id);
+    Eigen::AngleAxisd angle_axis(v.rotation);
+    v.angle_axis = angle_axis.angle() * angle_axis.axis();
+    views.push_back(v);
+  }
+  std::vector<std::vector<double>> sigmas(views.size());
+  for (const EdgeCorrespondences* e : used) {
+    sigmas[index[e->view1]].push_back(e->sigma);
+    sigmas[index[e->view2]].push_back(e->sigma);
+  }
+  for (std::size_t v = 0; v < views.size(); ++v) {
+    auto mid = sigmas[v].begin() + sigmas[v].size() / 2;
+    std::nth_element(sigmas[v].begin(), mid, sigmas[v].end());
+    views[v].sigma = *mid;
+  }
+
+  // 1. Tracks: keypoints linked by the matches; a keypoint is its view and
+  // its coordinates, which are the same numbers in every edge it is in.
+  std::map<std::tuple<int, double, double>, int> keypoints;
+  std::vector<Observation> keypoint_list;
+  std::vector<int> parent;
+  auto keypoint = [&](int view, const Eigen::Vector2d& x) {
+    const auto [it, added] = keypoints.emplace(std::make_tuple(view, x.x(), x.y()), static_cast<int>(parent.size()));
+    if (added) {
+      parent.push_back(it->second);
+      keypoint_list.push_back({view, x});
+    }
+    return it->second;
+  };
+  for (const EdgeCorrespondences* e : used) {
+    const int v1 = index[e->view1], v2 = index[e->view2];
+    for (std::size_t m = 0; m < e->points1.size(); ++m) {
+      const int a = keypoint(v1, e->points1[m]), b = keypoint(v2, e->points2[m]);  // in this order: ids by arrival
+      Unite(&parent, a, b);
+    }
+  }
+  std::map<int, Track> by_root;
+  for (std::size_t k = 0; k < keypoint_list.size(); ++k) {
+    by_root[Root(&parent, static_cast<int>(k))].observations.push_back(keypoint_list[k]);
+  }
+  std::vector<Track> tracks;
+  for (auto& [root, track] : by_root) {
+    std::vector<int> seen;
+    for (const Observation& o : track.observations) seen.push_back(o.view);
+    std::sort(seen.begin(), seen.end());
+    if (std::adjacent_find(seen.begin(), seen.end()) != seen.end()) {
+      ++summary->tracks_inconsistent;
+      continue;
+    }
+    if (static_cast<int>(seen.size()) < std::max(2, options.min_track_views)) {
+      ++summary->tracks_short;
+      continue;
+    }
+    tracks.push_back(std::move(track));
+  }
+
+  ceres::Problem::Options problem_options;
+  problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+
+  // 2. Centres by least unsquared deviations, the orientations held, from
+  // the edges with a translation direction; each group of views they
+  // connect has its first view's centre held.
+  {
+    std::vector<int> linked(views.size());
+    std::iota(linked.begin(), linked.end(), 0);
+    for (const EdgeCorrespondences* e : used) {
+      if (RotationOnly(*e)) continue;
+      Unite(&linked, index[e->view1], index[e->view2]);
+    }
+    ceres::Problem problem(problem_options);
+    // sqrt(1 + r^2) - 1 on the norm of each edge's 3-vector: L1 beyond a
+    // small fraction of the shortest baseline (s >= 1).
+    ceres::SoftLOneLoss loss(0.01);
+    std::vector<double> scales(used.size(), 1.0);
+    for (std::size_t k = 0; k < used.size(); ++k) {
+      const EdgeCorrespondences& e = *used[k];
+      if (RotationOnly(e)) continue;
+      AdjustedView& vi = views[index[e.view1]];
+      AdjustedView& vj = views[index[e.view2]];
+      const Eigen::Matrix3d r21 = vj.rotation * vi.rotation.transpose();
+      // t_21 = R_j (c_i - c_j), so c_j - c_i = -R_j^T t_21.
+      const Eigen::Vector3d d = -(vj.rotation.transpose() * BestTranslationDirection(e, r21)).normalized();
+      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CentreDeviation, 3, 3, 3, 1>(new CentreDeviation(d)),
+                               &loss, vi.centre.data(), vj.centre.data(), &scales[k]);
+      problem.SetParameterLowerBound(&scales[k], 0, 1.0);
+    }
+    for (std::size_t k = 0; k < views.size(); ++k) {
+      if (Root(&linked, static_cast<int>(k)) == static_cast<int>(k) && problem.HasParameterBlock(views[k].centre.data())) {
+        problem.SetParameterBlockConstant(views[k].centre.data());
+      }
+    }
+    if (problem.NumResidualBlocks() > 0) {
+      ceres::Solver::Options solver_options = SolverOptions(options.max_iterations);
+      solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+      ceres::Solver::Summary ceres_summary;
+      ceres::Solve(solver_options, &problem, &ceres_summary);
+      summary->iterations += static_cast<int>(ceres_summary.iterations.size()) - 1;
+      if (!ceres_summary.IsSolutionUsable()) return finish(false, "centres: " + ceres_summary.message);
+    }
+    // A view the directions leave out but a rotation-only pair links to one
+    // they place was taken from that view's centre.
+    std::vector<bool> placed(views.size());
+    for (std::size_t k = 0; k < views.size(); ++k) placed[k] = problem.HasParameterBlock(views[k].centre.data());
+    for (bool moved = true; moved;) {
+      moved = false;
+      for (const EdgeCorrespondences* e : used) {
+        const int a = index[e->view1], b = index[e->view2];
+        if (!RotationOnly(*e) || placed[a] == placed[b]) continue;
+        const int from = placed[a] ? a : b, to = placed[a] ? b : a;
+        views[to].centre = views[from].centre;
+        placed[to] = moved = true;
+      }
+    }
+  }
+
+  // 3. Points.
+  const double min_parallax = options.min_parallax_deg * M_PI / 180.0;
+  auto triangulate_all = [&]() {
+    std::vector<Track> kept;
+    for (Track& t : tracks) {
+      if (Triangulate(views, min_parallax, &t)) {
+        kept.push_back(std::move(t));
+      } else {
+        ++summary->tracks_unconstrained;
+      }
+    }
+    tracks = std::move(kept);
+  };
+  triangulate_all();
+  if (tracks.empty()) return finish(false, "no track could be triangulated");
+  auto rms = [&]() {
+    double sum = 0.0;
+    std::size_t n = 0;
+    for (const Track& t : tracks) {
+      for (const Observation& o : t.observations) sum += WhitenedSquaredError(views[o.view], t, o), ++n;
+    }
+    return n ? std::sqrt(sum / (2.0 * n)) : 0.0;  // per coordinate
+  };
+  summary->initial_rms_sigmas = rms();
+
+  // 4. Reprojection errors; the first stage holds the orientations.
+  auto adjust = [&](bool hold_orientations, ceres::LossFunction* loss, ceres::Solver::Summary* ceres_summary) {
+    ceres::Problem problem(problem_options);
+    auto* ordering = new ceres::ParameterBlockOrdering;
+    summary->observations = 0;
+    for (Track& t : tracks) {
+      problem.AddParameterBlock(t.point.data(), 3);
+      ordering->AddElementToGroup(t.point.data(), 0);
+      for (const Observation& o : t.observations) {
+        AdjustedView& v = views[o.view];
+        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojection, 2, 3, 3, 3>(
+                                     new WhitenedReprojection(o.x, 1.0 / v.sigma)),
+                                 loss, v.angle_axis.data(), v.centre.data(), t.point.data());
+        ++summary->observations;
+      }
+    }
+    // The gauge of each group of views the tracks connect: its first view's
+    // orientation and centre are held, and one coordinate of its second
+    // view's centre (the largest offset from the first), which fixes the
+    // scale; a free gauge would leave the normal equations singular.
+    std::vector<int> group(views.size());
+    std::iota(group.begin(), group.end(), 0);
+    for (const Track& t : tracks) {
+      for (const Observation& o : t.observations) Unite(&group, t.observations.front().view, o.view);
+    }
+    std::vector<int> first(views.size(), -1);
+    std::vector<bool> scaled(views.size(), false);
+    for (std::size_t k = 0; k < views.size(); ++k) {
+      AdjustedView& v = views[k];
+      if (!problem.HasParameterBlock(v.centre.data())) continue;
+      ordering->AddElementToGroup(v.angle_axis.data(), 1);
+      ordering->AddElementToGroup(v.centre.data(), 1);
+      const int g = Root(&group, static_cast<int>(k));
+      if (hold_orientations || first[g] < 0) problem.SetParameterBlockConstant(v.angle_axis.data());
+      if (first[g] < 0) {
+        first[g] = static_cast<int>(k);
+        problem.SetParameterBlockConstant(v.centre.data());
+      } else if (!scaled[g] && (v.centre - views[first[g]].centre).norm() > 0.0) {
+        // (A view at its first view's centre, across a rotation-only pair,
+        // cannot hold the scale.)
+        scaled[g] = true;
+        int axis = 0;
+        (v.centre - views[first[g]].centre).cwiseAbs().maxCoeff(&axis);
+        problem.SetManifold(v.centre.data(), new ceres::SubsetManifold(3, {axis}));
+      }
+    }
+    ceres::Solver::Options solver_options = SolverOptions(options.max_iterations);
+    solver_options.linear_solver_ordering.reset(ordering);
+    ceres::Solve(solver_options, &problem, ceres_summary);
+    summary->iterations += static_cast<int>(ceres_summary->iterations.size()) - 1;
+    for (AdjustedView& v : views) {
+      v.rotation = Eigen::AngleAxisd(v.angle_axis.norm(), v.angle_axis.norm() > 0.0 ? v.angle_axis.normalized()
+                                                                                    : Eigen::Vector3d::UnitX())
+                       .toRotationMatrix();
+    }
+    return ceres_summary->IsSolutionUsable();
+  };
+  const double scale = options.loss_scale_sigmas > 0.0 ? options.loss_scale_sigmas : 3.0;
+  ceres::HuberLoss huber(scale);
+  ceres::Solver::Summary first;
+  if (!adjust(true, &huber, &first)) return finish(false, "centres and points: " + first.message);
+  // Then everything: with the orientations held, their errors (a tenth of a
+  // degree is tens of sigma at a tenth of a pixel) are in every residual,
+  // and only once they are adjusted do the residuals say which observations
+  // are wrong. Cauchy's loss: under Huber's linear tail, wrong matches that
+  // fit their pair (a window matched to the next one) keep their pull, and on
+  // castle-P19 the adjustment kept the averaging's errors.
+  ceres::CauchyLoss cauchy(scale);
+  if (!adjust(false, &cauchy, &first)) return finish(false, "everything: " + first.message);
+
+  // Drop the observations the first stages could not fit, then tracks left
+  // in too few views, and triangulate again from the adjusted views.
+  const double outlier = options.outlier_sigmas * options.outlier_sigmas;
+  std::vector<Track> kept;
+  for (Track& t : tracks) {
+    Track fitted;
+    for (const Observation& o : t.observations) {
+      if (WhitenedSquaredError(views[o.view], t, o) <= outlier) {
+        fitted.observations.push_back(o);
+      } else {
+        ++summary->observations_dropped;
+      }
+    }
+    if (static_cast<int>(fitted.observations.size()) >= std::max(2, options.min_track_views)) {
+      kept.push_back(std::move(fitted));
+    }
+  }
+  tracks = std::move(kept);
+  triangulate_all();
+  if (tracks.empty()) return finish(false, "no track left after the first stage");
+
+  ceres::Solver::Summary second;
+  if (!adjust(false, &cauchy, &second)) return finish(false, "orientations: " + second.message);
+  for (const AdjustedView& v : views) {
+    if (!v.rotation.allFinite() || !v.centre.allFinite()) return finish(false, "non-finite result: orientations kept");
+  }
+  summary->final_rms_sigmas = rms();
+  summary->tracks = static_cast<int>(tracks.size());
+  summary->views = static_cast<int>(views.size());
+  summary->edges_used = static_cast<int>(used.size());
+  summary->converged = second.termination_type == ceres::CONVERGENCE;
+  for (const AdjustedView& v : views) (*orientations)[v.id] = v.rotation;
+  if (centres) {
+    centres->clear();
+    for (const AdjustedView& v : views) (*centres)[v.id] = v.centre;
+  }
+  return finish(true, summary->converged ? "" : second.message);
+}
+
+}  // namespace rotation_averaging

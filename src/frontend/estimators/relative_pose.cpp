@@ -1,0 +1,840 @@
+#include "rotation_averaging/frontend/estimators/relative_pose.h"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
+
+#include "frontend/geometry/epipolar.h"
+#include "rotation_averaging/core/geometry/so3.h"
+
+namespace rotation_averaging {
+namespace {
+
+double SampsonPx(const Eigen::Matrix3d& f, const Eigen::Vector2d& p1, const Eigen::Vector2d& p2) {
+  return SampsonError<double>(f, p1.homogeneous(), p2.homogeneous());
+}
+
+// The fundamental matrix in pixels of the pose (R, t): K2^-T [t]x R K1^-1.
+Eigen::Matrix3d FundamentalPx(const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                              const Eigen::Matrix3d& rotation, const Eigen::Vector3d& t) {
+  return k2_inv.transpose() * Hat(t) * rotation * k1_inv;
+}
+
+// The Sampson refinement moves the pose (R, t) by omega and beta:
+// R <- Exp(omega) R, t <- (t + B beta) / |t + B beta|, B an orthonormal basis
+// of the plane orthogonal to t. The marginal and conditional covariances of
+// omega do not depend on the choice of B.
+using Matrix5d = Eigen::Matrix<double, 5, 5>;
+using Vector5d = Eigen::Matrix<double, 5, 1>;
+
+Eigen::Matrix<double, 3, 2> TangentBasis(const Eigen::Vector3d& t) {
+  const Eigen::Vector3d other = std::abs(t.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+  Eigen::Matrix<double, 3, 2> basis;
+  basis.col(0) = t.cross(other).normalized();
+  basis.col(1) = t.cross(basis.col(0)).normalized();
+  return basis;
+}
+
+// Sum of squared Sampson errors (pixels) of the correspondences `indices`.
+double SampsonSumSquares(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                         const std::vector<int>& indices, const Eigen::Matrix3d& f) {
+  double sum = 0.0;
+  for (int i : indices) {
+    const double r = SampsonPx(f, points1[i], points2[i]);
+    sum += r * r;
+  }
+  return sum;
+}
+
+// Gauss-Newton normal equations J^T J, J^T r of the Sampson errors of
+// `indices` in (omega, beta) at (R, t), with closed-form derivatives: F is
+// linear in its perturbation, dF/domega_k = K2^-T [t]x [e_k]x R K1^-1 and
+// dF/dbeta_j = K2^-T [b_j]x R K1^-1, and dr/dF is SampsonErrorAndGradient.
+struct SampsonSystem {
+  Matrix5d jtj = Matrix5d::Zero();
+  Vector5d jtr = Vector5d::Zero();
+  double sum_squares = 0.0;
+};
+
+SampsonSystem BuildSampsonSystem(const std::vector<Eigen::Vector2d>& points1,
+                                 const std::vector<Eigen::Vector2d>& points2, const std::vector<int>& indices,
+                                 const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                                 const Eigen::Matrix3d& rotation, const Eigen::Vector3d& t,
+                                 const Eigen::Matrix<double, 3, 2>& basis) {
+  const Eigen::Matrix3d right = rotation * k1_inv, left = k2_inv.transpose();
+  const Eigen::Matrix3d left_t = left * Hat(t);
+  const Eigen::Matrix3d f = left_t * right;
+  Eigen::Matrix<double, 9, 5> df;
+  for (int k = 0; k < 3; ++k) {
+    const Eigen::Matrix3d d = left_t * Hat(Eigen::Vector3d::Unit(k)) * right;
+    df.col(k) = Eigen::Map<const Eigen::Matrix<double, 9, 1>>(d.data());
+  }
+  for (int j = 0; j < 2; ++j) {
+    const Eigen::Matrix3d d = left * Hat(basis.col(j)) * right;
+    df.col(3 + j) = Eigen::Map<const Eigen::Matrix<double, 9, 1>>(d.data());
+  }
+  SampsonSystem system;
+  Eigen::Matrix3d gradient;
+  for (int i : indices) {
+    const double r = SampsonErrorAndGradient(f, points1[i].homogeneous(), points2[i].homogeneous(), &gradient);
+    const Eigen::Matrix<double, 1, 5> j = Eigen::Map<const Eigen::Matrix<double, 1, 9>>(gradient.data()) * df;
+    system.jtj.noalias() += j.transpose() * j;
+    system.jtr.noalias() += r * j.transpose();
+    system.sum_squares += r * r;
+  }
+  return system;
+}
+
+// Levenberg-Marquardt on the Sampson errors of `indices` from (rotation, t)
+// (a trust region on the scaled diagonal, as Ceres' default, to relative
+// tolerances of 1e-12 on the cost and the step). Returns the iterations.
+int RefineSampson(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                  const std::vector<int>& indices, const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                  int max_iterations, Eigen::Matrix3d* rotation, Eigen::Vector3d* t) {
+  Eigen::Matrix<double, 3, 2> basis = TangentBasis(*t);
+  SampsonSystem system = BuildSampsonSystem(points1, points2, indices, k1_inv, k2_inv, *rotation, *t, basis);
+  double lambda = 1e-4;
+  int iterations = 0;
+  while (iterations < max_iterations) {
+    ++iterations;
+    Matrix5d damped = system.jtj;
+    damped.diagonal() += lambda * system.jtj.diagonal().cwiseMax(1e-6);
+    const Vector5d step = damped.ldlt().solve(-system.jtr);
+    if (!step.allFinite()) break;
+    const Eigen::Matrix3d rotation_new = ExpSO3(step.head<3>()) * *rotation;
+    const Eigen::Vector3d t_new = (*t + basis * step.tail<2>()).normalized();
+    const double cost_new =
+        SampsonSumSquares(points1, points2, indices, FundamentalPx(k1_inv, k2_inv, rotation_new, t_new));
+    if (!(cost_new < system.sum_squares)) {
+      lambda *= 10.0;
+      if (lambda > 1e16) break;
+      continue;
+    }
+    const double decrease = system.sum_squares - cost_new;
+    *rotation = rotation_new;
+    *t = t_new;
+    if (decrease <= 1e-12 * system.sum_squares || step.norm() <= 1e-12) break;
+    lambda = std::max(lambda / 10.0, 1e-16);
+    basis = TangentBasis(*t);
+    system = BuildSampsonSystem(points1, points2, indices, k1_inv, k2_inv, *rotation, *t, basis);
+  }
+  return iterations;
+}
+
+// The smallest covariance at least as large as both a and b in every
+// direction: b whitened by a, its eigenvalues raised to 1.
+Eigen::Matrix3d LoewnerMax(const Eigen::Matrix3d& a, const Eigen::Matrix3d& b) {
+  const Eigen::LLT<Eigen::Matrix3d> llt(a);
+  if (llt.info() != Eigen::Success || !b.allFinite()) return a;
+  const Eigen::Matrix3d l = llt.matrixL();
+  const Eigen::Matrix3d l_inv = l.inverse();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(l_inv * b * l_inv.transpose());
+  const Eigen::Matrix3d out = l * eig.eigenvectors() * eig.eigenvalues().cwiseMax(1.0).asDiagonal() *
+                              eig.eigenvectors().transpose() * l.transpose();
+  return 0.5 * (out + out.transpose());
+}
+
+// Delete-one-cell jackknife covariance of the rotation: the inliers grouped by
+// the cell of a grid x grid partition of their bounding box in image 1, the
+// pose refined without each non-empty cell in turn (t re-estimated: a
+// marginal covariance), C = (g-1)/g sum_c (w_c - mean)(w_c - mean)^T over the
+// g cells. Errors shared within a region of the image (a group of wrong
+// matches on a repeated structure, a local bias of the keypoints) move the
+// pose together when their cell is left out, where the pixel model counts
+// them as independent. Zero when fewer than two cells hold inliers.
+Eigen::Matrix3d CellJackknifeCovariance(const std::vector<Eigen::Vector2d>& points1,
+                                        const std::vector<Eigen::Vector2d>& points2, const std::vector<int>& inliers,
+                                        const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                                        const Eigen::Matrix3d& rotation, const Eigen::Vector3d& t, int grid) {
+  // From the full optimum, leaving one cell out is a small step: a few
+  // Levenberg-Marquardt iterations reach it.
+  constexpr int kIterations = 3;
+  double x0 = INFINITY, x1 = -INFINITY, y0 = INFINITY, y1 = -INFINITY;
+  for (int i : inliers) {
+    x0 = std::min(x0, points1[i].x());
+    x1 = std::max(x1, points1[i].x());
+    y0 = std::min(y0, points1[i].y());
+    y1 = std::max(y1, points1[i].y());
+  }
+  const auto cell_index = [grid](double v, double lo, double hi) {
+    return hi > lo ? std::clamp(static_cast<int>((v - lo) / (hi - lo) * grid), 0, grid - 1) : 0;
+  };
+  std::vector<std::vector<int>> cells(static_cast<size_t>(grid) * grid);
+  for (int i : inliers) {
+    cells[static_cast<size_t>(cell_index(points1[i].y(), y0, y1)) * grid + cell_index(points1[i].x(), x0, x1)]
+        .push_back(i);
+  }
+  std::vector<Eigen::Vector3d> moves;
+  std::vector<int> kept;
+  for (size_t c = 0; c < cells.size(); ++c) {
+    if (cells[c].empty()) continue;
+    kept.clear();
+    for (size_t other = 0; other < cells.size(); ++other) {
+      if (other != c) kept.insert(kept.end(), cells[other].begin(), cells[other].end());
+    }
+    Eigen::Matrix3d r = rotation;
+    Eigen::Vector3d moved_t = t;
+    RefineSampson(points1, points2, kept, k1_inv, k2_inv, kIterations, &r, &moved_t);
+    moves.push_back(LogSO3(r * rotation.transpose()));
+  }
+  const int g = static_cast<int>(moves.size());
+  if (g < 2) return Eigen::Matrix3d::Zero();
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3d& m : moves) mean += m / g;
+  Eigen::Matrix3d c = Eigen::Matrix3d::Zero();
+  for (const Eigen::Vector3d& m : moves) c.noalias() += (m - mean) * (m - mean).transpose();
+  return static_cast<double>(g - 1) / g * c;
+}
+
+// Standard deviation of Gaussian residuals from their absolute values
+// (1.4826 x the median: robust to the outliers among them); reorders them.
+double RobustSigma(std::vector<double>* absolute) {
+  std::nth_element(absolute->begin(), absolute->begin() + absolute->size() / 2, absolute->end());
+  return 1.4826 * (*absolute)[absolute->size() / 2];
+}
+
+// True if the point seen along bearings b1, b2 triangulates in front of both
+// cameras (least-squares depths of lambda2 b2 = lambda1 R b1 + t).
+bool InFront(const Eigen::Matrix3d& rotation, const Eigen::Vector3d& t, const Eigen::Vector3d& b1,
+             const Eigen::Vector3d& b2) {
+  Eigen::Matrix<double, 3, 2> a;
+  a.col(0) = rotation * b1;
+  a.col(1) = -b2;
+  const Eigen::Vector2d depths = (a.transpose() * a).ldlt().solve(a.transpose() * -t);
+  return depths[0] > 0.0 && depths[1] > 0.0;
+}
+
+cv::Mat ToCv(const std::vector<Eigen::Vector2d>& points, const Eigen::Matrix3d& k_inv) {
+  cv::Mat out(static_cast<int>(points.size()), 2, CV_64F);
+  for (int i = 0; i < out.rows; ++i) {
+    const Eigen::Vector3d n = k_inv * points[i].homogeneous();
+    out.at<double>(i, 0) = n.x() / n.z();
+    out.at<double>(i, 1) = n.y() / n.z();
+  }
+  return out;
+}
+
+constexpr int kMaxReselectionRounds = 4;
+constexpr int kHomographyIterations = 500;
+constexpr double kFarPointDistance = 1e9;  // in baselines: no point is too far for cheirality
+
+RelativePoseResult Fail(TwoViewFailure failure, const std::string& message) {
+  RelativePoseResult r;
+  r.success = false;
+  r.failure = failure;
+  r.message = message;
+  return r;
+}
+
+}  // namespace
+
+int RefinePoseOnInliers(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                        const std::vector<int>& inliers, const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
+                        Eigen::Matrix3d* rotation, Eigen::Vector3d* translation, int max_iterations) {
+  *translation = translation->normalized();
+  return RefineSampson(points1, points2, inliers, k1.inverse(), k2.inverse(), max_iterations, rotation, translation);
+}
+
+const char* RotationCovarianceModelName(RotationCovarianceModel model) {
+  return model == RotationCovarianceModel::kConditional ? "conditional" : "marginal";
+}
+
+const char* TwoViewModelName(TwoViewModel model) {
+  return model == TwoViewModel::kRotation ? "rotation" : "essential";
+}
+
+bool ParseRotationCovarianceModel(const std::string& text, RotationCovarianceModel* model) {
+  if (text == "marginal") *model = RotationCovarianceModel::kMarginal;
+  else if (text == "conditional") *model = RotationCovarianceModel::kConditional;
+  else return false;
+  return true;
+}
+
+const char* TwoViewFailureName(TwoViewFailure failure) {
+  switch (failure) {
+    case TwoViewFailure::kNone: return "none";
+    case TwoViewFailure::kTooFewMatches: return "too_few_matches";
+    case TwoViewFailure::kEssentialFailed: return "essential_failed";
+    case TwoViewFailure::kTooFewInliers: return "too_few_inliers";
+    case TwoViewFailure::kPureRotation: return "pure_rotation";
+    case TwoViewFailure::kNearPlanar: return "near_planar";
+    case TwoViewFailure::kRefinementFailed: return "refinement_failed";
+    case TwoViewFailure::kSingularInformation: return "singular_information";
+    case TwoViewFailure::kInvalidInput: return "invalid_input";
+  }
+  return "?";
+}
+
+namespace {
+
+// The essential matrix of the robust estimation, as a fundamental matrix in
+// pixels, and its inliers before the cheirality test: the general-motion
+// model that the rotation-only model competes with, even when the pose could
+// not be recovered from it.
+struct EssentialFit {
+  bool found = false;
+  Eigen::Matrix3d f_px = Eigen::Matrix3d::Zero();
+  std::vector<int> inliers;
+};
+
+Eigen::Matrix3d CvToEigen3(const cv::Mat& m) {
+  Eigen::Matrix3d out;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) out(r, c) = m.at<double>(r, c);
+  return out;
+}
+
+// One robust estimation (inlier threshold `threshold_px`), refinement and
+// covariance; the inputs are checked by the caller.
+RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& points1,
+                                       const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
+                                       const Eigen::Matrix3d& k2, double threshold_px,
+                                       const RelativePoseOptions& options, EssentialFit* fit = nullptr) {
+  const int n = static_cast<int>(points1.size());
+  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+  const double focal = 0.25 * (k1(0, 0) + k1(1, 1) + k2(0, 0) + k2(1, 1));
+
+  // 1. Robust essential matrix on normalised coordinates, then cheirality.
+  const cv::Mat n1 = ToCv(points1, k1_inv), n2 = ToCv(points2, k2_inv);
+  cv::Mat mask;
+  cv::Mat essential;
+  try {
+    essential = cv::findEssentialMat(n1, n2, cv::Mat::eye(3, 3, CV_64F), cv::USAC_MAGSAC, options.ransac_confidence,
+                                     threshold_px / focal, options.ransac_max_iterations, mask);
+  } catch (const cv::Exception& e) {
+    return Fail(TwoViewFailure::kEssentialFailed, std::string("OpenCV: ") + e.what());
+  }
+  if (essential.rows < 3 || essential.cols != 3) return Fail(TwoViewFailure::kEssentialFailed, "no essential matrix");
+  essential = essential.rowRange(0, 3).clone();
+  if (fit) {
+    fit->found = true;
+    fit->f_px = k2_inv.transpose() * CvToEigen3(essential) * k1_inv;
+    fit->inliers.clear();
+    for (int i = 0; i < n; ++i)
+      if (mask.at<unsigned char>(i)) fit->inliers.push_back(i);
+  }
+  cv::Mat r_cv, t_cv;
+  int in_front = 0;
+  try {
+    const cv::Mat ransac_mask = mask.clone();
+    in_front = cv::recoverPose(essential, n1, n2, cv::Mat::eye(3, 3, CV_64F), r_cv, t_cv, mask);
+    if (in_front < options.min_inliers) {
+      // recoverPose also drops points farther than 50 baselines, which takes
+      // every point of a short-baseline pair (a step of 0.1 m in front of a
+      // wall 6 m away) out of the inliers. Such a pair is decided with its far
+      // points; the others keep the limit, which also rejects the twisted-pair
+      // solution of a plane (it puts the plane's points near infinity).
+      mask = ransac_mask;
+      cv::Mat triangulated;
+      in_front = cv::recoverPose(essential, n1, n2, cv::Mat::eye(3, 3, CV_64F), r_cv, t_cv, kFarPointDistance, mask,
+                                 triangulated);
+    }
+  } catch (const cv::Exception& e) {
+    return Fail(TwoViewFailure::kEssentialFailed, std::string("OpenCV: ") + e.what());
+  }
+  std::vector<int> inliers;
+  for (int i = 0; i < n; ++i)
+    if (mask.at<unsigned char>(i)) inliers.push_back(i);
+  if (in_front < options.min_inliers || static_cast<int>(inliers.size()) < options.min_inliers) {
+    return Fail(TwoViewFailure::kTooFewInliers, std::to_string(inliers.size()) + " inliers");
+  }
+  Eigen::Matrix3d rotation;
+  Eigen::Vector3d t;
+  for (int r = 0; r < 3; ++r) {
+    t[r] = t_cv.at<double>(r);
+    for (int c = 0; c < 3; ++c) rotation(r, c) = r_cv.at<double>(r, c);
+  }
+  rotation = ProjectToSO3(rotation);
+  t.normalize();
+
+  // Planarity: how many of the inliers a homography explains as well.
+  double homography_ratio = 0.0;
+  {
+    cv::Mat h1(static_cast<int>(inliers.size()), 2, CV_64F), h2(h1.rows, 2, CV_64F);
+    for (int r = 0; r < h1.rows; ++r) {
+      n1.row(inliers[r]).copyTo(h1.row(r));
+      n2.row(inliers[r]).copyTo(h2.row(r));
+    }
+    cv::Mat h_mask;
+    try {
+      // Plain RANSAC on the (already clean) essential-matrix inliers: USAC
+      // MAGSAC here cost 20x the rest of the pair's estimation. Always at the
+      // first threshold, whichever found the inliers: the share describes the
+      // scene and is compared with fixed ratios.
+      const cv::Mat h = cv::findHomography(h1, h2, cv::RANSAC, options.ransac_threshold_px / focal, h_mask,
+                                           kHomographyIterations, 0.999);
+      if (!h.empty()) homography_ratio = static_cast<double>(cv::countNonZero(h_mask)) / h1.rows;
+    } catch (const cv::Exception&) {
+      homography_ratio = 0.0;
+    }
+  }
+
+  if (homography_ratio > options.max_homography_inlier_ratio) {
+    RelativePoseResult r = Fail(TwoViewFailure::kNearPlanar, "a homography explains " +
+                                                                 std::to_string(100.0 * homography_ratio) + "% of the inliers");
+    r.homography_inlier_ratio = homography_ratio;
+    return r;
+  }
+
+  // 2. Parallax: the angle between rotated bearings; ~0 for a pure rotation.
+  std::vector<double> parallax;
+  parallax.reserve(inliers.size());
+  for (int i : inliers) {
+    const Eigen::Vector3d b1 = rotation * (k1_inv * points1[i].homogeneous()).normalized();
+    const Eigen::Vector3d b2 = (k2_inv * points2[i].homogeneous()).normalized();
+    parallax.push_back(std::atan2(b1.cross(b2).norm(), b1.dot(b2)));
+  }
+  std::nth_element(parallax.begin(), parallax.begin() + parallax.size() / 2, parallax.end());
+  const double median_parallax_deg = RadToDeg(parallax[parallax.size() / 2]);
+  // Without the rotation model, a pair without parallax is rejected here.
+  // With it, model selection decides: a pair the general model still wins has
+  // a translation the data show, and its marginal covariance carries how
+  // weakly that translation is observed.
+  if (!options.rotation_model && median_parallax_deg < options.min_median_parallax_deg) {
+    RelativePoseResult r = Fail(TwoViewFailure::kPureRotation, "median parallax " + std::to_string(median_parallax_deg) + " deg");
+    r.median_parallax_deg = median_parallax_deg;
+    return r;
+  }
+
+  // 3. Sampson refinement of (omega, t) over the inliers. The robust
+  // estimator's inlier set is cut at its own (less accurate) model, which
+  // biases the refinement towards that model and truncates the noise estimate:
+  // so after each refinement, inliers are re-selected from all correspondences
+  // (|Sampson| < 3 sigma, sigma from the median absolute residual, in front of
+  // both cameras) and the refinement repeated until the set settles.
+  int refine_iterations = 0;
+  for (int round = 0; round < kMaxReselectionRounds; ++round) {
+    const Eigen::Matrix3d rotation_before = rotation;
+    refine_iterations += RefineSampson(points1, points2, inliers, k1_inv, k2_inv, options.refine_max_iterations,
+                                       &rotation, &t);
+    const double moved = AngularDistanceRad(rotation, rotation_before);
+    if (!rotation.allFinite() || !t.allFinite() || !(moved <= 0.5)) {
+      return Fail(TwoViewFailure::kRefinementFailed,
+                  "refinement moved the rotation by " + std::to_string(RadToDeg(moved)) + " deg or diverged");
+    }
+
+    // The Sampson error is the same for t and -t, so the refinement cannot
+    // tell them apart; cheirality can. A robust model off along the
+    // rotation-translation valley can have its points in front only with the
+    // mirrored translation, and the refinement then brings R back and keeps
+    // t mirrored: every point behind the cameras. So t takes the sign that
+    // puts more of the inliers in front.
+    int in_front_count = 0, behind_count = 0;
+    for (int i : inliers) {
+      const Eigen::Vector3d b1 = k1_inv * points1[i].homogeneous(), b2 = k2_inv * points2[i].homogeneous();
+      if (InFront(rotation, t, b1, b2)) ++in_front_count;
+      else if (InFront(rotation, -t, b1, b2)) ++behind_count;
+    }
+    if (behind_count > in_front_count) t = -t;
+
+    // Re-select.
+    const Eigen::Matrix3d f = FundamentalPx(k1_inv, k2_inv, rotation, t);
+    std::vector<double> residual(n), absolute;
+    absolute.reserve(n);
+    for (int i = 0; i < n; ++i) {
+      residual[i] = SampsonPx(f, points1[i], points2[i]);
+      absolute.push_back(std::abs(residual[i]));
+    }
+    std::vector<double> inlier_abs;
+    for (int i : inliers) inlier_abs.push_back(absolute[i]);
+    const double sigma = RobustSigma(&inlier_abs);
+    std::vector<int> selected;
+    for (int i = 0; i < n; ++i) {
+      if (absolute[i] > 3.0 * sigma) continue;
+      const Eigen::Vector3d b1 = k1_inv * points1[i].homogeneous(), b2 = k2_inv * points2[i].homogeneous();
+      if (InFront(rotation, t, b1, b2)) selected.push_back(i);
+    }
+    if (static_cast<int>(selected.size()) < options.min_inliers) {
+      return Fail(TwoViewFailure::kTooFewInliers, std::to_string(selected.size()) + " inliers after refinement");
+    }
+    const bool settled = selected == inliers;
+    inliers.swap(selected);
+    if (settled) break;
+  }
+
+  // 4. Jacobian at the optimum w.r.t. omega (3) and the tangent of t (2).
+  const SampsonSystem at_optimum =
+      BuildSampsonSystem(points1, points2, inliers, k1_inv, k2_inv, rotation, t, TangentBasis(t));
+  const Matrix5d& jtj = at_optimum.jtj;
+  if (!jtj.allFinite() || !std::isfinite(at_optimum.sum_squares)) {
+    return Fail(TwoViewFailure::kRefinementFailed, "Jacobian is not finite");
+  }
+  const int m = static_cast<int>(inliers.size());
+  const double sigma2 = at_optimum.sum_squares / std::max(1, m - 5);
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 5, 5>> eig(jtj);
+  const double min_eig = eig.eigenvalues().minCoeff(), max_eig = eig.eigenvalues().maxCoeff();
+  if (!(min_eig > 0.0) || max_eig / min_eig > options.max_condition_number) {
+    return Fail(TwoViewFailure::kSingularInformation,
+                "J^T J condition number " + std::to_string(min_eig > 0.0 ? max_eig / min_eig : INFINITY));
+  }
+  const Eigen::Matrix<double, 5, 5> jtj_inv =
+      eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+
+  RelativePoseResult result;
+  result.success = true;
+  result.rotation = rotation;
+  result.translation = t;
+  result.inliers = std::move(inliers);
+  result.sigma_px = std::sqrt(sigma2);
+  result.median_parallax_deg = median_parallax_deg;
+  result.homography_inlier_ratio = homography_ratio;
+  result.refine_iterations = refine_iterations;
+  result.ransac_threshold_px = threshold_px;
+  result.covariance_paper = jtj.topLeftCorner<3, 3>().inverse();
+  result.covariance_conditional = sigma2 * result.covariance_paper;
+  result.covariance_marginal = sigma2 * jtj_inv.topLeftCorner<3, 3>();
+  result.covariance_marginal = 0.5 * (result.covariance_marginal + result.covariance_marginal.transpose()).eval();
+  result.covariance_marginal_pixel = result.covariance_marginal;
+  result.covariance = options.covariance_model == RotationCovarianceModel::kConditional ? result.covariance_conditional
+                                                                                       : result.covariance_marginal;
+  return result;
+}
+
+// The rotation R minimising sum |b2 - R b1|^2 over unit bearings (Kabsch).
+Eigen::Matrix3d FitRotation(const std::vector<Eigen::Vector3d>& b1, const std::vector<Eigen::Vector3d>& b2,
+                            const std::vector<int>& subset) {
+  Eigen::Matrix3d m = Eigen::Matrix3d::Zero();
+  for (int i : subset) m += b2[i] * b1[i].transpose();
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(m, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d d = Eigen::Matrix3d::Identity();
+  d(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0.0 ? -1.0 : 1.0;
+  return svd.matrixU() * d * svd.matrixV().transpose();
+}
+
+// Transfer error of the rotation-only model in image 2, pixels: K2 R b1
+// projected minus p2; false if R b1 points behind camera 2.
+bool TransferError(const Eigen::Matrix3d& k2, const Eigen::Matrix3d& rotation, const Eigen::Vector3d& b1,
+                   const Eigen::Vector2d& p2, Eigen::Vector2d* error) {
+  const Eigen::Vector3d u = k2 * (rotation * b1);
+  if (!(u.z() > 0.0)) return false;
+  *error = u.head<2>() / u.z() - p2;
+  return true;
+}
+
+// sqrt of the 99% quantile of chi^2 with 2 degrees of freedom: the inlier
+// radius of a 2-d error in units of its per-coordinate sigma.
+constexpr double kChi2Radius99 = 3.035;
+constexpr int kRotationRefineIterations = 20;
+
+// The rotation-only model x2 ~ K2 R K1^-1 x1 (see the header): 2-point RANSAC
+// with local optimisation, then Gauss-Newton on the transfer errors of the
+// inliers, re-selected at the 99% radius of their measured noise. A rotation
+// explaining fewer than `min_support` correspondences cannot win the model
+// selection, so the sampling stops once such a rotation would have been
+// found with the RANSAC confidence: where the camera moved, the rotations
+// explain few correspondences and the sampling would otherwise run to its
+// iteration cap.
+RelativePoseResult EstimateRotationOnly(const std::vector<Eigen::Vector2d>& points1,
+                                        const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
+                                        const Eigen::Matrix3d& k2, const RelativePoseOptions& options,
+                                        int min_support) {
+  const int n = static_cast<int>(points1.size());
+  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+  std::vector<Eigen::Vector3d> b1(n), b2(n);
+  for (int i = 0; i < n; ++i) {
+    b1[i] = (k1_inv * points1[i].homogeneous()).normalized();
+    b2[i] = (k2_inv * points2[i].homogeneous()).normalized();
+  }
+  // The inliers of a rotation; with `beat`, it gives up (returning what it
+  // has) as soon as it cannot find more than that many: a hypothesis with
+  // no more support than the best so far is discarded anyway.
+  auto inliers_of = [&](const Eigen::Matrix3d& rotation, double radius_px, std::size_t beat = 0) {
+    std::vector<int> in;
+    Eigen::Vector2d e;
+    for (int i = 0; i < n; ++i) {
+      if (beat > 0 && in.size() + static_cast<std::size_t>(n - i) <= beat) break;
+      if (TransferError(k2, rotation, b1[i], points2[i], &e) && e.norm() < radius_px) in.push_back(i);
+    }
+    return in;
+  };
+  // A fixed seed: the same pair gives the same model on every run and thread.
+  std::mt19937 rng(0x5eedu + static_cast<unsigned>(n));
+  std::uniform_int_distribution<int> pick(0, n - 1);
+  std::vector<int> best;
+  Eigen::Matrix3d best_rotation = Eigen::Matrix3d::Identity();
+  const double log_failure = std::log(1.0 - options.ransac_confidence);
+  auto iterations_for = [&](std::size_t support) {
+    const double w = static_cast<double>(support) / n;
+    const double miss = std::log(std::max(1e-12, 1.0 - w * w));
+    return miss < 0.0 ? static_cast<int>(std::min<double>(std::ceil(log_failure / miss), options.ransac_max_iterations))
+                      : options.ransac_max_iterations;
+  };
+  int needed = iterations_for(static_cast<std::size_t>(std::clamp(min_support, 0, n)));
+  for (int it = 0; it < needed && it < options.ransac_max_iterations; ++it) {
+    const int i = pick(rng), j = pick(rng);
+    // Two bearings nearly along one line do not fix the rotation about it.
+    if (i == j || b1[i].cross(b1[j]).norm() < 1e-3 || b2[i].cross(b2[j]).norm() < 1e-3) continue;
+    Eigen::Matrix3d rotation = FitRotation(b1, b2, {i, j});
+    std::vector<int> in = inliers_of(rotation, options.ransac_threshold_px, best.size());
+    if (in.size() <= best.size()) continue;
+    // Local optimisation: refit on the support until it stops growing.
+    for (int lo = 0; lo < 3; ++lo) {
+      const Eigen::Matrix3d refit = FitRotation(b1, b2, in);
+      std::vector<int> grown = inliers_of(refit, options.ransac_threshold_px);
+      if (grown.size() <= in.size()) break;
+      in.swap(grown);
+      rotation = refit;
+    }
+    best.swap(in);
+    best_rotation = rotation;
+    needed = std::min(needed, iterations_for(best.size()));
+  }
+  if (static_cast<int>(best.size()) < options.min_inliers) {
+    return Fail(TwoViewFailure::kTooFewInliers, std::to_string(best.size()) + " rotation-model inliers");
+  }
+
+  // Gauss-Newton on omega, R = Exp(omega) R_hat, over the inliers; the
+  // inliers are re-selected from all correspondences after each solve.
+  Eigen::Matrix3d rotation = best_rotation;
+  std::vector<int> inliers = best;
+  Eigen::Matrix3d information = Eigen::Matrix3d::Zero();
+  double sum_squares = 0.0;
+  int iterations = 0;
+  for (int round = 0; round < kMaxReselectionRounds; ++round) {
+    for (int it = 0; it < kRotationRefineIterations; ++it, ++iterations) {
+      Eigen::Matrix3d jtj = Eigen::Matrix3d::Zero();
+      Eigen::Vector3d jte = Eigen::Vector3d::Zero();
+      sum_squares = 0.0;
+      for (int i : inliers) {
+        const Eigen::Vector3d x = rotation * b1[i];
+        const Eigen::Vector3d u = k2 * x;
+        if (!(u.z() > 0.0)) continue;
+        const Eigen::Vector2d e = u.head<2>() / u.z() - points2[i];
+        Eigen::Matrix<double, 2, 3> d_proj;
+        d_proj << 1.0 / u.z(), 0.0, -u.x() / (u.z() * u.z()), 0.0, 1.0 / u.z(), -u.y() / (u.z() * u.z());
+        const Eigen::Matrix<double, 2, 3> jac = d_proj * k2 * -Hat(x);  // d/d omega of Exp(omega) x = -[x]x
+        jtj += jac.transpose() * jac;
+        jte += jac.transpose() * e;
+        sum_squares += e.squaredNorm();
+      }
+      information = jtj;
+      const Eigen::Vector3d step = jtj.ldlt().solve(-jte);
+      if (!step.allFinite()) return Fail(TwoViewFailure::kRefinementFailed, "rotation-model step is not finite");
+      rotation = ExpSO3(step) * rotation;
+      if (step.norm() < 1e-12) break;
+    }
+    std::vector<double> norms;
+    norms.reserve(inliers.size());
+    Eigen::Vector2d e;
+    for (int i : inliers) norms.push_back(TransferError(k2, rotation, b1[i], points2[i], &e) ? e.norm() : INFINITY);
+    std::nth_element(norms.begin(), norms.begin() + norms.size() / 2, norms.end());
+    // The median norm of a 2-d Gaussian error is sigma sqrt(2 ln 2).
+    const double sigma = norms[norms.size() / 2] / std::sqrt(2.0 * std::log(2.0));
+    std::vector<int> selected = inliers_of(rotation, std::max(1e-3, kChi2Radius99 * sigma));
+    if (static_cast<int>(selected.size()) < options.min_inliers) {
+      return Fail(TwoViewFailure::kTooFewInliers, std::to_string(selected.size()) + " rotation-model inliers after refinement");
+    }
+    const bool settled = selected == inliers;
+    inliers.swap(selected);
+    if (settled) break;
+  }
+  const int m = static_cast<int>(inliers.size());
+  const double sigma2 = sum_squares / std::max(1, 2 * m - 3);  // per coordinate of the transfer error
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(information);
+  const double min_eig = eig.eigenvalues().minCoeff(), max_eig = eig.eigenvalues().maxCoeff();
+  if (!(min_eig > 0.0) || max_eig / min_eig > options.max_condition_number) {
+    return Fail(TwoViewFailure::kSingularInformation, "rotation-model J^T J condition number " +
+                                                          std::to_string(min_eig > 0.0 ? max_eig / min_eig : INFINITY));
+  }
+  const Eigen::Matrix3d information_inv =
+      eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+  RelativePoseResult result;
+  result.success = true;
+  result.model = TwoViewModel::kRotation;
+  result.rotation = ProjectToSO3(rotation);
+  result.translation.setZero();
+  result.inliers = std::move(inliers);
+  // The transfer error carries the noise of both images: per image, and in
+  // the units of the essential model's Sampson error, sigma is 1/sqrt(2) of it.
+  result.sigma_px = std::sqrt(0.5 * sigma2);
+  result.refine_iterations = iterations;
+  result.ransac_threshold_px = options.ransac_threshold_px;
+  result.covariance_paper = information_inv;
+  result.covariance_marginal = sigma2 * information_inv;
+  result.covariance_marginal = 0.5 * (result.covariance_marginal + result.covariance_marginal.transpose()).eval();
+  result.covariance_marginal_pixel = result.covariance_marginal;
+  result.covariance_conditional = result.covariance_marginal;  // no translation to condition on
+  result.covariance = result.covariance_marginal;
+  return result;
+}
+
+// Torr's Geometric Robust Information Criterion of a model with manifold
+// dimension d and k parameters, from squared residuals in units of the noise
+// (r = 4 data dimensions per correspondence, lambda1 = ln r, lambda2 = ln rn,
+// residuals capped at lambda3 (r - d) with lambda3 = 2).
+double Gric(const std::vector<double>& normalised_squares, int d, int k) {
+  const double r = 4.0, n = static_cast<double>(normalised_squares.size());
+  double sum = 0.0;
+  for (double e2 : normalised_squares) sum += std::min(e2, 2.0 * (r - d));
+  return sum + std::log(r) * d * n + std::log(r * n) * k;
+}
+
+// Scores both models on the correspondences either counts as an inlier, in
+// units of the pair's noise measured under the general-motion model f_px:
+// it fits a pure rotation as well as a general motion, so that sigma holds in
+// either case.
+void SelectModel(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                 const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2, const Eigen::Matrix3d& f_px,
+                 const std::vector<int>& essential_inliers, double sigma_px, const RelativePoseResult& rotation,
+                 double* gric_essential, double* gric_rotation) {
+  std::vector<int> both = essential_inliers;
+  both.insert(both.end(), rotation.inliers.begin(), rotation.inliers.end());
+  std::sort(both.begin(), both.end());
+  both.erase(std::unique(both.begin(), both.end()), both.end());
+  const Eigen::Matrix3d k1_inv = k1.inverse();
+  const double sigma2 = std::max(1e-12, sigma_px * sigma_px);
+  std::vector<double> e_squares, r_squares;
+  for (int i : both) {
+    const double s = SampsonPx(f_px, points1[i], points2[i]);
+    e_squares.push_back(s * s / sigma2);
+    Eigen::Vector2d e;
+    const bool front = TransferError(k2, rotation.rotation, (k1_inv * points1[i].homogeneous()).normalized(),
+                                     points2[i], &e);
+    r_squares.push_back(front ? 0.5 * e.squaredNorm() / sigma2 : INFINITY);
+  }
+  *gric_essential = Gric(e_squares, 3, 5);
+  *gric_rotation = Gric(r_squares, 2, 3);
+}
+
+// Below this share of the essential-matrix inliers explained by a homography,
+// no rotation (a special homography) can explain enough of them to win.
+constexpr double kRotationModelMinHomographyRatio = 0.5;
+
+// The essential-matrix model at the first threshold, then again at the
+// pair's own noise level; the inputs are checked by the caller.
+RelativePoseResult EstimateEssentialPixelModel(const std::vector<Eigen::Vector2d>& points1,
+                                               const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
+                                               const Eigen::Matrix3d& k2, const RelativePoseOptions& options,
+                                               EssentialFit* fit) {
+  const int n = static_cast<int>(points1.size());
+  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+  RelativePoseResult first = EstimateAtThreshold(points1, points2, k1, k2, options.ransac_threshold_px, options, fit);
+  if (!first.success || !(options.adaptive_threshold_sigmas > 0.0)) return first;
+  // A threshold far above the pixel noise lets wrong matches that happen to
+  // lie near their epipolar lines (repeated structure) vote, and a few of
+  // them can pull the model along the rotation-translation valley of a pair.
+  // Once the noise of this pair is measured, the robust estimation is run
+  // again with a threshold that scale of noise calls for.
+  const double threshold =
+      std::max(options.min_adaptive_threshold_px, options.adaptive_threshold_sigmas * first.sigma_px);
+  if (!(threshold < options.ransac_threshold_px)) return first;
+  // Only the correspondences within the first threshold of the first model
+  // take part: the others cannot be inliers of a model this close to it, and
+  // without them the robust estimation stops after far fewer samples.
+  const Eigen::Matrix3d f = FundamentalPx(k1_inv, k2_inv, first.rotation, first.translation);
+  std::vector<int> candidates;
+  std::vector<Eigen::Vector2d> q1, q2;
+  for (int i = 0; i < n; ++i) {
+    if (std::abs(SampsonPx(f, points1[i], points2[i])) >= options.ransac_threshold_px) continue;
+    candidates.push_back(i);
+    q1.push_back(points1[i]);
+    q2.push_back(points2[i]);
+  }
+  if (static_cast<int>(candidates.size()) < std::max(options.min_inliers, 5)) return first;
+  RelativePoseResult second = EstimateAtThreshold(q1, q2, k1, k2, threshold, options);
+  if (!second.success) return first;
+  for (int& i : second.inliers) i = candidates[i];
+  return second;
+}
+
+// The essential-matrix pose, its marginal covariance widened by the cell
+// jackknife (RelativePoseOptions::jackknife_grid) once, on the pose that is
+// returned: of the two robust estimations above, only one is kept.
+RelativePoseResult EstimateEssential(const std::vector<Eigen::Vector2d>& points1,
+                                     const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
+                                     const Eigen::Matrix3d& k2, const RelativePoseOptions& options,
+                                     EssentialFit* fit) {
+  RelativePoseResult result = EstimateEssentialPixelModel(points1, points2, k1, k2, options, fit);
+  if (!result.success || options.jackknife_grid < 2 || !result.covariance_marginal.allFinite()) return result;
+  result.covariance_marginal =
+      LoewnerMax(result.covariance_marginal,
+                 CellJackknifeCovariance(points1, points2, result.inliers, k1.inverse(), k2.inverse(), result.rotation,
+                                         result.translation, options.jackknife_grid));
+  if (options.covariance_model == RotationCovarianceModel::kMarginal) result.covariance = result.covariance_marginal;
+  return result;
+}
+
+}  // namespace
+
+const char* const kCameraIntrinsicsRule = "finite, positive focal lengths, last row 0 0 1";
+
+bool IsCameraIntrinsics(const Eigen::Matrix3d& k) {
+  return k.allFinite() && k(0, 0) > 0.0 && k(1, 1) > 0.0 && k(2, 0) == 0.0 && k(2, 1) == 0.0 &&
+         std::abs(k(2, 2) - 1.0) <= 1e-9;
+}
+
+std::vector<Eigen::Vector2d> NormalisedPoints(const std::vector<Eigen::Vector2d>& points_px, const Eigen::Matrix3d& k,
+                                              const std::vector<int>& indices) {
+  const Eigen::Matrix3d k_inv = k.inverse();
+  std::vector<Eigen::Vector2d> out;
+  out.reserve(indices.size());
+  for (int i : indices) out.push_back((k_inv * points_px[i].homogeneous()).hnormalized());
+  return out;
+}
+
+RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::Vector2d>& points1,
+                                                      const std::vector<Eigen::Vector2d>& points2,
+                                                      const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
+                                                      const RelativePoseOptions& options) {
+  const int n = static_cast<int>(std::min(points1.size(), points2.size()));
+  if (points1.size() != points2.size()) {
+    return Fail(TwoViewFailure::kInvalidInput, "point lists differ in length (" + std::to_string(points1.size()) +
+                                                   " and " + std::to_string(points2.size()) + ")");
+  }
+  // Refused here with the reason, not left to OpenCV's estimator, whose
+  // outcome on such input (if it fails at all) would not name the cause.
+  for (int i = 0; i < n; ++i) {
+    if (!points1[i].allFinite() || !points2[i].allFinite()) {
+      return Fail(TwoViewFailure::kInvalidInput, "correspondence " + std::to_string(i) + " is not finite");
+    }
+  }
+  for (const Eigen::Matrix3d* k : {&k1, &k2}) {
+    if (!IsCameraIntrinsics(*k)) {
+      return Fail(TwoViewFailure::kInvalidInput,
+                  std::string(k == &k1 ? "K1" : "K2") + " is not intrinsics (" + kCameraIntrinsicsRule + ")");
+    }
+  }
+  if (n < std::max(options.min_inliers, 5)) {
+    return Fail(TwoViewFailure::kTooFewMatches, std::to_string(n) + " correspondences");
+  }
+  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+  if (!k1_inv.allFinite() || !k2_inv.allFinite()) return Fail(TwoViewFailure::kInvalidInput, "singular intrinsics");
+  EssentialFit fit;
+  RelativePoseResult essential = EstimateEssential(points1, points2, k1, k2, options, &fit);
+  if (!options.rotation_model) return essential;
+  // A pair the user rejects as near-planar stays rejected: a rotation is a
+  // homography too.
+  if (!essential.success && (essential.failure == TwoViewFailure::kNearPlanar || !fit.found)) return essential;
+  if (essential.success && !(essential.homography_inlier_ratio >= kRotationModelMinHomographyRatio)) return essential;
+  // Half the general model's support, as for the homography share above.
+  const std::size_t general_support = essential.success ? essential.inliers.size() : fit.inliers.size();
+  RelativePoseResult rotation = EstimateRotationOnly(
+      points1, points2, k1, k2, options,
+      static_cast<int>(std::floor(kRotationModelMinHomographyRatio * static_cast<double>(general_support))));
+  if (!rotation.success) return essential;
+  double gric_essential = 0.0, gric_rotation = 0.0;
+  if (essential.success) {
+    SelectModel(points1, points2, k1, k2, FundamentalPx(k1_inv, k2_inv, essential.rotation, essential.translation),
+                essential.inliers, essential.sigma_px, rotation, &gric_essential, &gric_rotation);
+  } else {
+    // The pose could not be recovered from the essential matrix (no
+    // parallax, too few points in front, singular): its robust fit still
+    // measures the noise and competes as the general-motion model.
+    std::vector<double> absolute;
+    for (int i : fit.inliers) absolute.push_back(std::abs(SampsonPx(fit.f_px, points1[i], points2[i])));
+    if (absolute.empty()) return essential;
+    SelectModel(points1, points2, k1, k2, fit.f_px, fit.inliers, RobustSigma(&absolute), rotation, &gric_essential,
+                &gric_rotation);
+  }
+  RelativePoseResult& chosen = gric_rotation < gric_essential ? rotation : essential;
+  chosen.gric_essential = gric_essential;
+  chosen.gric_rotation = gric_rotation;
+  if (essential.success) chosen.homography_inlier_ratio = essential.homography_inlier_ratio;
+  chosen.median_parallax_deg = essential.median_parallax_deg;
+  return chosen;
+}
+
+}  // namespace rotation_averaging

@@ -1,0 +1,351 @@
+#include "rotation_averaging/frontend/features/features.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <map>
+#include <cstdlib>
+#include <opencv2/features2d.hpp>
+#include <opencv2/flann.hpp>
+#include <opencv2/imgproc.hpp>
+
+namespace rotation_averaging {
+
+const char* FeatureTypeName(FeatureType type) { return type == FeatureType::kOrb ? "orb" : "sift"; }
+
+bool ParseFeatureType(const std::string& text, FeatureType* type) {
+  if (text == "sift") *type = FeatureType::kSift;
+  else if (text == "orb") *type = FeatureType::kOrb;
+  else return false;
+  return true;
+}
+
+Eigen::Matrix3d ScaleIntrinsics(const Eigen::Matrix3d& k, double s) {
+  // Pixel (u, v) at full resolution maps to ((u + 0.5) s - 0.5, (v + 0.5) s - 0.5).
+  Eigen::Matrix3d scaled = k;
+  scaled(0, 0) *= s;
+  scaled(1, 1) *= s;
+  scaled(0, 1) *= s;
+  scaled(0, 2) = (k(0, 2) + 0.5) * s - 0.5;
+  scaled(1, 2) = (k(1, 2) + 0.5) * s - 0.5;
+  return scaled;
+}
+
+ImageFeatures ExtractFeatures(const cv::Mat& image, const FeatureOptions& options) {
+  ImageFeatures out;
+  out.type = options.type;
+  if (image.empty()) return out;
+  cv::Mat grey;
+  if (image.channels() == 3) cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
+  else if (image.channels() == 4) cv::cvtColor(image, grey, cv::COLOR_BGRA2GRAY);
+  else grey = image;
+  if (options.downsample > 0.0 && options.downsample != 1.0) {
+    cv::resize(grey, grey, cv::Size(), options.downsample, options.downsample, cv::INTER_AREA);
+  }
+  out.width = grey.cols;
+  out.height = grey.rows;
+  cv::Ptr<cv::Feature2D> detector;
+  if (options.type == FeatureType::kOrb) {
+    detector = cv::ORB::create(options.max_features);
+  } else {
+    detector = cv::SIFT::create(options.max_features);
+  }
+  std::vector<cv::KeyPoint> keypoints;
+  detector->detectAndCompute(grey, cv::noArray(), keypoints, out.descriptors);
+  out.keypoints_px.reserve(keypoints.size());
+  out.strength.reserve(keypoints.size());
+  for (const cv::KeyPoint& k : keypoints) {
+    out.keypoints_px.emplace_back(k.pt.x, k.pt.y);
+    out.strength.push_back(k.response);
+  }
+  return out;
+}
+
+namespace {
+// Cells per side of the grid compaction spreads the kept features over.
+constexpr int kCompactGrid = 4;
+
+// Compact SIFT descriptors keep 4 bits per value: the square root of the
+// value (OpenCV's are whole numbers in [0, 255]) quantised uniformly to 16
+// levels, fine where SIFT's values crowd (near zero) and coarse where they are
+// rare. Two values per byte, 64 bytes per descriptor instead of 128: twice the
+// features in the same memory.
+constexpr int kSiftDims = 128;
+constexpr int kPackedSiftCols = kSiftDims / 2;
+
+std::uint8_t SiftCode(float value) {
+  const double t = std::sqrt(std::clamp(static_cast<double>(value), 0.0, 255.0) / 255.0);
+  return static_cast<std::uint8_t>(std::lround(15.0 * t));
+}
+
+float SiftLevel(int code) {
+  const double t = code / 15.0;
+  return static_cast<float>(255.0 * t * t);
+}
+
+// The two values of every packed byte.
+const std::array<std::array<float, 2>, 256>& PackedSiftValues() {
+  static const std::array<std::array<float, 2>, 256> table = [] {
+    std::array<std::array<float, 2>, 256> t{};
+    for (int b = 0; b < 256; ++b) t[b] = {SiftLevel(b & 15), SiftLevel(b >> 4)};
+    return t;
+  }();
+  return table;
+}
+
+bool IsPackedSift(const ImageFeatures& features) {
+  return features.type == FeatureType::kSift && features.descriptors.type() == CV_8U &&
+         features.descriptors.cols == kPackedSiftCols;
+}
+
+cv::Mat PackSift(const cv::Mat& descriptors) {
+  cv::Mat floats;
+  descriptors.convertTo(floats, CV_32F);
+  cv::Mat packed(floats.rows, kPackedSiftCols, CV_8U);
+  for (int r = 0; r < floats.rows; ++r) {
+    const float* in = floats.ptr<float>(r);
+    std::uint8_t* out = packed.ptr<std::uint8_t>(r);
+    for (int c = 0; c < kPackedSiftCols; ++c) out[c] = SiftCode(in[2 * c]) | (SiftCode(in[2 * c + 1]) << 4);
+  }
+  return packed;
+}
+
+}  // namespace
+
+cv::Mat SiftDescriptorsAsFloat(const ImageFeatures& features) {
+  cv::Mat floats;
+  if (!IsPackedSift(features)) {
+    features.descriptors.convertTo(floats, CV_32F);
+    return floats;
+  }
+  const auto& values = PackedSiftValues();
+  floats.create(features.descriptors.rows, kSiftDims, CV_32F);
+  for (int r = 0; r < floats.rows; ++r) {
+    const std::uint8_t* in = features.descriptors.ptr<std::uint8_t>(r);
+    float* out = floats.ptr<float>(r);
+    for (int c = 0; c < kPackedSiftCols; ++c) {
+      out[2 * c] = values[in[c]][0];
+      out[2 * c + 1] = values[in[c]][1];
+    }
+  }
+  return floats;
+}
+
+ImageFeatures CompactFeatures(const ImageFeatures& features, int max_features,
+                              const std::vector<std::uint16_t>& priority) {
+  ImageFeatures out;
+  out.type = features.type;
+  out.width = features.width;
+  out.height = features.height;
+  const int n = static_cast<int>(features.keypoints_px.size());
+  std::vector<int> keep(n);
+  for (int i = 0; i < n; ++i) keep[i] = i;
+  const bool strength = static_cast<int>(features.strength.size()) == n;
+  const bool prioritised = static_cast<int>(priority.size()) == n;
+  if (n > max_features) {
+    // Better: higher priority, then stronger, then lower index.
+    auto better = [&](int a, int b) {
+      if (prioritised && priority[a] != priority[b]) return priority[a] > priority[b];
+      if (strength && features.strength[a] != features.strength[b]) return features.strength[a] > features.strength[b];
+      return a < b;
+    };
+    // Rank within cells of a grid over the image, then take the best of
+    // every cell before the second best of any: features that the views
+    // seen so far matched cover the part of the image those views overlap,
+    // and a revisit from elsewhere needs the rest.
+    std::vector<int> rank(n, 0);
+    if (features.width > 0 && features.height > 0) {
+      std::vector<std::vector<int>> cells(kCompactGrid * kCompactGrid);
+      for (int i = 0; i < n; ++i) {
+        const Eigen::Vector2d& p = features.keypoints_px[i];
+        const int cx = std::clamp(static_cast<int>(p.x() * kCompactGrid / features.width), 0, kCompactGrid - 1);
+        const int cy = std::clamp(static_cast<int>(p.y() * kCompactGrid / features.height), 0, kCompactGrid - 1);
+        cells[cy * kCompactGrid + cx].push_back(i);
+      }
+      for (std::vector<int>& cell : cells) {
+        std::sort(cell.begin(), cell.end(), better);
+        for (std::size_t r = 0; r < cell.size(); ++r) rank[cell[r]] = static_cast<int>(r);
+      }
+    }
+    std::sort(keep.begin(), keep.end(), [&](int a, int b) { return rank[a] != rank[b] ? rank[a] < rank[b] : better(a, b); });
+    keep.resize(std::max(0, max_features));
+    std::sort(keep.begin(), keep.end());  // back in the original order
+  }
+  cv::Mat kept_descriptors;
+  if (!features.descriptors.empty()) {
+    kept_descriptors.create(static_cast<int>(keep.size()), features.descriptors.cols, features.descriptors.type());
+  }
+  for (std::size_t r = 0; r < keep.size(); ++r) {
+    out.keypoints_px.push_back(features.keypoints_px[keep[r]]);
+    if (static_cast<int>(features.strength.size()) == n) out.strength.push_back(features.strength[keep[r]]);
+    if (!features.descriptors.empty()) features.descriptors.row(keep[r]).copyTo(kept_descriptors.row(static_cast<int>(r)));
+    if (static_cast<int>(features.words.size()) == n) out.words.push_back(features.words[keep[r]]);
+  }
+  const bool sift = features.type == FeatureType::kSift && features.descriptors.cols == kSiftDims;
+  out.descriptors = sift ? PackSift(kept_descriptors) : kept_descriptors;
+  return out;
+}
+
+ImageFeatures MatchableFeatures(const ImageFeatures& features) {
+  if (features.type != FeatureType::kSift || features.descriptors.type() == CV_32F) return features;
+  ImageFeatures out = features;
+  out.descriptors = SiftDescriptorsAsFloat(features);
+  return out;
+}
+
+std::size_t FeatureMemoryBytes(const ImageFeatures& features) {
+  return features.keypoints_px.capacity() * sizeof(Eigen::Vector2d) + features.strength.capacity() * sizeof(float) +
+         features.words.capacity() * sizeof(int) + features.descriptors.total() * features.descriptors.elemSize();
+}
+
+namespace {
+constexpr unsigned kFlannSeed = 20230618;
+}  // namespace
+
+struct FeatureIndex::Impl {
+  FeatureType type;
+  cv::Mat descriptors;
+  std::unique_ptr<cv::flann::Index> kdtree;  // SIFT
+  cv::Ptr<cv::BFMatcher> hamming;           // ORB
+};
+
+FeatureIndex::FeatureIndex(const ImageFeatures& features) : impl_(new Impl) {
+  impl_->type = features.type;
+  impl_->descriptors = features.descriptors;
+  if (features.descriptors.rows < 2) return;
+  if (features.type == FeatureType::kOrb) {
+    impl_->hamming = cv::BFMatcher::create(cv::NORM_HAMMING);
+  } else {
+    // FLANN's randomised kd-trees draw from std::rand and cv::theRNG(): fixed
+    // seeds make the index, and so the matches, the same run after run.
+    std::srand(kFlannSeed);
+    cv::setRNGSeed(static_cast<int>(kFlannSeed));
+    impl_->kdtree = std::make_unique<cv::flann::Index>(features.descriptors, cv::flann::KDTreeIndexParams(4));
+  }
+}
+
+FeatureIndex::~FeatureIndex() = default;
+
+std::vector<int> FeatureIndex::RatioMatches(const cv::Mat& query, double ratio) const {
+  std::vector<int> best(query.rows, -1);
+  if (impl_->descriptors.rows < 2 || query.rows == 0) return best;
+  if (impl_->type == FeatureType::kOrb) {
+    std::vector<std::vector<cv::DMatch>> knn;
+    impl_->hamming->knnMatch(query, impl_->descriptors, knn, 2);
+    for (const auto& m : knn) {
+      if (m.size() == 2 && m[0].distance < ratio * m[1].distance) best[m[0].queryIdx] = m[0].trainIdx;
+    }
+    return best;
+  }
+  cv::Mat indices, distances;  // distances are squared L2
+  impl_->kdtree->knnSearch(query, indices, distances, 2, cv::flann::SearchParams(64));
+  for (int i = 0; i < query.rows; ++i) {
+    const float d0 = distances.at<float>(i, 0), d1 = distances.at<float>(i, 1);
+    if (d0 < ratio * ratio * d1) best[i] = indices.at<int>(i, 0);
+  }
+  return best;
+}
+
+std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const FeatureIndex& index_a,
+                                               const ImageFeatures& b, const FeatureIndex& index_b,
+                                               const MatchOptions& options) {
+  std::vector<std::pair<int, int>> matches;
+  if (a.descriptors.rows < 2 || b.descriptors.rows < 2 || a.type != b.type) return matches;
+  const std::vector<int> ab = index_b.RatioMatches(a.descriptors, options.ratio);
+  std::vector<int> ba;
+  if (options.mutual) ba = index_a.RatioMatches(b.descriptors, options.ratio);
+  for (int i = 0; i < static_cast<int>(ab.size()); ++i) {
+    const int j = ab[i];
+    if (j < 0) continue;
+    if (options.mutual && ba[j] != i) continue;
+    matches.emplace_back(i, j);
+  }
+  return matches;
+}
+
+std::vector<std::pair<int, int>> MatchFeaturesByGroup(const ImageFeatures& a, const std::vector<int>& group_a,
+                                                      const ImageFeatures& b, const std::vector<int>& groups_b,
+                                                      const MatchOptions& options) {
+  std::vector<std::pair<int, int>> matches;
+  const int na = a.descriptors.rows, nb = b.descriptors.rows;
+  const bool hamming = a.type == FeatureType::kOrb;
+  cv::Mat fa, fb;  // float rows for L2 (SIFT may be stored as bytes, or packed)
+  if (!hamming && a.type == b.type) {
+    fa = SiftDescriptorsAsFloat(a);
+    fb = SiftDescriptorsAsFloat(b);
+  }
+  if (na < 1 || nb < 2 || a.type != b.type || (hamming ? a.descriptors.cols != b.descriptors.cols : fa.cols != fb.cols) ||
+      static_cast<int>(group_a.size()) != na || groups_b.empty() || groups_b.size() % nb != 0) {
+    return matches;
+  }
+  const std::size_t k = groups_b.size() / nb;
+  // Members of each group, in index order.
+  std::map<int, std::pair<std::vector<int>, std::vector<int>>> groups;
+  for (int i = 0; i < na; ++i) {
+    if (group_a[i] >= 0) groups[group_a[i]].first.push_back(i);
+  }
+  for (int j = 0; j < nb; ++j) {
+    for (std::size_t g = 0; g < k; ++g) {
+      const int group = groups_b[j * k + g];
+      if (group >= 0) groups[group].second.push_back(j);
+    }
+  }
+  const int dims = hamming ? a.descriptors.cols : fa.cols;
+  auto distance = [&](int i, int j) -> double {
+    if (hamming) return cv::norm(a.descriptors.row(i), b.descriptors.row(j), cv::NORM_HAMMING);
+    const float* x = fa.ptr<float>(i);
+    const float* y = fb.ptr<float>(j);
+    float sum = 0.0f;
+    for (int d = 0; d < dims; ++d) {
+      const float diff = x[d] - y[d];
+      sum += diff * diff;
+    }
+    return sum;  // squared
+  };
+  // Best and second best distance seen by each feature, over every pair
+  // compared (a feature of b may be compared in several groups).
+  struct Best {
+    double d0 = std::numeric_limits<double>::infinity(), d1 = std::numeric_limits<double>::infinity();
+    int index = -1;
+    void Add(double d, int i) {
+      if (d < d0) {
+        d1 = d0;
+        d0 = d;
+        index = i;
+      } else if (d < d1) {
+        d1 = d;
+      }
+    }
+  };
+  std::vector<Best> best_a(na), best_b(nb);
+  for (const auto& [group, members] : groups) {
+    for (int i : members.first) {
+      for (int j : members.second) {
+        const double d = distance(i, j);
+        best_a[i].Add(d, j);
+        best_b[j].Add(d, i);
+      }
+    }
+  }
+  // The ratio test on squared distances for L2.
+  const double ratio = hamming ? options.ratio : options.ratio * options.ratio;
+  auto passes = [ratio](const Best& b) { return b.index >= 0 && b.d0 < ratio * b.d1; };
+  for (int i = 0; i < na; ++i) {
+    if (!passes(best_a[i])) continue;
+    const int j = best_a[i].index;
+    // The mutual check: i is j's best (j may have had only i to compare with).
+    if (options.mutual && best_b[j].index != i) continue;
+    matches.emplace_back(i, j);
+  }
+  return matches;
+}
+
+std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const ImageFeatures& b,
+                                               const MatchOptions& options) {
+  const FeatureIndex index_a(a), index_b(b);
+  return MatchFeatures(a, index_a, b, index_b, options);
+}
+
+}  // namespace rotation_averaging

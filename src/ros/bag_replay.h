@@ -1,0 +1,75 @@
+// Internal to the package: may change between versions.
+// Offline replay of recorded bags through the node's pipeline
+// (KeyframePipeline: the same validation, front end and averager), as fast
+// as the CPU allows, deterministic run after run. Solves happen at the bag
+// times at which the live node would solve (every solve_period of bag time
+// after the first message, when new input arrived, and at once after a loop
+// closure if solve_early_on_loop_closure), plus once at the end.
+#ifndef ROTATION_AVERAGING_SRC_ROS_BAG_REPLAY_H_
+#define ROTATION_AVERAGING_SRC_ROS_BAG_REPLAY_H_
+
+#include <map>
+#include <string>
+#include <vector>
+
+#include "rotation_averaging/core/eval/rotation_evaluation.h"
+
+namespace rotation_averaging {
+
+struct ReplayOptions {
+  std::vector<std::string> bags;    // merged in time order
+  std::string config_path;          // YAML with the node's parameters; empty: defaults
+  std::string ground_truth_path;    // optional: orientations CSV, or a bag with ground_truth_topic
+  std::string output_dir;           // created if missing
+  std::string relative_pose_topic = "relative_pose";    // matched with or without a leading '/'
+  std::string relative_poses_topic = "relative_poses";
+  std::string ground_truth_topic = "/ground_truth/orientations";
+  bool progress = true;             // progress bar on stderr
+};
+
+struct ReplayResult {
+  bool ok = false;
+  std::string error;                // why the replay failed (ok == false)
+  std::vector<std::string> warnings;
+  bool truncated = false;           // stopped at damage in a bag; results cover what came before
+  std::size_t messages_total = 0, messages_read = 0;
+  std::size_t damaged_messages = 0;  // did not deserialise: dropped
+  double bag_start_s = 0.0, bag_duration_s = 0.0;
+  double wall_s = 0.0, cpu_s = 0.0, peak_rss_mib = 0.0;
+  std::size_t keyframes = 0;   // camera keyframes oriented
+  std::size_t variables = 0;   // solved views: keyframes, or captures of a rig with known extrinsics
+  std::size_t edges = 0, components = 0, outlier_edges = 0;
+  std::vector<std::string> rig_cameras;  // "camera in rig_frame"
+  std::size_t absorbed_by_rig = 0;
+  std::map<std::string, std::size_t> edges_by_source;
+  std::size_t keyframe_images = 0, rejected_images = 0, rejected_messages = 0;
+  double frontend_features_s = 0.0, frontend_retrieval_s = 0.0, frontend_pairs_s = 0.0;
+  // Two-view pairs of the front end: failed, edges from the rotation-only
+  // model, and failed previous pairs bridged by an older keyframe.
+  std::uint64_t frontend_failed_pairs = 0, frontend_rotation_model_edges = 0, frontend_chain_bridged = 0;
+  std::map<std::string, std::uint64_t> frontend_failures;  // two-view failure reason -> count
+  std::string retrieval;  // how loop-closure candidates were found
+  std::uint64_t loop_candidates = 0, loop_closure_edges = 0;
+  // Front-end wall time per keyframe (ms) in arrival order: features,
+  // retrieval, pair verification, and all of ProcessKeyframe.
+  struct KeyframeCost {
+    double features_ms = 0.0, retrieval_ms = 0.0, pairs_ms = 0.0, total_ms = 0.0;
+  };
+  std::vector<KeyframeCost> frontend_cost;
+  std::size_t frontend_bytes = 0;             // features and retrieval data held at the end
+  std::size_t compact_bytes = 0;              // of that, by the compact keyframes
+  std::uint64_t compacted_keyframes = 0;      // keyframes holding only their compact features
+  std::string frontend_cost_csv, frontend_cost_png;
+  std::size_t solves = 0;
+  double final_cost = 0.0;
+  bool have_scores = false;
+  EvaluationResult scores;
+  std::string orientations_csv, graph_file, output_bag, scores_file, plot_png;
+  std::string Summary() const;  // the multi-line report printed at the end
+};
+
+ReplayResult ReplayBags(const ReplayOptions& options);
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_SRC_ROS_BAG_REPLAY_H_

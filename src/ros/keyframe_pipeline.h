@@ -1,0 +1,181 @@
+// Internal to the package: may change between versions.
+// What the live node and the bag replay tool share: reading the parameters,
+// turning messages into validated keyframes and relative rotations, running
+// the keyframe front end into the averager, and building the output messages.
+// The node adds subscriptions, threads and publishers around it; the replay
+// tool adds a bag reader and a bag-time solve schedule. Neither re-implements
+// anything here.
+#ifndef ROTATION_AVERAGING_SRC_ROS_KEYFRAME_PIPELINE_H_
+#define ROTATION_AVERAGING_SRC_ROS_KEYFRAME_PIPELINE_H_
+
+#include <geometry_msgs/TransformStamped.h>
+#include <ros/time.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/CompressedImage.h>
+#include <sensor_msgs/Image.h>
+#include <tf2_msgs/TFMessage.h>
+#include <visualization_msgs/MarkerArray.h>
+
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "rotation_averaging/Orientations.h"
+#include "rotation_averaging/RelativePose.h"
+#include "frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/core/controllers/online_averager.h"
+#include "core/controllers/rig_model.h"
+
+namespace rotation_averaging {
+
+// Where parameters come from: the node's private namespace on the parameter
+// server, or a YAML file for the replay tool. Each getter returns false when
+// the parameter is absent (the caller keeps its default).
+class ParameterSource {
+ public:
+  virtual ~ParameterSource() = default;
+  virtual bool Get(const std::string& name, std::string* value) const = 0;
+  virtual bool Get(const std::string& name, double* value) const = 0;
+  virtual bool Get(const std::string& name, int* value) const = 0;
+  virtual bool Get(const std::string& name, bool* value) const = 0;
+  virtual bool Get(const std::string& name, std::vector<std::string>* value) const = 0;
+};
+
+// Every parameter of config/rotation_averaging.yaml, with its default.
+struct PipelineConfig {
+  std::string fixed_frame = "map";
+  std::string tf_mode = "all_keyframes";  // all_keyframes, latest_per_camera, none
+  std::string keyframe_frame_format = "{frame_id}_kf_{stamp_ns}";
+  std::string latest_frame_format = "{frame_id}_averaged";
+  OnlineAveragerOptions averager;
+  std::vector<std::string> image_topics;
+  std::string image_transport = "raw";  // raw or compressed
+  KeyframeFrontendOptions frontend;    // frontend.vocabulary: loaded from `vocabulary`
+  // File of `rotavg vocabulary`; "default": DefaultVocabularyPath(); "" or
+  // "none": no vocabulary (retrieval by voting, linear in the map).
+  std::string vocabulary = "default";
+  std::size_t max_image_queue = 8;
+  RigModelOptions rig;  // use_rig_extrinsics, rig_frame, rig_stamp_tolerance
+  // rviz markers: orientations carry no positions, so each camera (or rig)
+  // gets a lane along y and its keyframes are laid out along x in time order.
+  bool markers = true;
+  double marker_spacing_m = 0.5;       // between consecutive keyframes of a lane
+  int marker_max_keyframes = 2000;     // only the newest are drawn beyond this
+  std::string load_graph, save_on_shutdown;
+  std::string autosave_path;    // graph saved atomically every autosave_period s ("" = off)
+  double autosave_period_s = 30.0;
+};
+
+// Reads every parameter; unknown enum values fall back to the default with a
+// warning appended to `warnings`.
+PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std::string>* warnings);
+
+// A decoded, validated keyframe image waiting for the front end.
+struct PendingKeyframe {
+  KeyframeKey key;
+  cv::Mat image;  // 8-bit grey
+  Eigen::Matrix3d k = Eigen::Matrix3d::Identity();
+};
+
+// Counters of the inputs the pipeline turned away (the averager counts its own).
+struct PipelineStats {
+  std::uint64_t rejected_messages = 0;  // relative poses that failed conversion or validation
+  std::uint64_t rejected_images = 0;    // do not decode, bad camera_info, stamp not advancing, ...
+  std::uint64_t processed_images = 0;   // keyframes through the front end
+  std::uint64_t edges_from_images = 0;  // relative rotations the front end produced
+  std::uint64_t absorbed_by_rig = 0;    // measurements within one rig capture (extrinsics known)
+};
+
+class KeyframePipeline {
+ public:
+  explicit KeyframePipeline(const PipelineConfig& config);
+  ~KeyframePipeline();
+
+  const PipelineConfig& Config() const { return config_; }
+  OnlineAverager& Averager() { return *averager_; }
+  bool HasFrontend() const { return frontend_ != nullptr; }
+  const KeyframeFrontend* Frontend() const { return frontend_.get(); }
+
+  // Converts, validates and enqueues one relative pose. On failure the
+  // message is counted as rejected and `error` says why.
+  bool AcceptRelativePose(const RelativePose& msg, std::string* error);
+
+  // Static transforms (rig extrinsics); transforms from the fixed frame (our
+  // own keyframe output) are ignored. Cameras are resolved against them when
+  // their first keyframe arrives (src/core/controllers/rig_model.h).
+  void AcceptStaticTransforms(const tf2_msgs::TFMessage& msg);
+  const RigModel& Rig() const { return rig_; }
+  // After the averager's Reset().
+  void ResetRig() { rig_.Clear(); }
+
+  // Decode and validate a keyframe image (frame id, K, size, a stamp that
+  // advances per camera). On failure the image is counted as rejected.
+  bool DecodeImage(const sensor_msgs::Image& image, const sensor_msgs::CameraInfo& info, PendingKeyframe* out,
+                   std::string* error);
+  bool DecodeCompressedImage(const sensor_msgs::CompressedImage& image, const sensor_msgs::CameraInfo& info,
+                             PendingKeyframe* out, std::string* error);
+
+  // Runs the front end on one keyframe and enqueues its edges. Not
+  // thread-safe with itself (one front-end thread). Returns the edges added;
+  // `loop_closure` (optional) tells whether one of them closes a loop.
+  std::size_t ProcessKeyframe(const PendingKeyframe& keyframe, bool* loop_closure = nullptr,
+                              std::vector<std::string>* warnings = nullptr);
+
+  // The averager solves one variable per rig capture; this expands a
+  // solution into one orientation per camera keyframe. Callers expand once
+  // per solve and pass the result to the output messages below.
+  OnlineSolution CameraSolution(const OnlineSolution& solution) const { return rig_.ToCameraKeyframes(solution); }
+
+  // Output messages for a solution expanded by CameraSolution.
+  Orientations OrientationsMsg(const OnlineSolution& cameras, const ros::Time& stamp) const;
+  // all_keyframes: one transform per keyframe, stamped with its capture time.
+  tf2_msgs::TFMessage KeyframeTransforms(const OnlineSolution& cameras) const;
+  // rviz: camera frusta by solved orientation (namespace "keyframes") and the
+  // edges coloured by their robust weight (namespace "edges": green = full
+  // weight, red = rejected as an outlier). Lanes and edges come from the
+  // averager's `variables`, frusta from their expansion `cameras`.
+  visualization_msgs::MarkerArray Markers(const OnlineSolution& variables, const OnlineSolution& cameras,
+                                          const ros::Time& stamp) const;
+  // latest_per_camera: the newest keyframe of each camera, stamped `now`;
+  // a frame whose last transform had a stamp >= now is left out.
+  std::vector<geometry_msgs::TransformStamped> LatestTransforms(const OnlineSolution& cameras, const ros::Time& now);
+  void ForgetLatestStamps();  // after a reset
+
+  PipelineStats Stats() const;
+  // The front end's counters as of its latest keyframe; safe to call while
+  // another thread runs ProcessKeyframe.
+  KeyframeFrontendStats FrontendStats() const;
+
+ private:
+  bool Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
+                const sensor_msgs::CameraInfo& info, PendingKeyframe* out, std::string* error);
+  bool Reject(std::uint64_t* counter, const std::string& why, std::string* error);
+  bool AddMeasurement(const KeyframeRelativeRotation& m, std::string* error, bool* queue_full = nullptr);
+  geometry_msgs::TransformStamped Transform(const ros::Time& stamp, const std::string& child,
+                                            const geometry_msgs::Quaternion& camera_to_world) const;
+
+  PipelineConfig config_;
+  std::unique_ptr<OnlineAverager> averager_;
+  std::unique_ptr<KeyframeFrontend> frontend_;
+  RigModel rig_;
+  mutable std::mutex mutex_;  // stats_, frontend_stats_, last_image_stamp_, last_latest_stamp_
+  PipelineStats stats_;
+  KeyframeFrontendStats frontend_stats_;
+  std::map<std::string, std::int64_t> last_image_stamp_;
+  std::map<std::string, ros::Time> last_latest_stamp_;
+};
+
+// The vocabulary the build trains (target `vocabulary`, run by
+// scripts/setup.sh) in the package's share folder of the devel space.
+std::string DefaultVocabularyPath();
+
+// "{frame_id}" and "{stamp_ns}" in a frame name pattern.
+std::string KeyframeFrameName(const std::string& format, const KeyframeKey& key);
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_SRC_ROS_KEYFRAME_PIPELINE_H_

@@ -1,0 +1,199 @@
+// rotation_averaging_images_to_bag: an image folder with ground truth (a
+// Strecha scene, or images with a COLMAP text model) as a bag of keyframes
+// for the node and the replay tool.
+//
+//   rotation_averaging_images_to_bag --images DIR --intrinsics K.txt|cameras.txt --output out.bag
+//       [--gt Strecha-folder|images.txt|orientations.csv] [--downsample 0.25] [--rate 1.0]
+//       [--frame-id camera] [--compressed] [--write-gt-csv ground_truth.csv]
+//
+// Images are written in file-name order, 1/rate seconds apart, as mono8
+// <frame-id>/image_raw (or PNG <frame-id>/image_raw/compressed) with
+// <frame-id>/camera_info; radial distortion (COLMAP SIMPLE_RADIAL/RADIAL) is
+// removed from the images, so camera_info carries no distortion. Ground truth
+// goes on /ground_truth/orientations, keyed by the keyframes' frame id and stamp,
+// and with --write-gt-csv also to a CSV keyed by keyframe name (for
+// rotation_averaging_replay --gt). No output may be one of the inputs: the
+// program refuses to start rather than overwrite one.
+#include <rosbag/bag.h>
+#include <rosbag/exceptions.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/CompressedImage.h>
+#include <sensor_msgs/Image.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "rotation_averaging/Orientations.h"
+#include "rotation_averaging/frontend/controllers/image_pipeline.h"
+#include "rotation_averaging/frontend/features/features.h"
+#include "rotation_averaging/core/io/orientation_io.h"
+#include "ros/demo_bag.h"
+#include "ros/msg_conversion.h"
+
+namespace ra = rotation_averaging;
+
+namespace {
+
+int Usage(const std::string& why) {
+  if (!why.empty()) std::cerr << "rotation_averaging_images_to_bag: " << why << "\n";
+  std::cerr << "usage: rotation_averaging_images_to_bag --images DIR --intrinsics K.txt|cameras.txt --output out.bag\n"
+               "           [--gt Strecha-folder|images.txt|orientations.csv] [--downsample 0.25] [--rate 1.0]\n"
+               "           [--frame-id camera] [--compressed] [--write-gt-csv ground_truth.csv]\n";
+  return 2;
+}
+
+// True if both name the same file (an existing one, through links), or the
+// same path once made absolute.
+bool SameFile(const std::string& a, const std::string& b) {
+  std::error_code ec;
+  if (std::filesystem::exists(a, ec) && std::filesystem::exists(b, ec)) {
+    const bool same = std::filesystem::equivalent(a, b, ec);
+    if (!ec) return same;
+  }
+  return std::filesystem::weakly_canonical(a, ec) == std::filesystem::weakly_canonical(b, ec);
+}
+
+std::string BaseName(const std::string& path) {
+  const std::size_t slash = path.find_last_of('/');
+  return slash == std::string::npos ? path : path.substr(slash + 1);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string images_dir, intrinsics_path, output, gt_path, gt_csv, frame_id = "camera";
+  double downsample = 1.0, rate = 1.0;
+  bool compressed = false;
+  for (int k = 1; k < argc; ++k) {
+    const std::string a = argv[k];
+    const bool has_value = k + 1 < argc;
+    if (a == "--images" && has_value) {
+      images_dir = argv[++k];
+    } else if (a == "--intrinsics" && has_value) {
+      intrinsics_path = argv[++k];
+    } else if (a == "--output" && has_value) {
+      output = argv[++k];
+    } else if (a == "--gt" && has_value) {
+      gt_path = argv[++k];
+    } else if (a == "--write-gt-csv" && has_value) {
+      gt_csv = argv[++k];
+    } else if (a == "--gt-csv") {
+      return Usage("--gt-csv is ambiguous: the ground truth to read is --gt, the CSV to write is --write-gt-csv");
+    } else if (a == "--frame-id" && has_value) {
+      frame_id = argv[++k];
+    } else if (a == "--downsample" && has_value) {
+      downsample = std::atof(argv[++k]);
+    } else if (a == "--rate" && has_value) {
+      rate = std::atof(argv[++k]);
+    } else if (a == "--compressed") {
+      compressed = true;
+    } else {
+      return Usage("bad or incomplete option " + a);
+    }
+  }
+  if (images_dir.empty() || intrinsics_path.empty() || output.empty()) return Usage("give --images, --intrinsics and --output");
+  if (!(downsample > 0.0 && downsample <= 1.0)) return Usage("--downsample must be in (0, 1]");
+  if (!(rate > 0.0)) return Usage("--rate must be positive");
+  if (frame_id.empty()) return Usage("--frame-id must not be empty");
+
+  if (!gt_csv.empty() && SameFile(gt_csv, output)) return Usage("--output and --write-gt-csv name the same file");
+  const std::vector<std::string> images = ra::ListImages(images_dir);
+  std::vector<std::pair<std::string, std::string>> inputs = {{"--intrinsics", intrinsics_path}};
+  if (!gt_path.empty()) inputs.emplace_back("--gt", gt_path);
+  for (const std::string& image : images) inputs.emplace_back("an image of --images", image);
+  for (const auto& [what, input] : inputs) {
+    for (const auto& [flag, out] : {std::make_pair("--output", output), std::make_pair("--write-gt-csv", gt_csv)}) {
+      if (!out.empty() && SameFile(out, input)) {
+        return Usage(std::string(flag) + " " + out + " is " + what + " (" + input + "): refusing to overwrite an input");
+      }
+    }
+  }
+
+  ra::CameraIntrinsics intrinsics;
+  std::string error;
+  if (!ra::ReadCameraIntrinsics(intrinsics_path, &intrinsics, &error)) {
+    std::cerr << "rotation_averaging_images_to_bag: " << error << "\n";
+    return 1;
+  }
+  if (images.empty()) {
+    std::cerr << "rotation_averaging_images_to_bag: no images in " << images_dir << "\n";
+    return 1;
+  }
+  ra::NamedOrientations truth_by_image;
+  if (!gt_path.empty()) {
+    const ra::ReadReport report = ra::ReadGroundTruth(gt_path, ra::GroundTruthFormat::kAuto, &truth_by_image);
+    if (!report.ok()) {
+      std::cerr << "rotation_averaging_images_to_bag: ground truth: " << report.error << "\n";
+      return 1;
+    }
+  }
+
+  rosbag::Bag bag;
+  try {
+    bag.open(output, rosbag::bagmode::Write);
+  } catch (const rosbag::BagException& e) {
+    std::cerr << "rotation_averaging_images_to_bag: cannot write " << output << ": " << e.what() << "\n";
+    return 1;
+  }
+  const ros::Time t0(1000.0);
+  rotation_averaging::Orientations truth;
+  truth.header.frame_id = "map";
+  ra::NamedOrientations truth_csv;
+  std::size_t written = 0, without_truth = 0;
+  for (std::size_t i = 0; i < images.size(); ++i) {
+    cv::Mat grey = cv::imread(images[i], cv::IMREAD_GRAYSCALE);
+    if (grey.empty()) {
+      std::cerr << "warning: cannot read " << images[i] << ", skipped\n";
+      continue;
+    }
+    Eigen::Matrix3d k = intrinsics.k;
+    if (intrinsics.k1 != 0.0 || intrinsics.k2 != 0.0) {
+      // COLMAP's radial model is OpenCV's with k1, k2 and no tangential terms.
+      cv::Mat cv_k = (cv::Mat_<double>(3, 3) << k(0, 0), k(0, 1), k(0, 2), k(1, 0), k(1, 1), k(1, 2), 0, 0, 1);
+      cv::Mat undistorted;
+      cv::undistort(grey, undistorted, cv_k, cv::Mat(std::vector<double>{intrinsics.k1, intrinsics.k2, 0.0, 0.0}));
+      grey = undistorted;
+    }
+    if (downsample < 1.0) {
+      cv::Mat small;
+      cv::resize(grey, small, cv::Size(), downsample, downsample, cv::INTER_AREA);
+      grey = small;
+      k = ra::ScaleIntrinsics(k, downsample);
+    }
+    const ros::Time stamp = t0 + ros::Duration(written / rate);
+    ra::WriteKeyframeImage(&bag, frame_id, stamp, grey, k, compressed);
+    ++written;
+    auto gt = truth_by_image.find(BaseName(images[i]));
+    if (gt != truth_by_image.end()) {
+      const ra::KeyframeKey key{frame_id, ra::ToNanoseconds(stamp)};
+      truth.keyframes.push_back(ra::ToMsg(key, gt->second, 0));
+      truth_csv[ra::OnlineAverager::KeyframeName(key)] = gt->second;
+    } else if (!truth_by_image.empty()) {
+      ++without_truth;
+    }
+    std::fprintf(stderr, "\rwrote %zu/%zu images", written, images.size());
+  }
+  std::fprintf(stderr, "\n");
+  if (!truth.keyframes.empty()) {
+    const ros::Time end = t0 + ros::Duration((written > 0 ? written - 1 : 0) / rate);
+    truth.header.stamp = end;
+    bag.write("/ground_truth/orientations", end, truth);
+  }
+  bag.close();
+  if (!gt_csv.empty() && !ra::WriteOrientationsCsv(gt_csv, truth_csv, &error)) {
+    std::cerr << "rotation_averaging_images_to_bag: " << error << "\n";
+    return 1;
+  }
+  std::cout << "wrote " << output << ": " << written << " keyframes of " << frame_id << ", " << 1.0 / rate
+            << " s apart; ground truth for " << truth.keyframes.size() << " of them";
+  if (without_truth) std::cout << " (" << without_truth << " images have none)";
+  std::cout << std::endl;
+  return 0;
+}

@@ -1,0 +1,130 @@
+#include "core/controllers/rig_model.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <memory>
+
+#include "rotation_averaging/core/geometry/so3.h"
+
+namespace rotation_averaging {
+namespace {
+
+// Two cameras on a rig through a two-level static tree
+// (base_link -> mount -> cam_a, base_link -> cam_b), one camera without.
+struct Fixture {
+  Eigen::Matrix3d mount_in_base = ExpSO3(Eigen::Vector3d(0.0, 0.0, 0.3));
+  Eigen::Matrix3d a_in_mount = ExpSO3(Eigen::Vector3d(0.2, -0.1, 0.05));
+  Eigen::Matrix3d b_in_base = ExpSO3(Eigen::Vector3d(-0.3, 0.4, 1.2));
+  Eigen::Matrix3d a_from_rig() const { return (mount_in_base * a_in_mount).transpose(); }
+  Eigen::Matrix3d b_from_rig() const { return b_in_base.transpose(); }
+  std::unique_ptr<RigModel> Model(RigModelOptions options = {}) const {
+    options.stamp_tolerance_s = 0.005;
+    auto rig = std::make_unique<RigModel>(options);
+    rig->AddStaticTransform("base_link", "mount", mount_in_base);
+    rig->AddStaticTransform("mount", "cam_a", a_in_mount);
+    rig->AddStaticTransform("base_link", "cam_b", b_in_base);
+    return rig;
+  }
+};
+
+KeyframeRelativeRotation Measure(const KeyframeKey& k1, const Eigen::Matrix3d& r1, const KeyframeKey& k2,
+                                 const Eigen::Matrix3d& r2) {
+  KeyframeRelativeRotation m;
+  m.keyframe1 = k1;
+  m.keyframe2 = k2;
+  m.rotation = r1 * r2.transpose();
+  m.has_covariance = true;
+  m.covariance = Eigen::Vector3d(1e-4, 4e-4, 9e-4).asDiagonal();
+  return m;
+}
+
+TEST(RigModel, ResolvesCamerasThroughTheStaticTree) {
+  Fixture f;
+  const std::unique_ptr<RigModel> owned = f.Model();
+  RigModel& rig = *owned;
+  EXPECT_TRUE(rig.IsRigCamera("cam_a"));
+  EXPECT_TRUE(rig.IsRigCamera("cam_b"));
+  EXPECT_FALSE(rig.IsRigCamera("cam_loose"));
+  const auto cameras = rig.RigCameras();
+  ASSERT_EQ(cameras.size(), 2u);
+  EXPECT_EQ(cameras.at("cam_a").first, "base_link");
+  EXPECT_TRUE(cameras.at("cam_a").second.isApprox(f.a_from_rig(), 1e-12));
+  EXPECT_TRUE(cameras.at("cam_b").second.isApprox(f.b_from_rig(), 1e-12));
+  // A rig frame that only cam_a reaches.
+  RigModelOptions mount;
+  mount.rig_frame = "mount";
+  const auto mounted = f.Model(mount);
+  EXPECT_TRUE(mounted->IsRigCamera("cam_a"));
+  EXPECT_FALSE(mounted->IsRigCamera("cam_b"));
+  // Disabled: nothing is a rig camera.
+  RigModelOptions off;
+  off.enabled = false;
+  EXPECT_FALSE(f.Model(off)->IsRigCamera("cam_a"));
+}
+
+TEST(RigModel, MeasurementsBecomeCaptureLevelAndExpandBack) {
+  Fixture f;
+  const std::unique_ptr<RigModel> owned = f.Model();
+  RigModel& rig = *owned;
+  // Rig orientations (world-to-rig) at two captures; cam_b fires 2 ms late.
+  const Eigen::Matrix3d rig0 = ExpSO3(Eigen::Vector3d(0.1, 0.2, 0.3));
+  const Eigen::Matrix3d rig1 = ExpSO3(Eigen::Vector3d(0.15, 0.1, 0.6));
+  const KeyframeKey a0{"cam_a", 1000000000}, b0{"cam_b", 1002000000}, a1{"cam_a", 2000000000};
+  const Eigen::Matrix3d ra0 = f.a_from_rig() * rig0, rb0 = f.b_from_rig() * rig0, ra1 = f.a_from_rig() * rig1;
+
+  // Within one capture: absorbed.
+  KeyframeRelativeRotation v;
+  EXPECT_FALSE(rig.ToVariables(Measure(a0, ra0, b0, rb0), &v));
+  EXPECT_EQ(rig.NumAbsorbed(), 1u);
+  // Across captures: R_A R_B^T of the rig, covariance rotated into B's rig frame.
+  const KeyframeRelativeRotation m = Measure(b0, rb0, a1, ra1);
+  ASSERT_TRUE(rig.ToVariables(m, &v));
+  EXPECT_EQ(v.keyframe1.frame_id, "base_link");
+  EXPECT_EQ(v.keyframe1.stamp_ns, 1000000000);  // the capture founded by cam_a
+  EXPECT_EQ(v.keyframe2.stamp_ns, 2000000000);
+  EXPECT_LT(AngularDistanceRad(v.rotation, rig0 * rig1.transpose()), 1e-12);
+  EXPECT_TRUE(v.covariance.isApprox(f.a_from_rig().transpose() * m.covariance * f.a_from_rig(), 1e-12));
+  // A camera-level right perturbation of the measurement equals the
+  // rig-level perturbation with the rotated vector.
+  const Eigen::Vector3d e(0.01, -0.02, 0.005);
+  KeyframeRelativeRotation perturbed = m;
+  perturbed.rotation = m.rotation * ExpSO3(e);
+  KeyframeRelativeRotation pv;
+  ASSERT_TRUE(rig.ToVariables(perturbed, &pv));
+  EXPECT_LT(AngularDistanceRad(pv.rotation, v.rotation * ExpSO3(f.a_from_rig().transpose() * e)), 1e-12);
+  // Different camera pairs of the same two captures are told apart.
+  KeyframeRelativeRotation other;
+  ASSERT_TRUE(rig.ToVariables(Measure(a0, ra0, a1, ra1), &other));
+  EXPECT_NE(other.channel, v.channel);
+
+  // Expansion: every camera keyframe seen gets E_c R_rig, with its own stamp.
+  OnlineSolution capture_level;
+  capture_level.orientations[v.keyframe1] = rig0;
+  capture_level.orientations[v.keyframe2] = rig1;
+  capture_level.component[v.keyframe1] = 0;
+  const OnlineSolution cameras = rig.ToCameraKeyframes(capture_level);
+  ASSERT_EQ(cameras.orientations.size(), 3u);
+  EXPECT_LT(AngularDistanceRad(cameras.orientations.at(a0), ra0), 1e-12);
+  EXPECT_LT(AngularDistanceRad(cameras.orientations.at(b0), rb0), 1e-12);
+  EXPECT_LT(AngularDistanceRad(cameras.orientations.at(a1), ra1), 1e-12);
+  EXPECT_EQ(cameras.component.at(b0), 0);
+}
+
+TEST(RigModel, CamerasWithoutExtrinsicsStayKeyframes) {
+  Fixture f;
+  const std::unique_ptr<RigModel> owned = f.Model();
+  RigModel& rig = *owned;
+  const KeyframeKey loose0{"cam_loose", 1000000000}, a0{"cam_a", 1000000000};
+  KeyframeRelativeRotation v;
+  const Eigen::Matrix3d r = ExpSO3(Eigen::Vector3d(0.3, 0.0, 0.0));
+  ASSERT_TRUE(rig.ToVariables(Measure(loose0, r, a0, Eigen::Matrix3d::Identity()), &v));
+  EXPECT_EQ(v.keyframe1.frame_id, "cam_loose");
+  EXPECT_EQ(v.keyframe2.frame_id, "base_link");
+  // Extrinsics that arrive after a camera was first seen do not move it.
+  rig.AddStaticTransform("base_link", "cam_loose", Eigen::Matrix3d::Identity());
+  EXPECT_FALSE(rig.IsRigCamera("cam_loose"));
+}
+
+}  // namespace
+}  // namespace rotation_averaging

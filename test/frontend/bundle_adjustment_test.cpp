@@ -1,0 +1,279 @@
+#include "rotation_averaging/frontend/estimators/bundle_adjustment.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <random>
+
+#include "frontend/refinement_test_util.h"
+#include "rotation_averaging/core/geometry/so3.h"
+
+namespace rotation_averaging {
+namespace {
+
+constexpr double kFocal = 1000.0;  // pixels, for the noise level only
+
+// Cameras on an arc around a box of points. Each view
+// sees each point as one keypoint (noise drawn once per view and point), so
+// the pairs' matches share keypoints and link into tracks, as a detector's
+// keypoints do.
+struct Scene {
+  ViewOrientations truth;
+  std::vector<Eigen::Vector3d> centres, points;
+  std::vector<std::vector<Eigen::Vector2d>> keypoints;  // [view][point]
+  std::vector<EdgeCorrespondences> edges;
+};
+
+Scene MakeScene(int views, double noise_px, std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, noise_px / kFocal);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  Scene scene;
+  for (int k = 0; k < 300; ++k) scene.points.emplace_back(3.0 * u(rng), 2.0 * u(rng), 6.0 + 2.0 * u(rng));
+  for (int v = 0; v < views; ++v) {
+    const double angle = DegToRad(-20.0 + 40.0 * v / (views - 1));
+    const Eigen::Vector3d centre(6.0 * std::sin(angle), 0.3 * u(rng), 6.0 - 6.0 * std::cos(angle));
+    const Eigen::Vector3d z = (Eigen::Vector3d(0, 0, 6) - centre).normalized();
+    const Eigen::Vector3d x = Eigen::Vector3d::UnitY().cross(z).normalized();
+    Eigen::Matrix3d camera_to_world;
+    camera_to_world << x, z.cross(x), z;
+    const Eigen::Matrix3d r =
+        (camera_to_world * Eigen::AngleAxisd(0.05 * u(rng), Eigen::Vector3d::UnitZ()).toRotationMatrix()).transpose();
+    scene.truth[static_cast<ViewId>(v)] = r;
+    scene.centres.push_back(centre);
+    std::vector<Eigen::Vector2d> seen;
+    for (const Eigen::Vector3d& p : scene.points) {
+      seen.push_back((r * (p - centre)).hnormalized() + Eigen::Vector2d(noise(rng), noise(rng)));
+    }
+    scene.keypoints.push_back(seen);
+  }
+  for (int i = 0; i < views; ++i) {
+    for (int j = i + 1; j < views; ++j) {
+      EdgeCorrespondences e;
+      e.view1 = static_cast<ViewId>(i);
+      e.view2 = static_cast<ViewId>(j);
+      e.points1 = scene.keypoints[i];
+      e.points2 = scene.keypoints[j];
+      e.translation = (scene.truth[e.view2] * (scene.centres[i] - scene.centres[j])).normalized();
+      e.sigma = std::max(noise_px, 0.05) / kFocal;
+      scene.edges.push_back(std::move(e));
+    }
+  }
+  return scene;
+}
+
+TEST(BundleAdjustment, ExactWithoutNoiseAndCentresUpToScale) {
+  const Scene scene = MakeScene(6, 0.0, 1);
+  ViewOrientations orientations = Perturbed(scene.truth, 1.0, 2);
+  BundleAdjustmentSummary summary;
+  std::unordered_map<ViewId, Eigen::Vector3d> centres;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &orientations, &summary,
+                                                  &centres))
+      << summary.Report();
+  EXPECT_LT(MaxErrorDeg(orientations, scene.truth), 1e-5) << summary.Report();
+  EXPECT_EQ(summary.views, 6);
+  EXPECT_EQ(summary.edges_used, 15);
+  EXPECT_EQ(summary.tracks, 300);
+  EXPECT_EQ(summary.observations, 6u * 300u);
+  EXPECT_EQ(summary.observations_dropped, 0u);
+  EXPECT_LT(summary.final_rms_sigmas, 1e-3);
+  // The centres are the true ones in the frame of the estimate (view 0
+  // fixed at the origin), up to one scale.
+  ASSERT_EQ(centres.size(), 6u);
+  const Eigen::Matrix3d align = orientations.at(0).transpose() * scene.truth.at(0);  // truth world -> estimate world
+  const double scale = centres.at(5).norm() / (scene.centres[5] - scene.centres[0]).norm();
+  for (int v = 0; v < 6; ++v) {
+    const Eigen::Vector3d expected = scale * align * (scene.centres[v] - scene.centres[0]);
+    EXPECT_LT((centres.at(v) - expected).norm(), 1e-5 * scale) << v;
+  }
+}
+
+TEST(BundleAdjustment, TracksPinRotationsBetterThanThePairsAlone) {
+  // Half a pixel of noise. Each pair's own translation direction lets the
+  // pairwise refinement trade rotation for translation; shared centres and
+  // points do not.
+  double adjusted_sum = 0.0, pairwise_sum = 0.0;
+  for (std::uint32_t seed = 1; seed <= 3; ++seed) {
+    const Scene scene = MakeScene(8, 0.5, seed);
+    ViewOrientations adjusted = Perturbed(scene.truth, 0.5, 10 + seed);
+    ViewOrientations pairwise = adjusted;
+    BundleAdjustmentSummary summary;
+    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &adjusted, &summary))
+        << summary.Report();
+    CorrespondenceRefinementSummary refinement;
+    ASSERT_TRUE(
+        RefineRotationsWithCorrespondences(scene.edges, CorrespondenceRefinementOptions(), &pairwise, &refinement));
+    // Whitened by the true noise, the residuals are about one sigma.
+    EXPECT_NEAR(summary.final_rms_sigmas, 1.0, 0.15) << summary.Report();
+    EXPECT_EQ(summary.observations_dropped, 0u) << summary.Report();
+    EXPECT_LT(MaxErrorDeg(adjusted, scene.truth), MaxErrorDeg(pairwise, scene.truth)) << summary.Report();
+    // The minimum it reaches is the one at the truth.
+    ViewOrientations from_truth = scene.truth;
+    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &from_truth, &summary));
+    EXPECT_LT(MaxErrorDeg(adjusted, from_truth), 1e-3);
+    adjusted_sum += MaxErrorDeg(adjusted, scene.truth);
+    pairwise_sum += MaxErrorDeg(pairwise, scene.truth);
+  }
+  EXPECT_LT(adjusted_sum, 0.7 * pairwise_sum) << adjusted_sum << " vs " << pairwise_sum;
+}
+
+// A camera that turned in place (the front end's rotation-only model: zero
+// translation) gives no direction between centres, but its matches are
+// observations of the same points. View 1 here is taken from view 0's centre,
+// 8 deg to the side, and only that pair relates it to the others: it joins
+// the tracks from view 0's centre, and the scale is held by a view that is
+// not at the first view's centre.
+TEST(BundleAdjustment, RotationOnlyPairsJoinTheTracks) {
+  const Scene base = MakeScene(6, 0.3, 7);
+  auto renumbered = [](ViewId v) { return v == 0 ? v : v + 1; };
+  Scene scene;
+  scene.points = base.points;
+  for (const auto& [id, r] : base.truth) scene.truth[renumbered(id)] = r;
+  const Eigen::Matrix3d turned = ExpSO3(Eigen::Vector3d(0.0, DegToRad(8.0), 0.0)) * base.truth.at(0);
+  scene.truth[1] = turned;
+  std::mt19937 rng(8);
+  std::normal_distribution<double> noise(0.0, 0.3 / kFocal);
+  std::vector<Eigen::Vector2d> seen;
+  for (const Eigen::Vector3d& p : base.points) {
+    seen.push_back((turned * (p - base.centres[0])).hnormalized() + Eigen::Vector2d(noise(rng), noise(rng)));
+  }
+  for (EdgeCorrespondences e : base.edges) {
+    e.view1 = renumbered(e.view1);
+    e.view2 = renumbered(e.view2);
+    scene.edges.push_back(std::move(e));
+  }
+  EdgeCorrespondences in_place = base.edges.front();  // view 0's keypoints, and view 1's
+  in_place.view2 = 1;
+  in_place.points2 = seen;
+  in_place.translation.setZero();
+  scene.edges.push_back(in_place);
+
+  ViewOrientations orientations = Perturbed(scene.truth, 0.5, 9);
+  const double start = MaxErrorDeg(orientations, scene.truth);
+  BundleAdjustmentSummary summary;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &orientations, &summary))
+      << summary.Report();
+  EXPECT_EQ(summary.views, 7);
+  EXPECT_EQ(summary.edges_used, 16);
+  EXPECT_EQ(summary.edges_rotation_only, 1);
+  EXPECT_EQ(summary.edges_skipped, 0);
+  EXPECT_EQ(summary.observations, 7u * 300u) << summary.Report();
+  EXPECT_NEAR(summary.final_rms_sigmas, 1.0, 0.15) << summary.Report();
+  EXPECT_LT(MaxErrorDeg(orientations, scene.truth), 0.05) << "from " << start << " deg; " << summary.Report();
+  // The pairwise refinement has no use for a pair without a direction.
+  ViewOrientations pairwise = Perturbed(scene.truth, 0.5, 9);
+  CorrespondenceRefinementSummary refinement;
+  ASSERT_TRUE(RefineRotationsWithCorrespondences(scene.edges, CorrespondenceRefinementOptions(), &pairwise, &refinement));
+  EXPECT_EQ(refinement.edges_skipped, 1) << refinement.Report();
+}
+
+TEST(BundleAdjustment, RepeatedStructureMatchesAreDroppedByTheirTracks) {
+  // A quarter of pair (0, 3)'s matches go to the point one "window" to the
+  // right (0.4 m along the façade), seen at its own keypoint in view 3: the
+  // pair alone is biased by them, the other views of each track are not.
+  Scene scene = MakeScene(8, 0.3, 5);
+  // The same observations without the shifted points' tracks.
+  Scene clean = scene;
+  for (EdgeCorrespondences& e : clean.edges) {
+    std::vector<Eigen::Vector2d> p1, p2;
+    for (std::size_t k = 0; k < e.points1.size(); ++k) {
+      if (k % 4 != 0) p1.push_back(e.points1[k]), p2.push_back(e.points2[k]);
+    }
+    e.points1 = p1;
+    e.points2 = p2;
+  }
+  EdgeCorrespondences* pair = nullptr;
+  for (EdgeCorrespondences& e : scene.edges) {
+    if (e.view1 == 0 && e.view2 == 3) pair = &e;
+  }
+  ASSERT_NE(pair, nullptr);
+  const Eigen::Matrix3d& r3 = scene.truth.at(3);
+  int shifted = 0;
+  for (std::size_t k = 0; k < pair->points2.size(); k += 4, ++shifted) {
+    const Eigen::Vector3d neighbour = scene.points[k] + Eigen::Vector3d(0.4, 0.0, 0.0);
+    pair->points2[k] = (r3 * (neighbour - scene.centres[3])).hnormalized();
+  }
+  const ViewOrientations start = Perturbed(scene.truth, 0.3, 6);
+  ViewOrientations contaminated = start, reference = start;
+  BundleAdjustmentSummary summary, clean_summary;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &contaminated, &summary));
+  ASSERT_TRUE(
+      RefineRotationsWithBundleAdjustment(clean.edges, BundleAdjustmentOptions(), &reference, &clean_summary));
+  // Each shifted match links its point's track to a second keypoint in
+  // view 3 (the other pairs with view 3 match the true one): the track is
+  // inconsistent and left out, with its pull on the pair: the result is
+  // the one without those points at all.
+  EXPECT_EQ(summary.tracks_inconsistent, shifted) << summary.Report();
+  EXPECT_EQ(summary.tracks, 300 - shifted) << summary.Report();
+  EXPECT_EQ(clean_summary.tracks, 300 - shifted) << clean_summary.Report();
+  EXPECT_LT(MaxErrorDeg(contaminated, reference), 1e-6) << summary.Report();
+  EXPECT_LT(MaxErrorDeg(contaminated, scene.truth), 0.05) << summary.Report();
+  EXPECT_GT(shifted, 50);
+}
+
+TEST(BundleAdjustment, TwoViewTracksAreLeftOutByDefault) {
+  // 100 more matches in pair (0, 3) only, each between two keypoints no other
+  // pair has, all 1.5 px above where they belong in view 3: wrong matches
+  // near their epipolar lines, which no third view sees. As two-view tracks
+  // they pull as they pull the pair; by default they are left out.
+  Scene scene = MakeScene(8, 0.3, 11);
+  const Scene clean = scene;
+  std::mt19937 rng(12);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (EdgeCorrespondences& e : scene.edges) {
+    if (e.view1 != 0 || e.view2 != 3) continue;
+    for (int k = 0; k < 100; ++k) {
+      const Eigen::Vector3d p(3.0 * u(rng), 2.0 * u(rng), 6.0 + 2.0 * u(rng));
+      e.points1.push_back((scene.truth.at(0) * (p - scene.centres[0])).hnormalized());
+      e.points2.push_back((scene.truth.at(3) * (p - scene.centres[3])).hnormalized() + Eigen::Vector2d(0.0, 1.5 / kFocal));
+    }
+  }
+  const ViewOrientations start = Perturbed(scene.truth, 0.3, 13);
+  ViewOrientations reference = start, adjusted = start, with_pairs = start;
+  BundleAdjustmentSummary summary;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(clean.edges, BundleAdjustmentOptions(), &reference, &summary));
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &adjusted, &summary));
+  EXPECT_EQ(summary.tracks_short, 100) << summary.Report();
+  EXPECT_EQ(summary.tracks, 300) << summary.Report();
+  EXPECT_LT(MaxErrorDeg(adjusted, reference), 1e-6) << summary.Report();
+  BundleAdjustmentOptions two_views;
+  two_views.min_track_views = 2;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, two_views, &with_pairs, &summary));
+  EXPECT_EQ(summary.tracks_short, 0) << summary.Report();
+  EXPECT_GT(MaxErrorDeg(with_pairs, reference), 1e-3) << summary.Report();
+}
+
+TEST(BundleAdjustment, BadEdgesAreLeftOutAndNothingToAdjustChangesNothing) {
+  Scene scene = MakeScene(4, 0.5, 7);
+  std::vector<EdgeCorrespondences> edges = scene.edges;
+  const std::vector<EdgeCorrespondences> bad = BadEdgeCorrespondences(edges);
+
+  ViewOrientations orientations = Perturbed(scene.truth, 0.5, 8);
+  const ViewOrientations start = orientations;
+  BundleAdjustmentSummary summary;
+  EXPECT_FALSE(RefineRotationsWithBundleAdjustment(bad, BundleAdjustmentOptions(), &orientations, &summary));
+  EXPECT_EQ(summary.edges_skipped, 6);
+  EXPECT_FALSE(summary.status.empty());
+  for (const auto& [id, r] : start) EXPECT_EQ(orientations.at(id), r);
+
+  // The good edges next to the bad ones: adjusted, the bad ones counted,
+  // and the same numbers as without them.
+  ViewOrientations alone = start;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &alone, &summary));
+  edges.insert(edges.end(), bad.begin(), bad.end());
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(edges, BundleAdjustmentOptions(), &orientations, &summary));
+  EXPECT_EQ(summary.edges_used, 6);
+  EXPECT_EQ(summary.edges_skipped, 6);
+  EXPECT_LT(MaxErrorDeg(orientations, alone), 1e-9);
+
+  // A view without an orientation: its edges are left out, it gets none.
+  ViewOrientations partial = Perturbed(scene.truth, 0.5, 9);
+  partial.erase(3);
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &partial, &summary));
+  EXPECT_EQ(summary.edges_used, 3);
+  EXPECT_EQ(summary.edges_skipped, 3);
+  EXPECT_EQ(partial.count(3), 0u);
+}
+
+}  // namespace
+}  // namespace rotation_averaging

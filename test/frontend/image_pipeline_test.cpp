@@ -1,0 +1,393 @@
+#include "rotation_averaging/frontend/controllers/image_pipeline.h"
+
+#include <gtest/gtest.h>
+#include "common/test_data.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <memory>
+#include <random>
+
+#include "rotation_averaging/frontend/estimators/bundle_adjustment.h"
+#include "rotation_averaging/core/estimators/rotation_averaging.h"
+#include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "rotation_averaging/core/geometry/so3.h"
+#include "rotation_averaging/core/io/orientation_io.h"
+
+namespace rotation_averaging {
+namespace {
+
+namespace fs = std::filesystem;
+
+TEST(CameraIntrinsics, UndistortInvertsRadialDistortion) {
+  CameraIntrinsics c;
+  c.k << 1000, 0, 640, 0, 1000, 480, 0, 0, 1;
+  c.k1 = -0.2;
+  c.k2 = 0.05;
+  for (const Eigen::Vector2d x : {Eigen::Vector2d(0.3, -0.2), Eigen::Vector2d(-0.5, 0.4), Eigen::Vector2d(0, 0)}) {
+    const double r2 = x.squaredNorm();
+    const Eigen::Vector2d distorted = x * (1 + c.k1 * r2 + c.k2 * r2 * r2);
+    const Eigen::Vector2d pixel = (c.k * distorted.homogeneous()).hnormalized();
+    const Eigen::Vector2d expected = (c.k * x.homogeneous()).hnormalized();
+    EXPECT_LT((c.Undistort(pixel, c.k) - expected).norm(), 1e-6);
+  }
+}
+
+TEST(CameraIntrinsics, ReadsColmapCamerasAndKMatrices) {
+  const fs::path dir = fs::temp_directory_path() / ("rotavg_cam_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  std::ofstream(dir / "cameras.txt") << "# comment\n1 SIMPLE_RADIAL 1296 1936 2435.38 648 968 -0.0336422\n";
+  std::ofstream(dir / "K.txt") << "2759.48 0 1520.69\n0 2764.16 1006.81\n0 0 1\n";
+  std::ofstream(dir / "bad.txt") << "1 2 3\n";
+  std::ofstream(dir / "skewed_last_row.txt") << "2759.48 0 1520.69\n0 2764.16 1006.81\n0.001 0 1\n";
+  std::ofstream(dir / "negative_focal.txt") << "1 PINHOLE 1296 1936 -2435.38 2435.38 648 968\n";
+  std::ofstream(dir / "nan_distortion.txt") << "1 SIMPLE_RADIAL 1296 1936 2435.38 648 968 nan\n";
+  CameraIntrinsics c;
+  std::string error;
+  ASSERT_TRUE(ReadCameraIntrinsics((dir / "cameras.txt").string(), &c, &error)) << error;
+  EXPECT_DOUBLE_EQ(c.k(0, 0), 2435.38);
+  // COLMAP's pixel convention (top-left pixel centre at (0.5, 0.5)) in
+  // OpenCV's (at (0, 0)), as the keypoints are.
+  EXPECT_DOUBLE_EQ(c.k(0, 2), 647.5);
+  EXPECT_DOUBLE_EQ(c.k(1, 2), 967.5);
+  EXPECT_DOUBLE_EQ(c.k1, -0.0336422);
+  ASSERT_TRUE(ReadCameraIntrinsics((dir / "K.txt").string(), &c, &error)) << error;
+  EXPECT_DOUBLE_EQ(c.k(1, 1), 2764.16);
+  EXPECT_DOUBLE_EQ(c.k(0, 2), 1520.69);  // K.txt is in OpenCV's convention already
+  EXPECT_EQ(c.k1, 0.0);
+  EXPECT_FALSE(ReadCameraIntrinsics((dir / "bad.txt").string(), &c, &error));
+  EXPECT_NE(error.find("9 numbers"), std::string::npos);
+  // Not a camera: a last row other than 0 0 1, a negative focal length, a
+  // distortion that is not a number. Refused on reading, with the file named.
+  for (const char* name : {"skewed_last_row.txt", "negative_focal.txt", "nan_distortion.txt"}) {
+    EXPECT_FALSE(ReadCameraIntrinsics((dir / name).string(), &c, &error)) << name;
+    EXPECT_NE(error.find(name), std::string::npos) << error;
+  }
+  fs::remove_all(dir);
+}
+
+TEST(PairSelection, ParsesModes) {
+  PairSelection p;
+  EXPECT_TRUE(PairSelection::Parse("sequential:3", &p));
+  EXPECT_EQ(p.mode, PairSelection::Mode::kSequential);
+  EXPECT_EQ(p.window, 3);
+  EXPECT_TRUE(PairSelection::Parse("exhaustive", &p));
+  EXPECT_FALSE(PairSelection::Parse("sequential:0", &p));
+  EXPECT_FALSE(PairSelection::Parse("random", &p));
+  const fs::path list = fs::temp_directory_path() / ("rotavg_pairs_" + std::to_string(::getpid()) + ".txt");
+  std::ofstream(list) << "# pairs\na.jpg b.jpg\nb.jpg c.jpg\n";
+  ASSERT_TRUE(PairSelection::Parse("list:" + list.string(), &p));
+  EXPECT_EQ(p.mode, PairSelection::Mode::kList);
+  ASSERT_EQ(p.named_pairs.size(), 2u);
+  EXPECT_EQ(p.named_pairs[1].second, "c.jpg");
+  std::ofstream(list) << "a.jpg\n";
+  std::string error;
+  EXPECT_FALSE(PairSelection::Parse("list:" + list.string(), &p, &error));
+  EXPECT_NE(error.find(":1:"), std::string::npos);
+  fs::remove(list);
+}
+
+// Eight cameras along a path looking at a cloud of points (65 deg field of
+// view, 0.3 px noise, 10% wrong matches); every pair estimated with the
+// given focal length. Returns the matches and poses of the pairs.
+struct FocalScene {
+  std::vector<std::vector<Eigen::Vector2d>> points1, points2;
+  std::vector<RelativePoseResult> poses;
+  std::vector<FocalPair> Pairs() const {
+    std::vector<FocalPair> out;
+    for (std::size_t p = 0; p < poses.size(); ++p) out.push_back({&points1[p], &points2[p], &poses[p]});
+    return out;
+  }
+};
+
+FocalScene MakeFocalScene(const Eigen::Matrix3d& k_true, const Eigen::Matrix3d& k_given) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> xy(-4.0, 4.0), z(6.0, 12.0), unit(0.0, 1.0);
+  std::normal_distribution<double> noise(0.0, 0.3);
+  std::vector<Eigen::Vector3d> cloud(600);
+  for (Eigen::Vector3d& x : cloud) x = Eigen::Vector3d(xy(rng), xy(rng), z(rng));
+  std::vector<Eigen::Matrix3d> rotations;
+  std::vector<Eigen::Vector3d> centres;
+  for (int c = 0; c < 8; ++c) {
+    rotations.push_back(ExpSO3(Eigen::Vector3d(0.03 * std::sin(c), -0.06 * (c - 3.5), 0.02 * c)));
+    centres.emplace_back(0.5 * (c - 3.5), 0.3 * std::cos(c), 0.2 * c);
+  }
+  auto project = [&](int c, const Eigen::Vector3d& x, Eigen::Vector2d* pixel) {
+    const Eigen::Vector3d u = k_true * (rotations[c] * (x - centres[c]));
+    *pixel = u.hnormalized();
+    return u.z() > 0.0 && pixel->x() >= 0 && pixel->x() < 640 && pixel->y() >= 0 && pixel->y() < 480;
+  };
+  FocalScene scene;
+  RelativePoseOptions options;
+  for (int a = 0; a < 8; ++a) {
+    for (int b = a + 1; b < 8; ++b) {
+      std::vector<Eigen::Vector2d> p1, p2;
+      for (const Eigen::Vector3d& x : cloud) {
+        Eigen::Vector2d u1, u2;
+        if (!project(a, x, &u1) || !project(b, x, &u2)) continue;
+        p1.push_back(u1 + Eigen::Vector2d(noise(rng), noise(rng)));
+        p2.push_back(unit(rng) < 0.1 ? Eigen::Vector2d(640 * unit(rng), 480 * unit(rng))
+                                     : Eigen::Vector2d(u2 + Eigen::Vector2d(noise(rng), noise(rng))));
+      }
+      scene.poses.push_back(EstimateRelativePoseWithCovariance(p1, p2, k_given, k_given, options));
+      scene.points1.push_back(std::move(p1));
+      scene.points2.push_back(std::move(p2));
+    }
+  }
+  return scene;
+}
+
+// The focal length of the pairs' intrinsics is estimated from their matches:
+// 2% off is found and corrected, exact intrinsics are left as they are.
+TEST(ImagePipeline, FocalLengthIsEstimatedFromThePairs) {
+  Eigen::Matrix3d k;
+  k << 500, 0, 320, 0, 500, 240, 0, 0, 1;
+  FocalCalibrationOptions options;
+  options.enabled = true;
+  for (const double given : {0.98, 1.0, 1.02}) {
+    Eigen::Matrix3d k_given = k;
+    k_given(0, 0) *= given;
+    k_given(1, 1) *= given;
+    const FocalScene scene = MakeFocalScene(k, k_given);
+    const FocalCalibration focal = EstimateFocalScale(scene.Pairs(), k_given, options);
+    ASSERT_TRUE(focal.estimated) << given;
+    EXPECT_GE(focal.pairs, 20);
+    EXPECT_NEAR(focal.scale * given, 1.0, 0.003) << "given x" << given << ": estimated x" << focal.scale;
+    EXPECT_LT(focal.standard_deviation, 0.002);
+    EXPECT_EQ(ShouldApplyFocalScale(focal, options), given != 1.0) << given;
+    // The same from one thread: the profile does not depend on the threads.
+    FocalCalibrationOptions one = options;
+    one.num_threads = 1;
+    EXPECT_EQ(EstimateFocalScale(scene.Pairs(), k_given, one).scale, focal.scale);
+  }
+  // Too few pairs: no estimate.
+  const FocalScene scene = MakeFocalScene(k, k);
+  std::vector<FocalPair> two = scene.Pairs();
+  two.resize(2);
+  EXPECT_FALSE(EstimateFocalScale(two, k, options).estimated);
+}
+
+// Four Strecha fountain-P11 images at 1/8 resolution (384x256): every pair
+// gets a relative pose with a covariance, and averaging matches the LIDAR
+// ground truth to a few hundredths of a degree.
+TEST(ImagePipeline, FountainImagesGiveAccurateRotations) {
+  const std::string dir = SharedDataPath("strecha/fountain-P11");
+  ROTAVG_REQUIRE_SHARED_DATA(dir);
+  std::vector<std::string> images = ListImages(dir + "/images");
+  ASSERT_GE(images.size(), 4u);
+  images.resize(4);
+  CameraIntrinsics k;
+  std::string error;
+  ASSERT_TRUE(ReadCameraIntrinsics(dir + "/images/K.txt", &k, &error)) << error;
+  ImagePipelineOptions options;
+  options.features.downsample = 0.125;
+  const ImagePipelineResult front = BuildViewGraphFromImages(images, k, options);
+  ASSERT_EQ(front.pairs.size(), 6u);
+  EXPECT_EQ(front.graph.NumEdges(), 6u) << front.Report();
+  for (const RelativeRotation& e : front.graph.Edges()) {
+    EXPECT_TRUE(e.has_covariance);
+    EXPECT_GT(e.num_inliers, 20);
+    EXPECT_LT(std::sqrt(e.covariance.trace()), 0.01);  // rad: well-constrained pairs
+  }
+  ViewOrientations out;
+  RotationAveragingSummary summary;
+  ASSERT_TRUE(SolveRotationAveraging(front.graph, RotationAveragingOptions(), &out, &summary));
+  NamedOrientations gt_all, gt;
+  ASSERT_TRUE(ReadGroundTruth(dir, GroundTruthFormat::kStrecha, &gt_all).ok());
+  for (const View& v : front.graph.Views()) gt[v.name] = gt_all.at(v.name);
+  const EvaluationResult e = EvaluateOrientations(NameOrientations(front.graph, out), gt);
+  EXPECT_EQ(e.views_common, 4u);
+  EXPECT_LT(e.median_error_deg, 0.1);
+  // Deterministic: the same images give bit-identical relative poses.
+  const ImagePipelineResult again = BuildViewGraphFromImages(images, k, options);
+  ASSERT_EQ(again.pairs.size(), front.pairs.size());
+  for (std::size_t p = 0; p < front.pairs.size(); ++p) {
+    EXPECT_EQ(again.pairs[p].matches, front.pairs[p].matches);
+    EXPECT_EQ((again.pairs[p].pose.rotation - front.pairs[p].pose.rotation).norm(), 0.0);
+    EXPECT_EQ((again.pairs[p].pose.covariance - front.pairs[p].pose.covariance).norm(), 0.0);
+  }
+  // ORB, the fast option, also finds the adjacent pairs.
+  options.features.type = FeatureType::kOrb;
+  options.features.downsample = 0.25;
+  const ImagePipelineResult orb = BuildViewGraphFromImages(images, k, options);
+  EXPECT_GE(orb.graph.NumEdges(), 3u) << orb.Report();
+}
+
+
+// The first ten castle-P19 images (a courtyard of repeated windows) at a
+// quarter of their size: their features, ground truth and the front end's
+// view graph with the defaults. Built once per process and shared by the
+// castle tests below (feature extraction and the front end are most of their
+// time); null, with a message, if the data is absent or does not load.
+struct CastleSubset {
+  ImagePipelineOptions options;
+  std::vector<std::string> names;
+  std::vector<ImageFeatures> features;
+  Eigen::Matrix3d scaled_k;
+  NamedOrientations gt;
+  ImagePipelineResult front;
+};
+
+const CastleSubset* LoadCastleSubset(std::string* why) {
+  static std::string failure;
+  static const std::unique_ptr<const CastleSubset> castle = [] () -> std::unique_ptr<const CastleSubset> {
+    const std::string dir = SharedDataPath("strecha/castle-P19");
+    if (!fs::exists(dir)) {
+      failure = "shared data absent: " + dir;
+      return nullptr;
+    }
+    auto c = std::make_unique<CastleSubset>();
+    std::vector<std::string> images = ListImages(dir + "/images");
+    CameraIntrinsics k;
+    std::string error;
+    if (images.size() < 10 || !ReadCameraIntrinsics(dir + "/images/K.txt", &k, &error) ||
+        !ReadGroundTruth(dir, GroundTruthFormat::kStrecha, &c->gt).ok()) {
+      failure = "castle-P19 in " + dir + " does not load: " + (error.empty() ? "fewer than 10 images or no ground truth" : error);
+      return nullptr;
+    }
+    images.resize(10);
+    c->options.features.downsample = 0.25;
+    std::vector<std::string> read_errors;
+    c->features = ExtractImageFeatures(images, k, c->options.features, &c->names, &read_errors);
+    if (!read_errors.empty()) {
+      failure = read_errors[0];
+      return nullptr;
+    }
+    c->scaled_k = FeatureIntrinsics(k, c->options.features);
+    c->front = BuildViewGraphFromFeatures(c->features, c->names, c->scaled_k, c->options);
+    return c;
+  }();
+  *why = failure;
+  return castle.get();
+}
+
+// Wrong matches of castle-P19 that lie within a few pixels of their epipolar
+// lines take part in the robust estimation at a threshold of 3 px, ten times
+// the pixel noise, and pull pairs along their rotation-translation valley.
+// Repeating the robust estimation at 3 sigma of the pair's measured noise
+// (the default) must lower the median rotation error of the pairs and their
+// NEES against the ground truth.
+TEST(ImagePipeline, NoiseScaledThresholdMakesCastlePairsMoreAccurate) {
+  ROTAVG_REQUIRE_SHARED_DATA(SharedDataPath("strecha/castle-P19"));
+  std::string why;
+  const CastleSubset* castle = LoadCastleSubset(&why);
+  ASSERT_NE(castle, nullptr) << why;
+  const std::vector<std::string>& names = castle->names;
+  const NamedOrientations& gt = castle->gt;
+  ASSERT_GT(castle->options.relative_pose.adaptive_threshold_sigmas, 0.0) << "the default is noise-scaled";
+  ImagePipelineOptions fixed_options = castle->options;
+  fixed_options.relative_pose.adaptive_threshold_sigmas = 0.0;
+  const ImagePipelineResult fixed_front =
+      BuildViewGraphFromFeatures(castle->features, names, castle->scaled_k, fixed_options);
+  struct Scores {
+    double median_error_deg, median_nees;
+    int pairs;
+  };
+  auto score = [&](const ImagePipelineResult& front, const RelativePoseOptions& o) {
+    std::vector<double> errors, nees;
+    for (const PairReport& p : front.pairs) {
+      if (!p.pose.success) continue;
+      if (o.adaptive_threshold_sigmas > 0.0) {
+        EXPECT_LE(p.pose.ransac_threshold_px, o.ransac_threshold_px);
+        EXPECT_GE(p.pose.ransac_threshold_px, o.min_adaptive_threshold_px);
+      } else {
+        EXPECT_EQ(p.pose.ransac_threshold_px, o.ransac_threshold_px);
+      }
+      const Eigen::Matrix3d truth = gt.at(names[p.image2]) * gt.at(names[p.image1]).transpose();  // R_21
+      const Eigen::Vector3d eta = LogSO3(truth.transpose() * p.pose.rotation);
+      errors.push_back(RadToDeg(eta.norm()));
+      nees.push_back(eta.dot(p.pose.covariance.ldlt().solve(eta)));
+    }
+    std::sort(errors.begin(), errors.end());
+    std::sort(nees.begin(), nees.end());
+    return Scores{errors.empty() ? 1e9 : errors[errors.size() / 2], nees.empty() ? 1e9 : nees[nees.size() / 2],
+                  static_cast<int>(errors.size())};
+  };
+  const Scores fixed = score(fixed_front, fixed_options.relative_pose),
+               scaled = score(castle->front, castle->options.relative_pose);
+  std::cout << "castle-P19 pairs, median error / NEES: fixed 3 px " << fixed.median_error_deg << " deg / "
+            << fixed.median_nees << " (" << fixed.pairs << " pairs), noise-scaled " << scaled.median_error_deg
+            << " deg / " << scaled.median_nees << " (" << scaled.pairs << " pairs)\n";
+  EXPECT_GE(scaled.pairs, fixed.pairs - 2);
+  EXPECT_LT(scaled.median_error_deg, 0.8 * fixed.median_error_deg)
+      << "fixed 3 px: " << fixed.median_error_deg << " deg, noise-scaled: " << scaled.median_error_deg << " deg";
+  EXPECT_LT(scaled.median_nees, fixed.median_nees)
+      << "fixed 3 px: " << fixed.median_nees << ", noise-scaled: " << scaled.median_nees;
+}
+
+// The averaging sees each pair through its covariance; refining on the
+// pairs' correspondences brings the orientations closer to the ground truth.
+TEST(ImagePipeline, RefiningOnCorrespondencesImprovesTheAveragingOfCastle) {
+  ROTAVG_REQUIRE_SHARED_DATA(SharedDataPath("strecha/castle-P19"));
+  std::string why;
+  const CastleSubset* castle = LoadCastleSubset(&why);
+  ASSERT_NE(castle, nullptr) << why;
+  const ImagePipelineResult& front = castle->front;
+  const std::vector<EdgeCorrespondences> edges = CorrespondencesOfEdges(front);
+  ASSERT_EQ(edges.size(), front.graph.NumEdges());
+  for (std::size_t e = 0; e < edges.size(); ++e) {
+    // Normalised inliers of the pair's own pose: within a few sigma of it.
+    const PairReport* pair = nullptr;
+    for (const PairReport& p : front.pairs) {
+      if (p.pose.success && static_cast<ViewId>(p.image1) == edges[e].view1 && static_cast<ViewId>(p.image2) == edges[e].view2) pair = &p;
+    }
+    ASSERT_NE(pair, nullptr);
+    ASSERT_EQ(edges[e].points1.size(), pair->pose.inliers.size());
+    const Eigen::Vector3d& t = pair->pose.translation;
+    Eigen::Matrix3d t_hat;
+    t_hat << 0, -t[2], t[1], t[2], 0, -t[0], -t[1], t[0], 0;
+    const Eigen::Matrix3d essential = t_hat * pair->pose.rotation;
+    for (std::size_t m = 0; m < edges[e].points1.size(); ++m) {
+      const double algebraic = edges[e].points2[m].homogeneous().dot(essential * edges[e].points1[m].homogeneous());
+      ASSERT_LT(std::abs(algebraic), 20.0 * edges[e].sigma) << "edge " << e << " match " << m;
+    }
+  }
+  ViewOrientations orientations;
+  RotationAveragingSummary summary;
+  ASSERT_TRUE(SolveRotationAveraging(front.graph, RotationAveragingOptions(), &orientations, &summary));
+  const double averaged = EvaluateOrientations(NameOrientations(front.graph, orientations), castle->gt).median_error_deg;
+  CorrespondenceRefinementSummary refinement;
+  ASSERT_TRUE(RefineRotationsWithCorrespondences(edges, CorrespondenceRefinementOptions(), &orientations, &refinement))
+      << refinement.Report();
+  const double refined = EvaluateOrientations(NameOrientations(front.graph, orientations), castle->gt).median_error_deg;
+  std::cout << "castle-P19, 10 images at 1/4: averaging " << averaged << " deg, refined " << refined << " deg; "
+            << refinement.Report() << "\n";
+  EXPECT_EQ(refinement.views, 10);
+  EXPECT_LT(refined, 0.9 * averaged);
+}
+
+// Bundle adjustment from the averaged orientations: the pairs' inliers
+// linked into tracks over the ten views, each point placed once.
+TEST(ImagePipeline, BundleAdjustmentImprovesTheAveragingOfCastle) {
+  ROTAVG_REQUIRE_SHARED_DATA(SharedDataPath("strecha/castle-P19"));
+  std::string why;
+  const CastleSubset* castle = LoadCastleSubset(&why);
+  ASSERT_NE(castle, nullptr) << why;
+  const ImagePipelineResult& front = castle->front;
+  ViewOrientations orientations;
+  RotationAveragingSummary summary;
+  ASSERT_TRUE(SolveRotationAveraging(front.graph, RotationAveragingOptions(), &orientations, &summary));
+  const double averaged = EvaluateOrientations(NameOrientations(front.graph, orientations), castle->gt).median_error_deg;
+  BundleAdjustmentSummary adjustment;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(CorrespondencesOfEdges(front), BundleAdjustmentOptions(),
+                                                  &orientations, &adjustment))
+      << adjustment.Report();
+  const double adjusted = EvaluateOrientations(NameOrientations(front.graph, orientations), castle->gt).median_error_deg;
+  std::cout << "castle-P19, 10 images at 1/4: averaging " << averaged << " deg, bundle adjusted " << adjusted << " deg; "
+            << adjustment.Report() << "\n";
+  EXPECT_EQ(adjustment.views, 10);
+  // Tracks of three views or more; the two-view ones are left out.
+  EXPECT_GT(adjustment.tracks, 500);
+  EXPECT_GT(adjustment.tracks_short, 500);
+  // Most observations fit: the pixel noise the pairs measured is the noise
+  // of the tracks too.
+  EXPECT_LT(adjustment.observations_dropped, adjustment.observations / 10);
+  EXPECT_LT(adjustment.final_rms_sigmas, 2.0);
+  EXPECT_LT(adjusted, 0.5 * averaged);
+}
+
+}  // namespace
+}  // namespace rotation_averaging

@@ -1,0 +1,277 @@
+// The node's shared pipeline without a master: bad input of every kind,
+// rig extrinsics through /tf_static messages, and the rviz markers.
+#include "ros/keyframe_pipeline.h"
+
+#include <gtest/gtest.h>
+#include <ros/time.h>
+
+#include <limits>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "rotation_averaging/core/geometry/so3.h"
+#include "ros/msg_conversion.h"
+
+namespace rotation_averaging {
+namespace {
+
+class NoParameters : public ParameterSource {
+ public:
+  bool Get(const std::string&, std::string*) const override { return false; }
+  bool Get(const std::string&, double*) const override { return false; }
+  bool Get(const std::string&, int*) const override { return false; }
+  bool Get(const std::string&, bool*) const override { return false; }
+  bool Get(const std::string&, std::vector<std::string>*) const override { return false; }
+};
+
+RelativePose Pose(const std::string& f1, double t1, const std::string& f2, double t2, const Eigen::Matrix3d& r,
+                  std::uint8_t source = RelativePose::SOURCE_SEQUENTIAL) {
+  KeyframeRelativeRotation m;
+  m.keyframe1 = {f1, std::llround(t1 * 1e9)};
+  m.keyframe2 = {f2, std::llround(t2 * 1e9)};
+  m.rotation = r;
+  m.has_covariance = true;
+  m.covariance = std::pow(DegToRad(0.5), 2) * Eigen::Matrix3d::Identity();
+  m.num_inliers = 100;
+  m.source = static_cast<EdgeSource>(source);
+  return ToMsg(m);
+}
+
+sensor_msgs::CameraInfo Info(int width, int height) {
+  sensor_msgs::CameraInfo info;
+  info.width = width;
+  info.height = height;
+  info.K = {100, 0, width / 2.0, 0, 100, height / 2.0, 0, 0, 1};
+  return info;
+}
+
+sensor_msgs::Image Image(const std::string& frame, double t, int width, int height, const std::string& encoding) {
+  sensor_msgs::Image m;
+  m.header.frame_id = frame;
+  m.header.stamp = ros::Time(t);
+  m.width = width;
+  m.height = height;
+  m.encoding = encoding;
+  m.step = width * (encoding == "rgb8" ? 3 : 1);
+  m.data.assign(m.step * height, 128);
+  return m;
+}
+
+TEST(KeyframePipeline, BadRelativePosesAreRejectedAndCounted) {
+  KeyframePipeline pipeline(ReadPipelineConfig(NoParameters(), nullptr));
+  const Eigen::Matrix3d r = ExpSO3(Eigen::Vector3d(0.1, 0.0, 0.0));
+  std::vector<RelativePose> bad(6, Pose("cam", 1.0, "cam", 2.0, r));
+  bad[0].rotation.x = std::numeric_limits<double>::quiet_NaN();
+  bad[1].rotation.w = 2.0;
+  bad[2].stamp_2 = bad[2].stamp_1;
+  bad[3].rotation_covariance = {-1, 0, 0, 0, -1, 0, 0, 0, -1};
+  bad[4].stamp_1 = ros::Time(0);
+  bad[5].frame_id_2 = "";
+  std::string error;
+  for (const RelativePose& m : bad) {
+    EXPECT_FALSE(pipeline.AcceptRelativePose(m, &error));
+    EXPECT_FALSE(error.empty());
+  }
+  EXPECT_EQ(pipeline.Stats().rejected_messages, 6u);
+  EXPECT_TRUE(pipeline.AcceptRelativePose(Pose("cam", 1.0, "cam", 2.0, r), &error)) << error;
+  EXPECT_TRUE(pipeline.Averager().SolveNow());
+  EXPECT_EQ(pipeline.Averager().Solution()->orientations.size(), 2u);
+}
+
+TEST(KeyframePipeline, BadImagesAreRejectedAndCounted) {
+  PipelineConfig config = ReadPipelineConfig(NoParameters(), nullptr);
+  KeyframePipeline pipeline(config);
+  PendingKeyframe k;
+  std::string error;
+  EXPECT_TRUE(pipeline.DecodeImage(Image("cam", 1.0, 64, 48, "mono8"), Info(64, 48), &k, &error)) << error;
+  EXPECT_EQ(k.image.cols, 64);
+  EXPECT_TRUE(pipeline.DecodeImage(Image("cam", 2.0, 64, 48, "rgb8"), Info(64, 48), &k, &error)) << error;
+  // Stamps going backwards or repeating, per camera.
+  EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 2.0, 64, 48, "mono8"), Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("did not advance"), std::string::npos) << error;
+  EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 1.5, 64, 48, "mono8"), Info(64, 48), &k, &error));
+  // Another camera has its own clock.
+  EXPECT_TRUE(pipeline.DecodeImage(Image("cam2", 1.5, 64, 48, "mono8"), Info(64, 48), &k, &error)) << error;
+  // No valid K, wrong size, unknown encoding, truncated data, empty frame id.
+  sensor_msgs::CameraInfo no_k = Info(64, 48);
+  no_k.K = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+  EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 3.0, 64, 48, "mono8"), no_k, &k, &error));
+  EXPECT_NE(error.find("no valid K"), std::string::npos) << error;
+  sensor_msgs::CameraInfo skewed_last_row = Info(64, 48);
+  skewed_last_row.K[6] = 0.01;  // a last row other than 0 0 1 is no pinhole camera
+  EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 3.5, 64, 48, "mono8"), skewed_last_row, &k, &error));
+  EXPECT_NE(error.find("no valid K"), std::string::npos) << error;
+  EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 4.0, 64, 48, "mono8"), Info(80, 60), &k, &error));
+  EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 5.0, 64, 48, "no_such_encoding"), Info(64, 48), &k, &error));
+  sensor_msgs::Image short_data = Image("cam", 6.0, 64, 48, "mono8");
+  short_data.data.resize(10);
+  EXPECT_FALSE(pipeline.DecodeImage(short_data, Info(64, 48), &k, &error));
+  // height * step wraps around to the data's size in 32 bits (4 rows of a
+  // gigabyte over 3072 bytes): refused before cv_bridge, which checks in 32
+  // bits and would copy 4 GiB from past the data.
+  sensor_msgs::Image wrapped = Image("cam", 6.5, 64, 48, "mono8");
+  wrapped.height = 4;
+  wrapped.width = wrapped.step = (1u << 30) + 768;
+  wrapped.data.assign(3072, 0);
+  ASSERT_EQ(static_cast<std::uint32_t>(wrapped.height * wrapped.step), wrapped.data.size());
+  EXPECT_FALSE(pipeline.DecodeImage(wrapped, Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("malformed"), std::string::npos) << error;
+  // So is a width whose bytes per row (6 per pixel) wrap around to below step.
+  wrapped = Image("cam", 6.7, 64, 48, "rgb16");
+  wrapped.width = 715827883;
+  wrapped.height = 1;
+  wrapped.step = 16;
+  wrapped.data.assign(16, 0);
+  EXPECT_FALSE(pipeline.DecodeImage(wrapped, Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("malformed"), std::string::npos) << error;
+  EXPECT_FALSE(pipeline.DecodeImage(Image("", 7.0, 64, 48, "mono8"), Info(64, 48), &k, &error));
+  sensor_msgs::CompressedImage jpeg;
+  jpeg.header.frame_id = "cam";
+  jpeg.header.stamp = ros::Time(8.0);
+  jpeg.format = "jpeg";
+  jpeg.data = {0xFF, 0xD8, 0x00, 0x01};  // a JPEG that stops after its marker
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(jpeg, Info(64, 48), &k, &error));
+  EXPECT_EQ(pipeline.Stats().rejected_images, 11u);
+}
+
+sensor_msgs::CompressedImage Compressed(double t, const std::string& extension) {
+  sensor_msgs::CompressedImage m;
+  m.header.frame_id = "cam";
+  m.header.stamp = ros::Time(t);
+  m.format = "mono8; " + extension.substr(1) + " compressed";
+  cv::Mat grey(48, 64, CV_8UC1);
+  cv::randu(grey, 0, 255);
+  cv::imencode(extension, grey, m.data);
+  return m;
+}
+
+void PutBigEndian16(std::uint32_t value, std::uint8_t* at) {
+  at[0] = static_cast<std::uint8_t>(value >> 8);
+  at[1] = static_cast<std::uint8_t>(value);
+}
+
+// The decoder allocates the size a header declares before it reads any
+// pixel: a header that disagrees with camera_info, or declares an
+// implausible size (whatever camera_info says), is refused before decoding,
+// and formats other than image_transport's PNG and JPEG are refused.
+TEST(KeyframePipeline, CompressedImagesAreCheckedBeforeDecoding) {
+  KeyframePipeline pipeline(ReadPipelineConfig(NoParameters(), nullptr));
+  PendingKeyframe k;
+  std::string error;
+  EXPECT_TRUE(pipeline.DecodeCompressedImage(Compressed(1.0, ".png"), Info(64, 48), &k, &error)) << error;
+  EXPECT_EQ(k.image.cols, 64);
+  EXPECT_TRUE(pipeline.DecodeCompressedImage(Compressed(2.0, ".jpg"), Info(64, 48), &k, &error)) << error;
+  EXPECT_EQ(k.image.rows, 48);
+  EXPECT_TRUE(pipeline.DecodeCompressedImage(Compressed(3.0, ".png"), Info(0, 0), &k, &error)) << error;
+
+  sensor_msgs::CompressedImage png = Compressed(4.0, ".png");
+  PutBigEndian16(6000, &png.data[18]);  // IHDR width 6000, height 4000
+  PutBigEndian16(4000, &png.data[22]);
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(png, Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("declares 6000x4000 pixels, not camera_info's 64x48"), std::string::npos) << error;
+  PutBigEndian16(0x4000, &png.data[16]);  // about 2^30 x 4000, no camera_info size
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(png, Info(0, 0), &k, &error));
+  EXPECT_NE(error.find("implausibly large"), std::string::npos) << error;
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(png, Info(0x40001770, 4000), &k, &error));  // also when camera_info says so
+  EXPECT_NE(error.find("implausibly large"), std::string::npos) << error;
+
+  sensor_msgs::CompressedImage jpeg = Compressed(5.0, ".jpg");
+  std::size_t sof = 2;
+  while (sof + 1 < jpeg.data.size() && !(jpeg.data[sof] == 0xFF && jpeg.data[sof + 1] == 0xC0)) ++sof;
+  ASSERT_LT(sof + 9, jpeg.data.size());
+  PutBigEndian16(48, &jpeg.data[sof + 7]);  // width 48, height 48
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(jpeg, Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("JPEG header declares 48x48"), std::string::npos) << error;
+
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(Compressed(6.0, ".bmp"), Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("neither PNG nor JPEG"), std::string::npos) << error;
+  sensor_msgs::CompressedImage cut = Compressed(7.0, ".png");
+  cut.data.resize(20);
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(cut, Info(64, 48), &k, &error));
+  EXPECT_EQ(pipeline.Stats().rejected_images, 6u);
+  // A header that agrees, over pixels cut short, is left to the decoder.
+  sensor_msgs::CompressedImage truncated = Compressed(8.0, ".png");
+  truncated.data.resize(truncated.data.size() / 2);
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(truncated, Info(64, 48), &k, &error));
+  EXPECT_NE(error.find("does not decode"), std::string::npos) << error;
+}
+
+TEST(KeyframePipeline, RigExtrinsicsFromStaticTransformsAndMarkers) {
+  KeyframePipeline pipeline(ReadPipelineConfig(NoParameters(), nullptr));
+  // cam_b looks 90 degrees left of cam_a on base_link.
+  const Eigen::Matrix3d b_in_rig = ExpSO3(Eigen::Vector3d(0.0, 0.0, kPi / 2));
+  tf2_msgs::TFMessage statics;
+  geometry_msgs::TransformStamped t;
+  t.header.frame_id = "base_link";
+  t.child_frame_id = "cam_a";
+  t.transform.rotation.w = 1.0;
+  statics.transforms.push_back(t);
+  t.child_frame_id = "cam_b";
+  const Eigen::Vector4d q = RotationToQuaternion(b_in_rig);
+  t.transform.rotation.w = q[0];
+  t.transform.rotation.x = q[1];
+  t.transform.rotation.y = q[2];
+  t.transform.rotation.z = q[3];
+  statics.transforms.push_back(t);
+  pipeline.AcceptStaticTransforms(statics);
+
+  // Rig orientations along a ring; cam_a and cam_b measure them separately
+  // (one outlier among cam_b's), and never each other.
+  std::vector<Eigen::Matrix3d> rig;
+  for (int k = 0; k < 8; ++k) rig.push_back(ExpSO3(Eigen::Vector3d(0.0, 0.0, 0.2 * k)));
+  const Eigen::Matrix3d eb = b_in_rig.transpose();  // cam_b from rig
+  std::string error;
+  for (int k = 1; k < 8; ++k) {
+    ASSERT_TRUE(pipeline.AcceptRelativePose(
+        Pose("cam_a", k, "cam_a", k + 1, rig[k - 1] * rig[k].transpose()), &error)) << error;
+    Eigen::Matrix3d rb = eb * rig[k - 1] * rig[k].transpose() * eb.transpose();
+    if (k == 4) rb = rb * ExpSO3(Eigen::Vector3d(0.5, 0.0, 0.0));  // outlier
+    ASSERT_TRUE(pipeline.AcceptRelativePose(Pose("cam_b", k + 0.001, "cam_b", k + 1.001, rb), &error)) << error;
+  }
+  EXPECT_EQ(pipeline.Rig().NumRigCameras(), 2u);
+  ASSERT_TRUE(pipeline.Averager().SolveNow());
+  const std::shared_ptr<const OnlineSolution> variables = pipeline.Averager().Solution();
+  EXPECT_EQ(variables->orientations.size(), 8u);  // one per capture
+  EXPECT_EQ(variables->edges.size(), 14u);        // both cameras' edges kept (channels)
+  const OnlineSolution cameras = pipeline.CameraSolution(*variables);
+  ASSERT_EQ(cameras.orientations.size(), 16u);
+  // The cameras of a capture keep their extrinsic rotation.
+  const Eigen::Matrix3d a3 = cameras.orientations.at({"cam_a", 3000000000});
+  const Eigen::Matrix3d b3 = cameras.orientations.at({"cam_b", 3001000000});
+  EXPECT_LT(RadToDeg(AngularDistanceRad(b3, eb * a3)), 1e-9);
+
+  // Markers: a frustum (8 segments) per camera keyframe, an edge per solved
+  // edge coloured by weight: the outlier red, the others green.
+  const visualization_msgs::MarkerArray markers = pipeline.Markers(*variables, cameras, ros::Time(10.0));
+  ASSERT_EQ(markers.markers.size(), 2u);
+  EXPECT_EQ(markers.markers[0].ns, "keyframes");
+  EXPECT_EQ(markers.markers[0].points.size(), 16u * 16u);
+  const visualization_msgs::Marker& edges = markers.markers[1];
+  ASSERT_EQ(edges.points.size(), 28u);
+  ASSERT_EQ(edges.colors.size(), 28u);
+  int red = 0, green = 0;
+  for (std::size_t k = 0; k < edges.colors.size(); k += 2) {
+    if (edges.colors[k].r > 0.9) ++red;
+    if (edges.colors[k].g > 0.9) ++green;
+  }
+  EXPECT_EQ(red, 1);
+  EXPECT_EQ(green, 13);
+  // Orientations message and tf carry camera keyframes.
+  const Orientations msg = pipeline.OrientationsMsg(cameras, ros::Time(10.0));
+  EXPECT_EQ(msg.keyframes.size(), 16u);
+  // Posterior covariances for every keyframe; the gauge capture's are zero,
+  // the others positive, growing away from it.
+  int zero = 0, positive = 0;
+  for (const KeyframeOrientation& k : msg.keyframes) {
+    EXPECT_TRUE(k.has_covariance);
+    const double trace = k.covariance[0] + k.covariance[4] + k.covariance[8];
+    if (trace == 0.0) ++zero;
+    if (trace > 0.0) ++positive;
+  }
+  EXPECT_EQ(zero, 2);  // both cameras of the gauge capture
+  EXPECT_EQ(positive, 14);
+  EXPECT_EQ(pipeline.KeyframeTransforms(cameras).transforms.size(), 16u);
+}
+
+}  // namespace
+}  // namespace rotation_averaging
