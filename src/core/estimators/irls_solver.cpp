@@ -311,9 +311,9 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
       break;
     }
     // IRLS converges linearly; with redescending losses a view whose inliers
-    // sit near the cut-off crawls (Madrid: one view moving 0.03 deg per
-    // iteration at a ratio of 0.85 for 15 iterations, still 0.15 deg from
-    // the minimum when the cost test stopped). When two consecutive full
+    // sit near the cut-off crawls (a fixed fraction closer per iteration,
+    // still far from the minimum when the cost test stops). When two
+    // consecutive full
     // steps point the same way and shrink geometrically, the rest of the
     // geometric series is tried in one jump and kept only if it lowers the
     // cost (one extra evaluation).

@@ -678,8 +678,8 @@ int AggregationAmg::Impl::Solve(int n, const Eigen::MatrixXd& b, int first_colum
       if (before[c] <= target[c]) residual2[c] = before[c];  // frozen column
     if (all_done()) break;
     // A block system whose preconditioner does not suit it (information so
-    // anisotropic that the scalar surrogate misjudges the smooth error:
-    // cubicle's, up to 1.6e5, stalls for hundreds of iterations) shows it
+    // anisotropic that the scalar surrogate misjudges the smooth error
+    // stalls for hundreds of iterations) shows it
     // early; a factorisation is then cheaper than iterating to the cap.
     if (give_up_early && iterations >= 8) {
       for (int c = 0; c < K; ++c) {

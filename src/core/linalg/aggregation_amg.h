@@ -44,13 +44,13 @@ class AggregationAmg {
     int max_levels = 30;
     double kcycle_reduction = 0.25;  // one coarse Krylov step suffices below this residual ratio
     // Gauss-Seidel sweeps before (forward) and after (backward) the coarse
-    // correction. Two took a MAGSAC-weighted 100,000-view system from 6 to 3
-    // iterations to a relative residual of 1e-2 (27 to 21 to 1e-5).
+    // correction. Two halve the iterations of a large MAGSAC-weighted
+    // system against one, for less than they save.
     int smoothing_sweeps = 2;
     // Block Gauss-Seidel sweeps on the 3x3-block level of SetupBlocks. A
-    // block costs nine times a scalar entry to stream, and one sweep each
-    // way took less time per solve than two (anisotropic 30,000-view scale
-    // graph: 280 iterations in 4.1 s against 194 in 4.8 s; three: 5.5 s).
+    // block costs nine times a scalar entry to stream, so one sweep each
+    // way takes less time per solve than two, although it needs more
+    // iterations.
     int block_smoothing_sweeps = 1;
     // A level above this size whose coarsening stalls (see PairwiseMatch)
     // is coarsened with weak nodes merged after all, rather than factorised.

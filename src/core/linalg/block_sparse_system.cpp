@@ -123,13 +123,13 @@ void BlockSparseSystem::ChooseFactorization() const {
   if (f.chosen) return;
   f.chosen = true;
   // 3x3 blocks whose factor is thin (a few dozen entries per column: a pose
-  // graph that is mostly a chain, parking-garage) are factorised block by
-  // block (BlockCholesky), ordered on the graph of the blocks; denser ones
-  // (cubicle, grid-like graphs) by CHOLMOD's supernodal factor, whose dense
+  // graph that is mostly a chain) are factorised block by block
+  // (BlockCholesky), ordered on the graph of the blocks; denser ones
+  // (grid-like graphs) by CHOLMOD's supernodal factor, whose dense
   // kernels pay there and only there. The factor's size is predicted from
   // the block graph's ordering and elimination tree, before any numbers.
-  // Scalar Laplacians: simplicial is faster (torus3D 0.039 vs 0.049 s,
-  // iRotAvg 0.007 vs 0.012 s, Madrid even): their factors are too thin for
+  // Scalar Laplacians: simplicial is as fast or faster on the real graphs:
+  // their factors are too thin for
   // dense supernodes to pay for CHOLMOD's BLAS and thread overhead. Large
   // scalar systems are another matter: on 10,000-view grid-like graphs
   // (rotavg_scale_benchmark) CHOLMOD's supernodal factor with a METIS
@@ -356,8 +356,9 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
   // takes more, or a new tolerance (the next stage), rebuilds them.
   // A system multigrid did not solve goes to the factorisation, and so do
   // the next 2^(k-1) solves after k such failures in a row: where the
-  // hierarchy does not suit the matrix (cubicle's information, anisotropic
-  // up to 1.6e5), each attempt would cost the iterations it takes to give up.
+  // hierarchy does not suit the matrix (nearly degenerate information, as in
+  // some real pose graphs), each attempt would cost the iterations it takes
+  // to give up.
   if (use_multigrid_ && multigrid_back_off_.Try()) {
     if (!multigrid_) multigrid_ = std::make_unique<AggregationAmg>();
     for (int pass = 0; pass < 2; ++pass) {

@@ -111,15 +111,15 @@ class BlockSparseSystem {
   static constexpr double kBlockSimplicialMaxColumnCount = 64.0;
   // Scalar systems with more blocks than this are ordered with METIS (less fill
   // on grid-like graphs); 3x3-block systems keep CHOLMOD's default ordering
-  // (METIS made cubicle's slower).
+  // (METIS made the real pose graphs' slower).
   static constexpr int kMetisMinRows = 15000;
   static constexpr int kMaxPcgIterations = 8;
   static constexpr int kRefactorAfterPcgIterations = 4;
   static constexpr int kMaxMultigridIterations = 40;
-  // Block systems: an iteration costs far less against their factorisation
-  // (anisotropic 100,000-view scale graph: the first system of the final
-  // stage took 76 iterations, 2.5 s, where the 40-iteration cap sent it to a
-  // factorisation that cost more than the rest of the stage).
+  // Block systems: an iteration costs far less against their factorisation,
+  // so they may take more of them before falling back to it (at 40, large
+  // anisotropic systems that were converging were sent to a factorisation
+  // that cost more than the rest of their stage).
   static constexpr int kMaxBlockMultigridIterations = 100;
 
  private:

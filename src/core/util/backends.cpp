@@ -19,10 +19,9 @@ std::atomic<const Backends*> loaded{nullptr};
 // CHOLMOD's supernodal factorisation calls BLAS for its dense supernode
 // updates. The pthread build of OpenBLAS (see CMakeLists.txt) runs those on a
 // pool of worker threads that it starts when it loads; on the factors of
-// pose graphs the threads cost more than they bring (median of 7 solves on a
-// 2-core machine: sphere2500 0.24 s with its default threads against 0.054 s
-// with one, cubicle 0.67 vs 0.24 s), and the solver is single-threaded by
-// design. So OpenBLAS, looked up in `library` and its dependencies (other
+// pose graphs the threads cost more than they bring (the real pose graphs
+// solved several times faster with one thread), and the solver is
+// single-threaded by design. So OpenBLAS, looked up in `library` and its dependencies (other
 // BLAS have no such calls), is held to one thread, unless the user set a
 // thread count (OPENBLAS_NUM_THREADS, GOTO_NUM_THREADS). With `stop_pool`
 // the workers it started are shut down as well (idle workers spin on

@@ -12,8 +12,8 @@
 // tf-idf bag of words scores highest against the new one's in an inverted
 // index. Its cost hardly grows with the map, and keyframes that have left the
 // recent window keep only their `compact_features` best features (SIFT
-// descriptors packed at 4 bits per value, and their words), about 105 KB
-// each, and are matched within
+// descriptors packed at 4 bits per value, and their words; the memory per
+// keyframe is in results/long_run.md), and are matched within
 // the vocabulary tree's branches. Without a vocabulary: a fixed sample of
 // the new keyframe's descriptors is matched against every older keyframe's
 // nearest-neighbour index, whose cost and memory grow with the map (every
@@ -45,11 +45,9 @@ struct KeyframeFrontendOptions {
   // Keyframes of the same camera a new one may be related to: the previous
   // one, or when that pair fails, the newest older one in this window that
   // verifies. With 1, every failed pair (motion blur, a view that turned
-  // away) splits the graph. Relating every keyframe to all of the window was
-  // measured and is worse: the longer pairs err more than their covariances
-  // say (castle-P19 at 1/4: median whitened error 71 for neighbours, 324 for
-  // pairs three apart), and the median went from 0.12 to 0.31 deg on
-  // castle-P19 and from 0.0195 to 0.0233 deg on the demo bag.
+  // away) splits the graph. Relating every keyframe to all of the window
+  // adds pairs whose errors exceed their covariances more the longer they are,
+  // and was less accurate (docs/decisions.md, "Covisibility window").
   int covisibility_window = 3;
   int num_threads = 0;                  // pair verification and retrieval; 0: the machine's cores
   int max_loop_candidates = 3;          // verified per keyframe
@@ -59,11 +57,9 @@ struct KeyframeFrontendOptions {
   // Features a keyframe keeps beyond the recent window (vocabulary only):
   // first those that were inliers of the most verified pairs (seen from
   // other views, they are what a revisit matches), then the strongest.
-  // Twice as many fit in 200 KB and find one more loop closure on
-  // castle-P19 (5 of 5), but those loop pairs err several times what their
-  // covariances give, and the averaging got worse with them (castle-P19 mean
-  // 0.28 -> 0.59 deg, entry-P10 median 0.035 -> 0.14 deg; results/replay.md,
-  // "Twice the features per compact keyframe").
+  // More features find more loop closures for more memory, but the extra
+  // loops err well beyond their covariances and cost accuracy
+  // (results/replay.md, "Twice the features per compact keyframe").
   int compact_features = 1000;
   // Pairs with a compact keyframe (loop closures) match features only within
   // the same first-level branch of the vocabulary tree, as ORB-SLAM matches
@@ -76,20 +72,17 @@ struct KeyframeFrontendOptions {
   int min_retrieval_votes = 15;         // voting: candidates with fewer votes are not verified
   // Loop closures need more evidence than sequential edges: repetitive
   // structure makes wrong but geometrically consistent pairs with few
-  // inliers (on castle-P19 at 1/4 scale, played as a bag at a threshold of
-  // 30: a loop 82.5 deg off with 24 inliers to a compact keyframe). Above
-  // 40, the weak loops are right but err several times what the pixel model
-  // gives (0.3-0.95 deg); the cell jackknife (loop_jackknife_grid) widens
-  // their covariances to cover that, which is what lets the threshold be
-  // this low: entry-P10's median is 0.035 deg with it at 40, 0.19 deg
-  // without it at 40 and 0.034 deg without it at 60, where one of its five
-  // loop pairs is missed (results/replay.md, "Loop closures and their
-  // covariances").
+  // inliers. Lower finds more loops and lets wrong ones in; the weak loops
+  // just above it are right but err several times what the pixel model
+  // gives, which the cell jackknife's covariance (loop_jackknife_grid)
+  // covers: without it the threshold has to be higher and misses loops
+  // (results/replay.md, "Loop closures and their covariances";
+  // docs/decisions.md, "Loop-closure threshold").
   int min_loop_inliers = 40;
   // A compact keyframe keeps a part of the correspondences a loop pair would
-  // have with all of its features (about three quarters, median over the
-  // Strecha loop pairs in results/replay.md), so a loop closure to one needs
-  // this fraction of min_loop_inliers: the same evidence.
+  // have with all of its features (results/replay.md, "inliers kept"), so a
+  // loop closure to one needs this fraction of min_loop_inliers: the same
+  // evidence.
   double compact_loop_inlier_fraction = 0.75;
   // Loop closures found for one keyframe check each other through the chain
   // of sequential edges between their old ends: R_a1b ~ R_a1a2 R_a2b. Two
@@ -102,11 +95,11 @@ struct KeyframeFrontendOptions {
   // (RelativePoseOptions::jackknife_grid) with this grid, whatever
   // relative_pose says: they are the wide-baseline pairs, where groups of
   // matches on repeated structure share their error and the pixel model is
-  // over-confident (median NEES of the loop closures found on castle-P19 35
-  // with the pixel model, 18 with the jackknife; entry-P10 575 and 12;
-  // results/replay.md). Sequential and
-  // rig pairs keep relative_pose's setting: on the demo's rendered rig the
-  // jackknife on every pair costs accuracy. 0: the pixel model for loops too.
+  // over-confident (the loops' NEES with and without it: results/replay.md,
+  // "Loop closures and their covariances"). Sequential and rig pairs keep
+  // relative_pose's setting: where keypoint noise is independent the
+  // jackknife only adds sampling noise to their weights
+  // (docs/decisions.md, "Cell jackknife"). 0: the pixel model for loops too.
   int loop_jackknife_grid = 4;
 };
 

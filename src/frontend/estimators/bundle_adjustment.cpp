@@ -389,8 +389,9 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   // degree is tens of sigma at a tenth of a pixel) are in every residual,
   // and only once they are adjusted do the residuals say which observations
   // are wrong. Cauchy's loss: under Huber's linear tail, wrong matches that
-  // fit their pair (a window matched to the next one) keep their pull, and on
-  // castle-P19 the adjustment kept the averaging's errors.
+  // fit their pair (a window matched to the next one) keep their pull, and
+  // the adjustment kept the averaging's errors on a courtyard of repeated
+  // windows.
   ceres::CauchyLoss cauchy(scale);
   if (!adjust(false, &cauchy, &first)) return finish(false, "everything: " + first.message);
 

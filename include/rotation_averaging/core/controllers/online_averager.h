@@ -64,9 +64,8 @@ struct OnlineAveragerOptions {
   // components, touch more than local.max_views keyframes, a cold start, new
   // options and the L1-IRLS solver always take a full solve; a loop-closure
   // edge makes the next full solve due at once. 0 disables.
-  // Measured at 10,000 keyframes, one arriving every 0.1 s (results/online.md):
-  // 8.1 ms median, 11.4 ms at the 95th percentile per updated solution,
-  // against 203 / 250 ms for full re-solves, and as accurate.
+  // The latency per updated solution against full re-solves, and the
+  // accuracy of both: results/online.md.
   std::size_t local_solve_min_views = 3000;
   LocalSolveOptions local;  // previous_component is set by the averager
   int full_solve_every = 10;

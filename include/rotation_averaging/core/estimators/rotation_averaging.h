@@ -71,8 +71,7 @@ enum class SpanningTreeWeight { kAuto, kUniform, kInliers, kInformation };
 //    For errors that do not shrink with the number of matches behind an
 //    edge (correlated feature errors, biased matches): two-view covariances
 //    from pixel noise are least calibrated on the pairs with the most
-//    inliers (results/frontend.md, "Calibration": median NEES 204 on
-//    castle-P19's pairs of 500 inliers or more, 64 on those of 100-499), so
+//    inliers (results/frontend.md, "Calibration", NEES by inlier count), so
 //    a scale factor that fits those makes weak pairs look far too uncertain.
 enum class CovarianceSelfCalibration { kLossScale, kFloor };
 
@@ -137,8 +136,8 @@ struct RotationAveragingOptions {
   // the 3x3 block system, which lands close enough that the exact solve then
   // needs fewer factorisations (same minimum). Only when every edge's
   // lambda_max/lambda_min is at most this: with nearly degenerate
-  // covariances (cubicle's) the isotropic optimum is too far off and the
-  // pre-solve costs more than it saves. <= 1 disables it.
+  // covariances the isotropic optimum is too far off and the pre-solve
+  // costs more than it saves. <= 1 disables it.
   double isotropic_presolve_max_anisotropy = 10.0;
   double isotropic_presolve_function_tolerance = 1e-4;
   // Graduated non-convexity for redescending losses (MAGSAC, Tukey,
@@ -190,10 +189,10 @@ struct RotationAveragingOptions {
   // of lambda_max / lambda_min of the information is at most this. Its
   // hierarchy is built on the scalar Laplacian of each block's trace / 3,
   // which bounds the block matrix only within the edges' anisotropy: on the
-  // anisotropic graphs of results/scale.md (median ratio about 100) it
-  // converges in tens of iterations; on nearly degenerate covariances
-  // (cubicle's median is 1.6e5) it does not, and finding that out costs more
-  // than the factorisation.
+  // anisotropic graphs of results/scale.md it converges in tens of
+  // iterations; on nearly degenerate covariances (pose graphs whose median
+  // ratio is orders of magnitude above this) it does not, and finding that
+  // out costs more than the factorisation.
   double block_multigrid_max_anisotropy = 1000.0;
   // 3x3-block systems that are factorised are factorised block by block
   // (BlockCholesky: fixed-size 3x3 products, no per-entry index work) when

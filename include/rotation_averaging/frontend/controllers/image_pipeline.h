@@ -55,10 +55,10 @@ struct FocalCalibrationOptions {
   bool enabled = false;  // the library and the node trust K; `rotavg images` turns it on
   // Applied only when the estimate is further from 1 than this and than 3
   // of its standard deviations. The estimate has a bias the pixel noise
-  // does not explain: on the Strecha scenes at full resolution, whose
-  // intrinsics come with the ground truth, it lands 0.05-0.31% from 1
-  // (results/frontend.md, "What moves the two-view rotations"), so a smaller
-  // correction would as likely add an error as remove one.
+  // does not explain: on scenes whose intrinsics are exact it lands a few
+  // tenths of a percent from 1 (results/frontend.md, "What moves the
+  // two-view rotations"), so a smaller correction would as likely add an
+  // error as remove one.
   double min_correction = 0.005;
   double search_range = 0.15;  // scales in [1 - range, 1 + range]
   int min_inliers = 50;        // pairs (essential-matrix model) with fewer are not used

@@ -55,9 +55,8 @@ struct BundleAdjustmentOptions {
   // its pair's epipolar geometry says and nothing more: a wrong match in it
   // (a window matched to the next one, near its epipolar line) fits any pose
   // by moving its point, so it pulls as it pulled the pair, and no third view
-  // can contradict it. On castle-P19 at full resolution, view 0015, all of
-  // whose pairs carry such matches, is 0.78 deg off after the averaging and
-  // 0.05 deg off after the adjustment without them (results/colmap.md).
+  // can contradict it: a view all of whose pairs carry such matches stays as
+  // far off as the averaging left it (results/colmap.md, per view).
   int min_track_views = 3;
   // Tracks whose rays meet at less than this angle (degrees) are left out:
   // their depth, and with it their pull on the orientations, is undetermined.

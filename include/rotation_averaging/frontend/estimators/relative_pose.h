@@ -89,11 +89,10 @@ struct RelativePoseOptions {
   double min_median_parallax_deg = 0.3;
   // Pairs where a homography explains more than this fraction of the
   // essential-matrix inliers are rejected as near-planar. Default 1: keep them
-  // (and report them). Measured on the Strecha scenes: on the facade
-  // entry-P10, pairs above 0.8 had a median rotation error of 0.064 deg
-  // against 0.65 deg for the rest at 1/4 scale (0.021 against 0.052 at 1/2);
-  // rejecting them would lose the best pairs. The two-fold planar ambiguity
-  // is resolved by cheirality.
+  // (and report them): on a facade the near-planar pairs are among the most
+  // accurate, and rejecting them loses the best pairs (docs/decisions.md,
+  // "Near-planar pairs"). The two-fold planar ambiguity is resolved by
+  // cheirality.
   double max_homography_inlier_ratio = 1.0;
   double near_planar_report_ratio = 0.95;  // counted as near-planar in reports (kept)
   int refine_max_iterations = 50;      // Levenberg-Marquardt iterations of the Sampson refinement
@@ -108,9 +107,9 @@ struct RelativePoseOptions {
   // move the rotation together, and only leaving the region out shows it.
   // A 4 x 4 grid gives up to 16 cells, 15 degrees of freedom for a 3 x 3
   // covariance. 0 or 1: the pixel model alone, the default of the library
-  // and, for sequential and rig pairs, of the node: on the demo's rendered
-  // rig the jackknife on every pair costs accuracy (median 0.0139 -> 0.0167
-  // deg; results/README.md, "What the far-off pairs hold"). The node's loop
+  // and, for sequential and rig pairs, of the node: where keypoint noise is
+  // independent the jackknife only adds sampling noise to the weights and
+  // costs accuracy (docs/decisions.md, "Cell jackknife"). The node's loop
   // closures get it (KeyframeFrontendOptions::loop_jackknife_grid), and
   // `rotavg images` uses 4 for every pair. The conditional covariance (the
   // paper's) is always the pixel model's.
