@@ -2,7 +2,8 @@
 # The README's test command (CI runs it through .ci/run). Sets up, builds
 # every test and runs them all with ctest (which, unlike `make run_tests`,
 # fails when a test fails); the quick results report (scripts/report.sh
-# --quick); the package built and installed in a fresh catkin workspace
+# --quick); the demo and every command of the README (scripts/demo.sh,
+# scripts/test_readme.sh); the package built and installed in a fresh catkin workspace
 # (scripts/test_workspace.sh); then the same suite again in an
 # AddressSanitizer + UndefinedBehaviorSanitizer build
 # (scripts/test_sanitizers.sh) and a 60 s libFuzzer run of each target: file
@@ -22,6 +23,11 @@ cmake --build "$BUILD" --target tests
 echo
 echo "== The results report in its quick form (scripts/report.sh --quick), so the report code never rots =="
 bash scripts/report.sh --quick
+echo
+echo "== The README's commands as written (scripts/test_readme.sh), after the demo (scripts/demo.sh) =="
+bash scripts/demo.sh > "$BUILD/demo.log" 2>&1 || { tail -40 "$BUILD/demo.log"; exit 1; }
+tail -4 "$BUILD/demo.log"
+bash scripts/test_readme.sh
 echo
 echo "== The package in a fresh catkin workspace: catkin_make, catkin_make install, the installed programs =="
 bash scripts/test_workspace.sh
