@@ -10,7 +10,7 @@
 #   3. the 60-capture demo bag with retrieval by vocabulary and by voting over
 #      every keyframe (`vocabulary: none`), in the same run;
 #   4. 200 captures, and the 400 and 200 captures with loop closures on the
-#      pixel model's covariance at 60 inliers (loop_covariance_jackknife_grid
+#      pixel model's covariance at 60 inliers (loop_jackknife_grid
 #      0, min_loop_inliers 60): what the defaults cost or gain there.
 #   bash scripts/benchmark_long_run.sh        (about 18 minutes on 2 cores)
 source "$(dirname "$0")/common.sh"
@@ -40,7 +40,7 @@ replay "$DEMO" config/demo.yaml demo
 { cat config/demo.yaml; echo "vocabulary: none"; } > "$OUT/voting.yaml"
 replay "$DEMO" "$OUT/voting.yaml" demo_voting
 replay "$MID" config/demo.yaml mid
-{ cat config/demo.yaml; echo "loop_covariance_jackknife_grid: 0"; echo "min_loop_inliers: 60"; } > "$OUT/pixel60.yaml"
+{ cat config/demo.yaml; echo "loop_jackknife_grid: 0"; echo "min_loop_inliers: 60"; } > "$OUT/pixel60.yaml"
 replay "$LONG" "$OUT/pixel60.yaml" long_pixel60
 replay "$MID" "$OUT/pixel60.yaml" mid_pixel60
 cp "$OUT/long/frontend_cost.png" results/plots/long_run_frontend_cost.png
@@ -86,7 +86,7 @@ lap_table() {
   row "400 captures, loop closures with the pixel model at 60 inliers" "$OUT/long_pixel60.txt"
   row "200 captures, the same" "$OUT/mid_pixel60.txt"
   echo
-  echo "The last two rows: loop closures on the pixel model's covariance (\`loop_covariance_jackknife_grid: 0\`)"
+  echo "The last two rows: loop closures on the pixel model's covariance (\`loop_jackknife_grid: 0\`)"
   echo "at \`min_loop_inliers: 60\`, against the defaults (the cell jackknife's covariance at 40; results/README.md,"
   echo "\"Loop closures and their covariances\")."
   echo

@@ -12,8 +12,8 @@ rosmaster --core -p 11399 >/tmp/rotavg_bench_master.log 2>&1 &
 MASTER=$!
 trap 'kill $NODE $MASTER 2>/dev/null || true' EXIT
 sleep 2
-"$BIN/rotation_averaging_node" __name:=rotation_averaging _solve_period:=$SOLVE_PERIOD \
+"$BIN/rotation_averaging_node" __name:=rotation_averaging _solve_period_s:=$SOLVE_PERIOD \
     _max_queue:=100000 >/tmp/rotavg_bench_node.log 2>&1 &
 NODE=$!
-"$BIN/rotavg_node_benchmark" _solve_period:=$SOLVE_PERIOD _output:=results/node_benchmark.md \
+"$BIN/rotavg_node_benchmark" _solve_period_s:=$SOLVE_PERIOD _output:=results/node_benchmark.md \
     "_command:=bash scripts/benchmark_node.sh"

@@ -31,8 +31,8 @@ for s in "${SCENES[@]}"; do
   printf 'image_topics: ["/camera/image_raw"]\nfeatures: sift\nmax_features: 4000\n' > "$OUT/$s.yaml"
   { cat "$OUT/$s.yaml"; echo "vocabulary: none"; } > "$OUT/${s}_voting.yaml"
   { cat "$OUT/$s.yaml"; echo "compact_features: 2000"; } > "$OUT/${s}_compact2000.yaml"
-  { cat "$OUT/$s.yaml"; echo "loop_covariance_jackknife_grid: 0"; } > "$OUT/${s}_pixel.yaml"
-  { cat "$OUT/$s.yaml"; echo "loop_covariance_jackknife_grid: 0"; echo "min_loop_inliers: 60"; } > "$OUT/${s}_pixel60.yaml"
+  { cat "$OUT/$s.yaml"; echo "loop_jackknife_grid: 0"; } > "$OUT/${s}_pixel.yaml"
+  { cat "$OUT/$s.yaml"; echo "loop_jackknife_grid: 0"; echo "min_loop_inliers: 60"; } > "$OUT/${s}_pixel60.yaml"
   "$BIN/rotavg" images --images "$C/images" --intrinsics "$C/images/K.txt" --downsample 0.25 --pairs exhaustive \
     --graph-out "$OUT/${s}_exhaustive_graph.txt" --output "$OUT/${s}_exhaustive.csv" > /dev/null
   for mode in vocabulary voting compact2000 pixel pixel60; do
@@ -136,9 +136,9 @@ row() {  # name, summary file
     echo
     echo "A loop-closure pair is a wide-baseline pair: groups of its matches share their error (repeated"
     echo "structure matched to its neighbour), which the pixel model counts as independent. The node gives"
-    echo "loop closures the cell jackknife's covariance (\`loop_covariance_jackknife_grid: 4\`, the default)"
+    echo "loop closures the cell jackknife's covariance (\`loop_jackknife_grid: 4\`, the default)"
     echo "and accepts them from \`min_loop_inliers\` (default 40) inliers. The same bags with the pixel model"
-    echo "for loop closures (\`loop_covariance_jackknife_grid: 0\`), and with it at \`min_loop_inliers: 60\`."
+    echo "for loop closures (\`loop_jackknife_grid: 0\`), and with it at \`min_loop_inliers: 60\`."
     echo "\"loop NEES\": median whitened squared error of the loop closures found against ground truth (3 when"
     echo "their covariances are calibrated); errors of the replay's final solution."
     echo
@@ -175,7 +175,7 @@ row() {  # name, summary file
       cat "$OUT/${s}_voting_recall.txt"
       echo "vocabulary, compact_features 2000:"
       cat "$OUT/${s}_compact2000_recall.txt"
-      echo "vocabulary, loop closures with the pixel model (loop_covariance_jackknife_grid 0):"
+      echo "vocabulary, loop closures with the pixel model (loop_jackknife_grid 0):"
       cat "$OUT/${s}_pixel_recall.txt"
       echo "the same at min_loop_inliers 60:"
       cat "$OUT/${s}_pixel60_recall.txt"

@@ -112,8 +112,8 @@ int main(int argc, char** argv) {
 
   std::ostringstream md;
   md << "# Node benchmark\n\nReproduce with: `" << command
-     << "`. A private master, one rotation_averaging_node (solve_period "
-     << pnh.param("solve_period", 0.0) << " s, tf_mode all_keyframes) and this client on the same 2-core machine; "
+     << "`. A private master, one rotation_averaging_node (solve_period_s "
+     << pnh.param("solve_period_s", 0.0) << " s, tf_mode all_keyframes) and this client on the same 2-core machine; "
         "synthetic single-camera graphs with sequential edges and a loop closure every 50 keyframes.\n\n"
      << "## Latency: relative pose in -> keyframe frame in tf2\n\n"
      << "| keyframes in the graph | trials | median (ms) | 95th percentile (ms) | max (ms) |\n|---|---|---|---|---|\n";

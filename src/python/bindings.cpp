@@ -255,7 +255,15 @@ struct Solution {
   bool success = false;
 };
 
+// Options that do not validate are a ValueError naming the field.
+template <typename Options>
+void ValidateOrThrow(const Options& options) {
+  std::string error;
+  if (!options.Validate(&error)) throw py::value_error("options: " + error);
+}
+
 Solution Solve(const PyViewGraph& g, const ra::RotationAveragingOptions& options, const py::object& initial) {
+  ValidateOrThrow(options);
   ra::ViewOrientations orientations;
   if (!initial.is_none()) {
     for (const auto& [key, value] : py::cast<py::dict>(initial)) {
@@ -574,6 +582,8 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
   ROTAVG_FIELD(l1_irls_sigma_deg);
   ROTAVG_FIELD(l1_irls_max_iterations);
 #undef ROTAVG_FIELD
+  options.def("validate", &ValidateOrThrow<ra::RotationAveragingOptions>,
+              "Raises ValueError naming the first field out of its range (solve() checks it too).");
   options.def("default_loss_scale", &ra::DefaultLossScale,
               "The loss scale used when loss_scale <= 0, for this loss, weighting and normalisation.");
 
@@ -657,6 +667,8 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
   ROTAVG_FIELD(rotation_model);
   ROTAVG_FIELD(jackknife_grid);
 #undef ROTAVG_FIELD
+  pose_options.def("validate", &ValidateOrThrow<ra::RelativePoseOptions>,
+                   "Raises ValueError naming the first field out of its range (relative_pose() checks it too).");
 
   py::class_<ra::RelativePoseResult>(m, "RelativePose", R"(A two-view relative pose and the covariance of its rotation.
 

@@ -278,7 +278,11 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
     }
   }
   YamlParameters params(root);
-  PipelineConfig config = ReadPipelineConfig(params, &result.warnings);
+  PipelineConfig config;
+  std::string config_error;
+  if (!ReadPipelineConfig(params, &config, &result.warnings, &config_error)) {
+    return fail("config " + options.config_path + ": " + config_error);
+  }
   // Solutions that depend on the input only, not on how fast this machine
   // runs: the periodic full solve of large graphs runs in the solve that is
   // due, not in a background thread (OnlineAveragerOptions).

@@ -2,7 +2,7 @@
 // Offline replay of recorded bags through the node's pipeline
 // (KeyframePipeline: the same validation, front end and averager), as fast
 // as the CPU allows, deterministic run after run. Solves happen at the bag
-// times at which the live node would solve (every solve_period of bag time
+// times at which the live node would solve (every solve_period_s of bag time
 // after the first message, when new input arrived, and at once after a loop
 // closure if solve_early_on_loop_closure), plus once at the end.
 #ifndef ROTATION_AVERAGING_SRC_ROS_BAG_REPLAY_H_

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <climits>
 #include <cstdint>
 #include <filesystem>
 #include <opencv2/imgcodecs.hpp>
@@ -12,6 +13,7 @@
 #include <vector>
 
 #include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/option_check.h"
 #include "ros/msg_conversion.h"
 
 namespace rotation_averaging {
@@ -24,15 +26,53 @@ std::string Replace(std::string text, const std::string& key, const std::string&
   return text;
 }
 
-template <typename T>
-T Param(const ParameterSource& params, const std::string& name, T fallback) {
-  T value = fallback;
-  return params.Get(name, &value) ? value : fallback;
-}
+// Reads one parameter into `field`, which holds its default: under `name`,
+// else under a former name, with a deprecation warning.
+class ParameterReader {
+ public:
+  ParameterReader(const ParameterSource& params, std::vector<std::string>* warnings)
+      : params_(params), warnings_(warnings) {}
 
-std::size_t PositiveSize(const ParameterSource& params, const std::string& name, int fallback, int minimum) {
-  return static_cast<std::size_t>(std::max(minimum, Param(params, name, fallback)));
-}
+  template <typename T>
+  void Read(const std::string& name, T* field, std::initializer_list<const char*> former = {}) {
+    if (params_.Get(name, field)) return;
+    for (const char* old : former) {
+      if (params_.Get(old, field)) {
+        Warn(std::string("parameter '") + old + "' is deprecated: use '" + name + "'");
+        return;
+      }
+    }
+  }
+  void Read(const std::string& name, std::size_t* field, std::initializer_list<const char*> former = {}) {
+    int value = static_cast<int>(std::min<std::size_t>(*field, static_cast<std::size_t>(INT32_MAX)));
+    Read(name, &value, former);
+    if (value < 0) {
+      Problem(name + " must be at least 0 (got " + std::to_string(value) + ")");
+    } else {
+      *field = static_cast<std::size_t>(value);
+    }
+  }
+  // An enumeration by name: `parse` turns the text into the value.
+  template <typename E>
+  void ReadChoice(const std::string& name, E* field, const char* (*to_name)(E), bool (*parse)(const std::string&, E*),
+                  const char* choices) {
+    std::string text = to_name(*field);
+    Read(name, &text);
+    if (!parse(text, field)) Problem(name + " '" + text + "' is not one of " + choices);
+  }
+  void Warn(const std::string& warning) {
+    if (warnings_) warnings_->push_back(warning);
+  }
+  void Problem(const std::string& problem) {
+    if (problem_.empty()) problem_ = problem;
+  }
+  const std::string& FirstProblem() const { return problem_; }
+
+ private:
+  const ParameterSource& params_;
+  std::vector<std::string>* warnings_;
+  std::string problem_;
+};
 
 // The size a PNG or JPEG declares in its header, read before decoding: the
 // decoder allocates the whole image from that header before it reads the
@@ -98,98 +138,113 @@ std::string KeyframeFrameName(const std::string& format, const KeyframeKey& key)
   return Replace(Replace(format, "{frame_id}", key.frame_id), "{stamp_ns}", std::to_string(key.stamp_ns));
 }
 
-PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std::string>* warnings) {
-  PipelineConfig c;
-  auto warn = [warnings](const std::string& w) {
-    if (warnings) warnings->push_back(w);
-  };
-  c.fixed_frame = Param(params, "fixed_frame", c.fixed_frame);
-  c.tf_mode = Param(params, "tf_mode", c.tf_mode);
-  if (c.tf_mode != "all_keyframes" && c.tf_mode != "latest_per_camera" && c.tf_mode != "none") {
-    warn("tf_mode '" + c.tf_mode + "' unknown: using all_keyframes");
-    c.tf_mode = "all_keyframes";
-  }
-  c.keyframe_frame_format = Param(params, "keyframe_frame_format", c.keyframe_frame_format);
-  c.latest_frame_format = Param(params, "latest_frame_format", c.latest_frame_format);
-  c.load_graph = Param(params, "load_graph", c.load_graph);
-  c.save_on_shutdown = Param(params, "save_on_shutdown", c.save_on_shutdown);
-  c.autosave_path = Param(params, "autosave_path", c.autosave_path);
-  c.autosave_period_s = Param(params, "autosave_period", c.autosave_period_s);
+PipelineConfig::PipelineConfig() {
+  // The node's defaults where they differ from the libraries': posterior
+  // covariances in ~orientations (an extra output the library leaves off).
+  averager.averaging.posterior_covariance_max_views = 20000;
+}
+
+bool PipelineConfig::Validate(std::string* error) const {
+  std::string averager_error, frontend_error;
+  return OptionCheck()
+      .Require(tf_mode == "all_keyframes" || tf_mode == "latest_per_camera" || tf_mode == "none",
+               "tf_mode '" + tf_mode + "' is not one of all_keyframes, latest_per_camera, none")
+      .Require(image_transport == "raw" || image_transport == "compressed",
+               "image_transport '" + image_transport + "' is not one of raw, compressed")
+      .AtLeast("max_image_queue", static_cast<double>(max_image_queue), 1)
+      .Above("marker_spacing_m", marker_spacing_m, 0.0)
+      .AtLeast("marker_max_keyframes", marker_max_keyframes, 1)
+      .NotNan("autosave_period_s", autosave_period_s)
+      .Require(averager.Validate(&averager_error), averager_error)
+      .Require(frontend.Validate(&frontend_error), frontend_error)
+      .Ok(error);
+}
+
+bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, std::vector<std::string>* warnings,
+                        std::string* error) {
+  PipelineConfig& c = *config;
+  ParameterReader r(params, warnings);
+  r.Read("fixed_frame", &c.fixed_frame);
+  r.Read("tf_mode", &c.tf_mode);
+  r.Read("keyframe_frame_format", &c.keyframe_frame_format);
+  r.Read("latest_frame_format", &c.latest_frame_format);
+  r.Read("markers", &c.markers);
+  r.Read("marker_spacing_m", &c.marker_spacing_m, {"marker_spacing"});
+  r.Read("marker_max_keyframes", &c.marker_max_keyframes);
 
   OnlineAveragerOptions& a = c.averager;
-  a.solve_period_s = Param(params, "solve_period", a.solve_period_s);
-  a.solve_early_on_loop_closure = Param(params, "solve_early_on_loop_closure", a.solve_early_on_loop_closure);
-  a.max_queue = PositiveSize(params, "max_queue", 10000, 1);
-  a.max_views = PositiveSize(params, "max_views", 1000000, 2);
-  a.max_edges = PositiveSize(params, "max_edges", 10000000, 1);
-  a.local_solve_min_views = static_cast<std::size_t>(std::max(0, Param(params, "local_solve_min_keyframes", 3000)));
-  a.local.hops = std::max(1, Param(params, "local_solve_hops", a.local.hops));
-  a.local.max_views = PositiveSize(params, "local_solve_max_keyframes", 1000, 1);
-  a.full_solve_every = std::max(1, Param(params, "full_solve_every", a.full_solve_every));
-  a.background_full_solves = Param(params, "background_full_solves", a.background_full_solves);
   RotationAveragingOptions& o = a.averaging;
-  const std::string loss = Param<std::string>(params, "loss", "magsac");
-  if (!ParseLossType(loss, &o.loss)) warn("loss '" + loss + "' unknown: using magsac");
-  const std::string weighting = Param<std::string>(params, "weighting", "covariance");
-  if (!ParseEdgeWeighting(weighting, &o.weighting)) warn("weighting '" + weighting + "' unknown: using covariance");
-  const std::string solver = Param<std::string>(params, "solver", "irls");
-  if (!ParseSolverType(solver, &o.solver)) warn("solver '" + solver + "' unknown: using irls");
-  o.loss_scale = Param(params, "sigma_max", 0.0);
-  o.max_iterations = Param(params, "max_iterations", o.max_iterations);
-  o.posterior_covariance_max_views = Param(params, "covariance_max_keyframes", 20000);
+  r.Read("solve_period_s", &a.solve_period_s, {"solve_period"});
+  r.Read("solve_early_on_loop_closure", &a.solve_early_on_loop_closure);
+  r.ReadChoice("loss", &o.loss, &LossTypeName, &ParseLossType,
+               "magsac, squared, huber, soft_l1, l0.5, cauchy, geman_mcclure, tukey");
+  r.ReadChoice("weighting", &o.weighting, &EdgeWeightingName, &ParseEdgeWeighting,
+               "covariance, none, inliers, trace, frobenius");
+  r.ReadChoice("solver", &o.solver, &SolverTypeName, &ParseSolverType, "irls, ceres, l1_irls");
+  r.Read("loss_scale", &o.loss_scale, {"sigma_max"});
+  r.Read("max_iterations", &o.max_iterations);
+  r.Read("local_solve_min_views", &a.local_solve_min_views, {"local_solve_min_keyframes"});
+  r.Read("local_solve_hops", &a.local.hops);
+  r.Read("local_solve_max_views", &a.local.max_views, {"local_solve_max_keyframes"});
+  r.Read("full_solve_every", &a.full_solve_every);
+  r.Read("background_full_solves", &a.background_full_solves);
+  r.Read("posterior_covariance_max_views", &o.posterior_covariance_max_views, {"covariance_max_keyframes"});
 
-  c.image_topics = Param(params, "image_topics", c.image_topics);
-  c.image_transport = Param(params, "image_transport", c.image_transport);
-  if (c.image_transport != "raw" && c.image_transport != "compressed") {
-    warn("image_transport '" + c.image_transport + "' unknown: using raw");
-    c.image_transport = "raw";
-  }
+  r.Read("image_topics", &c.image_topics);
+  r.Read("image_transport", &c.image_transport);
   KeyframeFrontendOptions& f = c.frontend;
-  f.features.downsample = Param(params, "image_downsample", 1.0);
-  if (!(f.features.downsample > 0.0 && f.features.downsample <= 1.0)) {
-    warn("image_downsample must be in (0, 1]: using 1");
-    f.features.downsample = 1.0;
-  }
-  f.features.max_features = Param(params, "max_features", f.features.max_features);
-  const std::string features = Param<std::string>(params, "features", "sift");
-  if (!ParseFeatureType(features, &f.features.type)) warn("features '" + features + "' unknown: using sift");
-  f.rig_stamp_tolerance_s = Param(params, "rig_stamp_tolerance", f.rig_stamp_tolerance_s);
+  r.Read("downsample", &f.features.downsample, {"image_downsample"});
+  r.ReadChoice("features", &f.features.type, &FeatureTypeName, &ParseFeatureType, "sift, orb");
+  r.Read("max_features", &f.features.max_features);
+  r.Read("rig_stamp_tolerance_s", &f.rig_stamp_tolerance_s, {"rig_stamp_tolerance"});
   c.rig.stamp_tolerance_s = f.rig_stamp_tolerance_s;
-  c.rig.enabled = Param(params, "use_rig_extrinsics", c.rig.enabled);
-  c.rig.rig_frame = Param(params, "rig_frame", c.rig.rig_frame);
-  f.covisibility_window = std::max(1, Param(params, "covisibility_window", f.covisibility_window));
-  f.num_threads = std::max(0, Param(params, "num_threads", f.num_threads));
-  f.max_loop_candidates = Param(params, "max_loop_candidates", f.max_loop_candidates);
-  f.min_loop_inliers = Param(params, "min_loop_inliers", f.min_loop_inliers);
-  f.relative_pose.jackknife_grid =
-      std::clamp(Param(params, "covariance_jackknife_grid", f.relative_pose.jackknife_grid), 0, 16);
-  f.loop_jackknife_grid = std::clamp(Param(params, "loop_covariance_jackknife_grid", f.loop_jackknife_grid), 0, 16);
-  f.retrieval_sample = Param(params, "retrieval_sample", f.retrieval_sample);
-  f.compact_features = std::max(20, Param(params, "compact_features", f.compact_features));
-  f.match_compact_by_vocabulary = Param(params, "match_by_vocabulary", f.match_compact_by_vocabulary);
-  f.min_retrieval_score_ratio = std::max(0.0, Param(params, "min_retrieval_score_ratio", f.min_retrieval_score_ratio));
-  c.vocabulary = Param(params, "vocabulary", c.vocabulary);
+  r.Read("use_rig_extrinsics", &c.rig.enabled);
+  r.Read("rig_frame", &c.rig.rig_frame);
+  r.Read("covisibility_window", &f.covisibility_window);
+  r.Read("num_threads", &f.num_threads);
+  r.Read("max_loop_candidates", &f.max_loop_candidates);
+  r.Read("min_loop_inliers", &f.min_loop_inliers);
+  r.Read("jackknife_grid", &f.relative_pose.jackknife_grid, {"covariance_jackknife_grid"});
+  r.Read("loop_jackknife_grid", &f.loop_jackknife_grid, {"loop_covariance_jackknife_grid"});
+  r.Read("retrieval_sample", &f.retrieval_sample);
+  r.Read("compact_features", &f.compact_features);
+  r.Read("match_compact_by_vocabulary", &f.match_compact_by_vocabulary, {"match_by_vocabulary"});
+  r.Read("min_retrieval_score_ratio", &f.min_retrieval_score_ratio);
+  r.Read("vocabulary", &c.vocabulary);
+  r.Read("max_image_queue", &c.max_image_queue);
+
+  r.Read("max_queue", &a.max_queue);
+  r.Read("max_views", &a.max_views);
+  r.Read("max_edges", &a.max_edges);
+
+  r.Read("load_graph", &c.load_graph);
+  r.Read("save_on_shutdown", &c.save_on_shutdown);
+  r.Read("autosave_path", &c.autosave_path);
+  r.Read("autosave_period_s", &c.autosave_period_s, {"autosave_period"});
+
+  std::string problem = r.FirstProblem();
+  if (problem.empty()) c.Validate(&problem);
+  if (!problem.empty()) {
+    if (error) *error = "parameter " + problem;
+    return false;
+  }
+
   if (c.vocabulary == "default") c.vocabulary = DefaultVocabularyPath();
   if (!c.image_topics.empty() && f.max_loop_candidates > 0) {
     const std::string linear = ": loop-closure candidates are searched for in every keyframe, a cost that grows with the map";
     if (c.vocabulary.empty() || c.vocabulary == "none") {
       c.vocabulary.clear();
-      warn("no vocabulary set" + linear + " (train one with `rotavg vocabulary`, see docs/method.md)");
+      r.Warn("no vocabulary set" + linear + " (train one with `rotavg vocabulary`, see docs/method.md)");
     } else if (f.features.type != FeatureType::kSift) {
-      warn("the vocabulary describes SIFT, not " + features + linear);
+      r.Warn(std::string("the vocabulary describes SIFT, not ") + FeatureTypeName(f.features.type) + linear);
     } else {
-      std::string error;
-      std::shared_ptr<const Vocabulary> vocabulary = Vocabulary::Load(c.vocabulary, &error);
+      std::string load_error;
+      std::shared_ptr<const Vocabulary> vocabulary = Vocabulary::Load(c.vocabulary, &load_error);
       if (vocabulary) f.vocabulary = vocabulary;
-      else warn("vocabulary not loaded (" + error + ")" + linear);
+      else r.Warn("vocabulary not loaded (" + load_error + ")" + linear);
     }
   }
-  c.max_image_queue = PositiveSize(params, "max_image_queue", 8, 1);
-  c.markers = Param(params, "markers", c.markers);
-  c.marker_spacing_m = Param(params, "marker_spacing", c.marker_spacing_m);
-  if (!(c.marker_spacing_m > 0.0)) c.marker_spacing_m = 0.5;
-  c.marker_max_keyframes = std::max(1, Param(params, "marker_max_keyframes", c.marker_max_keyframes));
-  return c;
+  return true;
 }
 
 KeyframePipeline::KeyframePipeline(const PipelineConfig& config)

@@ -45,8 +45,12 @@ class ParameterSource {
   virtual bool Get(const std::string& name, std::vector<std::string>* value) const = 0;
 };
 
-// Every parameter of config/rotation_averaging.yaml, with its default.
+// Every parameter of config/rotation_averaging.yaml, with its default: the
+// node's parameters are the fields they set, under the field's name
+// (ReadPipelineConfig lists them).
 struct PipelineConfig {
+  PipelineConfig();  // the libraries' defaults, and the node's own where they differ
+
   std::string fixed_frame = "map";
   std::string tf_mode = "all_keyframes";  // all_keyframes, latest_per_camera, none
   std::string keyframe_frame_format = "{frame_id}_kf_{stamp_ns}";
@@ -59,20 +63,30 @@ struct PipelineConfig {
   // "none": no vocabulary (retrieval by voting, linear in the map).
   std::string vocabulary = "default";
   std::size_t max_image_queue = 8;
-  RigModelOptions rig;  // use_rig_extrinsics, rig_frame, rig_stamp_tolerance
+  RigModelOptions rig;  // use_rig_extrinsics, rig_frame, rig_stamp_tolerance_s
   // rviz markers: orientations carry no positions, so each camera (or rig)
   // gets a lane along y and its keyframes are laid out along x in time order.
   bool markers = true;
   double marker_spacing_m = 0.5;       // between consecutive keyframes of a lane
   int marker_max_keyframes = 2000;     // only the newest are drawn beyond this
   std::string load_graph, save_on_shutdown;
-  std::string autosave_path;    // graph saved atomically every autosave_period s ("" = off)
+  std::string autosave_path;    // graph saved atomically every autosave_period_s s ("" = off)
   double autosave_period_s = 30.0;
+
+  // True if every field (the averager's and the front end's options
+  // included) is within its range; otherwise false, with `error` naming the
+  // first field that is not.
+  bool Validate(std::string* error) const;
 };
 
-// Reads every parameter; unknown enum values fall back to the default with a
-// warning appended to `warnings`.
-PipelineConfig ReadPipelineConfig(const ParameterSource& params, std::vector<std::string>* warnings);
+// Reads every parameter into `config` (which holds the defaults), each under
+// the name of the field it sets; a parameter under its former name is read
+// too, with a deprecation warning. False, with `error` naming the parameter,
+// when a value is out of its range or not one of its choices (Validate);
+// then `config` is not to be used. Warnings (deprecated names, a vocabulary
+// that does not load) are appended to `warnings`.
+bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, std::vector<std::string>* warnings,
+                        std::string* error);
 
 // A decoded, validated keyframe image waiting for the front end.
 struct PendingKeyframe {

@@ -77,15 +77,21 @@ inline bool ParseAveragingOptions(const Args& args, ra::RotationAveragingOptions
     *error = e;
     return false;
   };
-  if (!ra::ParseSolverType(args.Get("--solver", "irls"), &options->solver)) return fail("unknown --solver");
-  if (!ra::ParseLossType(args.Get("--loss", "magsac"), &options->loss)) return fail("unknown --loss");
-  if (!ra::ParseEdgeWeighting(args.Get("--weighting", "covariance"), &options->weighting)) {
+  // The caller's options hold the defaults: a flag not given keeps it.
+  if (!ra::ParseSolverType(args.Get("--solver", ra::SolverTypeName(options->solver)), &options->solver)) {
+    return fail("unknown --solver");
+  }
+  if (!ra::ParseLossType(args.Get("--loss", ra::LossTypeName(options->loss)), &options->loss)) {
+    return fail("unknown --loss");
+  }
+  if (!ra::ParseEdgeWeighting(args.Get("--weighting", ra::EdgeWeightingName(options->weighting)), &options->weighting)) {
     return fail("unknown --weighting");
   }
-  if (!ra::ParseCovarianceNormalization(args.Get("--normalization", "std"), &options->covariance_normalization)) {
+  if (!ra::ParseCovarianceNormalization(
+          args.Get("--normalization", ra::CovarianceNormalizationName(options->covariance_normalization)),
+          &options->covariance_normalization)) {
     return fail("unknown --normalization (std or paper)");
   }
-  // The caller's options hold the command's default.
   if (!ra::ParseCovarianceSelfCalibration(
           args.Get("--self-calibration", ra::CovarianceSelfCalibrationName(options->self_calibration)),
           &options->self_calibration)) {
@@ -100,7 +106,7 @@ inline bool ParseAveragingOptions(const Args& args, ra::RotationAveragingOptions
     if (options->max_iterations < 0) return fail("--max-iterations must be >= 0");
   }
   if (args.Has("--no-gnc")) options->gnc_initial_scale_factor = 1.0;
-  return true;
+  return options->Validate(error);
 }
 
 inline std::vector<std::string> Concat(std::vector<std::string> a, const std::vector<std::string>& b) {

@@ -2,7 +2,7 @@
 //
 // Subscribes to relative poses (single and array), keeps the view graph in an
 // OnlineAverager (ROS-free), re-solves it in a worker thread every
-// ~solve_period seconds, and publishes the keyframe orientations over tf2 and
+// ~solve_period_s seconds, and publishes the keyframe orientations over tf2 and
 // as a latched Orientations topic. Callbacks only convert, validate and
 // enqueue. See config/rotation_averaging.yaml for every parameter.
 #include <diagnostic_updater/diagnostic_updater.h>
@@ -22,6 +22,7 @@
 #include <fstream>
 #include <map>
 #include <memory>
+#include <stdexcept>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -33,6 +34,7 @@
 #include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/SaveGraph.h"
 #include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/option_check.h"
 #include "ros/keyframe_pipeline.h"
 #include "ros/msg_conversion.h"
 
@@ -59,8 +61,11 @@ class RotationAveragingNode {
  public:
   explicit RotationAveragingNode(ros::NodeHandle& nh, ros::NodeHandle& pnh) : pnh_(pnh) {
     std::vector<std::string> warnings;
-    const PipelineConfig config = ReadPipelineConfig(NodeParameters(pnh), &warnings);
+    PipelineConfig config;
+    std::string error;
+    const bool valid = ReadPipelineConfig(NodeParameters(pnh), &config, &warnings, &error);
     for (const std::string& w : warnings) ROS_WARN("%s", w.c_str());
+    if (!valid) throw std::invalid_argument(error);
     pipeline_ = std::make_unique<KeyframePipeline>(config);
     averager_ = &pipeline_->Averager();
     current_averaging_ = config.averager.averaging;
@@ -115,8 +120,8 @@ class RotationAveragingNode {
     initial.loss = LossTypeName(options.averaging.loss);
     initial.weighting = EdgeWeightingName(options.averaging.weighting);
     initial.solver = SolverTypeName(options.averaging.solver);
-    initial.sigma_max = options.averaging.loss_scale;
-    initial.solve_period = options.solve_period_s;
+    initial.loss_scale = options.averaging.loss_scale;
+    initial.solve_period_s = options.solve_period_s;
     reconfigure_->updateConfig(initial);
     reconfigure_->setCallback([this](RotationAveragingConfig& config, uint32_t) { OnReconfigure(config); });
     averager_->Start();
@@ -267,27 +272,38 @@ class RotationAveragingNode {
 
   // Applied at the next solve (which runs at once). Unknown names are
   // refused and the field is reset to the value in use.
+  // Applies a dynamic_reconfigure update that validates; one that does not
+  // (an unknown name, a value out of range) is refused as a whole with a
+  // warning saying why, and the server is set back to the options in use.
   void OnReconfigure(RotationAveragingConfig& config) {
     RotationAveragingOptions o = current_averaging_;
-    if (!ParseLossType(config.loss, &o.loss)) {
-      ROS_WARN("reconfigure: loss '%s' unknown, kept %s", config.loss.c_str(), LossTypeName(o.loss));
-      config.loss = LossTypeName(o.loss);
+    o.loss_scale = config.loss_scale;
+    std::string averaging_error, error;
+    const bool valid =
+        OptionCheck()
+            .Require(ParseLossType(config.loss, &o.loss), "loss '" + config.loss + "' is not a loss")
+            .Require(ParseEdgeWeighting(config.weighting, &o.weighting),
+                     "weighting '" + config.weighting + "' is not a weighting")
+            .Require(ParseSolverType(config.solver, &o.solver), "solver '" + config.solver + "' is not a solver")
+            .NotNan("solve_period_s", config.solve_period_s)
+            .Require(o.Validate(&averaging_error), averaging_error)
+            .Ok(&error);
+    if (!valid) {
+      ROS_WARN("reconfigure refused: %s; the options in use are kept", error.c_str());
+      config.loss = LossTypeName(current_averaging_.loss);
+      config.weighting = EdgeWeightingName(current_averaging_.weighting);
+      config.solver = SolverTypeName(current_averaging_.solver);
+      config.loss_scale = current_averaging_.loss_scale;
+      config.solve_period_s = averager_->SolvePeriod();
+      return;
     }
-    if (!ParseEdgeWeighting(config.weighting, &o.weighting)) {
-      ROS_WARN("reconfigure: weighting '%s' unknown, kept %s", config.weighting.c_str(), EdgeWeightingName(o.weighting));
-      config.weighting = EdgeWeightingName(o.weighting);
-    }
-    if (!ParseSolverType(config.solver, &o.solver)) {
-      ROS_WARN("reconfigure: solver '%s' unknown, kept %s", config.solver.c_str(), SolverTypeName(o.solver));
-      config.solver = SolverTypeName(o.solver);
-    }
-    o.loss_scale = config.sigma_max;
     current_averaging_ = o;
     averager_->SetAveragingOptions(o);
-    averager_->SetSolvePeriod(config.solve_period);
-    ROS_INFO("reconfigured: loss %s, weighting %s, solver %s, sigma_max %g, solve period %g s", config.loss.c_str(),
-             config.weighting.c_str(), config.solver.c_str(), config.sigma_max, config.solve_period);
+    averager_->SetSolvePeriod(config.solve_period_s);
+    ROS_INFO("reconfigured: loss %s, weighting %s, solver %s, loss_scale %g, solve period %g s", config.loss.c_str(),
+             config.weighting.c_str(), config.solver.c_str(), config.loss_scale, config.solve_period_s);
   }
+
 
   void Accept(const RelativePose& msg) {
     std::string error;
@@ -521,7 +537,13 @@ class RotationAveragingNode {
 int main(int argc, char** argv) {
   ros::init(argc, argv, "rotation_averaging_node");
   ros::NodeHandle nh, pnh("~");
-  rotation_averaging::RotationAveragingNode node(nh, pnh);
+  std::unique_ptr<rotation_averaging::RotationAveragingNode> node;
+  try {
+    node = std::make_unique<rotation_averaging::RotationAveragingNode>(nh, pnh);
+  } catch (const std::invalid_argument& e) {
+    ROS_FATAL("%s: the node does not start (config/rotation_averaging.yaml lists every parameter)", e.what());
+    return 1;
+  }
   ros::spin();
   return 0;
 }

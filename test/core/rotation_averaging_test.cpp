@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <functional>
 #include <limits>
 #include <random>
 
@@ -39,6 +40,38 @@ RotationAveragingOptions With(LossType loss, EdgeWeighting weighting, SolverType
   o.weighting = weighting;
   o.solver = solver;
   return o;
+}
+
+// Options out of range are refused by Validate, naming the field, and the
+// solves refuse them without touching the orientations.
+TEST(RotationAveraging, OptionsOutOfRangeAreRefusedByName) {
+  std::string error;
+  EXPECT_TRUE(RotationAveragingOptions().Validate(&error)) << error;
+  const std::vector<std::pair<std::function<void(RotationAveragingOptions*)>, std::string>> cases = {
+      {[](RotationAveragingOptions* o) { o->max_iterations = -1; }, "max_iterations must be at least 0 (got -1)"},
+      {[](RotationAveragingOptions* o) { o->loss_scale = std::numeric_limits<double>::quiet_NaN(); },
+       "loss_scale must be finite"},
+      {[](RotationAveragingOptions* o) { o->gnc_scale_step = 1.0; }, "gnc_scale_step must be above 1"},
+      {[](RotationAveragingOptions* o) { o->warm_start_min_fraction = 1.5; },
+       "warm_start_min_fraction must be in [0, 1]"},
+      {[](RotationAveragingOptions* o) { o->linear_solve_tolerance = 0.0; }, "linear_solve_tolerance must be in (0, 1)"},
+      {[](RotationAveragingOptions* o) { o->num_threads = 0; }, "num_threads must be at least 1"},
+  };
+  SyntheticGraphOptions go;
+  go.num_views = 10;
+  const SyntheticGraph sg = MakeSyntheticGraph(go);
+  for (const auto& [change, expected] : cases) {
+    RotationAveragingOptions o;
+    change(&o);
+    EXPECT_FALSE(o.Validate(&error));
+    EXPECT_EQ(error.find(expected), 0u) << error;
+    ViewOrientations orientations;
+    RotationAveragingSummary summary;
+    EXPECT_FALSE(SolveRotationAveraging(sg.graph, o, &orientations, &summary));
+    EXPECT_TRUE(orientations.empty());
+    EXPECT_EQ(summary.error, error);
+    EXPECT_NE(summary.Report().find(expected), std::string::npos);
+  }
 }
 
 TEST(RotationAveraging, MagsacRecoversRotationsWithTwentyPercentOutliers) {

@@ -88,6 +88,12 @@ def test_every_loss_and_weighting_runs_and_options_are_checked(synthetic):
     assert ra.SolveOptions().self_calibration == "loss_scale"
     with pytest.raises(ValueError, match="loss_scale, floor"):
         ra.make_options(self_calibration="scale")
+    # Values out of range are refused before anything runs, naming the field.
+    with pytest.raises(ValueError, match=r"options: max_iterations must be at least 0 \(got -1\)"):
+        ra.solve(graph, max_iterations=-1)
+    with pytest.raises(ValueError, match="linear_solve_tolerance must be in"):
+        ra.make_options(linear_solve_tolerance=2.0).validate()
+    ra.SolveOptions().validate()
 
 
 def test_covariance_floor_from_python():

@@ -142,6 +142,10 @@ def test_bad_input_raises_and_a_pair_without_a_pose_does_not():
         ra.relative_pose(p1, p2, K, covariance_model="full")
     with pytest.raises(TypeError, match="unknown relative pose option 'threshold'"):
         ra.relative_pose(p1, p2, K, threshold=2.0)
+    with pytest.raises(ValueError, match=r"options: ransac_threshold_px must be above 0 \(got -1\)"):
+        ra.relative_pose(p1, p2, K, ransac_threshold_px=-1.0)
+    with pytest.raises(ValueError, match="jackknife_grid must be in"):
+        ra.make_relative_pose_options(jackknife_grid=40).validate()
     few = ra.relative_pose(p1[:10], p2[:10], K)
     assert not few.success and few.failure == "too_few_matches" and "10 correspondences" in few.message
     noise = ra.relative_pose(p1, rng.uniform([0, 0], [640, 480], size=p2.shape), K)

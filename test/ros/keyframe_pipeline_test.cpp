@@ -24,6 +24,14 @@ class NoParameters : public ParameterSource {
   bool Get(const std::string&, std::vector<std::string>*) const override { return false; }
 };
 
+// What the node runs with when no parameter is set.
+PipelineConfig DefaultConfig() {
+  PipelineConfig config;
+  std::string error;
+  EXPECT_TRUE(ReadPipelineConfig(NoParameters(), &config, nullptr, &error)) << error;
+  return config;
+}
+
 RelativePose Pose(const std::string& f1, double t1, const std::string& f2, double t2, const Eigen::Matrix3d& r,
                   std::uint8_t source = RelativePose::SOURCE_SEQUENTIAL) {
   KeyframeRelativeRotation m;
@@ -58,7 +66,7 @@ sensor_msgs::Image Image(const std::string& frame, double t, int width, int heig
 }
 
 TEST(KeyframePipeline, BadRelativePosesAreRejectedAndCounted) {
-  KeyframePipeline pipeline(ReadPipelineConfig(NoParameters(), nullptr));
+  KeyframePipeline pipeline(DefaultConfig());
   const Eigen::Matrix3d r = ExpSO3(Eigen::Vector3d(0.1, 0.0, 0.0));
   std::vector<RelativePose> bad(6, Pose("cam", 1.0, "cam", 2.0, r));
   bad[0].rotation.x = std::numeric_limits<double>::quiet_NaN();
@@ -79,7 +87,7 @@ TEST(KeyframePipeline, BadRelativePosesAreRejectedAndCounted) {
 }
 
 TEST(KeyframePipeline, BadImagesAreRejectedAndCounted) {
-  PipelineConfig config = ReadPipelineConfig(NoParameters(), nullptr);
+  PipelineConfig config = DefaultConfig();
   KeyframePipeline pipeline(config);
   PendingKeyframe k;
   std::string error;
@@ -155,7 +163,7 @@ void PutBigEndian16(std::uint32_t value, std::uint8_t* at) {
 // implausible size (whatever camera_info says), is refused before decoding,
 // and formats other than image_transport's PNG and JPEG are refused.
 TEST(KeyframePipeline, CompressedImagesAreCheckedBeforeDecoding) {
-  KeyframePipeline pipeline(ReadPipelineConfig(NoParameters(), nullptr));
+  KeyframePipeline pipeline(DefaultConfig());
   PendingKeyframe k;
   std::string error;
   EXPECT_TRUE(pipeline.DecodeCompressedImage(Compressed(1.0, ".png"), Info(64, 48), &k, &error)) << error;
@@ -197,7 +205,7 @@ TEST(KeyframePipeline, CompressedImagesAreCheckedBeforeDecoding) {
 }
 
 TEST(KeyframePipeline, RigExtrinsicsFromStaticTransformsAndMarkers) {
-  KeyframePipeline pipeline(ReadPipelineConfig(NoParameters(), nullptr));
+  KeyframePipeline pipeline(DefaultConfig());
   // cam_b looks 90 degrees left of cam_a on base_link.
   const Eigen::Matrix3d b_in_rig = ExpSO3(Eigen::Vector3d(0.0, 0.0, kPi / 2));
   tf2_msgs::TFMessage statics;

@@ -32,7 +32,7 @@ namespace rotation_averaging {
 namespace {
 
 constexpr int kKeyframes = 1000;
-constexpr double kSustainable = 5000 / 0.5;  // max_queue / solve_period (node_load.test)
+constexpr double kSustainable = 5000 / 0.5;  // max_queue / solve_period_s (node_load.test)
 constexpr double kFloodSeconds = 4.0;
 constexpr int kArraySize = 1000;
 // Peak resident memory bound for the node (MiB). Accounted: the queue holds
@@ -225,7 +225,7 @@ TEST_F(NodeLoad, FloodAtTenTimesTheSustainableRateIsDroppedCountedAndSurvived) {
   }
   const double received = d["messages received"] - received_before - tail_sent;
   std::printf(
-      "load: sustainable %.0f measurements/s (max_queue / solve_period); flood %.0f/s for %.1f s: %zu sent, "
+      "load: sustainable %.0f measurements/s (max_queue / solve_period_s); flood %.0f/s for %.1f s: %zu sent, "
       "%.0f received by the node (%.1f%%), %.0f dropped at the full queue and counted, %.0f rejected; during the "
       "flood %d Orientations and %d tf messages published; caught up %.2f s after the flood (%d keyframes sent "
       "after it, the solution within %d keyframes of them again); queue afterwards %.0f; peak memory %.0f MiB (bound %.0f MiB), resident %.0f MiB; %.0f "

@@ -80,7 +80,7 @@ TEST_F(Recovery, SigkilledNodeRestartsFromItsAutosave) {
       (std::filesystem::temp_directory_path() / ("rotavg_autosave_" + std::to_string(getpid()) + ".txt")).string();
   std::filesystem::remove(save);
   const std::vector<std::string> common = {"__name:=crash_node", "relative_poses:=/crash_test/relative_poses",
-                                           "_tf_mode:=none", "_solve_period:=0.2"};
+                                           "_tf_mode:=none", "_solve_period_s:=0.2"};
   std::vector<std::string> first = common;
   first.push_back("_autosave_path:=" + save);
   first.push_back("_autosave_period:=0.3");

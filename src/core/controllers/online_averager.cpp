@@ -7,10 +7,25 @@
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/io/graph_io.h"
 #include "core/io/text_lines.h"
+#include "core/util/option_check.h"
 
 namespace rotation_averaging {
 
 using Clock = std::chrono::steady_clock;
+
+bool OnlineAveragerOptions::Validate(std::string* error) const {
+  std::string averaging_error;
+  return OptionCheck()
+      .NotNan("solve_period_s", solve_period_s)
+      .AtLeast("max_queue", static_cast<double>(max_queue), 1)
+      .AtLeast("max_views", static_cast<double>(max_views), 2)
+      .AtLeast("max_edges", static_cast<double>(max_edges), 1)
+      .AtLeast("local_solve_hops", local.hops, 1)
+      .AtLeast("local_solve_max_views", static_cast<double>(local.max_views), 1)
+      .AtLeast("full_solve_every", full_solve_every, 1)
+      .Require(averaging.Validate(&averaging_error), averaging_error)
+      .Ok(error);
+}
 
 OnlineAverager::OnlineAverager(const OnlineAveragerOptions& options)
     : options_(options), solution_(std::make_shared<OnlineSolution>()) {

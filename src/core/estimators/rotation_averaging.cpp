@@ -12,6 +12,7 @@
 #include "core/estimators/component_problem.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "core/util/backends.h"
+#include "core/util/option_check.h"
 
 namespace rotation_averaging {
 namespace {
@@ -177,7 +178,41 @@ double DefaultLossScale(const RotationAveragingOptions& options) {
   return DefaultScaleFor(options.weighting, options.covariance_normalization);
 }
 
+bool RotationAveragingOptions::Validate(std::string* error) const {
+  return OptionCheck()
+      .Finite("loss_scale", loss_scale)
+      .Above("paper_covariance_scale", paper_covariance_scale, 0.0)
+      .Within("warm_start_min_fraction", warm_start_min_fraction, 0.0, 1.0)
+      .Within("l1_initialization_min_disagreement", l1_initialization_min_disagreement, 0.0, 1.0)
+      .AtLeast("l1_init_max_iterations", l1_init_max_iterations, 0)
+      .Above("l1_init_smoothing_rad", l1_init_smoothing_rad, 0.0)
+      .AtLeast("l1_init_function_tolerance", l1_init_function_tolerance, 0.0)
+      .NotNan("isotropic_presolve_max_anisotropy", isotropic_presolve_max_anisotropy)
+      .AtLeast("isotropic_presolve_function_tolerance", isotropic_presolve_function_tolerance, 0.0)
+      .AtLeast("gnc_initial_scale_factor", gnc_initial_scale_factor, 1.0)
+      .Above("gnc_scale_step", gnc_scale_step, 1.0)
+      .AtLeast("gnc_stage_max_iterations", gnc_stage_max_iterations, 0)
+      .NotNan("auto_scale_threshold", auto_scale_threshold)
+      .AtLeast("max_iterations", max_iterations, 0)
+      .AtLeast("step_tolerance_rad", step_tolerance_rad, 0.0)
+      .AtLeast("function_tolerance", function_tolerance, 0.0)
+      .Between("linear_solve_tolerance", linear_solve_tolerance, 0.0, 1.0)
+      .Between("robust_start_linear_solve_tolerance", robust_start_linear_solve_tolerance, 0.0, 1.0)
+      .AtLeast("multigrid_min_views", multigrid_min_views, 0)
+      .Above("block_multigrid_max_anisotropy", block_multigrid_max_anisotropy, 0.0)
+      .AtLeast("block_cholesky_max_column_count", block_cholesky_max_column_count, 0.0)
+      .Between("multigrid_linear_solve_tolerance", multigrid_linear_solve_tolerance, 0.0, 1.0)
+      .AtLeast("num_threads", num_threads, 1)
+      .AtLeast("posterior_covariance_max_views", posterior_covariance_max_views, 0)
+      .AtLeast("l1_max_iterations", l1_max_iterations, 0)
+      .AtLeast("l1_admm_max_iterations", l1_admm_max_iterations, 0)
+      .Above("l1_irls_sigma_deg", l1_irls_sigma_deg, 0.0)
+      .AtLeast("l1_irls_max_iterations", l1_irls_max_iterations, 0)
+      .Ok(error);
+}
+
 bool RotationAveragingSummary::Success() const {
+  if (!error.empty()) return false;
   for (const ComponentSummary& c : components)
     if (!std::isfinite(c.final_cost)) return false;
   return true;
@@ -192,6 +227,7 @@ double RotationAveragingSummary::LargestComponentFloorRad() const {
 
 std::string RotationAveragingSummary::Report() const {
   std::ostringstream out;
+  if (!error.empty()) return "not solved: " + error + "\n";
   std::size_t views = 0, edges_in = 0;
   int iterations = 0;
   double initial = 0.0, final_cost = 0.0;
@@ -447,6 +483,7 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
                             ViewOrientations* orientations, RotationAveragingSummary* summary) {
   const auto start = std::chrono::steady_clock::now();
   *summary = RotationAveragingSummary();
+  if (!options.Validate(&summary->error)) return false;
   EdgeWeighting weighting = options.weighting;
   std::vector<ComponentProblem> problems =
       BuildComponentProblems(graph, options, *orientations, &summary->warnings, &weighting);
@@ -474,6 +511,7 @@ LocalSolveOutcome SolveRotationAveragingLocally(const ViewGraph& graph, const st
                                                 ViewOrientations* orientations, RotationAveragingSummary* summary) {
   const auto start = std::chrono::steady_clock::now();
   *summary = RotationAveragingSummary();
+  if (!options.Validate(&summary->error)) return LocalSolveOutcome::kNeedsFullSolve;
   if (options.solver == SolverType::kL1Irls) return LocalSolveOutcome::kNeedsFullSolve;
   const std::vector<RelativeRotation>& edges = graph.Edges();
   // Incident edges per view (ids need not be dense).

@@ -6,6 +6,7 @@
 #include <set>
 
 #include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/option_check.h"
 #include "core/util/parallel_for.h"
 
 namespace rotation_averaging {
@@ -32,6 +33,28 @@ struct KeyframeFrontend::Keyframe {
   std::vector<std::uint16_t> inlier_hits;
   Eigen::Matrix3d k;  // intrinsics of the (resized) image the features come from
 };
+
+bool KeyframeFrontendOptions::Validate(std::string* error) const {
+  std::string relative_pose_error;
+  return OptionCheck()
+      .Within("downsample", features.downsample, 1e-3, 1.0)
+      .AtLeast("max_features", features.max_features, 1)
+      .AtLeast("rig_stamp_tolerance_s", rig_stamp_tolerance_s, 0.0)
+      .AtLeast("covisibility_window", covisibility_window, 1)
+      .AtLeast("num_threads", num_threads, 0)
+      .AtLeast("max_loop_candidates", max_loop_candidates, 0)
+      .AtLeast("loop_exclude_recent", loop_exclude_recent, 0)
+      .AtLeast("compact_features", compact_features, 20)
+      .AtLeast("min_retrieval_score_ratio", min_retrieval_score_ratio, 0.0)
+      .AtLeast("retrieval_sample", retrieval_sample, 1)
+      .AtLeast("min_retrieval_votes", min_retrieval_votes, 0)
+      .AtLeast("min_loop_inliers", min_loop_inliers, 5)
+      .Within("compact_loop_inlier_fraction", compact_loop_inlier_fraction, 1e-3, 1.0)
+      .Above("loop_consistency_deg", loop_consistency_deg, 0.0)
+      .Within("loop_jackknife_grid", loop_jackknife_grid, 0, 16)
+      .Require(relative_pose.Validate(&relative_pose_error), relative_pose_error)
+      .Ok(error);
+}
 
 KeyframeFrontend::KeyframeFrontend(const KeyframeFrontendOptions& options) : options_(options) {
   // A SIFT vocabulary describes SIFT descriptors only.

@@ -101,6 +101,10 @@ struct KeyframeFrontendOptions {
   // jackknife only adds sampling noise to their weights
   // (docs/decisions.md, "Cell jackknife"). 0: the pixel model for loops too.
   int loop_jackknife_grid = 4;
+
+  // True if every field (features, relative_pose included) is within its
+  // range; otherwise false, with `error` naming the first field that is not.
+  bool Validate(std::string* error) const;
 };
 
 struct KeyframeFrontendStats {

@@ -7,6 +7,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 
+#include "core/util/option_check.h"
 #include "frontend/geometry/epipolar.h"
 #include "rotation_averaging/core/geometry/so3.h"
 
@@ -775,10 +776,29 @@ std::vector<Eigen::Vector2d> NormalisedPoints(const std::vector<Eigen::Vector2d>
   return out;
 }
 
+bool RelativePoseOptions::Validate(std::string* error) const {
+  return OptionCheck()
+      .Above("ransac_threshold_px", ransac_threshold_px, 0.0)
+      .AtLeast("adaptive_threshold_sigmas", adaptive_threshold_sigmas, 0.0)
+      .AtLeast("min_adaptive_threshold_px", min_adaptive_threshold_px, 0.0)
+      .Between("ransac_confidence", ransac_confidence, 0.0, 1.0)
+      .AtLeast("ransac_max_iterations", ransac_max_iterations, 1)
+      .AtLeast("min_inliers", min_inliers, 5)
+      .AtLeast("min_median_parallax_deg", min_median_parallax_deg, 0.0)
+      .Within("max_homography_inlier_ratio", max_homography_inlier_ratio, 0.0, 1.0)
+      .Within("near_planar_report_ratio", near_planar_report_ratio, 0.0, 1.0)
+      .AtLeast("refine_max_iterations", refine_max_iterations, 0)
+      .Above("max_condition_number", max_condition_number, 1.0)
+      .Within("jackknife_grid", jackknife_grid, 0, 16)
+      .Ok(error);
+}
+
 RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::Vector2d>& points1,
                                                       const std::vector<Eigen::Vector2d>& points2,
                                                       const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
                                                       const RelativePoseOptions& options) {
+  std::string options_error;
+  if (!options.Validate(&options_error)) return Fail(TwoViewFailure::kInvalidInput, "options: " + options_error);
   const int n = static_cast<int>(std::min(points1.size(), points2.size()));
   if (points1.size() != points2.size()) {
     return Fail(TwoViewFailure::kInvalidInput, "point lists differ in length (" + std::to_string(points1.size()) +

@@ -76,6 +76,10 @@ struct OnlineAveragerOptions {
   // that is due, so the sequence of solutions depends only on the input and
   // not on timing (the bag replay uses that).
   bool background_full_solves = true;
+
+  // True if every field (and `averaging`) is within its range; otherwise
+  // false, with `error` naming the first field that is not.
+  bool Validate(std::string* error) const;
 };
 
 // Counters for diagnostics; all monotonic.

@@ -230,6 +230,11 @@ struct RotationAveragingOptions {
   int l1_admm_max_iterations = 200;       // ADMM iterations per L1 step (stops earlier when x moves < 1e-5 rad)
   double l1_irls_sigma_deg = 5.0;         // Geman-McClure scale of the IRLS stage, degrees
   int l1_irls_max_iterations = 100;
+
+  // True if every field is within its range; otherwise false, with `error`
+  // naming the first field that is not (e.g. "max_iterations must be at
+  // least 0 (got -1)"). The solves refuse options that do not validate.
+  bool Validate(std::string* error) const;
 };
 
 // The loss scale used when options.loss_scale <= 0, for this loss, weighting
@@ -281,6 +286,8 @@ struct RotationAveragingSummary {
   // gauge view (zero there); see ComputeViewCovariances in component_problem.h.
   std::map<ViewId, Eigen::Matrix3d> view_covariances;
   std::vector<std::string> warnings;
+  // Why nothing was solved (options that do not validate); empty otherwise.
+  std::string error;
   bool Success() const;
   std::string Report() const;  // multi-line text for logs and the CLI
   // The covariance floor of the largest component, rad (0: none, or no

@@ -117,6 +117,11 @@ struct RelativePoseOptions {
   // Model selection with the rotation-only homography (see above). Off: pairs
   // without parallax fail with kPureRotation.
   bool rotation_model = true;
+
+  // True if every field is within its range; otherwise false, with `error`
+  // naming the first field that is not. An estimate with options that do
+  // not validate fails with kInvalidInput.
+  bool Validate(std::string* error) const;
 };
 
 struct RelativePoseResult {
