@@ -176,6 +176,423 @@ struct CameraStream {
   std::deque<rosbag::MessageInstance> waiting;
 };
 
+// The node's parameters from the replay's YAML file (none: the defaults).
+bool ReadReplayConfig(const std::string& path, PipelineConfig* config, std::vector<std::string>* warnings,
+                      std::string* error) {
+  YAML::Node root;
+  if (!path.empty()) {
+    try {
+      root = YAML::LoadFile(path);
+    } catch (const YAML::Exception& e) {
+      *error = "config " + path + ": " + e.what();
+      return false;
+    }
+  }
+  YamlParameters params(root);
+  std::string config_error;
+  if (!ReadPipelineConfig(params, config, warnings, &config_error)) {
+    *error = "config " + path + ": " + config_error;
+    return false;
+  }
+  // Solutions that depend on the input only, not on how fast this machine
+  // runs: the periodic full solve of large graphs runs in the solve that is
+  // due, not in a background thread (OnlineAveragerOptions).
+  config->averager.background_full_solves = false;
+  for (const std::string& p : params.Problems()) warnings->push_back(p);
+  return true;
+}
+
+// Opens every bag; an unindexed one (truncated while recording) cannot be
+// read in time order without `rosbag reindex`, which the error names.
+bool OpenBags(const std::vector<std::string>& paths, std::vector<std::unique_ptr<rosbag::Bag>>* bags,
+              std::string* error) {
+  for (const std::string& path : paths) {
+    auto bag = std::make_unique<rosbag::Bag>();
+    try {
+      bag->open(path, rosbag::bagmode::Read);
+    } catch (const rosbag::BagUnindexedException&) {
+      *error = path + " is not indexed (recording was interrupted): run `rosbag reindex " + path +
+               "` and replay the reindexed bag";
+      return false;
+    } catch (const rosbag::BagException& e) {
+      // A file that starts like a bag but cannot be opened lost its end (the
+      // index): reindexing recovers the messages before the cut.
+      std::ifstream in(path, std::ios::binary);
+      char magic[13] = {0};
+      in.read(magic, 12);
+      if (in && std::string(magic) == "#ROSBAG V2.0") {
+        *error = "cannot open " + path + ": " + e.what() + "; the bag looks truncated (its index is missing): run " +
+                 "`rosbag reindex " + path + "` and replay the reindexed bag";
+      } else {
+        *error = "cannot open " + path + ": " + e.what() + (in ? " (not a ROS bag: no #ROSBAG V2.0 header)" : "");
+      }
+      return false;
+    }
+    bags->push_back(std::move(bag));
+  }
+  return true;
+}
+
+// The input topics the bags hold, each of the type the node subscribes with,
+// and the camera stream of every configured image topic.
+struct InputTopics {
+  std::string pose_topic, poses_topic;            // with '/'
+  std::set<std::string> present;                  // input topics found, as spelled in the bags
+  std::map<std::string, CameraStream> cameras;    // by configured image topic
+};
+
+bool FindInputTopics(const ReplayOptions& options, const PipelineConfig& config,
+                     const std::vector<std::unique_ptr<rosbag::Bag>>& bags, InputTopics* topics,
+                     std::vector<std::string>* warnings, std::string* error) {
+  std::map<std::string, std::string> expected;  // topic (with '/') -> datatype
+  topics->pose_topic = WithSlash(options.relative_pose_topic);
+  topics->poses_topic = WithSlash(options.relative_poses_topic);
+  expected[topics->pose_topic] = "rotation_averaging/RelativePose";
+  expected["/tf_static"] = "tf2_msgs/TFMessage";
+  expected[topics->poses_topic] = "rotation_averaging/RelativePoseArray";
+  for (const std::string& topic : config.image_topics) {
+    const std::string t = WithSlash(topic);
+    expected[t] = "sensor_msgs/Image";
+    expected[t + "/compressed"] = "sensor_msgs/CompressedImage";
+    expected[WithSlash(image_transport::getCameraInfoTopic(t))] = "sensor_msgs/CameraInfo";
+  }
+  std::set<std::string> present_normalised;
+  std::set<std::string> all_topics;
+  for (std::size_t b = 0; b < bags.size(); ++b) {
+    rosbag::View whole(*bags[b]);
+    for (const rosbag::ConnectionInfo* c : whole.getConnections()) {
+      all_topics.insert(c->topic);
+      auto it = expected.find(WithSlash(c->topic));
+      if (it == expected.end()) continue;
+      if (c->datatype != it->second) {
+        *error = options.bags[b] + ": topic " + c->topic + " has type " + c->datatype + ", expected " + it->second;
+        return false;
+      }
+      topics->present.insert(c->topic);
+      present_normalised.insert(WithSlash(c->topic));
+    }
+  }
+  for (const std::string& topic : config.image_topics) {
+    const std::string t = WithSlash(topic);
+    CameraStream stream;
+    stream.compressed = !present_normalised.count(t) && present_normalised.count(t + "/compressed");
+    stream.image_topic = stream.compressed ? t + "/compressed" : t;
+    stream.info_topic = WithSlash(image_transport::getCameraInfoTopic(t));
+    if (!present_normalised.count(stream.image_topic)) {
+      warnings->push_back("image topic " + t + " (raw or compressed) is not in the bags");
+    } else if (!present_normalised.count(stream.info_topic)) {
+      warnings->push_back(stream.info_topic + " is not in the bags: images of " + t + " cannot be used");
+    }
+    topics->cameras.emplace(t, std::move(stream));
+  }
+  if (all_topics.empty()) {
+    *error = "the bags hold no message at all";
+    return false;
+  }
+  const bool only_tf = topics->present.size() == 1 && present_normalised.count("/tf_static");
+  if (topics->present.empty() || only_tf) {
+    std::string have;
+    for (const std::string& t : all_topics) have += (have.empty() ? "" : ", ") + t;
+    std::string want;
+    for (const auto& [t, type] : expected) want += (want.empty() ? "" : ", ") + t + " (" + type + ")";
+    *error = "the bags hold none of the input topics " + want + "; they have: " + (have.empty() ? "nothing" : have) +
+             (config.image_topics.empty() ? " (image topics come from image_topics in the config)" : "");
+    return false;
+  }
+  return true;
+}
+
+// Static transforms (rig extrinsics) first, whatever their time in the bag:
+// the live node receives the latched /tf_static as it subscribes, before the
+// first image, while a recorder may write it a little later. Returns the
+// other input topics.
+std::vector<std::string> ApplyStaticTransforms(const std::vector<std::unique_ptr<rosbag::Bag>>& bags,
+                                               const std::set<std::string>& present, KeyframePipeline* pipeline,
+                                               std::vector<std::string>* warnings) {
+  std::vector<std::string> inputs;
+  for (const std::string& t : present) {
+    if (WithSlash(t) != "/tf_static") {
+      inputs.push_back(t);
+      continue;
+    }
+    rosbag::View statics;
+    for (auto& bag : bags) statics.addQuery(*bag, rosbag::TopicQuery(t));
+    try {
+      for (const rosbag::MessageInstance& m : statics) {
+        if (tf2_msgs::TFMessage::ConstPtr tf = m.instantiate<tf2_msgs::TFMessage>()) pipeline->AcceptStaticTransforms(*tf);
+      }
+    } catch (const rosbag::BagException& e) {
+      warnings->push_back(std::string("/tf_static could not be read completely: ") + e.what());
+    }
+  }
+  return inputs;
+}
+
+// Feeds the messages through the pipeline in bag time, solving when the live
+// node's worker would (every solve_period_s when new input arrived, at once
+// after a loop closure), and writes each solution to the output bag.
+class Replayer {
+ public:
+  Replayer(const PipelineConfig& config, KeyframePipeline* pipeline, rosbag::Bag* out, ReplayResult* result)
+      : config_(config), pipeline_(*pipeline), out_(*out), result_(*result) {}
+
+  void Run(rosbag::View& view, InputTopics* topics, bool progress) {
+    const ros::Time bag_start = view.getBeginTime();
+    const double period = config_.averager.solve_period_s;
+    ros::Time next_solve = period > 0.0 ? bag_start + ros::Duration(period) : ros::TIME_MAX;
+    ProgressBar bar(progress, result_.messages_total);
+    ros::Time last_time = bag_start;
+    try {
+      for (const rosbag::MessageInstance& m : view) {
+        const ros::Time time = m.getTime();
+        last_time = time;
+        while (time >= next_solve) {
+          Solve(next_solve);
+          next_solve += ros::Duration(period);
+        }
+        try {
+          Dispatch(m, time, topics);
+        } catch (const ros::serialization::StreamOverrunException& e) {
+          DroppedDamaged(m, time, e.what());
+        } catch (const std::bad_alloc&) {
+          // ROS's deserialiser allocates an array before it checks the bytes.
+          DroppedDamaged(m, time, "an array length beyond the memory");
+        } catch (const std::length_error&) {
+          DroppedDamaged(m, time, "an array length beyond what a vector holds");
+        }
+        ++result_.messages_read;
+        bar.Update(result_.messages_read, (time - bag_start).toSec());
+      }
+    } catch (const ros::Exception& e) {
+      result_.truncated = true;
+      result_.warnings.push_back("the bags are damaged after " + std::to_string(result_.messages_read) +
+                                 " messages (bag time " + std::to_string((last_time - bag_start).toSec()) +
+                                 " s): " + e.what() + "; results cover the messages before the damage");
+    }
+    bar.Update(result_.messages_read, (last_time - bag_start).toSec(), /*final=*/true);
+    result_.bag_duration_s = (last_time - bag_start).toSec();
+    Solve(last_time);  // the final solve, at the last message's time
+  }
+
+ private:
+  void Dispatch(const rosbag::MessageInstance& m, const ros::Time& time, InputTopics* topics) {
+    const std::string topic = WithSlash(m.getTopic());
+    if (topic == topics->pose_topic || topic == topics->poses_topic) {
+      bool loop_closure = false;
+      if (topic == topics->pose_topic) {
+        if (RelativePose::ConstPtr pose = m.instantiate<RelativePose>()) AcceptPose(*pose, time, &loop_closure);
+      } else if (RelativePoseArray::ConstPtr poses = m.instantiate<RelativePoseArray>()) {
+        for (const RelativePose& pose : poses->poses) AcceptPose(pose, time, &loop_closure);
+      }
+      if (loop_closure && config_.averager.solve_early_on_loop_closure) Solve(time);
+      return;
+    }
+    for (auto& [name, stream] : topics->cameras) {
+      if (topic == stream.info_topic) {
+        stream.info = m.instantiate<sensor_msgs::CameraInfo>();
+        while (stream.info && !stream.waiting.empty()) {
+          ProcessImage(stream, stream.waiting.front(), time);
+          stream.waiting.pop_front();
+        }
+      } else if (topic == stream.image_topic) {
+        if (stream.info) {
+          ProcessImage(stream, m, time);
+        } else if (stream.waiting.size() < 4) {
+          stream.waiting.push_back(m);
+        } else {
+          Warn("image on " + stream.image_topic + " dropped: no camera_info on " + stream.info_topic);
+        }
+      }
+    }
+  }
+
+  void Solve(const ros::Time& when) {
+    if (!dirty_) return;
+    dirty_ = false;
+    OnlineAverager& averager = pipeline_.Averager();
+    if (!averager.SolveNow()) return;
+    ++result_.solves;
+    const std::shared_ptr<const OnlineSolution> solution = averager.Solution();
+    const OnlineSolution cameras = pipeline_.CameraSolution(*solution);
+    out_.write("/rotation_averaging/orientations", when, pipeline_.OrientationsMsg(cameras, when));
+    if (config_.tf_mode == "all_keyframes") {
+      out_.write("/tf_static", when, pipeline_.KeyframeTransforms(cameras));
+    } else if (config_.tf_mode == "latest_per_camera") {
+      tf2_msgs::TFMessage tf;
+      tf.transforms = pipeline_.LatestTransforms(cameras, when);
+      if (!tf.transforms.empty()) out_.write("/tf", when, tf);
+    }
+  }
+
+  void Warn(const std::string& w) {
+    if (result_.warnings.size() < 50) result_.warnings.push_back(w);
+    if (result_.warnings.size() == 50) result_.warnings.push_back("(further warnings not shown)");
+  }
+
+  void ProcessImage(CameraStream& stream, const rosbag::MessageInstance& m, const ros::Time& time) {
+    PendingKeyframe keyframe;
+    std::string why;
+    bool ok = false;
+    if (stream.compressed) {
+      sensor_msgs::CompressedImage::ConstPtr image = m.instantiate<sensor_msgs::CompressedImage>();
+      ok = image && pipeline_.DecodeCompressedImage(*image, *stream.info, &keyframe, &why);
+    } else {
+      sensor_msgs::Image::ConstPtr image = m.instantiate<sensor_msgs::Image>();
+      ok = image && pipeline_.DecodeImage(*image, *stream.info, &keyframe, &why);
+    }
+    if (!ok) return Warn("image on " + stream.image_topic + " at " + std::to_string(time.toSec()) + " dropped: " + why);
+    bool loop_closure = false;
+    std::vector<std::string> warnings;
+    const auto frontend_start = std::chrono::steady_clock::now();
+    if (pipeline_.ProcessKeyframe(keyframe, &loop_closure, &warnings) > 0) dirty_ = true;
+    if (const KeyframeFrontend* f = pipeline_.Frontend()) {
+      const KeyframeFrontendStats& fs = f->Stats();
+      ReplayResult::KeyframeCost cost;
+      cost.features_ms = 1e3 * fs.last_features_s;
+      cost.retrieval_ms = 1e3 * fs.last_retrieval_s;
+      cost.pairs_ms = 1e3 * fs.last_pairs_s;
+      cost.total_ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - frontend_start).count();
+      result_.frontend_cost.push_back(cost);
+    }
+    for (const std::string& w : warnings) Warn(w);
+    if (loop_closure && config_.averager.solve_early_on_loop_closure) Solve(time);
+  }
+
+  void AcceptPose(const RelativePose& pose, const ros::Time& time, bool* loop_closure) {
+    std::string why;
+    if (pipeline_.AcceptRelativePose(pose, &why)) {
+      dirty_ = true;
+      if (pose.source == RelativePose::SOURCE_LOOP_CLOSURE) *loop_closure = true;
+    } else {
+      Warn("relative pose at " + std::to_string(time.toSec()) + " dropped: " + why);
+    }
+  }
+
+  // A message whose bytes are damaged: dropped and counted, the rest goes on.
+  void DroppedDamaged(const rosbag::MessageInstance& m, const ros::Time& time, const std::string& why) {
+    ++result_.damaged_messages;
+    Warn("message on " + m.getTopic() + " at " + std::to_string(time.toSec()) + " does not deserialise (" + why +
+         "): dropped");
+  }
+
+  const PipelineConfig& config_;
+  KeyframePipeline& pipeline_;
+  rosbag::Bag& out_;
+  ReplayResult& result_;
+  bool dirty_ = false;  // input arrived since the last solve
+};
+
+// What the pipeline did, for the summary.
+void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& averager, const OnlineSolution& solution,
+                       ReplayResult* result) {
+  const OnlineAveragerStats stats = averager.Stats();
+  const PipelineStats pipeline_stats = pipeline.Stats();
+  result->variables = stats.views;
+  result->keyframes = solution.orientations.size();
+  result->edges = stats.edges;
+  result->components = solution.summary.components.size();
+  result->outlier_edges = solution.summary.num_outlier_edges;
+  for (const ComponentSummary& c : solution.summary.components) result->final_cost += c.final_cost;
+  for (const auto& [source, n] : averager.EdgesBySource()) result->edges_by_source[EdgeSourceName(source)] = n;
+  result->keyframe_images = pipeline_stats.processed_images;
+  result->rejected_images = pipeline_stats.rejected_images;
+  result->rejected_messages = pipeline_stats.rejected_messages;
+  if (const KeyframeFrontend* f = pipeline.Frontend()) {
+    result->frontend_features_s = f->Stats().features_s;
+    result->frontend_retrieval_s = f->Stats().retrieval_s;
+    result->frontend_pairs_s = f->Stats().pairs_s;
+    result->frontend_failed_pairs = f->Stats().failed_pairs;
+    result->frontend_rotation_model_edges = f->Stats().rotation_model_edges;
+    result->frontend_chain_bridged = f->Stats().chain_bridged;
+    result->loop_candidates = f->Stats().loop_candidates_tried;
+    result->loop_closure_edges = f->Stats().loop_closure_edges;
+    result->frontend_bytes = f->Stats().keyframe_bytes;
+    result->compacted_keyframes = f->Stats().compacted_keyframes;
+    result->compact_bytes = f->Stats().compact_bytes;
+    result->frontend_failures = f->Stats().failures;
+    result->retrieval = f->RetrievalName();
+  }
+  result->absorbed_by_rig = pipeline_stats.absorbed_by_rig;
+  for (const auto& [camera, rig] : pipeline.Rig().RigCameras()) result->rig_cameras.push_back(camera + " in " + rig.first);
+}
+
+// The front end's cost per keyframe: a CSV, and a plot of its means over 20
+// keyframes against the keyframe count.
+bool WriteFrontendCost(const std::string& output_dir, ReplayResult* result, std::string* error) {
+  if (result->frontend_cost.empty()) return true;
+  result->frontend_cost_csv = output_dir + "/frontend_cost.csv";
+  std::ofstream csv(result->frontend_cost_csv);
+  csv << "keyframe,features_ms,retrieval_ms,pairs_ms,total_ms\n";
+  LineSeries total{"front end, all (mean of 20)", {}, {}}, retrieval{"retrieval (mean of 20)", {}, {}};
+  double sum_total = 0.0, sum_retrieval = 0.0;
+  for (std::size_t k = 0; k < result->frontend_cost.size(); ++k) {
+    const ReplayResult::KeyframeCost& c = result->frontend_cost[k];
+    csv << k + 1 << "," << c.features_ms << "," << c.retrieval_ms << "," << c.pairs_ms << "," << c.total_ms << "\n";
+    // Means over 20 keyframes: single keyframes with a loop closure to
+    // verify are several times the others.
+    sum_total += c.total_ms;
+    sum_retrieval += c.retrieval_ms;
+    if ((k + 1) % 20 == 0) {
+      total.x.push_back(static_cast<double>(k + 1));
+      total.y.push_back(sum_total / 20);
+      retrieval.x.push_back(static_cast<double>(k + 1));
+      retrieval.y.push_back(sum_retrieval / 20);
+      sum_total = sum_retrieval = 0.0;
+    }
+  }
+  if (!csv) {
+    *error = "cannot write " + result->frontend_cost_csv;
+    return false;
+  }
+  result->frontend_cost_png = output_dir + "/frontend_cost.png";
+  std::string plot_error;
+  if (!WriteLinePlot(result->frontend_cost_png, "front-end wall time per keyframe against the keyframe count",
+                     "keyframes", "ms per keyframe", {total, retrieval}, &plot_error)) {
+    result->frontend_cost_png.clear();  // fewer than 20 keyframes: nothing to draw
+  }
+  return true;
+}
+
+// Scores against the ground truth: scores.txt, and errors.png with each
+// camera's error per keyframe over capture time.
+bool ScoreAgainstGroundTruth(const NamedOrientations& named, const NamedOrientations& ground_truth,
+                             const OnlineSolution& solution, const std::string& output_dir, ReplayResult* result,
+                             std::string* error) {
+  result->scores = EvaluateOrientations(named, ground_truth);
+  result->have_scores = true;
+  result->scores_file = output_dir + "/scores.txt";
+  std::ofstream scores(result->scores_file);
+  scores << result->scores.ToText() << "\n";
+  if (!scores) {
+    *error = "cannot write " + result->scores_file;
+    return false;
+  }
+  std::map<std::string, ErrorSeries> series;
+  std::int64_t first_stamp = std::numeric_limits<std::int64_t>::max();
+  for (const auto& [key, r] : solution.orientations) first_stamp = std::min(first_stamp, key.stamp_ns);
+  for (const auto& [name, e] : result->scores.errors_deg) {
+    KeyframeKey key;
+    if (!OnlineAverager::ParseKeyframeName(name, &key)) continue;
+    ErrorSeries& s = series[key.frame_id];
+    s.label = key.frame_id;
+    s.time_s.push_back(1e-9 * static_cast<double>(key.stamp_ns - first_stamp));
+    s.error_deg.push_back(e);
+  }
+  std::vector<ErrorSeries> list;
+  for (auto& [frame, s] : series) list.push_back(std::move(s));
+  char title[160];
+  std::snprintf(title, sizeof(title), "%zu keyframes: median %.3f deg, AUC@2/5/10 %.1f / %.1f / %.1f",
+                result->scores.views_common, result->scores.median_error_deg, 100 * result->scores.auc[0].second,
+                100 * result->scores.auc[1].second, 100 * result->scores.auc[2].second);
+  result->plot_png = output_dir + "/errors.png";
+  std::string plot_error;
+  if (!WriteErrorPlot(result->plot_png, title, list, &plot_error)) {
+    result->warnings.push_back("no plot: " + plot_error);
+    result->plot_png.clear();
+  }
+  return true;
+}
+
 }  // namespace
 
 std::string ReplayResult::Summary() const {
@@ -268,144 +685,29 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
   if (options.bags.empty()) return fail("no bag given");
   if (options.output_dir.empty()) return fail("no output directory given");
 
-  // Parameters: the node's YAML file.
-  YAML::Node root;
-  if (!options.config_path.empty()) {
-    try {
-      root = YAML::LoadFile(options.config_path);
-    } catch (const YAML::Exception& e) {
-      return fail("config " + options.config_path + ": " + e.what());
-    }
-  }
-  YamlParameters params(root);
   PipelineConfig config;
-  std::string config_error;
-  if (!ReadPipelineConfig(params, &config, &result.warnings, &config_error)) {
-    return fail("config " + options.config_path + ": " + config_error);
-  }
-  // Solutions that depend on the input only, not on how fast this machine
-  // runs: the periodic full solve of large graphs runs in the solve that is
-  // due, not in a background thread (OnlineAveragerOptions).
-  config.averager.background_full_solves = false;
-  for (const std::string& p : params.Problems()) result.warnings.push_back(p);
+  std::string error;
+  if (!ReadReplayConfig(options.config_path, &config, &result.warnings, &error)) return fail(error);
   KeyframePipeline pipeline(config);
   OnlineAverager& averager = pipeline.Averager();
 
   NamedOrientations ground_truth;
-  if (!options.ground_truth_path.empty()) {
-    std::string error;
-    if (!ReadGroundTruthFile(options.ground_truth_path, options.ground_truth_topic, &ground_truth, &error)) {
-      return fail("ground truth: " + error);
-    }
+  if (!options.ground_truth_path.empty() &&
+      !ReadGroundTruthFile(options.ground_truth_path, options.ground_truth_topic, &ground_truth, &error)) {
+    return fail("ground truth: " + error);
   }
-  std::string error;
   if (!MakeDirectory(options.output_dir, &error)) return fail(error);
 
-  // Open every bag; an unindexed one (truncated while recording) cannot be
-  // read in time order without `rosbag reindex`.
   std::vector<std::unique_ptr<rosbag::Bag>> bags;
-  for (const std::string& path : options.bags) {
-    auto bag = std::make_unique<rosbag::Bag>();
-    try {
-      bag->open(path, rosbag::bagmode::Read);
-    } catch (const rosbag::BagUnindexedException&) {
-      return fail(path + " is not indexed (recording was interrupted): run `rosbag reindex " + path +
-                  "` and replay the reindexed bag");
-    } catch (const rosbag::BagException& e) {
-      // A file that starts like a bag but cannot be opened lost its end (the
-      // index): reindexing recovers the messages before the cut.
-      std::ifstream in(path, std::ios::binary);
-      char magic[13] = {0};
-      in.read(magic, 12);
-      if (in && std::string(magic) == "#ROSBAG V2.0") {
-        return fail("cannot open " + path + ": " + e.what() + "; the bag looks truncated (its index is missing): run " +
-                    "`rosbag reindex " + path + "` and replay the reindexed bag");
-      }
-      return fail("cannot open " + path + ": " + e.what() + (in ? " (not a ROS bag: no #ROSBAG V2.0 header)" : ""));
-    }
-    bags.push_back(std::move(bag));
-  }
-
-  // The topics we read and the types they must have.
-  std::map<std::string, std::string> expected;  // topic (with '/') -> datatype
-  const std::string pose_topic = WithSlash(options.relative_pose_topic);
-  const std::string poses_topic = WithSlash(options.relative_poses_topic);
-  expected[pose_topic] = "rotation_averaging/RelativePose";
-  expected["/tf_static"] = "tf2_msgs/TFMessage";
-  expected[poses_topic] = "rotation_averaging/RelativePoseArray";
-  std::map<std::string, CameraStream> cameras;  // by configured image topic
-  for (const std::string& topic : config.image_topics) {
-    const std::string t = WithSlash(topic);
-    expected[t] = "sensor_msgs/Image";
-    expected[t + "/compressed"] = "sensor_msgs/CompressedImage";
-    expected[WithSlash(image_transport::getCameraInfoTopic(t))] = "sensor_msgs/CameraInfo";
-  }
-  std::set<std::string> present;  // expected topics found, as spelled in the bags
-  std::set<std::string> present_normalised;
-  std::set<std::string> all_topics;
-  for (std::size_t b = 0; b < bags.size(); ++b) {
-    rosbag::View whole(*bags[b]);
-    for (const rosbag::ConnectionInfo* c : whole.getConnections()) {
-      all_topics.insert(c->topic);
-      auto it = expected.find(WithSlash(c->topic));
-      if (it == expected.end()) continue;
-      if (c->datatype != it->second) {
-        return fail(options.bags[b] + ": topic " + c->topic + " has type " + c->datatype + ", expected " + it->second);
-      }
-      present.insert(c->topic);
-      present_normalised.insert(WithSlash(c->topic));
-    }
-  }
-  for (const std::string& topic : config.image_topics) {
-    const std::string t = WithSlash(topic);
-    CameraStream stream;
-    stream.compressed = !present_normalised.count(t) && present_normalised.count(t + "/compressed");
-    stream.image_topic = stream.compressed ? t + "/compressed" : t;
-    stream.info_topic = WithSlash(image_transport::getCameraInfoTopic(t));
-    if (!present_normalised.count(stream.image_topic)) {
-      result.warnings.push_back("image topic " + t + " (raw or compressed) is not in the bags");
-    } else if (!present_normalised.count(stream.info_topic)) {
-      result.warnings.push_back(stream.info_topic + " is not in the bags: images of " + t + " cannot be used");
-    }
-    cameras.emplace(t, std::move(stream));
-  }
-  if (all_topics.empty()) return fail("the bags hold no message at all");
-  const bool only_tf = present.size() == 1 && present_normalised.count("/tf_static");
-  if (present.empty() || only_tf) {
-    std::string have;
-    for (const std::string& t : all_topics) have += (have.empty() ? "" : ", ") + t;
-    std::string want;
-    for (const auto& [t, type] : expected) want += (want.empty() ? "" : ", ") + t + " (" + type + ")";
-    return fail("the bags hold none of the input topics " + want + "; they have: " + (have.empty() ? "nothing" : have) +
-                (config.image_topics.empty() ? " (image topics come from image_topics in the config)" : ""));
-  }
-
-  // Static transforms (rig extrinsics) first, whatever their time in the
-  // bag: the live node receives the latched /tf_static as it subscribes,
-  // before the first image, while a recorder may write it a little later.
-  std::vector<std::string> inputs;
-  for (const std::string& t : present) {
-    if (WithSlash(t) == "/tf_static") {
-      rosbag::View statics;
-      for (auto& bag : bags) statics.addQuery(*bag, rosbag::TopicQuery(t));
-      try {
-        for (const rosbag::MessageInstance& m : statics) {
-          if (tf2_msgs::TFMessage::ConstPtr tf = m.instantiate<tf2_msgs::TFMessage>()) pipeline.AcceptStaticTransforms(*tf);
-        }
-      } catch (const rosbag::BagException& e) {
-        result.warnings.push_back(std::string("/tf_static could not be read completely: ") + e.what());
-      }
-    } else {
-      inputs.push_back(t);
-    }
-  }
+  if (!OpenBags(options.bags, &bags, &error)) return fail(error);
+  InputTopics topics;
+  if (!FindInputTopics(options, config, bags, &topics, &result.warnings, &error)) return fail(error);
+  const std::vector<std::string> inputs = ApplyStaticTransforms(bags, topics.present, &pipeline, &result.warnings);
   rosbag::View view;
-  const std::vector<std::string>& topics = inputs;
-  for (auto& bag : bags) view.addQuery(*bag, rosbag::TopicQuery(topics));
+  for (auto& bag : bags) view.addQuery(*bag, rosbag::TopicQuery(inputs));
   result.messages_total = view.size();
   if (result.messages_total == 0) return fail("the input topics of the bags hold no message");
   result.bag_start_s = view.getBeginTime().toSec();
-  const ros::Time bag_start = view.getBeginTime();
 
   result.output_bag = options.output_dir + "/replay.bag";
   rosbag::Bag out;
@@ -414,234 +716,22 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
   } catch (const rosbag::BagException& e) {
     return fail("cannot write " + result.output_bag + ": " + e.what());
   }
-
-  // Solve schedule in bag time, as the live node's worker would run it.
-  const double period = config.averager.solve_period_s;
-  ros::Time next_solve = period > 0.0 ? bag_start + ros::Duration(period) : ros::TIME_MAX;
-  bool dirty = false;
-  auto solve = [&](const ros::Time& when) {
-    if (!dirty) return;
-    dirty = false;
-    if (!averager.SolveNow()) return;
-    ++result.solves;
-    const std::shared_ptr<const OnlineSolution> solution = averager.Solution();
-    const OnlineSolution cameras = pipeline.CameraSolution(*solution);
-    out.write("/rotation_averaging/orientations", when, pipeline.OrientationsMsg(cameras, when));
-    if (config.tf_mode == "all_keyframes") {
-      out.write("/tf_static", when, pipeline.KeyframeTransforms(cameras));
-    } else if (config.tf_mode == "latest_per_camera") {
-      tf2_msgs::TFMessage tf;
-      tf.transforms = pipeline.LatestTransforms(cameras, when);
-      if (!tf.transforms.empty()) out.write("/tf", when, tf);
-    }
-  };
-  auto warn = [&result](const std::string& w) {
-    if (result.warnings.size() < 50) result.warnings.push_back(w);
-    if (result.warnings.size() == 50) result.warnings.push_back("(further warnings not shown)");
-  };
-  auto process_image = [&](CameraStream& stream, const rosbag::MessageInstance& m, const ros::Time& time) {
-    PendingKeyframe keyframe;
-    std::string why;
-    bool ok = false;
-    if (stream.compressed) {
-      sensor_msgs::CompressedImage::ConstPtr image = m.instantiate<sensor_msgs::CompressedImage>();
-      ok = image && pipeline.DecodeCompressedImage(*image, *stream.info, &keyframe, &why);
-    } else {
-      sensor_msgs::Image::ConstPtr image = m.instantiate<sensor_msgs::Image>();
-      ok = image && pipeline.DecodeImage(*image, *stream.info, &keyframe, &why);
-    }
-    if (!ok) return warn("image on " + stream.image_topic + " at " + std::to_string(time.toSec()) + " dropped: " + why);
-    bool loop_closure = false;
-    std::vector<std::string> warnings;
-    const auto frontend_start = std::chrono::steady_clock::now();
-    if (pipeline.ProcessKeyframe(keyframe, &loop_closure, &warnings) > 0) dirty = true;
-    if (const KeyframeFrontend* f = pipeline.Frontend()) {
-      const KeyframeFrontendStats& fs = f->Stats();
-      ReplayResult::KeyframeCost cost;
-      cost.features_ms = 1e3 * fs.last_features_s;
-      cost.retrieval_ms = 1e3 * fs.last_retrieval_s;
-      cost.pairs_ms = 1e3 * fs.last_pairs_s;
-      cost.total_ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - frontend_start).count();
-      result.frontend_cost.push_back(cost);
-    }
-    for (const std::string& w : warnings) warn(w);
-    if (loop_closure && config.averager.solve_early_on_loop_closure) solve(time);
-  };
-  auto accept_pose = [&](const RelativePose& pose, const ros::Time& time, bool* loop_closure) {
-    std::string why;
-    if (pipeline.AcceptRelativePose(pose, &why)) {
-      dirty = true;
-      if (pose.source == RelativePose::SOURCE_LOOP_CLOSURE) *loop_closure = true;
-    } else {
-      warn("relative pose at " + std::to_string(time.toSec()) + " dropped: " + why);
-    }
-  };
-
-  // A message whose bytes are damaged: dropped and counted, the rest goes on.
-  auto dropped_damaged = [&](const rosbag::MessageInstance& m, const ros::Time& time, const std::string& why) {
-    ++result.damaged_messages;
-    warn("message on " + m.getTopic() + " at " + std::to_string(time.toSec()) + " does not deserialise (" + why +
-         "): dropped");
-  };
-  ProgressBar bar(options.progress, result.messages_total);
-  ros::Time last_time = bag_start;
-  try {
-    for (const rosbag::MessageInstance& m : view) {
-      const ros::Time time = m.getTime();
-      last_time = time;
-      while (time >= next_solve) {
-        solve(next_solve);
-        next_solve += ros::Duration(period);
-      }
-      const std::string topic = WithSlash(m.getTopic());
-      try {
-      if (topic == pose_topic || topic == poses_topic) {
-        bool loop_closure = false;
-        if (topic == pose_topic) {
-          if (RelativePose::ConstPtr pose = m.instantiate<RelativePose>()) accept_pose(*pose, time, &loop_closure);
-        } else if (RelativePoseArray::ConstPtr poses = m.instantiate<RelativePoseArray>()) {
-          for (const RelativePose& pose : poses->poses) accept_pose(pose, time, &loop_closure);
-        }
-        if (loop_closure && config.averager.solve_early_on_loop_closure) solve(time);
-      } else {
-        for (auto& [name, stream] : cameras) {
-          if (topic == stream.info_topic) {
-            stream.info = m.instantiate<sensor_msgs::CameraInfo>();
-            while (stream.info && !stream.waiting.empty()) {
-              process_image(stream, stream.waiting.front(), time);
-              stream.waiting.pop_front();
-            }
-          } else if (topic == stream.image_topic) {
-            if (stream.info) {
-              process_image(stream, m, time);
-            } else if (stream.waiting.size() < 4) {
-              stream.waiting.push_back(m);
-            } else {
-              warn("image on " + stream.image_topic + " dropped: no camera_info on " + stream.info_topic);
-            }
-          }
-        }
-      }
-      } catch (const ros::serialization::StreamOverrunException& e) {
-        dropped_damaged(m, time, e.what());
-      } catch (const std::bad_alloc&) {
-        // ROS's deserialiser allocates an array before it checks the bytes.
-        dropped_damaged(m, time, "an array length beyond the memory");
-      } catch (const std::length_error&) {
-        dropped_damaged(m, time, "an array length beyond what a vector holds");
-      }
-      ++result.messages_read;
-      bar.Update(result.messages_read, (time - bag_start).toSec());
-    }
-  } catch (const ros::Exception& e) {
-    result.truncated = true;
-    result.warnings.push_back("the bags are damaged after " + std::to_string(result.messages_read) +
-                              " messages (bag time " + std::to_string((last_time - bag_start).toSec()) +
-                              " s): " + e.what() + "; results cover the messages before the damage");
-  }
-  bar.Update(result.messages_read, (last_time - bag_start).toSec(), /*final=*/true);
-  result.bag_duration_s = (last_time - bag_start).toSec();
-  solve(last_time);  // the final solve, at the last message's time
+  Replayer(config, &pipeline, &out, &result).Run(view, &topics, options.progress);
   out.close();
 
   // Outputs.
-  const std::shared_ptr<const OnlineSolution> solution =
-      std::make_shared<const OnlineSolution>(pipeline.CameraSolution(*averager.Solution()));
+  const OnlineSolution solution = pipeline.CameraSolution(*averager.Solution());
   NamedOrientations named;
-  for (const auto& [key, r] : solution->orientations) named[OnlineAverager::KeyframeName(key)] = r;
+  for (const auto& [key, r] : solution.orientations) named[OnlineAverager::KeyframeName(key)] = r;
   result.orientations_csv = options.output_dir + "/orientations.csv";
   if (!WriteOrientationsCsv(result.orientations_csv, named, &error)) return fail(error);
   result.graph_file = options.output_dir + "/graph.txt";
   if (!averager.SaveGraph(result.graph_file, &error)) return fail(error);
-
-  const OnlineAveragerStats stats = averager.Stats();
-  const PipelineStats pipeline_stats = pipeline.Stats();
-  result.variables = stats.views;
-  result.keyframes = solution->orientations.size();
-  result.edges = stats.edges;
-  result.components = solution->summary.components.size();
-  result.outlier_edges = solution->summary.num_outlier_edges;
-  for (const ComponentSummary& c : solution->summary.components) result.final_cost += c.final_cost;
-  for (const auto& [source, n] : averager.EdgesBySource()) result.edges_by_source[EdgeSourceName(source)] = n;
-  result.keyframe_images = pipeline_stats.processed_images;
-  result.rejected_images = pipeline_stats.rejected_images;
-  result.rejected_messages = pipeline_stats.rejected_messages;
-  if (const KeyframeFrontend* f = pipeline.Frontend()) {
-    result.frontend_features_s = f->Stats().features_s;
-    result.frontend_retrieval_s = f->Stats().retrieval_s;
-    result.frontend_pairs_s = f->Stats().pairs_s;
-    result.frontend_failed_pairs = f->Stats().failed_pairs;
-    result.frontend_rotation_model_edges = f->Stats().rotation_model_edges;
-    result.frontend_chain_bridged = f->Stats().chain_bridged;
-    result.loop_candidates = f->Stats().loop_candidates_tried;
-    result.loop_closure_edges = f->Stats().loop_closure_edges;
-    result.frontend_bytes = f->Stats().keyframe_bytes;
-    result.compacted_keyframes = f->Stats().compacted_keyframes;
-    result.compact_bytes = f->Stats().compact_bytes;
-    result.frontend_failures = f->Stats().failures;
-    result.retrieval = f->RetrievalName();
-  }
-  if (!result.frontend_cost.empty()) {
-    result.frontend_cost_csv = options.output_dir + "/frontend_cost.csv";
-    std::ofstream csv(result.frontend_cost_csv);
-    csv << "keyframe,features_ms,retrieval_ms,pairs_ms,total_ms\n";
-    LineSeries total{"front end, all (mean of 20)", {}, {}}, retrieval{"retrieval (mean of 20)", {}, {}};
-    double sum_total = 0.0, sum_retrieval = 0.0;
-    for (std::size_t k = 0; k < result.frontend_cost.size(); ++k) {
-      const ReplayResult::KeyframeCost& c = result.frontend_cost[k];
-      csv << k + 1 << "," << c.features_ms << "," << c.retrieval_ms << "," << c.pairs_ms << "," << c.total_ms << "\n";
-      // Means over 20 keyframes: single keyframes with a loop closure to
-      // verify are several times the others.
-      sum_total += c.total_ms;
-      sum_retrieval += c.retrieval_ms;
-      if ((k + 1) % 20 == 0) {
-        total.x.push_back(static_cast<double>(k + 1));
-        total.y.push_back(sum_total / 20);
-        retrieval.x.push_back(static_cast<double>(k + 1));
-        retrieval.y.push_back(sum_retrieval / 20);
-        sum_total = sum_retrieval = 0.0;
-      }
-    }
-    if (!csv) return fail("cannot write " + result.frontend_cost_csv);
-    result.frontend_cost_png = options.output_dir + "/frontend_cost.png";
-    if (!WriteLinePlot(result.frontend_cost_png, "front-end wall time per keyframe against the keyframe count",
-                       "keyframes", "ms per keyframe", {total, retrieval}, &error)) {
-      result.frontend_cost_png.clear();  // fewer than 20 keyframes: nothing to draw
-    }
-  }
-  result.absorbed_by_rig = pipeline_stats.absorbed_by_rig;
-  for (const auto& [camera, rig] : pipeline.Rig().RigCameras()) result.rig_cameras.push_back(camera + " in " + rig.first);
-
-  if (!ground_truth.empty()) {
-    result.scores = EvaluateOrientations(named, ground_truth);
-    result.have_scores = true;
-    result.scores_file = options.output_dir + "/scores.txt";
-    std::ofstream scores(result.scores_file);
-    scores << result.scores.ToText() << "\n";
-    if (!scores) return fail("cannot write " + result.scores_file);
-    // Errors per keyframe over capture time, one series per camera.
-    std::map<std::string, ErrorSeries> series;
-    std::int64_t first_stamp = std::numeric_limits<std::int64_t>::max();
-    for (const auto& [key, r] : solution->orientations) first_stamp = std::min(first_stamp, key.stamp_ns);
-    for (const auto& [name, e] : result.scores.errors_deg) {
-      KeyframeKey key;
-      if (!OnlineAverager::ParseKeyframeName(name, &key)) continue;
-      ErrorSeries& s = series[key.frame_id];
-      s.label = key.frame_id;
-      s.time_s.push_back(1e-9 * static_cast<double>(key.stamp_ns - first_stamp));
-      s.error_deg.push_back(e);
-    }
-    std::vector<ErrorSeries> list;
-    for (auto& [frame, s] : series) list.push_back(std::move(s));
-    char title[160];
-    std::snprintf(title, sizeof(title), "%zu keyframes: median %.3f deg, AUC@2/5/10 %.1f / %.1f / %.1f",
-                  result.scores.views_common, result.scores.median_error_deg, 100 * result.scores.auc[0].second,
-                  100 * result.scores.auc[1].second, 100 * result.scores.auc[2].second);
-    result.plot_png = options.output_dir + "/errors.png";
-    if (!WriteErrorPlot(result.plot_png, title, list, &error)) {
-      result.warnings.push_back("no plot: " + error);
-      result.plot_png.clear();
-    }
+  CollectStatistics(pipeline, averager, solution, &result);
+  if (!WriteFrontendCost(options.output_dir, &result, &error)) return fail(error);
+  if (!ground_truth.empty() &&
+      !ScoreAgainstGroundTruth(named, ground_truth, solution, options.output_dir, &result, &error)) {
+    return fail(error);
   }
   result.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
   result.cpu_s = CpuSeconds() - cpu_start;
