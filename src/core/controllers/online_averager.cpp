@@ -240,30 +240,50 @@ bool OnlineAverager::SolveLocked(bool force_full) {
   for (ViewId id : changed) changed_flag_[id] = 0;
   // graph_, ids_ and keys_ change only under solve_mutex_, which this thread holds
   // (DrainQueue above, Reset, LoadGraph): read them in place rather than copy
-  // them (a copy of a 10,000-keyframe graph was a sizeable part of a re-solve).
-  const ViewGraph& snapshot = graph_;
-  const std::vector<KeyframeKey>& keys = keys_;
-  if (snapshot.NumEdges() == 0) return false;
+  // them (a copy of a large graph was a sizeable part of a re-solve).
+  if (graph_.NumEdges() == 0) return false;
   const auto start = Clock::now();
   auto solution = std::make_shared<OnlineSolution>();
   const bool cold = orientations.empty();
-  const bool local_enabled = options_.local_solve_min_views > 0 && snapshot.NumViews() >= options_.local_solve_min_views &&
+  const bool local_enabled = options_.local_solve_min_views > 0 && graph_.NumViews() >= options_.local_solve_min_views &&
                              averaging.solver != SolverType::kL1Irls && !cold && !force_full;
-  // A finished background full solve is taken unless a full solve ran in
-  // the foreground since its snapshot; one still running is never waited for.
-  bool took_background = false;
   std::map<KeyframeKey, Eigen::Matrix3d> background_covariances;
+  const bool took_background =
+      TakeBackgroundSolve(generation, force_full, cold, &orientations, &changed, &background_covariances);
+  const SolveRun run = RunSolve(averaging, local_enabled, took_background, changed, &orientations, &solution->summary);
+  if (run.ok && cold) AlignToPublished(&orientations);
+  RecordSolve(run.ok, run.local, std::chrono::duration<double>(Clock::now() - start).count(), solution->summary);
+  if (!run.ok) {
+    // The previous good solution stays published.
+    RequeueChanged(changed);
+    return false;
+  }
+  {
+    std::lock_guard<std::mutex> lock(graph_mutex_);
+    if (generation != generation_) return false;  // reset or reloaded while solving: discard
+  }
+  FillSolution(run, took_background, orientations, std::move(background_covariances), solution.get());
+  if (run.local) MaybeStartBackgroundSolve(orientations, averaging, generation);
+  Publish(solution, options_epoch, &orientations);
+  return true;
+}
+
+bool OnlineAverager::TakeBackgroundSolve(std::uint64_t generation, bool force_full, bool cold,
+                                         ViewOrientations* orientations, std::vector<ViewId>* changed,
+                                         std::map<KeyframeKey, Eigen::Matrix3d>* covariances) {
+  // One still running is never waited for.
+  bool took = false;
   if (background_.valid() && background_.wait_for(std::chrono::seconds(0)) == std::future_status::ready) {
     FullSolve full = background_.get();
     if (!background_stale_ && !force_full && !cold && full.ok && full.generation == generation) {
       // Views that came after the snapshot keep their current orientations
-      // and are re-solved locally around them below.
-      for (auto& [id, r] : full.orientations) orientations[id] = r;
+      // and are re-solved locally around them.
+      for (auto& [id, r] : full.orientations) (*orientations)[id] = r;
       TakeComponents(full.components, full.summary);
       edge_results_ = std::move(full.summary.edges);
-      background_covariances = CovariancesByKey(full.summary.view_covariances);
-      for (ViewId id : changed_since_snapshot_) changed.push_back(id);
-      took_background = true;
+      *covariances = CovariancesByKey(full.summary.view_covariances);
+      for (ViewId id : changed_since_snapshot_) changed->push_back(id);
+      took = true;
       local_solves_since_full_ = 0;
       std::lock_guard<std::mutex> lock(stats_mutex_);
       ++stats_.background_solves;
@@ -276,10 +296,14 @@ bool OnlineAverager::SolveLocked(bool force_full) {
     changed_since_snapshot_.clear();
     background_stale_ = false;
   }
-  if (background_.valid()) changed_since_snapshot_.insert(changed_since_snapshot_.end(), changed.begin(), changed.end());
+  if (background_.valid()) changed_since_snapshot_.insert(changed_since_snapshot_.end(), changed->begin(), changed->end());
+  return took;
+}
 
-  bool ok = false, local = false;
-  std::vector<std::vector<ViewId>> components;  // of the graph, for a full solve
+OnlineAverager::SolveRun OnlineAverager::RunSolve(const RotationAveragingOptions& averaging, bool local_enabled,
+                                                  bool took_background, const std::vector<ViewId>& changed,
+                                                  ViewOrientations* orientations, RotationAveragingSummary* summary) {
+  SolveRun run;
   // A loop closure makes the full solve due at once: a local solve moves only
   // the neighbourhoods of its two ends, while the loop's error belongs spread
   // over the whole loop.
@@ -287,82 +311,81 @@ bool OnlineAverager::SolveLocked(bool force_full) {
       (local_solves_since_full_ >= options_.full_solve_every || loop_closure_since_full_) && !options_.background_full_solves;
   if (local_enabled && (!full_due || took_background)) {
     if (changed.empty()) {
-      local = true;  // nothing new beyond a background solve taken
-      ok = true;
-      solution->summary.edges.assign(snapshot.NumEdges(), EdgeResult());
+      run.local = true;  // nothing new beyond a background solve taken
+      run.ok = true;
+      summary->edges.assign(graph_.NumEdges(), EdgeResult());
     } else {
       LocalSolveOptions local_options = options_.local;
       local_options.component_labels = &component_label_;
       local_options.label_loss_scale = &label_scale_;
       const LocalSolveOutcome outcome =
-          SolveRotationAveragingLocally(snapshot, changed, local_options, averaging, &orientations, &solution->summary);
+          SolveRotationAveragingLocally(graph_, changed, local_options, averaging, orientations, summary);
       // kNeedsFullSolve leaves the orientations as they were; after kFailed
       // the full solve below starts from the region's initial orientations.
-      ok = local = outcome == LocalSolveOutcome::kSolved || outcome == LocalSolveOutcome::kNothingToSolve;
+      run.ok = run.local = outcome == LocalSolveOutcome::kSolved || outcome == LocalSolveOutcome::kNothingToSolve;
     }
-    if (local) ++local_solves_since_full_;
+    if (run.local) ++local_solves_since_full_;
   }
-  if (!local) {
+  if (!run.local) {
     background_stale_ = background_.valid();
     // Keyframes added since the last full solve start from the spanning tree
     // rather than from where local solves put them: the full solve then runs
     // the robust start (L1 + GNC) when the start disagrees with the edges, as
     // it does when every solve is a full one, and repairs what the local
     // solves placed wrongly.
-    StartFromTree(&orientations);
-    components = snapshot.ConnectedComponents();
-    StartJoinedComponentsFromTree(components, &orientations);
-    ok = SolveRotationAveraging(snapshot, averaging, &orientations, &solution->summary);
+    StartFromTree(orientations);
+    run.components = graph_.ConnectedComponents();
+    StartJoinedComponentsFromTree(run.components, orientations);
+    run.ok = SolveRotationAveraging(graph_, averaging, orientations, summary);
     local_solves_since_full_ = 0;
     loop_closure_since_full_ = false;
   }
-  if (ok && cold) {
-    // A cold solve has its own gauge: rotate it onto the previous solution
-    // (one robust global rotation) so published frames do not jump.
-    const std::shared_ptr<const OnlineSolution> previous = Solution();
-    std::vector<Eigen::Matrix3d> before, after;
-    for (const auto& [id, r] : orientations) {
-      if (id >= keys.size()) continue;
-      auto it = previous->orientations.find(keys[id]);
-      if (it == previous->orientations.end()) continue;
-      before.push_back(it->second);
-      after.push_back(r);
-    }
-    if (!before.empty()) {
-      const Eigen::Matrix3d g = AlignRotations(before, after);  // after ~ before * g
-      for (auto& [id, r] : orientations) r = r * g.transpose();
-    }
-  }
-  const double seconds = std::chrono::duration<double>(Clock::now() - start).count();
-  {
-    std::lock_guard<std::mutex> lock(stats_mutex_);
-    ++stats_.solves;
-    stats_.local_solves += local;
-    stats_.last_solve_s = seconds;
-    if (!ok) ++stats_.failed_solves;
-    if (!local) stats_.components = solution->summary.components.size();
-    stats_.outlier_edges = solution->summary.num_outlier_edges;
-  }
-  if (!ok) {
-    // The previous good solution stays published; the changed views are
-    // taken up again by the next solve.
-    for (ViewId id : changed) {
-      if (id < changed_flag_.size() && !changed_flag_[id]) {
-        changed_flag_[id] = 1;
-        changed_.push_back(id);
-      }
-    }
-    return false;
-  }
-  {
-    std::lock_guard<std::mutex> lock(graph_mutex_);
-    if (generation != generation_) return false;  // reset or reloaded while solving: discard
-  }
+  return run;
+}
+
+void OnlineAverager::AlignToPublished(ViewOrientations* orientations) const {
+  // One robust global rotation, so published frames do not jump.
   const std::shared_ptr<const OnlineSolution> previous = Solution();
-  const std::vector<RelativeRotation>& graph_edges = snapshot.Edges();
+  std::vector<Eigen::Matrix3d> before, after;
+  for (const auto& [id, r] : *orientations) {
+    if (id >= keys_.size()) continue;
+    auto it = previous->orientations.find(keys_[id]);
+    if (it == previous->orientations.end()) continue;
+    before.push_back(it->second);
+    after.push_back(r);
+  }
+  if (!before.empty()) {
+    const Eigen::Matrix3d g = AlignRotations(before, after);  // after ~ before * g
+    for (auto& [id, r] : *orientations) r = r * g.transpose();
+  }
+}
+
+void OnlineAverager::RecordSolve(bool ok, bool local, double seconds, const RotationAveragingSummary& summary) {
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++stats_.solves;
+  stats_.local_solves += local;
+  stats_.last_solve_s = seconds;
+  if (!ok) ++stats_.failed_solves;
+  if (!local) stats_.components = summary.components.size();
+  stats_.outlier_edges = summary.num_outlier_edges;
+}
+
+void OnlineAverager::RequeueChanged(const std::vector<ViewId>& changed) {
+  for (ViewId id : changed) {
+    if (id < changed_flag_.size() && !changed_flag_[id]) {
+      changed_flag_[id] = 1;
+      changed_.push_back(id);
+    }
+  }
+}
+
+void OnlineAverager::FillSolution(const SolveRun& run, bool took_background, const ViewOrientations& orientations,
+                                  std::map<KeyframeKey, Eigen::Matrix3d> background_covariances,
+                                  OnlineSolution* solution) {
+  const std::vector<RelativeRotation>& graph_edges = graph_.Edges();
   edge_results_.resize(graph_edges.size());
-  if (!local) {
-    TakeComponents(components, solution->summary);
+  if (!run.local) {
+    TakeComponents(run.components, solution->summary);
     edge_results_ = solution->summary.edges;
     solution->covariance = CovariancesByKey(solution->summary.view_covariances);
   } else {
@@ -371,12 +394,11 @@ bool OnlineAverager::SolveLocked(bool force_full) {
     for (std::size_t k = 0; k < graph_edges.size() && k < solution->summary.edges.size(); ++k) {
       if (solution->summary.edges[k].solved) edge_results_[k] = solution->summary.edges[k];
     }
-    solution->covariance = took_background ? std::move(background_covariances) : previous->covariance;
+    solution->covariance = took_background ? std::move(background_covariances) : Solution()->covariance;
     solution->local = true;
   }
   // ids_ is in key order: the published maps are built by appending at
-  // their end (O(n)) rather than by n searches with string comparisons
-  // (a map of 10,000 keyframes: 0.6 instead of 1.3-2.1 ms).
+  // their end (O(n)) rather than by n searches with string comparisons.
   for (const auto& [key, id] : ids_) {
     if (id < component_label_.size() && component_label_[id] >= 0) {
       solution->component.emplace_hint(solution->component.end(), key, component_label_[id]);
@@ -387,38 +409,46 @@ bool OnlineAverager::SolveLocked(bool force_full) {
   solution->edges.reserve(graph_edges.size());
   for (std::size_t k = 0; k < graph_edges.size(); ++k) {
     const EdgeResult& result = edge_results_[k];
-    if (!result.solved || graph_edges[k].view1 >= keys.size() || graph_edges[k].view2 >= keys.size()) continue;
-    solution->edges.push_back(SolvedEdge{keys[graph_edges[k].view1], keys[graph_edges[k].view2],
+    if (!result.solved || graph_edges[k].view1 >= keys_.size() || graph_edges[k].view2 >= keys_.size()) continue;
+    solution->edges.push_back(SolvedEdge{keys_[graph_edges[k].view1], keys_[graph_edges[k].view2],
                                          graph_edges[k].source, RadToDeg(result.residual_rad), result.robust_weight});
   }
-  // The periodic full solve, in the background on a snapshot.
-  if (local && options_.background_full_solves && !background_.valid() &&
-      (local_solves_since_full_ >= options_.full_solve_every || loop_closure_since_full_)) {
-    ViewOrientations start_from = orientations;
-    snapshot_new_views_ = new_views_;
-    StartFromTree(&start_from);
-    loop_closure_since_full_ = false;
-    // No background solve is running (background_ is not valid), so its
-    // graph can be replaced here.
-    std::vector<GraphAddition> additions;
-    if (!background_graph_valid_) {
-      background_graph_ = std::make_unique<ViewGraph>(snapshot);
-      background_graph_valid_ = true;
-    } else {
-      additions.swap(background_additions_);
-    }
-    background_additions_.clear();
-    background_ = std::async(std::launch::async, &OnlineAverager::RunFullSolve, background_graph_.get(),
-                             std::move(additions), averaging, std::move(start_from), generation);
-    changed_since_snapshot_.clear();
-    background_stale_ = false;
+}
+
+void OnlineAverager::MaybeStartBackgroundSolve(const ViewOrientations& orientations,
+                                               const RotationAveragingOptions& averaging, std::uint64_t generation) {
+  if (!options_.background_full_solves || background_.valid() ||
+      !(local_solves_since_full_ >= options_.full_solve_every || loop_closure_since_full_)) {
+    return;
   }
+  ViewOrientations start_from = orientations;
+  snapshot_new_views_ = new_views_;
+  StartFromTree(&start_from);
+  loop_closure_since_full_ = false;
+  // No background solve is running (background_ is not valid), so its
+  // graph can be replaced here.
+  std::vector<GraphAddition> additions;
+  if (!background_graph_valid_) {
+    background_graph_ = std::make_unique<ViewGraph>(graph_);
+    background_graph_valid_ = true;
+  } else {
+    additions.swap(background_additions_);
+  }
+  background_additions_.clear();
+  background_ = std::async(std::launch::async, &OnlineAverager::RunFullSolve, background_graph_.get(),
+                           std::move(additions), averaging, std::move(start_from), generation);
+  changed_since_snapshot_.clear();
+  background_stale_ = false;
+}
+
+void OnlineAverager::Publish(std::shared_ptr<OnlineSolution> solution, std::uint64_t options_epoch,
+                             ViewOrientations* orientations) {
   {
     // The next solve starts here (Reset and LoadGraph, which clear it, wait
     // for solve_mutex_; SetAveragingOptions may have cleared it meanwhile:
     // then the next solve is cold, as asked).
     std::lock_guard<std::mutex> lock(graph_mutex_);
-    if (options_epoch == options_epoch_) warm_start_.swap(orientations);
+    if (options_epoch == options_epoch_) warm_start_.swap(*orientations);
   }
   std::function<void(std::shared_ptr<const OnlineSolution>)> callback;
   {
@@ -428,7 +458,6 @@ bool OnlineAverager::SolveLocked(bool force_full) {
     callback = callback_;
   }
   if (callback) callback(solution);
-  return true;
 }
 
 std::map<KeyframeKey, Eigen::Matrix3d> OnlineAverager::CovariancesByKey(

@@ -173,6 +173,35 @@ class OnlineAverager {
   void WorkerLoop();
   std::size_t DrainQueue();  // applies queued measurements to the graph; needs graph_mutex_
   bool SolveLocked(bool force_full);  // needs solve_mutex_
+  // The steps of SolveLocked, in order (all need solve_mutex_).
+  // Takes a finished background full solve, unless a foreground full solve
+  // ran since its snapshot: its orientations into `orientations`, the views
+  // that came after its snapshot into `changed`. True if taken.
+  bool TakeBackgroundSolve(std::uint64_t generation, bool force_full, bool cold, ViewOrientations* orientations,
+                           std::vector<ViewId>* changed, std::map<KeyframeKey, Eigen::Matrix3d>* covariances);
+  // A local re-solve around `changed` when allowed and no full solve is due,
+  // else a full one (whose components go to `components`).
+  struct SolveRun {
+    bool ok = false;
+    bool local = false;
+    std::vector<std::vector<ViewId>> components;  // of the graph, after a full solve
+  };
+  SolveRun RunSolve(const RotationAveragingOptions& averaging, bool local_enabled, bool took_background,
+                    const std::vector<ViewId>& changed, ViewOrientations* orientations,
+                    RotationAveragingSummary* summary);
+  // A cold solve has its own gauge: rotated onto the published solution.
+  void AlignToPublished(ViewOrientations* orientations) const;
+  void RecordSolve(bool ok, bool local, double seconds, const RotationAveragingSummary& summary);
+  // After a failed solve the changed views wait for the next one.
+  void RequeueChanged(const std::vector<ViewId>& changed);
+  // The published solution: orientations, components, edges and covariances by keyframe.
+  void FillSolution(const SolveRun& run, bool took_background, const ViewOrientations& orientations,
+                    std::map<KeyframeKey, Eigen::Matrix3d> background_covariances, OnlineSolution* solution);
+  // Starts the periodic full solve in the background when it is due.
+  void MaybeStartBackgroundSolve(const ViewOrientations& orientations, const RotationAveragingOptions& averaging,
+                                 std::uint64_t generation);
+  // Keeps `orientations` as the next warm start and publishes `solution`.
+  void Publish(std::shared_ptr<OnlineSolution> solution, std::uint64_t options_epoch, ViewOrientations* orientations);
   // The full solve of a snapshot, run in the background.
   struct FullSolve {
     std::uint64_t generation = 0;
