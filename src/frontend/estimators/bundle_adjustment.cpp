@@ -132,6 +132,270 @@ double WhitenedSquaredError(const AdjustedView& v, const Track& t, const Observa
   return ((y.head<2>() / y.z() - o.x) / v.sigma).squaredNorm();
 }
 
+// The edges the adjustment can use (distinct oriented views, enough finite
+// correspondences) and their views, in id order (the gauge and the solves do
+// not depend on hashing), each with the median pixel noise of its edges.
+void SelectEdgesAndViews(const std::vector<EdgeCorrespondences>& edges, const BundleAdjustmentOptions& options,
+                         const ViewOrientations& orientations, std::vector<const EdgeCorrespondences*>* used,
+                         std::map<ViewId, int>* index, std::vector<AdjustedView>* views,
+                         BundleAdjustmentSummary* summary) {
+  for (const EdgeCorrespondences& e : edges) {
+    const auto a = orientations.find(e.view1), b = orientations.find(e.view2);
+    if (e.view1 == e.view2 || a == orientations.end() || b == orientations.end() ||
+        e.points1.size() != e.points2.size() ||
+        static_cast<int>(e.points1.size()) < std::max(1, options.min_correspondences) ||
+        !CorrespondencesAreFinite(e, true) || !a->second.allFinite() || !b->second.allFinite()) {
+      ++summary->edges_skipped;
+      continue;
+    }
+    summary->edges_rotation_only += RotationOnly(e);
+    used->push_back(&e);
+    index->emplace(e.view1, 0);
+    index->emplace(e.view2, 0);
+  }
+  for (auto& [id, k] : *index) {
+    k = static_cast<int>(views->size());
+    AdjustedView v;
+    v.id = id;
+    v.rotation = orientations.at(id);
+    Eigen::AngleAxisd angle_axis(v.rotation);
+    v.angle_axis = angle_axis.angle() * angle_axis.axis();
+    views->push_back(v);
+  }
+  std::vector<std::vector<double>> sigmas(views->size());
+  for (const EdgeCorrespondences* e : *used) {
+    sigmas[index->at(e->view1)].push_back(e->sigma);
+    sigmas[index->at(e->view2)].push_back(e->sigma);
+  }
+  for (std::size_t v = 0; v < views->size(); ++v) {
+    auto mid = sigmas[v].begin() + sigmas[v].size() / 2;
+    std::nth_element(sigmas[v].begin(), mid, sigmas[v].end());
+    (*views)[v].sigma = *mid;
+  }
+}
+
+// Tracks: keypoints linked by the matches; a keypoint is its view and its
+// coordinates, which are the same numbers in every edge it is in. Tracks
+// holding two keypoints of one view, or seen in too few views, are left out.
+std::vector<Track> BuildTracks(const std::vector<const EdgeCorrespondences*>& used, const std::map<ViewId, int>& index,
+                               const BundleAdjustmentOptions& options, BundleAdjustmentSummary* summary) {
+  std::map<std::tuple<int, double, double>, int> keypoints;
+  std::vector<Observation> keypoint_list;
+  std::vector<int> parent;
+  auto keypoint = [&](int view, const Eigen::Vector2d& x) {
+    const auto [it, added] = keypoints.emplace(std::make_tuple(view, x.x(), x.y()), static_cast<int>(parent.size()));
+    if (added) {
+      parent.push_back(it->second);
+      keypoint_list.push_back({view, x});
+    }
+    return it->second;
+  };
+  for (const EdgeCorrespondences* e : used) {
+    const int v1 = index.at(e->view1), v2 = index.at(e->view2);
+    for (std::size_t m = 0; m < e->points1.size(); ++m) {
+      const int a = keypoint(v1, e->points1[m]), b = keypoint(v2, e->points2[m]);  // in this order: ids by arrival
+      Unite(&parent, a, b);
+    }
+  }
+  std::map<int, Track> by_root;
+  for (std::size_t k = 0; k < keypoint_list.size(); ++k) {
+    by_root[Root(&parent, static_cast<int>(k))].observations.push_back(keypoint_list[k]);
+  }
+  std::vector<Track> tracks;
+  for (auto& [root, track] : by_root) {
+    std::vector<int> seen;
+    for (const Observation& o : track.observations) seen.push_back(o.view);
+    std::sort(seen.begin(), seen.end());
+    if (std::adjacent_find(seen.begin(), seen.end()) != seen.end()) {
+      ++summary->tracks_inconsistent;
+      continue;
+    }
+    if (static_cast<int>(seen.size()) < std::max(2, options.min_track_views)) {
+      ++summary->tracks_short;
+      continue;
+    }
+    tracks.push_back(std::move(track));
+  }
+  return tracks;
+}
+
+ceres::Problem::Options ProblemOptions() {
+  ceres::Problem::Options problem_options;
+  problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  return problem_options;
+}
+
+// Centres by least unsquared deviations, the orientations held, from the
+// edges with a translation direction; each group of views they connect has
+// its first view's centre held. False, with `message`, if Ceres fails.
+bool PlaceCentres(const std::vector<const EdgeCorrespondences*>& used, const std::map<ViewId, int>& index,
+                  const BundleAdjustmentOptions& options, std::vector<AdjustedView>* views,
+                  BundleAdjustmentSummary* summary, std::string* message) {
+  std::vector<int> linked(views->size());
+  std::iota(linked.begin(), linked.end(), 0);
+  for (const EdgeCorrespondences* e : used) {
+    if (RotationOnly(*e)) continue;
+    Unite(&linked, index.at(e->view1), index.at(e->view2));
+  }
+  ceres::Problem problem(ProblemOptions());
+  // sqrt(1 + r^2) - 1 on the norm of each edge's 3-vector: L1 beyond a
+  // small fraction of the shortest baseline (s >= 1).
+  ceres::SoftLOneLoss loss(0.01);
+  std::vector<double> scales(used.size(), 1.0);
+  for (std::size_t k = 0; k < used.size(); ++k) {
+    const EdgeCorrespondences& e = *used[k];
+    if (RotationOnly(e)) continue;
+    AdjustedView& vi = (*views)[index.at(e.view1)];
+    AdjustedView& vj = (*views)[index.at(e.view2)];
+    const Eigen::Matrix3d r21 = vj.rotation * vi.rotation.transpose();
+    // t_21 = R_j (c_i - c_j), so c_j - c_i = -R_j^T t_21.
+    const Eigen::Vector3d d = -(vj.rotation.transpose() * BestTranslationDirection(e, r21)).normalized();
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CentreDeviation, 3, 3, 3, 1>(new CentreDeviation(d)),
+                             &loss, vi.centre.data(), vj.centre.data(), &scales[k]);
+    problem.SetParameterLowerBound(&scales[k], 0, 1.0);
+  }
+  for (std::size_t k = 0; k < views->size(); ++k) {
+    if (Root(&linked, static_cast<int>(k)) == static_cast<int>(k) &&
+        problem.HasParameterBlock((*views)[k].centre.data())) {
+      problem.SetParameterBlockConstant((*views)[k].centre.data());
+    }
+  }
+  if (problem.NumResidualBlocks() > 0) {
+    ceres::Solver::Options solver_options = SolverOptions(options.max_iterations);
+    solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+    ceres::Solver::Summary ceres_summary;
+    ceres::Solve(solver_options, &problem, &ceres_summary);
+    summary->iterations += static_cast<int>(ceres_summary.iterations.size()) - 1;
+    if (!ceres_summary.IsSolutionUsable()) {
+      *message = ceres_summary.message;
+      return false;
+    }
+  }
+  // A view the directions leave out but a rotation-only pair links to one
+  // they place was taken from that view's centre.
+  std::vector<bool> placed(views->size());
+  for (std::size_t k = 0; k < views->size(); ++k) placed[k] = problem.HasParameterBlock((*views)[k].centre.data());
+  for (bool moved = true; moved;) {
+    moved = false;
+    for (const EdgeCorrespondences* e : used) {
+      const int a = index.at(e->view1), b = index.at(e->view2);
+      if (!RotationOnly(*e) || placed[a] == placed[b]) continue;
+      const int from = placed[a] ? a : b, to = placed[a] ? b : a;
+      (*views)[to].centre = (*views)[from].centre;
+      placed[to] = moved = true;
+    }
+  }
+  return true;
+}
+
+// Points from the midpoint of their rays; tracks whose rays meet at too
+// small an angle are left out.
+void TriangulateAll(const std::vector<AdjustedView>& views, double min_parallax_rad, std::vector<Track>* tracks,
+                    BundleAdjustmentSummary* summary) {
+  std::vector<Track> kept;
+  for (Track& t : *tracks) {
+    if (Triangulate(views, min_parallax_rad, &t)) {
+      kept.push_back(std::move(t));
+    } else {
+      ++summary->tracks_unconstrained;
+    }
+  }
+  *tracks = std::move(kept);
+}
+
+// RMS whitened reprojection error per coordinate.
+double RmsSigmas(const std::vector<AdjustedView>& views, const std::vector<Track>& tracks) {
+  double sum = 0.0;
+  std::size_t n = 0;
+  for (const Track& t : tracks) {
+    for (const Observation& o : t.observations) sum += WhitenedSquaredError(views[o.view], t, o), ++n;
+  }
+  return n ? std::sqrt(sum / (2.0 * n)) : 0.0;
+}
+
+// Minimises the whitened reprojection errors under `loss` over points,
+// centres and (unless held) orientations. True if the solution is usable.
+bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjustmentOptions& options,
+            std::vector<AdjustedView>* views, std::vector<Track>* tracks, BundleAdjustmentSummary* summary,
+            ceres::Solver::Summary* ceres_summary) {
+  ceres::Problem problem(ProblemOptions());
+  auto* ordering = new ceres::ParameterBlockOrdering;
+  summary->observations = 0;
+  for (Track& t : *tracks) {
+    problem.AddParameterBlock(t.point.data(), 3);
+    ordering->AddElementToGroup(t.point.data(), 0);
+    for (const Observation& o : t.observations) {
+      AdjustedView& v = (*views)[o.view];
+      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojection, 2, 3, 3, 3>(
+                                   new WhitenedReprojection(o.x, 1.0 / v.sigma)),
+                               loss, v.angle_axis.data(), v.centre.data(), t.point.data());
+      ++summary->observations;
+    }
+  }
+  // The gauge of each group of views the tracks connect: its first view's
+  // orientation and centre are held, and one coordinate of its second
+  // view's centre (the largest offset from the first), which fixes the
+  // scale; a free gauge would leave the normal equations singular.
+  std::vector<int> group(views->size());
+  std::iota(group.begin(), group.end(), 0);
+  for (const Track& t : *tracks) {
+    for (const Observation& o : t.observations) Unite(&group, t.observations.front().view, o.view);
+  }
+  std::vector<int> first(views->size(), -1);
+  std::vector<bool> scaled(views->size(), false);
+  for (std::size_t k = 0; k < views->size(); ++k) {
+    AdjustedView& v = (*views)[k];
+    if (!problem.HasParameterBlock(v.centre.data())) continue;
+    ordering->AddElementToGroup(v.angle_axis.data(), 1);
+    ordering->AddElementToGroup(v.centre.data(), 1);
+    const int g = Root(&group, static_cast<int>(k));
+    if (hold_orientations || first[g] < 0) problem.SetParameterBlockConstant(v.angle_axis.data());
+    if (first[g] < 0) {
+      first[g] = static_cast<int>(k);
+      problem.SetParameterBlockConstant(v.centre.data());
+    } else if (!scaled[g] && (v.centre - (*views)[first[g]].centre).norm() > 0.0) {
+      // (A view at its first view's centre, across a rotation-only pair,
+      // cannot hold the scale.)
+      scaled[g] = true;
+      int axis = 0;
+      (v.centre - (*views)[first[g]].centre).cwiseAbs().maxCoeff(&axis);
+      problem.SetManifold(v.centre.data(), new ceres::SubsetManifold(3, {axis}));
+    }
+  }
+  ceres::Solver::Options solver_options = SolverOptions(options.max_iterations);
+  solver_options.linear_solver_ordering.reset(ordering);
+  ceres::Solve(solver_options, &problem, ceres_summary);
+  summary->iterations += static_cast<int>(ceres_summary->iterations.size()) - 1;
+  for (AdjustedView& v : *views) {
+    v.rotation = Eigen::AngleAxisd(v.angle_axis.norm(), v.angle_axis.norm() > 0.0 ? v.angle_axis.normalized()
+                                                                                  : Eigen::Vector3d::UnitX())
+                     .toRotationMatrix();
+  }
+  return ceres_summary->IsSolutionUsable();
+}
+
+// Drops the observations beyond options.outlier_sigmas, then the tracks left
+// in too few views.
+void DropOutlierObservations(const std::vector<AdjustedView>& views, const BundleAdjustmentOptions& options,
+                             std::vector<Track>* tracks, BundleAdjustmentSummary* summary) {
+  const double outlier = options.outlier_sigmas * options.outlier_sigmas;
+  std::vector<Track> kept;
+  for (Track& t : *tracks) {
+    Track fitted;
+    for (const Observation& o : t.observations) {
+      if (WhitenedSquaredError(views[o.view], t, o) <= outlier) {
+        fitted.observations.push_back(o);
+      } else {
+        ++summary->observations_dropped;
+      }
+    }
+    if (static_cast<int>(fitted.observations.size()) >= std::max(2, options.min_track_views)) {
+      kept.push_back(std::move(fitted));
+    }
+  }
+  *tracks = std::move(kept);
+}
+
 }  // namespace
 
 std::string BundleAdjustmentSummary::Report() const {
@@ -159,232 +423,27 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
     summary->time_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     return ok;
   };
-
-  // Views in id order (the gauge and the solves do not depend on hashing),
-  // and the usable edges.
   std::map<ViewId, int> index;
   std::vector<AdjustedView> views;
   std::vector<const EdgeCorrespondences*> used;
-  for (const EdgeCorrespondences& e : edges) {
-    const auto a = orientations->find(e.view1), b = orientations->find(e.view2);
-    if (e.view1 == e.view2 || a == orientations->end() || b == orientations->end() ||
-        e.points1.size() != e.points2.size() ||
-        static_cast<int>(e.points1.size()) < std::max(1, options.min_correspondences) ||
-        !CorrespondencesAreFinite(e, true) || !a->second.allFinite() || !b->second.allFinite()) {
-      ++summary->edges_skipped;
-      continue;
-    }
-    summary->edges_rotation_only += RotationOnly(e);
-    used.push_back(&e);
-    index.emplace(e.view1, 0);
-    index.emplace(e.view2, 0);
-  }
+  SelectEdgesAndViews(edges, options, *orientations, &used, &index, &views, summary);
   if (used.empty()) return finish(false, "no edge with enough correspondences between oriented views");
-  for (auto& [id, k] : index) {
-    k = static_cast<int>(views.size());
-    AdjustedView v;
-    v.id = id;
-    v.rotation = orientations->at(id);
-    Eigen::AngleAxisd angle_axis(v.rotation);
-    v.angle_axis = angle_axis.angle() * angle_axis.axis();
-    views.push_back(v);
-  }
-  std::vector<std::vector<double>> sigmas(views.size());
-  for (const EdgeCorrespondences* e : used) {
-    sigmas[index[e->view1]].push_back(e->sigma);
-    sigmas[index[e->view2]].push_back(e->sigma);
-  }
-  for (std::size_t v = 0; v < views.size(); ++v) {
-    auto mid = sigmas[v].begin() + sigmas[v].size() / 2;
-    std::nth_element(sigmas[v].begin(), mid, sigmas[v].end());
-    views[v].sigma = *mid;
-  }
-
-  // 1. Tracks: keypoints linked by the matches; a keypoint is its view and
-  // its coordinates, which are the same numbers in every edge it is in.
-  std::map<std::tuple<int, double, double>, int> keypoints;
-  std::vector<Observation> keypoint_list;
-  std::vector<int> parent;
-  auto keypoint = [&](int view, const Eigen::Vector2d& x) {
-    const auto [it, added] = keypoints.emplace(std::make_tuple(view, x.x(), x.y()), static_cast<int>(parent.size()));
-    if (added) {
-      parent.push_back(it->second);
-      keypoint_list.push_back({view, x});
-    }
-    return it->second;
-  };
-  for (const EdgeCorrespondences* e : used) {
-    const int v1 = index[e->view1], v2 = index[e->view2];
-    for (std::size_t m = 0; m < e->points1.size(); ++m) {
-      const int a = keypoint(v1, e->points1[m]), b = keypoint(v2, e->points2[m]);  // in this order: ids by arrival
-      Unite(&parent, a, b);
-    }
-  }
-  std::map<int, Track> by_root;
-  for (std::size_t k = 0; k < keypoint_list.size(); ++k) {
-    by_root[Root(&parent, static_cast<int>(k))].observations.push_back(keypoint_list[k]);
-  }
-  std::vector<Track> tracks;
-  for (auto& [root, track] : by_root) {
-    std::vector<int> seen;
-    for (const Observation& o : track.observations) seen.push_back(o.view);
-    std::sort(seen.begin(), seen.end());
-    if (std::adjacent_find(seen.begin(), seen.end()) != seen.end()) {
-      ++summary->tracks_inconsistent;
-      continue;
-    }
-    if (static_cast<int>(seen.size()) < std::max(2, options.min_track_views)) {
-      ++summary->tracks_short;
-      continue;
-    }
-    tracks.push_back(std::move(track));
-  }
-
-  ceres::Problem::Options problem_options;
-  problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-
-  // 2. Centres by least unsquared deviations, the orientations held, from
-  // the edges with a translation direction; each group of views they
-  // connect has its first view's centre held.
-  {
-    std::vector<int> linked(views.size());
-    std::iota(linked.begin(), linked.end(), 0);
-    for (const EdgeCorrespondences* e : used) {
-      if (RotationOnly(*e)) continue;
-      Unite(&linked, index[e->view1], index[e->view2]);
-    }
-    ceres::Problem problem(problem_options);
-    // sqrt(1 + r^2) - 1 on the norm of each edge's 3-vector: L1 beyond a
-    // small fraction of the shortest baseline (s >= 1).
-    ceres::SoftLOneLoss loss(0.01);
-    std::vector<double> scales(used.size(), 1.0);
-    for (std::size_t k = 0; k < used.size(); ++k) {
-      const EdgeCorrespondences& e = *used[k];
-      if (RotationOnly(e)) continue;
-      AdjustedView& vi = views[index[e.view1]];
-      AdjustedView& vj = views[index[e.view2]];
-      const Eigen::Matrix3d r21 = vj.rotation * vi.rotation.transpose();
-      // t_21 = R_j (c_i - c_j), so c_j - c_i = -R_j^T t_21.
-      const Eigen::Vector3d d = -(vj.rotation.transpose() * BestTranslationDirection(e, r21)).normalized();
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CentreDeviation, 3, 3, 3, 1>(new CentreDeviation(d)),
-                               &loss, vi.centre.data(), vj.centre.data(), &scales[k]);
-      problem.SetParameterLowerBound(&scales[k], 0, 1.0);
-    }
-    for (std::size_t k = 0; k < views.size(); ++k) {
-      if (Root(&linked, static_cast<int>(k)) == static_cast<int>(k) && problem.HasParameterBlock(views[k].centre.data())) {
-        problem.SetParameterBlockConstant(views[k].centre.data());
-      }
-    }
-    if (problem.NumResidualBlocks() > 0) {
-      ceres::Solver::Options solver_options = SolverOptions(options.max_iterations);
-      solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-      ceres::Solver::Summary ceres_summary;
-      ceres::Solve(solver_options, &problem, &ceres_summary);
-      summary->iterations += static_cast<int>(ceres_summary.iterations.size()) - 1;
-      if (!ceres_summary.IsSolutionUsable()) return finish(false, "centres: " + ceres_summary.message);
-    }
-    // A view the directions leave out but a rotation-only pair links to one
-    // they place was taken from that view's centre.
-    std::vector<bool> placed(views.size());
-    for (std::size_t k = 0; k < views.size(); ++k) placed[k] = problem.HasParameterBlock(views[k].centre.data());
-    for (bool moved = true; moved;) {
-      moved = false;
-      for (const EdgeCorrespondences* e : used) {
-        const int a = index[e->view1], b = index[e->view2];
-        if (!RotationOnly(*e) || placed[a] == placed[b]) continue;
-        const int from = placed[a] ? a : b, to = placed[a] ? b : a;
-        views[to].centre = views[from].centre;
-        placed[to] = moved = true;
-      }
-    }
-  }
-
-  // 3. Points.
+  std::vector<Track> tracks = BuildTracks(used, index, options, summary);
+  std::string message;
+  if (!PlaceCentres(used, index, options, &views, summary, &message)) return finish(false, "centres: " + message);
   const double min_parallax = options.min_parallax_deg * M_PI / 180.0;
-  auto triangulate_all = [&]() {
-    std::vector<Track> kept;
-    for (Track& t : tracks) {
-      if (Triangulate(views, min_parallax, &t)) {
-        kept.push_back(std::move(t));
-      } else {
-        ++summary->tracks_unconstrained;
-      }
-    }
-    tracks = std::move(kept);
-  };
-  triangulate_all();
+  TriangulateAll(views, min_parallax, &tracks, summary);
   if (tracks.empty()) return finish(false, "no track could be triangulated");
-  auto rms = [&]() {
-    double sum = 0.0;
-    std::size_t n = 0;
-    for (const Track& t : tracks) {
-      for (const Observation& o : t.observations) sum += WhitenedSquaredError(views[o.view], t, o), ++n;
-    }
-    return n ? std::sqrt(sum / (2.0 * n)) : 0.0;  // per coordinate
-  };
-  summary->initial_rms_sigmas = rms();
+  summary->initial_rms_sigmas = RmsSigmas(views, tracks);
 
-  // 4. Reprojection errors; the first stage holds the orientations.
-  auto adjust = [&](bool hold_orientations, ceres::LossFunction* loss, ceres::Solver::Summary* ceres_summary) {
-    ceres::Problem problem(problem_options);
-    auto* ordering = new ceres::ParameterBlockOrdering;
-    summary->observations = 0;
-    for (Track& t : tracks) {
-      problem.AddParameterBlock(t.point.data(), 3);
-      ordering->AddElementToGroup(t.point.data(), 0);
-      for (const Observation& o : t.observations) {
-        AdjustedView& v = views[o.view];
-        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojection, 2, 3, 3, 3>(
-                                     new WhitenedReprojection(o.x, 1.0 / v.sigma)),
-                                 loss, v.angle_axis.data(), v.centre.data(), t.point.data());
-        ++summary->observations;
-      }
-    }
-    // The gauge of each group of views the tracks connect: its first view's
-    // orientation and centre are held, and one coordinate of its second
-    // view's centre (the largest offset from the first), which fixes the
-    // scale; a free gauge would leave the normal equations singular.
-    std::vector<int> group(views.size());
-    std::iota(group.begin(), group.end(), 0);
-    for (const Track& t : tracks) {
-      for (const Observation& o : t.observations) Unite(&group, t.observations.front().view, o.view);
-    }
-    std::vector<int> first(views.size(), -1);
-    std::vector<bool> scaled(views.size(), false);
-    for (std::size_t k = 0; k < views.size(); ++k) {
-      AdjustedView& v = views[k];
-      if (!problem.HasParameterBlock(v.centre.data())) continue;
-      ordering->AddElementToGroup(v.angle_axis.data(), 1);
-      ordering->AddElementToGroup(v.centre.data(), 1);
-      const int g = Root(&group, static_cast<int>(k));
-      if (hold_orientations || first[g] < 0) problem.SetParameterBlockConstant(v.angle_axis.data());
-      if (first[g] < 0) {
-        first[g] = static_cast<int>(k);
-        problem.SetParameterBlockConstant(v.centre.data());
-      } else if (!scaled[g] && (v.centre - views[first[g]].centre).norm() > 0.0) {
-        // (A view at its first view's centre, across a rotation-only pair,
-        // cannot hold the scale.)
-        scaled[g] = true;
-        int axis = 0;
-        (v.centre - views[first[g]].centre).cwiseAbs().maxCoeff(&axis);
-        problem.SetManifold(v.centre.data(), new ceres::SubsetManifold(3, {axis}));
-      }
-    }
-    ceres::Solver::Options solver_options = SolverOptions(options.max_iterations);
-    solver_options.linear_solver_ordering.reset(ordering);
-    ceres::Solve(solver_options, &problem, ceres_summary);
-    summary->iterations += static_cast<int>(ceres_summary->iterations.size()) - 1;
-    for (AdjustedView& v : views) {
-      v.rotation = Eigen::AngleAxisd(v.angle_axis.norm(), v.angle_axis.norm() > 0.0 ? v.angle_axis.normalized()
-                                                                                    : Eigen::Vector3d::UnitX())
-                       .toRotationMatrix();
-    }
-    return ceres_summary->IsSolutionUsable();
-  };
+  // Reprojection errors: the first stage holds the orientations (the centres
+  // are rough), under Huber's loss.
   const double scale = options.loss_scale_sigmas > 0.0 ? options.loss_scale_sigmas : 3.0;
   ceres::HuberLoss huber(scale);
   ceres::Solver::Summary first;
-  if (!adjust(true, &huber, &first)) return finish(false, "centres and points: " + first.message);
+  if (!Adjust(true, &huber, options, &views, &tracks, summary, &first)) {
+    return finish(false, "centres and points: " + first.message);
+  }
   // Then everything: with the orientations held, their errors (a tenth of a
   // degree is tens of sigma at a tenth of a pixel) are in every residual,
   // and only once they are adjusted do the residuals say which observations
@@ -393,35 +452,23 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   // the adjustment kept the averaging's errors on a courtyard of repeated
   // windows.
   ceres::CauchyLoss cauchy(scale);
-  if (!adjust(false, &cauchy, &first)) return finish(false, "everything: " + first.message);
-
-  // Drop the observations the first stages could not fit, then tracks left
-  // in too few views, and triangulate again from the adjusted views.
-  const double outlier = options.outlier_sigmas * options.outlier_sigmas;
-  std::vector<Track> kept;
-  for (Track& t : tracks) {
-    Track fitted;
-    for (const Observation& o : t.observations) {
-      if (WhitenedSquaredError(views[o.view], t, o) <= outlier) {
-        fitted.observations.push_back(o);
-      } else {
-        ++summary->observations_dropped;
-      }
-    }
-    if (static_cast<int>(fitted.observations.size()) >= std::max(2, options.min_track_views)) {
-      kept.push_back(std::move(fitted));
-    }
+  if (!Adjust(false, &cauchy, options, &views, &tracks, summary, &first)) {
+    return finish(false, "everything: " + first.message);
   }
-  tracks = std::move(kept);
-  triangulate_all();
+  // Drop the observations the first stages could not fit, and triangulate
+  // again from the adjusted views.
+  DropOutlierObservations(views, options, &tracks, summary);
+  TriangulateAll(views, min_parallax, &tracks, summary);
   if (tracks.empty()) return finish(false, "no track left after the first stage");
 
   ceres::Solver::Summary second;
-  if (!adjust(false, &cauchy, &second)) return finish(false, "orientations: " + second.message);
+  if (!Adjust(false, &cauchy, options, &views, &tracks, summary, &second)) {
+    return finish(false, "orientations: " + second.message);
+  }
   for (const AdjustedView& v : views) {
     if (!v.rotation.allFinite() || !v.centre.allFinite()) return finish(false, "non-finite result: orientations kept");
   }
-  summary->final_rms_sigmas = rms();
+  summary->final_rms_sigmas = RmsSigmas(views, tracks);
   summary->tracks = static_cast<int>(tracks.size());
   summary->views = static_cast<int>(views.size());
   summary->edges_used = static_cast<int>(used.size());
