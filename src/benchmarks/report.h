@@ -14,6 +14,9 @@
 #include <fstream>
 #include <iomanip>
 #include <iostream>
+#include <map>
+#include <set>
+#include <stdexcept>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -133,6 +136,38 @@ inline void WriteReport(const std::string& path, const std::string& text) {
   }
   std::ofstream(path) << text;
   std::cerr << "wrote " << path << "\n";
+}
+
+// A report's text from its template (src/benchmarks/templates/NAME): the
+// prose lives there, the figures come from the program. Each {{key}} is
+// replaced by values[key]; a key the template holds and `values` lacks, or
+// one given and unused, throws std::runtime_error, so the two cannot drift
+// apart unnoticed.
+inline std::string FillTemplate(const std::string& name, const std::map<std::string, std::string>& values) {
+  const std::string path = std::string(ROTAVG_TEMPLATE_DIR) + "/" + name;
+  std::ifstream in(path);
+  if (!in) throw std::runtime_error("cannot read the report template " + path);
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  const std::string text = buffer.str();
+  std::string out;
+  std::set<std::string> used;
+  std::size_t at = 0;
+  for (std::size_t open = text.find("{{"); open != std::string::npos; open = text.find("{{", at)) {
+    const std::size_t close = text.find("}}", open);
+    if (close == std::string::npos) throw std::runtime_error(path + ": unclosed {{");
+    const std::string key = text.substr(open + 2, close - open - 2);
+    const auto it = values.find(key);
+    if (it == values.end()) throw std::runtime_error(path + ": no value for {{" + key + "}}");
+    out += text.substr(at, open - at) + it->second;
+    used.insert(key);
+    at = close + 2;
+  }
+  out += text.substr(at);
+  for (const auto& [key, value] : values) {
+    if (!used.count(key)) throw std::runtime_error(path + ": {{" + key + "}} is given but not in the template");
+  }
+  return out;
 }
 
 }  // namespace rotation_averaging

@@ -46,6 +46,7 @@ const char* const kColmapLabel =
 const char* const kRefinedLabel =
     "magsac + covariance, then refined on the correspondences (rotavg images --refine --no-bundle-adjustment)";
 const char* const kBundleLabel = "magsac + covariance, then bundle adjusted (rotavg images defaults)";
+const char* const kPaperLabel = "paper: magsac + unscaled conditional covariance x1e8, sigma_max 0.02, tree start";
 const std::vector<ra::EdgeWeighting>& kWeightings = ra::PaperTableWeightings();
 
 // The averaging defaults of `rotavg images`.
@@ -236,43 +237,45 @@ std::string VariantRows(const std::string& scene, const std::string& scale_text,
   return rows.str();
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
+struct Args {
   std::string data_dir = "../shared/data", output = "results/frontend.md", scales_text = "1,0.25,w640";
   std::string plot_dir = "results/plots";
   // COLMAP's models of the scenes (scripts/benchmark_colmap.sh), scored here
   // by the same evaluator as every method.
   std::string colmap_dir = "build/benchmark_colmap";
   bool quick = false;
+  std::vector<std::string> scales;  // "0.25" or "w640"
+};
+
+bool ParseArgs(int argc, char** argv, Args* args) {
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
-    if (a == "--data" && k + 1 < argc) data_dir = argv[++k];
-    else if (a == "--output" && k + 1 < argc) output = argv[++k];
-    else if (a == "--scales" && k + 1 < argc) scales_text = argv[++k];
-    else if (a == "--plots" && k + 1 < argc) plot_dir = argv[++k];
-    else if (a == "--colmap" && k + 1 < argc) colmap_dir = argv[++k];
-    else if (a == "--quick") quick = true;
+    if (a == "--data" && k + 1 < argc) args->data_dir = argv[++k];
+    else if (a == "--output" && k + 1 < argc) args->output = argv[++k];
+    else if (a == "--scales" && k + 1 < argc) args->scales_text = argv[++k];
+    else if (a == "--plots" && k + 1 < argc) args->plot_dir = argv[++k];
+    else if (a == "--colmap" && k + 1 < argc) args->colmap_dir = argv[++k];
+    else if (a == "--quick") args->quick = true;
     else {
       std::cerr << "usage: rotavg_frontend_eval [--data DIR] [--scales 1,0.25] [--output FILE] [--plots DIR] "
                    "[--colmap DIR] [--quick]\n";
-      return 2;
+      return false;
     }
   }
-  const std::string command = ra::CommandLine("rotavg_frontend_eval", argc, argv);
-  const std::string table_path = (fs::path(output).parent_path() / "loss_table.md").string();
-  std::vector<std::string> scales;  // "0.25" or "w640"
-  for (const std::string& t : ra::SplitTokens(scales_text, true)) {
+  for (const std::string& t : ra::SplitTokens(args->scales_text, true)) {
     double s;
     const bool width = !t.empty() && t[0] == 'w';
     if (!ra::ParseDouble(width ? t.substr(1) : t, &s) || !(s > 0.0) || (!width && s > 1.0)) {
       std::cerr << "bad scale '" << t << "'\n";
-      return 2;
+      return false;
     }
-    scales.push_back(t);
+    args->scales.push_back(t);
   }
-  if (quick) scales = {"0.25"};
+  if (args->quick) args->scales = {"0.25"};
+  return true;
+}
 
+std::vector<Scene> Scenes(const std::string& data_dir, bool quick) {
   std::vector<Scene> scenes;
   for (const std::string name : {"fountain-P11", "entry-P10", "castle-P19"}) {
     const std::string dir = data_dir + "/strecha/" + name;
@@ -281,20 +284,331 @@ int main(int argc, char** argv) {
   scenes.push_back({"lund_door", data_dir + "/lund_door/images", data_dir + "/lund_door/colmap_ground_truth/cameras.txt",
                     data_dir + "/lund_door/colmap_ground_truth", false});
   if (quick) scenes.resize(2);
+  return scenes;
+}
 
-  std::ostringstream calib, accuracy, speed, variants, floor_rows, focal_rows;
-  calib << "| scene | scale | pairs ok / tried | NEES mean (marginal) | NEES median (marginal) | NEES median (marginal, "
-           "pixel model alone) | NEES mean (conditional) | NEES median (conditional) | Spearman (marginal) | Spearman "
-           "(conditional) | median sigma (px) |\n"
-        << "|---|---|---|---|---|---|---|---|---|---|---|\n";
+// The rows of each table of the report, filled scene by scene.
+struct Tables {
+  std::ostringstream calibration, floor, accuracy, variants, focal, speed;
+  std::ostringstream long_table;  // every method, every scene (loss_table.md)
+};
+
+// A method of the accuracy comparison: averaging options, the graph's
+// covariance (WithCovariance) and what follows the averaging.
+struct Method {
+  std::string label;
+  ra::RotationAveragingOptions options;
+  int covariance;
+  enum class Then { kNothing, kRefine, kBundleAdjust } then = Then::kNothing;
+};
+
+// The paper's table first (every loss x every weighting), then the others.
+std::vector<Method> Methods() {
+  std::vector<Method> methods;
+  for (ra::LossType loss : kLosses) {
+    for (ra::EdgeWeighting w : kWeightings) {
+      ra::RotationAveragingOptions o = ImagesDefaults();
+      o.loss = loss;
+      o.weighting = w;
+      methods.push_back({std::string(ra::LossTypeName(loss)) + " + " + ra::EdgeWeightingName(w), o, 0});
+    }
+  }
+  ra::RotationAveragingOptions o = ImagesDefaults();
+  methods.push_back({kRefinedLabel, o, 0, Method::Then::kRefine});
+  methods.push_back({kBundleLabel, o, 0, Method::Then::kBundleAdjust});
+  methods.push_back({"magsac + covariance (conditional)", o, 1});
+  methods.push_back({"magsac + covariance (marginal of the pixel model alone, no cell jackknife)", o, 3});
+  ra::RotationAveragingOptions widened = o;
+  widened.self_calibration = ra::CovarianceSelfCalibration::kLossScale;
+  methods.push_back({"magsac + covariance, loss widened instead of a covariance floor (--self-calibration "
+                     "loss_scale)",
+                     widened, 0});
+  o.covariance_normalization = ra::CovarianceNormalization::kPaper;
+  o.gnc_initial_scale_factor = 1.0;
+  o.l1_initialization = false;
+  methods.push_back({kPaperLabel, o, 2});
+  ra::RotationAveragingOptions l1;
+  l1.solver = ra::SolverType::kL1Irls;
+  l1.weighting = ra::EdgeWeighting::kNone;
+  methods.push_back({"L1-IRLS baseline", l1, 0});
+  return methods;
+}
+
+// Calibration of the pairs' covariances against the ground truth, without
+// and with the covariance floor `floor_rad`: a row of the calibration table
+// and the first columns of the floor table.
+void CalibrationRows(const Scene& scene, const std::string& scale_text, const ra::ImagePipelineResult& front,
+                     const std::vector<std::string>& names, const ra::NamedOrientations& gt, double floor_rad,
+                     Tables* tables) {
+  // eta = Log(R_ij_true^T R_ij_est) for every successful pair.
+  std::vector<double> nees_m, nees_p, nees_c, nees_f, err, std_m, std_c, sigmas;
+  // Per inlier class (< 100, 100-499, >= 500): NEES without and with the floor.
+  std::vector<double> class_nees[3], class_nees_f[3];
+  int ok = 0;
+  for (const ra::PairReport& p : front.pairs) {
+    if (!p.pose.success) continue;
+    ++ok;
+    Eigen::Vector3d eta;
+    if (!PairError(gt, names[p.image1], names[p.image2], p.pose, &eta)) continue;
+    nees_m.push_back(eta.dot(p.pose.covariance_marginal.ldlt().solve(eta)));
+    nees_p.push_back(eta.dot(p.pose.covariance_marginal_pixel.ldlt().solve(eta)));
+    nees_c.push_back(eta.dot(p.pose.covariance_conditional.ldlt().solve(eta)));
+    const Eigen::Matrix3d floored = p.pose.covariance_marginal + floor_rad * floor_rad * Eigen::Matrix3d::Identity();
+    nees_f.push_back(eta.dot(floored.ldlt().solve(eta)));
+    const int inliers = static_cast<int>(p.pose.inliers.size());
+    const int c = inliers < 100 ? 0 : inliers < 500 ? 1 : 2;
+    class_nees[c].push_back(nees_m.back());
+    class_nees_f[c].push_back(nees_f.back());
+    err.push_back(eta.norm());
+    std_m.push_back(std::sqrt(p.pose.covariance_marginal.trace()));
+    std_c.push_back(std::sqrt(p.pose.covariance_conditional.trace()));
+    sigmas.push_back(p.pose.sigma_px);
+  }
+  tables->calibration << "| " << scene.name << " | " << scale_text << " | " << ok << " / " << front.pairs.size()
+                      << " | " << Fixed(Mean(nees_m), 2) << " | " << Fixed(Median(nees_m), 2) << " | "
+                      << Fixed(Median(nees_p), 2) << " | " << Fixed(Mean(nees_c), 2) << " | "
+                      << Fixed(Median(nees_c), 2) << " | " << Fixed(Spearman(std_m, err), 2) << " | "
+                      << Fixed(Spearman(std_c, err), 2) << " | " << Fixed(Median(sigmas), 3) << " |\n";
+  tables->floor << "| " << scene.name << " | " << scale_text << " | " << Fixed(ra::RadToDeg(floor_rad), 4) << " | "
+                << Fixed(Median(nees_m), 1) << " | " << Fixed(Median(nees_f), 2) << " | " << Fixed(Mean(nees_f), 2);
+  for (int c = 0; c < 3; ++c) {
+    tables->floor << " | " << class_nees[c].size() << ": " << Fixed(Median(class_nees[c]), 1) << " -> "
+                  << Fixed(Median(class_nees_f[c]), 2);
+  }
+}
+
+// The pairs against the bundle adjustment of their own inliers (a reference
+// that shares their features, not the ground truth's error), split into views
+// and pairs against the ground truth, and with the view term the offsets
+// against the bundle adjustment give: the last columns of the floor table.
+void ViewTermColumns(const ra::ViewGraph& graph, const ra::NamedOrientations& gt,
+                     const ra::NamedOrientations& bundle_adjusted, double floor_rad, Tables* tables) {
+  const ra::EdgeCalibration against_gt = ra::EvaluateEdgeCovariances(graph, gt, floor_rad);
+  const ra::EdgeCalibration against_bundle = ra::EvaluateEdgeCovariances(graph, bundle_adjusted, floor_rad);
+  const double view_rad = ra::ViewTermRad(against_bundle);
+  tables->floor << " | " << Fixed(against_bundle.nees_median, 2) << " | " << Fixed(against_gt.median_view_offset_deg, 4)
+                << " | " << Fixed(against_gt.nees_median_after_view_offsets, 2) << " | "
+                << Fixed(view_rad * 180.0 / M_PI, 4) << " | "
+                << Fixed(ra::EvaluateEdgeCovariances(graph, gt, ra::FloorWithViewTermRad(floor_rad, view_rad)).nees_median,
+                         2)
+                << " |\n";
+}
+
+// Solves with every method and scores each; `bundle_adjusted` gets the
+// bundle adjusted orientations.
+std::vector<ra::EvaluationResult> RunMethods(const std::vector<Method>& methods, const ra::ViewGraph graphs[4],
+                                             const ra::ImagePipelineResult& front, const ra::NamedOrientations& gt,
+                                             const std::vector<double>& thresholds,
+                                             ra::NamedOrientations* bundle_adjusted) {
+  std::vector<ra::EvaluationResult> results;
+  for (const Method& m : methods) {
+    ra::ViewOrientations out;
+    ra::RotationAveragingSummary summary;
+    ra::SolveRotationAveraging(graphs[m.covariance], m.options, &out, &summary);
+    if (m.then == Method::Then::kRefine) {
+      ra::CorrespondenceRefinementSummary refinement;
+      ra::RefineRotationsWithCorrespondences(ra::CorrespondencesOfEdges(front), ra::CorrespondenceRefinementOptions(),
+                                             &out, &refinement);
+      std::cerr << "  " << refinement.Report() << "\n";
+    } else if (m.then == Method::Then::kBundleAdjust) {
+      ra::BundleAdjustmentSummary adjustment;
+      ra::RefineRotationsWithBundleAdjustment(ra::CorrespondencesOfEdges(front), ra::BundleAdjustmentOptions(), &out,
+                                              &adjustment);
+      std::cerr << "  " << adjustment.Report() << "\n";
+      *bundle_adjusted = ra::NameOrientations(graphs[m.covariance], out);
+    }
+    results.push_back(ra::EvaluateOrientations(ra::NameOrientations(graphs[m.covariance], out), gt, thresholds));
+  }
+  return results;
+}
+
+// A scene's accuracy section: the loss x weighting matrix of medians, then
+// the other methods (and COLMAP's model at full resolution).
+void AccuracySection(const Scene& scene, const std::string& scale_text, const ra::NamedOrientations& gt,
+                     const std::vector<Method>& methods, const std::vector<ra::EvaluationResult>& results,
+                     const Args& args, const std::vector<double>& thresholds, Tables* tables) {
+  std::ostringstream& accuracy = tables->accuracy;
+  accuracy << "\n**" << scene.name << ", scale " << scale_text << "** (" << gt.size()
+           << " views): median error (deg) per loss and weighting; best in bold.\n\n| loss |";
+  for (ra::EdgeWeighting w : kWeightings) accuracy << " " << ra::EdgeWeightingName(w) << " |";
+  accuracy << "\n|---|";
+  for (std::size_t k = 0; k < kWeightings.size(); ++k) accuracy << "---|";
+  double best = std::numeric_limits<double>::infinity();
+  for (std::size_t k = 0; k < kLosses.size() * kWeightings.size(); ++k) best = std::min(best, results[k].median_error_deg);
+  for (std::size_t l = 0; l < kLosses.size(); ++l) {
+    accuracy << "\n| " << ra::LossTypeName(kLosses[l]) << " |";
+    for (std::size_t w = 0; w < kWeightings.size(); ++w) {
+      const double median = results[l * kWeightings.size() + w].median_error_deg;
+      accuracy << (median == best ? " **" + Fixed(median, 4) + "** |" : " " + Fixed(median, 4) + " |");
+    }
+  }
+  accuracy << "\n\n| other method | median (deg) | AUC@0.1 | AUC@0.5 | AUC@1 | AUC@2 |\n|---|---|---|---|---|---|\n";
+  for (std::size_t k = kLosses.size() * kWeightings.size(); k < methods.size(); ++k) {
+    accuracy << OtherMethodRow(methods[k].label, results[k]);
+  }
+  // COLMAP's reconstruction from the full-resolution images, scored as the
+  // methods above.
+  const fs::path colmap_model = fs::path(args.colmap_dir) / scene.name / "images.txt";
+  if (scale_text == "1" && fs::exists(colmap_model)) {
+    ra::NamedOrientations colmap;
+    const ra::ReadReport read = ra::ReadColmapGroundTruth(colmap_model.string(), &colmap);
+    if (read.ok()) {
+      const ra::EvaluationResult e = ra::EvaluateOrientations(colmap, gt, thresholds);
+      accuracy << OtherMethodRow(kColmapLabel, e);
+      tables->long_table << LongTableRow(scene.name, scale_text, kColmapLabel, e);
+    } else {
+      std::cerr << "  COLMAP model left out: " << read.error << "\n";
+    }
+  }
+}
+
+// The paper's figure: cumulative error distributions of a few methods,
+// linked from the accuracy section.
+void CdfPlot(const Scene& scene, const std::string& scale_text, const ra::NamedOrientations& gt,
+             const std::vector<Method>& methods, const std::vector<ra::EvaluationResult>& results, const Args& args,
+             Tables* tables) {
+  std::vector<ra::CdfSeries> curves;
+  for (const std::string& label : {std::string("squared + none"), std::string("L1-IRLS baseline"),
+                                   std::string(kPaperLabel), std::string("magsac + inliers"),
+                                   std::string("magsac + trace"), std::string("magsac + covariance"),
+                                   std::string(kRefinedLabel), std::string(kBundleLabel)}) {
+    for (std::size_t k = 0; k < methods.size(); ++k) {
+      if (methods[k].label != label) continue;
+      ra::CdfSeries c;
+      c.label = label == kPaperLabel     ? "paper's setting"
+                : label == kRefinedLabel ? "magsac + covariance, refined"
+                : label == kBundleLabel  ? "magsac + covariance, bundle adjusted"
+                                         : label;
+      for (const auto& [name, e] : results[k].errors_deg) c.error_deg.push_back(e);
+      curves.push_back(c);
+    }
+  }
+  if (args.plot_dir.empty()) return;
+  const std::string png = args.plot_dir + "/cdf_" + scene.name + "_" + scale_text + ".png";
+  std::string plot_error;
+  std::filesystem::create_directories(args.plot_dir);
+  if (ra::WriteCdfPlot(png, scene.name + ", scale " + scale_text + ": rotation error CDF", curves, gt.size(), 0.0,
+                       &plot_error)) {
+    const std::string relative = fs::path(png).lexically_relative(fs::path(args.output).parent_path()).string();
+    tables->accuracy << "\n![" << scene.name << " " << scale_text << " CDF](" << relative << ")\n";
+  } else {
+    std::cerr << "plot " << png << ": " << plot_error << "\n";
+  }
+}
+
+// One scene at one scale: the front end, its calibration, every averaging
+// method, the variants, the focal estimate and the speed.
+void EvaluateScene(const Scene& scene, const std::vector<std::string>& images, const ra::CameraIntrinsics& intrinsics,
+                   const ra::NamedOrientations& gt, const std::string& scale_text, const Args& args, Tables* tables) {
+  const int full_width = scene.name == "lund_door" ? 1296 : 3072;
+  const int full_height = scene.name == "lund_door" ? 1936 : 2048;
+  double scale = 1.0;
+  if (scale_text[0] == 'w') {
+    ra::ParseDouble(scale_text.substr(1), &scale);
+    scale = std::min(1.0, scale / full_width);
+  } else {
+    ra::ParseDouble(scale_text, &scale);
+  }
+  ra::ImagePipelineOptions options;
+  options.features.downsample = scale;
+  options.focal.enabled = true;              // as rotavg images
+  options.relative_pose.jackknife_grid = 4;  // as rotavg images
+  std::cerr << scene.name << " at scale " << scale << " ..." << std::flush;
+  // Features once, for the front end and for the variants.
+  std::vector<std::string> names, image_errors;
+  const auto features_start = std::chrono::steady_clock::now();
+  const std::vector<ra::ImageFeatures> features =
+      ra::ExtractImageFeatures(images, intrinsics, options.features, &names, &image_errors);
+  const double features_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - features_start).count();
+  for (const std::string& e : image_errors) std::cerr << e << "\n";
+  const Eigen::Matrix3d feature_k = ra::FeatureIntrinsics(intrinsics, options.features);
+  ra::ImagePipelineResult front = ra::BuildViewGraphFromFeatures(features, names, feature_k, options);
+  front.features_s = features_s;
+  std::cerr << " done (" << front.features_s + front.matching_s + front.relative_pose_s << " s)\n";
+  tables->focal << "| " << scene.name << " | " << scale_text << " | " << front.focal.pairs << " | "
+                << (front.focal.estimated ? Fixed(front.focal.scale, 4) + " +- " + Fixed(front.focal.standard_deviation, 4)
+                                          : std::string("not estimated"))
+                << " | " << (front.focal.applied ? "yes" : "no") << " | " << Fixed(front.focal_s, 2) << " |\n";
+
+  // The covariance floor the default averaging estimates on these pairs.
+  double floor_rad = 0.0;
+  {
+    ra::ViewOrientations out;
+    ra::RotationAveragingSummary summary;
+    ra::SolveRotationAveraging(WithCovariance(front, 0), ImagesDefaults(), &out, &summary);
+    floor_rad = summary.LargestComponentFloorRad();
+  }
+  CalibrationRows(scene, scale_text, front, names, gt, floor_rad, tables);
+
   const std::vector<double> thresholds = {0.1, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0};
-  std::ostringstream table;  // every method, every scene: the long table (loss_table_path)
-  table << "| scene | scale | method | median (deg) | AUC@0.1 | AUC@0.5 | AUC@1 | AUC@2 | AUC@5 | AUC@10 | AUC@20 |\n"
-        << "|---|---|---|---|---|---|---|---|---|---|---|\n";
-  speed << "| scene | scale | image size | features / image | features (ms/image) | matching (ms/pair) | relative pose + "
-           "covariance (ms/pair) |\n|---|---|---|---|---|---|---|\n";
+  const std::vector<Method> methods = Methods();
+  const ra::ViewGraph graphs[4] = {WithCovariance(front, 0), WithCovariance(front, 1), WithCovariance(front, 2),
+                                   WithCovariance(front, 3)};
+  ra::NamedOrientations bundle_adjusted;
+  const std::vector<ra::EvaluationResult> results = RunMethods(methods, graphs, front, gt, thresholds, &bundle_adjusted);
+  for (std::size_t k = 0; k < methods.size(); ++k) {
+    tables->long_table << LongTableRow(scene.name, scale_text, methods[k].label, results[k]);
+  }
+  ViewTermColumns(graphs[0], gt, bundle_adjusted, floor_rad, tables);
+  AccuracySection(scene, scale_text, gt, methods, results, args, thresholds, tables);
+  CdfPlot(scene, scale_text, gt, methods, results, args, tables);
+  if (scene.exact_intrinsics) tables->variants << VariantRows(scene.name, scale_text, features, names, feature_k, gt);
 
-  for (const Scene& scene : scenes) {
+  double mean_features = 0;
+  for (int f : front.features_per_image) mean_features += f;
+  const int w = static_cast<int>(std::lround(scale * full_width));
+  const int h = static_cast<int>(std::lround(scale * full_height));
+  tables->speed << "| " << scene.name << " | " << scale_text << " | " << w << "x" << h << " | "
+                << Fixed(mean_features / std::max<std::size_t>(1, images.size()), 0) << " | "
+                << Fixed(1e3 * front.features_s / std::max<std::size_t>(1, images.size()), 0) << " | "
+                << Fixed(1e3 * front.matching_s / std::max<std::size_t>(1, front.pairs.size()), 1) << " | "
+                << Fixed(1e3 * front.relative_pose_s / std::max<std::size_t>(1, front.pairs.size()), 1) << " |\n";
+}
+
+// The node's keyframe front end: castle-P19 as a two-camera rig (even images
+// on one camera, odd on the other, one capture per pair), 640x480, at 4000
+// features per keyframe. Empty if the scene is absent.
+std::string KeyframeRateRows(const std::string& data_dir) {
+  const std::string dir = data_dir + "/strecha/castle-P19";
+  ra::CameraIntrinsics intrinsics;
+  std::string error;
+  const std::vector<std::string> images = ra::ListImages(dir + "/images");
+  if (images.size() < 2 || !ra::ReadCameraIntrinsics(dir + "/images/K.txt", &intrinsics, &error)) return "";
+  std::ostringstream rate;
+  for (const ra::FeatureType type : {ra::FeatureType::kSift, ra::FeatureType::kOrb}) {
+    ra::KeyframeFrontendOptions options;
+    options.features.type = type;
+    options.features.max_features = 4000;
+    ra::KeyframeFrontend frontend(options);
+    for (std::size_t i = 0; i < images.size(); ++i) {
+      cv::Mat full = cv::imread(images[i], cv::IMREAD_GRAYSCALE), image;
+      cv::resize(full, image, cv::Size(640, 480), 0, 0, cv::INTER_AREA);
+      Eigen::Matrix3d k = intrinsics.k;
+      k.row(0) *= 640.0 / full.cols;
+      k.row(1) *= 480.0 / full.rows;
+      const ra::KeyframeKey key{i % 2 ? "cam_b" : "cam_a", 1'000'000'000LL * static_cast<std::int64_t>(1 + i / 2)};
+      frontend.AddKeyframe(key, image, k);
+    }
+    const ra::KeyframeFrontendStats& st = frontend.Stats();
+    const double total = st.features_s + st.retrieval_s + st.pairs_s;
+    const double per = 1e3 * total / st.keyframes;
+    rate << "| " << ra::FeatureTypeName(type) << " | 4000 | " << st.keyframes << " | " << Fixed(per, 0) << " ("
+         << Fixed(1e3 * st.features_s / st.keyframes, 0) << " / " << Fixed(1e3 * st.retrieval_s / st.keyframes, 0)
+         << " / " << Fixed(1e3 * st.pairs_s / st.keyframes, 0) << ") | " << Fixed(1e3 / per, 1) << " | "
+         << st.sequential_edges << ", " << st.rig_edges << ", " << st.loop_closure_edges << " |\n";
+  }
+  return rate.str();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args args;
+  if (!ParseArgs(argc, argv, &args)) return 2;
+  const std::string command = ra::CommandLine("rotavg_frontend_eval", argc, argv);
+  const std::string table_path = (fs::path(args.output).parent_path() / "loss_table.md").string();
+  Tables tables;
+  for (const Scene& scene : Scenes(args.data_dir, args.quick)) {
     if (!fs::exists(scene.images)) {
       std::cerr << "skipping " << scene.name << ": " << scene.images << " absent\n";
       continue;
@@ -312,360 +626,30 @@ int main(int argc, char** argv) {
       return 1;
     }
     const std::vector<std::string> images = ra::ListImages(scene.images);
-    const int full_width = scene.name == "lund_door" ? 1296 : 3072;
-    const int full_height = scene.name == "lund_door" ? 1936 : 2048;
-    for (const std::string& scale_text : scales) {
-      double scale = 1.0;
-      if (scale_text[0] == 'w') {
-        ra::ParseDouble(scale_text.substr(1), &scale);
-        scale = std::min(1.0, scale / full_width);
-      } else {
-        ra::ParseDouble(scale_text, &scale);
-      }
-      ra::ImagePipelineOptions options;
-      options.features.downsample = scale;
-      options.focal.enabled = true;  // as rotavg images
-      options.relative_pose.jackknife_grid = 4;  // as rotavg images
-      std::cerr << scene.name << " at scale " << scale << " ..." << std::flush;
-      // Features once, for the front end and for the variants below.
-      std::vector<std::string> names, image_errors;
-      const auto features_start = std::chrono::steady_clock::now();
-      const std::vector<ra::ImageFeatures> features =
-          ra::ExtractImageFeatures(images, intrinsics, options.features, &names, &image_errors);
-      const double features_s =
-          std::chrono::duration<double>(std::chrono::steady_clock::now() - features_start).count();
-      for (const std::string& e : image_errors) std::cerr << e << "\n";
-      const Eigen::Matrix3d feature_k = ra::FeatureIntrinsics(intrinsics, options.features);
-      ra::ImagePipelineResult front = ra::BuildViewGraphFromFeatures(features, names, feature_k, options);
-      front.features_s = features_s;
-      std::cerr << " done (" << front.features_s + front.matching_s + front.relative_pose_s << " s)\n";
-      focal_rows << "| " << scene.name << " | " << scale_text << " | " << front.focal.pairs << " | "
-                 << (front.focal.estimated ? Fixed(front.focal.scale, 4) + " +- " + Fixed(front.focal.standard_deviation, 4)
-                                           : std::string("not estimated"))
-                 << " | " << (front.focal.applied ? "yes" : "no") << " | " << Fixed(front.focal_s, 2) << " |\n";
-
-      // The covariance floor the default averaging estimates on these pairs.
-      double floor_rad = 0.0;
-      {
-        ra::ViewOrientations out;
-        ra::RotationAveragingSummary summary;
-        ra::SolveRotationAveraging(WithCovariance(front, 0), ImagesDefaults(), &out, &summary);
-        floor_rad = summary.LargestComponentFloorRad();
-      }
-      // Calibration: eta = Log(R_ij_true^T R_ij_est) for every successful pair.
-      std::vector<double> nees_m, nees_p, nees_c, nees_f, err, std_m, std_c, sigmas;
-      // Per inlier class (< 100, 100-499, >= 500): NEES without and with the floor.
-      std::vector<double> class_nees[3], class_nees_f[3];
-      int ok = 0;
-      for (const ra::PairReport& p : front.pairs) {
-        if (!p.pose.success) continue;
-        ++ok;
-        Eigen::Vector3d eta;
-        if (!PairError(gt, names[p.image1], names[p.image2], p.pose, &eta)) continue;
-        nees_m.push_back(eta.dot(p.pose.covariance_marginal.ldlt().solve(eta)));
-        nees_p.push_back(eta.dot(p.pose.covariance_marginal_pixel.ldlt().solve(eta)));
-        nees_c.push_back(eta.dot(p.pose.covariance_conditional.ldlt().solve(eta)));
-        const Eigen::Matrix3d floored =
-            p.pose.covariance_marginal + floor_rad * floor_rad * Eigen::Matrix3d::Identity();
-        nees_f.push_back(eta.dot(floored.ldlt().solve(eta)));
-        const int inliers = static_cast<int>(p.pose.inliers.size());
-        const int c = inliers < 100 ? 0 : inliers < 500 ? 1 : 2;
-        class_nees[c].push_back(nees_m.back());
-        class_nees_f[c].push_back(nees_f.back());
-        err.push_back(eta.norm());
-        std_m.push_back(std::sqrt(p.pose.covariance_marginal.trace()));
-        std_c.push_back(std::sqrt(p.pose.covariance_conditional.trace()));
-        sigmas.push_back(p.pose.sigma_px);
-      }
-      calib << "| " << scene.name << " | " << scale_text << " | " << ok << " / " << front.pairs.size() << " | "
-            << Fixed(Mean(nees_m), 2) << " | " << Fixed(Median(nees_m), 2) << " | " << Fixed(Median(nees_p), 2) << " | "
-            << Fixed(Mean(nees_c), 2) << " | "
-            << Fixed(Median(nees_c), 2) << " | " << Fixed(Spearman(std_m, err), 2) << " | "
-            << Fixed(Spearman(std_c, err), 2) << " | " << Fixed(Median(sigmas), 3) << " |\n";
-      floor_rows << "| " << scene.name << " | " << scale_text << " | " << Fixed(ra::RadToDeg(floor_rad), 4) << " | "
-                 << Fixed(Median(nees_m), 1) << " | " << Fixed(Median(nees_f), 2) << " | " << Fixed(Mean(nees_f), 2);
-      for (int c = 0; c < 3; ++c) {
-        floor_rows << " | " << class_nees[c].size() << ": " << Fixed(Median(class_nees[c]), 1) << " -> "
-                   << Fixed(Median(class_nees_f[c]), 2);
-      }
-
-      // Accuracy of rotation averaging.
-      struct Method {
-        std::string label;
-        ra::RotationAveragingOptions options;
-        int covariance;       // graph variant
-        enum class Then { kNothing, kRefine, kBundleAdjust } then = Then::kNothing;  // after the averaging
-      };
-      std::vector<Method> methods;  // the paper's table first: every loss x every weighting
-      for (ra::LossType loss : kLosses) {
-        for (ra::EdgeWeighting w : kWeightings) {
-          ra::RotationAveragingOptions o = ImagesDefaults();
-          o.loss = loss;
-          o.weighting = w;
-          methods.push_back({std::string(ra::LossTypeName(loss)) + " + " + ra::EdgeWeightingName(w), o, 0});
-        }
-      }
-      {
-        ra::RotationAveragingOptions o = ImagesDefaults();
-        methods.push_back({kRefinedLabel, o, 0, Method::Then::kRefine});
-        methods.push_back({kBundleLabel, o, 0, Method::Then::kBundleAdjust});
-        methods.push_back({"magsac + covariance (conditional)", o, 1});
-        methods.push_back({"magsac + covariance (marginal of the pixel model alone, no cell jackknife)", o, 3});
-        ra::RotationAveragingOptions widened = o;
-        widened.self_calibration = ra::CovarianceSelfCalibration::kLossScale;
-        methods.push_back({"magsac + covariance, loss widened instead of a covariance floor (--self-calibration "
-                           "loss_scale)",
-                           widened, 0});
-        o.covariance_normalization = ra::CovarianceNormalization::kPaper;
-        o.gnc_initial_scale_factor = 1.0;
-        o.l1_initialization = false;
-        methods.push_back({"paper: magsac + unscaled conditional covariance x1e8, sigma_max 0.02, tree start", o, 2});
-        ra::RotationAveragingOptions l1;
-        l1.solver = ra::SolverType::kL1Irls;
-        l1.weighting = ra::EdgeWeighting::kNone;
-        methods.push_back({"L1-IRLS baseline", l1, 0});
-      }
-      const ra::ViewGraph graphs[4] = {WithCovariance(front, 0), WithCovariance(front, 1), WithCovariance(front, 2),
-                                       WithCovariance(front, 3)};
-      std::vector<ra::EvaluationResult> results;
-      ra::NamedOrientations bundle_adjusted;
-      for (const Method& m : methods) {
-        ra::ViewOrientations out;
-        ra::RotationAveragingSummary summary;
-        ra::SolveRotationAveraging(graphs[m.covariance], m.options, &out, &summary);
-        if (m.then == Method::Then::kRefine) {
-          ra::CorrespondenceRefinementSummary refinement;
-          ra::RefineRotationsWithCorrespondences(ra::CorrespondencesOfEdges(front), ra::CorrespondenceRefinementOptions(),
-                                                 &out, &refinement);
-          std::cerr << "  " << refinement.Report() << "\n";
-        } else if (m.then == Method::Then::kBundleAdjust) {
-          ra::BundleAdjustmentSummary adjustment;
-          ra::RefineRotationsWithBundleAdjustment(ra::CorrespondencesOfEdges(front), ra::BundleAdjustmentOptions(), &out,
-                                                  &adjustment);
-          std::cerr << "  " << adjustment.Report() << "\n";
-          bundle_adjusted = ra::NameOrientations(graphs[m.covariance], out);
-        }
-        results.push_back(ra::EvaluateOrientations(ra::NameOrientations(graphs[m.covariance], out), gt, thresholds));
-        table << LongTableRow(scene.name, scale_text, m.label, results.back());
-      }
-      // The pairs against the bundle adjustment of their own inliers: a
-      // reference that shares their features, not the ground truth's error.
-      // And split into views and pairs (EdgeCalibration): the per-view
-      // offsets against the ground truth, and the pairs' NEES after them.
-      // Then the view term those offsets against the bundle adjustment give
-      // (what rotavg images prints), added to both views of each pair.
-      const ra::EdgeCalibration against_gt = ra::EvaluateEdgeCovariances(graphs[0], gt, floor_rad);
-      const ra::EdgeCalibration against_bundle = ra::EvaluateEdgeCovariances(graphs[0], bundle_adjusted, floor_rad);
-      const double view_rad = ra::ViewTermRad(against_bundle);
-      floor_rows << " | " << Fixed(against_bundle.nees_median, 2) << " | " << Fixed(against_gt.median_view_offset_deg, 4)
-                 << " | " << Fixed(against_gt.nees_median_after_view_offsets, 2) << " | "
-                 << Fixed(view_rad * 180.0 / M_PI, 4) << " | "
-                 << Fixed(ra::EvaluateEdgeCovariances(graphs[0], gt, ra::FloorWithViewTermRad(floor_rad, view_rad))
-                              .nees_median,
-                          2)
-                 << " |\n";
-      // The loss x weighting matrix of medians, then the other methods.
-      accuracy << "\n**" << scene.name << ", scale " << scale_text << "** (" << gt.size()
-               << " views): median error (deg) per loss and weighting; best in bold.\n\n| loss |";
-      for (ra::EdgeWeighting w : kWeightings) accuracy << " " << ra::EdgeWeightingName(w) << " |";
-      accuracy << "\n|---|";
-      for (std::size_t k = 0; k < kWeightings.size(); ++k) accuracy << "---|";
-      double best = std::numeric_limits<double>::infinity();
-      for (std::size_t k = 0; k < kLosses.size() * kWeightings.size(); ++k) best = std::min(best, results[k].median_error_deg);
-      for (std::size_t l = 0; l < kLosses.size(); ++l) {
-        accuracy << "\n| " << ra::LossTypeName(kLosses[l]) << " |";
-        for (std::size_t w = 0; w < kWeightings.size(); ++w) {
-          const double median = results[l * kWeightings.size() + w].median_error_deg;
-          accuracy << (median == best ? " **" + Fixed(median, 4) + "** |" : " " + Fixed(median, 4) + " |");
-        }
-      }
-      accuracy << "\n\n| other method | median (deg) | AUC@0.1 | AUC@0.5 | AUC@1 | AUC@2 |\n|---|---|---|---|---|---|\n";
-      for (std::size_t k = kLosses.size() * kWeightings.size(); k < methods.size(); ++k) {
-        accuracy << OtherMethodRow(methods[k].label, results[k]);
-      }
-      // COLMAP's reconstruction from the full-resolution images, scored as
-      // the methods above.
-      const fs::path colmap_model = fs::path(colmap_dir) / scene.name / "images.txt";
-      if (scale_text == "1" && fs::exists(colmap_model)) {
-        ra::NamedOrientations colmap;
-        const ra::ReadReport read = ra::ReadColmapGroundTruth(colmap_model.string(), &colmap);
-        if (read.ok()) {
-          const ra::EvaluationResult e = ra::EvaluateOrientations(colmap, gt, thresholds);
-          accuracy << OtherMethodRow(kColmapLabel, e);
-          table << LongTableRow(scene.name, scale_text, kColmapLabel, e);
-        } else {
-          std::cerr << "  COLMAP model left out: " << read.error << "\n";
-        }
-      }
-      // The paper's figure: cumulative error distributions of a few methods.
-      std::vector<ra::CdfSeries> curves;
-      for (const std::string& label : {std::string("squared + none"), std::string("L1-IRLS baseline"),
-                                       std::string("paper: magsac + unscaled conditional covariance x1e8, sigma_max "
-                                                   "0.02, tree start"),
-                                       std::string("magsac + inliers"), std::string("magsac + trace"),
-                                       std::string("magsac + covariance"), std::string(kRefinedLabel),
-                                       std::string(kBundleLabel)}) {
-        for (std::size_t k = 0; k < methods.size(); ++k) {
-          if (methods[k].label != label) continue;
-          ra::CdfSeries c;
-          c.label = label.rfind("paper", 0) == 0 ? "paper's setting"
-                    : label == kRefinedLabel        ? "magsac + covariance, refined"
-                    : label == kBundleLabel         ? "magsac + covariance, bundle adjusted"
-                                                    : label;
-          for (const auto& [name, e] : results[k].errors_deg) c.error_deg.push_back(e);
-          curves.push_back(c);
-        }
-      }
-      if (!plot_dir.empty()) {
-        const std::string png = plot_dir + "/cdf_" + scene.name + "_" + scale_text + ".png";
-        std::string plot_error;
-        std::filesystem::create_directories(plot_dir);
-        if (ra::WriteCdfPlot(png, scene.name + ", scale " + scale_text + ": rotation error CDF", curves, gt.size(), 0.0,
-                             &plot_error)) {
-          const std::string relative = fs::path(png).lexically_relative(fs::path(output).parent_path()).string();
-          accuracy << "\n![" << scene.name << " " << scale_text << " CDF](" << relative << ")\n";
-        } else {
-          std::cerr << "plot " << png << ": " << plot_error << "\n";
-        }
-      }
-      if (scene.exact_intrinsics) variants << VariantRows(scene.name, scale_text, features, names, feature_k, gt);
-      double mean_features = 0;
-      for (int f : front.features_per_image) mean_features += f;
-      const int w = static_cast<int>(std::lround(scale * full_width));
-      const int h = static_cast<int>(std::lround(scale * full_height));
-      speed << "| " << scene.name << " | " << scale_text << " | " << w << "x" << h << " | "
-            << Fixed(mean_features / std::max<std::size_t>(1, images.size()), 0) << " | "
-            << Fixed(1e3 * front.features_s / std::max<std::size_t>(1, images.size()), 0) << " | "
-            << Fixed(1e3 * front.matching_s / std::max<std::size_t>(1, front.pairs.size()), 1) << " | "
-            << Fixed(1e3 * front.relative_pose_s / std::max<std::size_t>(1, front.pairs.size()), 1) << " |\n";
+    for (const std::string& scale_text : args.scales) {
+      EvaluateScene(scene, images, intrinsics, gt, scale_text, args, &tables);
     }
   }
+  const std::string rate = KeyframeRateRows(args.data_dir);
 
-  // Keyframe front end of the node: castle-P19 as a two-camera rig (even
-  // images on one camera, odd on the other, one capture per pair), 640x480.
-  std::ostringstream rate;
-  {
-    const std::string dir = data_dir + "/strecha/castle-P19";
-    ra::CameraIntrinsics intrinsics;
-    std::string error;
-    const std::vector<std::string> images = ra::ListImages(dir + "/images");
-    if (images.size() >= 2 && ra::ReadCameraIntrinsics(dir + "/images/K.txt", &intrinsics, &error)) {
-      rate << "| features | max features | keyframes | ms / keyframe (features / retrieval / pairs) | keyframes / s | "
-              "sequential, rig, loop edges |\n|---|---|---|---|---|---|\n";
-      for (const ra::FeatureType type : {ra::FeatureType::kSift, ra::FeatureType::kOrb}) {
-        ra::KeyframeFrontendOptions options;
-        options.features.type = type;
-        options.features.max_features = 4000;  // the node's default
-        ra::KeyframeFrontend frontend(options);
-        for (std::size_t i = 0; i < images.size(); ++i) {
-          cv::Mat full = cv::imread(images[i], cv::IMREAD_GRAYSCALE), image;
-          cv::resize(full, image, cv::Size(640, 480), 0, 0, cv::INTER_AREA);
-          Eigen::Matrix3d k = intrinsics.k;
-          k.row(0) *= 640.0 / full.cols;
-          k.row(1) *= 480.0 / full.rows;
-          const ra::KeyframeKey key{i % 2 ? "cam_b" : "cam_a", 1'000'000'000LL * static_cast<std::int64_t>(1 + i / 2)};
-          frontend.AddKeyframe(key, image, k);
-        }
-        const ra::KeyframeFrontendStats& st = frontend.Stats();
-        const double total = st.features_s + st.retrieval_s + st.pairs_s;
-        const double per = 1e3 * total / st.keyframes;
-        rate << "| " << ra::FeatureTypeName(type) << " | 4000 | " << st.keyframes << " | " << Fixed(per, 0) << " ("
-             << Fixed(1e3 * st.features_s / st.keyframes, 0) << " / " << Fixed(1e3 * st.retrieval_s / st.keyframes, 0)
-             << " / " << Fixed(1e3 * st.pairs_s / st.keyframes, 0) << ") | " << Fixed(1e3 / per, 1) << " | "
-             << st.sequential_edges << ", " << st.rig_edges << ", " << st.loop_closure_edges << " |\n";
-      }
-    }
-  }
-
-  std::ostringstream md;
   const std::time_t now = std::time(nullptr);
-  md << "# Two-view front end on real images\n\nReproduce with: `" << command
-     << "` (built by `scripts/benchmark_frontend.sh`). Generated " << std::put_time(std::gmtime(&now), "%Y-%m-%d %H:%M UTC")
-     << ". SIFT (8000 features), ratio 0.8 + mutual check, USAC MAGSAC++ (3 px, then again at 3 sigma of the pair's "
-        "measured pixel noise), Sampson refinement with inlier re-selection, exhaustive pairs. Scale 0.25 = images downsampled to a quarter of the width; w640 = resized to 640 pixels wide.\n\n"
-     << "## Calibration of the rotation covariances\n\nFor every pair with a relative pose, eta = Log(R_ij_true^T "
-        "R_ij_est) against the ground-truth cameras and NEES = eta^T C^-1 eta: calibrated covariances give chi-square "
-        "with 3 degrees of freedom, mean 3 and median 2.37. Spearman: rank correlation between the predicted standard "
-        "deviation sqrt(tr C) and the actual error |eta|. Both covariances are scaled by the pixel noise variance "
-        "estimated from the inlier residuals. The marginal one is, in every direction, at least the delete-one-cell "
-        "jackknife's over a 4 x 4 grid of the inliers (RelativePoseOptions::jackknife_grid): errors shared by a "
-        "region of the image move the rotation together, where the pixel model counts them as independent. The "
-        "column \"pixel model alone\" is the marginal covariance without it.\n\n"
-     << calib.str()
-     << "\nThe errors are beyond what the pixel noise predicts, and the pairs with the most inliers, whose "
-        "predicted standard deviations are smallest, are the furthest off in units of it: their errors do not shrink "
-        "with the number of matches (correlated feature errors, matches biased by repetitive structure). `rotavg "
-        "images` therefore adds an isotropic floor C + s^2 I to every pair's covariance, with s estimated from the "
-        "residuals of the averaging itself (internal consistency, not the ground truth; "
-        "--self-calibration floor, EstimateCovarianceFloor). NEES with the floor, overall and per class of "
-        "pairs by inlier count (pairs: median NEES without -> with the floor):\n\n"
-        "| scene | scale | floor s (deg) | NEES median (marginal) | NEES median (with floor) | NEES mean (with floor) "
-        "| < 100 inliers | 100-499 inliers | >= 500 inliers | NEES median (with floor) against the bundle adjustment "
-        "| median per-view offset (deg) | NEES median (with floor) after the per-view offsets "
-        "| view term (deg per axis) | NEES median with floor and view term "
-        "|\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
-     << floor_rows.str()
-     << "\nA pair's error against a reference is its own plus the reference's, so these figures hold the "
-        "reference's error too. The column \"against the bundle adjustment\" scores the pairs against the orientations `rotavg images` bundle "
-        "adjusts from their own inliers instead of the ground truth (rotavg eval --graph): a reference that shares "
-        "the pairs' features and K, so what they share is invisible to it too. [colmap.md](colmap.md), \"Which "
-        "reference can check the two-view covariances?\", scores the same pairs at full resolution against "
-        "COLMAP's model and against a bundle adjustment of other features, and estimates each estimate's own error "
-        "from their differences.\n\nThe last two columns split the errors against the ground truth into views and "
-        "pairs (rotavg eval --graph): the rotation per view that best explains all of its pairs' errors (fitted on "
-        "the whitened errors with the floor: in effect the averaging of the pairs about the ground truth; its median "
-        "over the views, after the alignment of the scoring), and the pairs' NEES after these offsets, which is the "
-        "same against any reference. A view's offset is an error all of its pairs share: the reference's own for that "
-        "view, or one of that image that every pair of it inherits. The pairs' consistency with each other, and the "
-        "floor estimated from it, cannot see it, and no covariance of a single pair can express it. The fit takes "
-        "3 (views - 1) of the 3 x pairs values (about a fifth here), so calibrated pairs would give a little below 2.37.\n\n"
-        "The bundle adjustment can see that shared error: it ties each view's points and centre to the other views', "
-        "where each pair's summary has a translation and depths of its own. The view term is the standard deviation "
-        "per axis of the views' offsets against it (robustly: the median of |d|^2 over the views, 2.366 s^2 for an "
-        "isotropic Gaussian), which `rotavg images` prints after the adjustment; the last column scores the pairs "
-        "against the ground truth with it added to both views of each pair, C + (s^2 + 2 v^2) I (rotavg eval --graph "
-        "--view-term-from). It uses no ground truth.\n"
-     << "\n## Rotation averaging accuracy\n\nThe paper's comparison: every "
-        "loss (MAGSAC++ with its default sigma_max, and the others at their default scales) with every weighting, "
-        "on the relative rotations of the front end above (marginal covariances; with covariance weighting the floor "
-        "above, as `rotavg images` does), against the ground-truth cameras; then other methods, among them the bundle "
-        "adjustment `rotavg images` runs from the averaged orientations by default (BundleAdjustmentOptions). "
-        "The long table with AUC at 0.1/0.5/1/2/5/10/20 deg for every method is in [" << fs::path(table_path).filename().string()
-     << "](" << fs::path(table_path).filename().string() << "). Curves: fraction of views with error below x.\n"
-     << accuracy.str()
-     << "\n## What moves the two-view rotations\n\nThe Strecha pairs matched once and re-estimated under variants "
-        "of the defaults: how many pairs get a pose, the median rotation error of the pairs against the ground truth "
-        "and how many are more than 1 deg off, their median NEES, and the median error of rotation averaging "
-        "(defaults) on them, then refined on the pairs' correspondences (--refine), and bundle adjusted from the averaging "
-        "(rotavg images defaults). The ground-truth intrinsics are exact, so a focal length 1% off shows what an "
-        "uncalibrated camera costs; the fixed threshold row shows what wrong matches near their epipolar lines cost "
-        "when the robust estimation admits residuals ten times the pixel noise.\n\n"
-        "| scene | scale | variant | pairs | median pair error (deg) | pairs > 1 deg | median NEES | averaging median (deg) "
-        "| refined median (deg) | bundle adjusted median (deg) |\n|---|---|---|---|---|---|---|---|---|---|\n"
-     << variants.str()
-     << "\nThe self-calibrated rows estimate the focal length from the pairs as `rotavg images` does "
-        "(FocalCalibrationOptions: the profile over a common focal scale of the truncated Sampson errors of every "
-        "pair's matches, each pair's pose refined and its inliers selected again at every scale) and, when the "
-        "estimate differs from 1 by more than 0.5% and three standard deviations, estimate the pairs again with it. "
-        "On the scenes' own intrinsics (the pipeline above):\n\n"
-        "| scene | scale | pairs used | estimated focal scale | applied | seconds |\n|---|---|---|---|---|---|\n"
-     << focal_rows.str()
-     << "\n## Speed (single-threaded)\n\n" << speed.str();
-  if (!rate.str().empty()) {
-    md << "\n## Keyframe rate of the node's front end\n\ncastle-P19 as a two-camera rig (even images on cam_a, odd on "
-          "cam_b, one capture per pair) resized to 640x480, through the node's KeyframeFrontend (sequential, rig and "
-          "retrieval + verified loop-closure edges), single-threaded. The node processes keyframes one after another, "
-          "so keyframes / s is the rate it sustains; images beyond it queue (max_image_queue) and are then dropped and "
-          "counted.\n\n"
-       << rate.str();
-  }
-  ra::WriteReport(output, md.str());
-  std::ostringstream long_table;
-  long_table << "# Loss x weighting table on real images\n\nReproduce with: `" << command
-             << "` (writes this file beside " << output
-             << "). Every method on every scene and scale; AUC in percent of views (missing views count as failures)."
-                "\n\n"
-             << table.str();
-  ra::WriteReport(table_path, long_table.str());
+  std::ostringstream date;
+  date << std::put_time(std::gmtime(&now), "%Y-%m-%d %H:%M UTC");
+  const std::string table_file = fs::path(table_path).filename().string();
+  ra::WriteReport(args.output,
+                  ra::FillTemplate("frontend.md", {{"command", command},
+                                                   {"date", date.str()},
+                                                   {"calibration", tables.calibration.str()},
+                                                   {"floor", tables.floor.str()},
+                                                   {"loss_table", table_file},
+                                                   {"accuracy", tables.accuracy.str()},
+                                                   {"variants", tables.variants.str()},
+                                                   {"focal", tables.focal.str()},
+                                                   {"speed", tables.speed.str()},
+                                                   {"keyframe_rate", rate.empty() ? "" : ra::FillTemplate(
+                                                        "frontend_keyframe_rate.md", {{"rows", rate}})}}));
+  ra::WriteReport(table_path, ra::FillTemplate("loss_table.md", {{"command", command},
+                                                                 {"output", args.output},
+                                                                 {"rows", tables.long_table.str()}}));
   return 0;
 }
