@@ -131,7 +131,7 @@ void FactorisationSection(const std::string& data_dir, bool quick, int repeats, 
         "3x3-block system through the package's block Cholesky factor (`BlockCholesky`) and through CHOLMOD's "
         "supernodal factor (`block_cholesky_max_column_count` 1e9 and 0); entries per column of the factor as "
         "predicted from the block graph (the figure the default, "
-     << ra::RotationAveragingOptions().block_cholesky_max_column_count
+     << ra::RotationAveragingOptions().linear.block_cholesky_max_column_count
      << ", is compared with). Real graphs: median of " << repeats << " solves; synthetic graphs (anisotropic "
      << "covariances as in results/scale.md): one solve each.\n\n"
      << "| graph | views | factor entries per column | BlockCholesky (s) | supernodal (s) | supernodal / BlockCholesky | default takes |\n"
@@ -140,8 +140,8 @@ void FactorisationSection(const std::string& data_dir, bool quick, int repeats, 
     double seconds[2] = {0.0, 0.0};
     for (int method = 0; method < 2; ++method) {
       ra::RotationAveragingOptions options;
-      options.multigrid_min_views = 0;
-      options.block_cholesky_max_column_count = method == 0 ? 1e9 : 0.0;
+      options.linear.multigrid_min_views = 0;
+      options.linear.block_cholesky_max_column_count = method == 0 ? 1e9 : 0.0;
       std::vector<double> times;
       const int runs = c.name.rfind("synthetic", 0) == 0 ? 1 : repeats;
       for (int r = 0; r < runs; ++r) {
@@ -155,7 +155,7 @@ void FactorisationSection(const std::string& data_dir, bool quick, int repeats, 
     const double per_column = FactorEntriesPerColumn(c.graph);
     md << "| " << c.name << " | " << c.graph.NumViews() << " | " << Fixed(per_column, 1) << " | " << Fixed(seconds[0], 3)
        << " | " << Fixed(seconds[1], 3) << " | " << Fixed(seconds[1] / seconds[0], 2) << " | "
-       << (per_column <= ra::RotationAveragingOptions().block_cholesky_max_column_count ? "BlockCholesky" : "supernodal")
+       << (per_column <= ra::RotationAveragingOptions().linear.block_cholesky_max_column_count ? "BlockCholesky" : "supernodal")
        << " |\n";
     std::cerr << "factorisation: " << c.name << " " << seconds[0] << " / " << seconds[1] << " s\n";
   }
@@ -389,8 +389,8 @@ int main(int argc, char** argv) {
         ra::RotationAveragingOptions o;
         o.loss = row.loss;
         o.weighting = row.weighting;
-        o.gnc_initial_scale_factor = row.robust_start ? 8.0 : 1.0;
-        o.l1_initialization = row.robust_start;
+        o.robust_start.gnc_initial_scale_factor = row.robust_start ? 8.0 : 1.0;
+        o.robust_start.l1_initialization = row.robust_start;
         ra::ViewOrientations orientations;
         ra::RotationAveragingSummary summary;
         ra::SolveRotationAveraging(sg.graph, o, &orientations, &summary);

@@ -324,8 +324,8 @@ std::vector<Method> Methods() {
                      "loss_scale)",
                      widened, 0});
   o.covariance_normalization = ra::CovarianceNormalization::kPaper;
-  o.gnc_initial_scale_factor = 1.0;
-  o.l1_initialization = false;
+  o.robust_start.gnc_initial_scale_factor = 1.0;
+  o.robust_start.l1_initialization = false;
   methods.push_back({kPaperLabel, o, 2});
   ra::RotationAveragingOptions l1;
   l1.solver = ra::SolverType::kL1Irls;

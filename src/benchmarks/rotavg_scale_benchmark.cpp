@@ -78,8 +78,8 @@ int RunChild(int views, bool multigrid, bool anisotropic, double multigrid_toler
   ra::ViewOrientations orientations;
   ra::RotationAveragingSummary summary;
   ra::RotationAveragingOptions options;
-  if (!multigrid) options.multigrid_min_views = 0;
-  if (multigrid_tolerance > 0.0) options.multigrid_linear_solve_tolerance = multigrid_tolerance;
+  if (!multigrid) options.linear.multigrid_min_views = 0;
+  if (multigrid_tolerance > 0.0) options.linear.multigrid_linear_solve_tolerance = multigrid_tolerance;
   ra::SolveRotationAveraging(sg.graph, options, &orientations, &summary);
   int iterations = 0, factorizations = 0, multigrid_solves = 0;
   double final_cost = 0.0;
@@ -196,7 +196,7 @@ std::string ScaleSection(const char* self, const std::vector<int>& sizes, int an
   // The default is run again here, beside the tight one, so that the two
   // times of a pair come from adjacent runs.
   std::vector<std::string> tolerance_rows;
-  const double default_tolerance = ra::RotationAveragingOptions().multigrid_linear_solve_tolerance;
+  const double default_tolerance = ra::RotationAveragingOptions().linear.multigrid_linear_solve_tolerance;
   for (int n : sizes) {
     if (n < 10000 || n > 100000) continue;
     for (const bool anisotropic : {false, true}) {
@@ -319,7 +319,7 @@ OnlineRun RunOnline(int keyframes, int additions, double rate_hz, const OnlineMo
   options.solve_period_s = 0.0;
   options.max_queue = std::size_t{1} << 30;  // the initial graph arrives in one go
   options.averaging.posterior_covariance_max_views = mode.covariances;
-  options.averaging.warm_start_min_fraction = mode.warm_fraction;
+  options.averaging.robust_start.warm_start_min_fraction = mode.warm_fraction;
   if (!mode.local) options.local_solve_min_views = 0;
   options.background_full_solves = mode.background;
   ra::OnlineAverager averager(options);

@@ -545,43 +545,61 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
                &ra::ParseEdgeWeighting, "none, inliers, trace, frobenius, covariance");
   EnumProperty(options, "covariance_normalization", &ra::RotationAveragingOptions::covariance_normalization,
                &ra::CovarianceNormalizationName, &ra::ParseCovarianceNormalization, "std, paper");
-  EnumProperty(options, "spanning_tree_weight", &ra::RotationAveragingOptions::spanning_tree_weight,
-               &ra::SpanningTreeWeightName, &ra::ParseSpanningTreeWeight, "auto, uniform, inliers, information");
+  // The sub-structs' fields (robust_start, linear, l1_irls) are fields of
+  // SolveOptions in Python: one flat set of names, as make_options takes them.
+  options.def_property(
+      "spanning_tree_weight",
+      [](const ra::RotationAveragingOptions& o) {
+        return std::string(ra::SpanningTreeWeightName(o.robust_start.spanning_tree_weight));
+      },
+      [](ra::RotationAveragingOptions& o, const std::string& text) {
+        if (!ra::ParseSpanningTreeWeight(text, &o.robust_start.spanning_tree_weight)) {
+          throw py::value_error("unknown spanning_tree_weight '" + text + "' (auto, uniform, inliers, information)");
+        }
+      });
   EnumProperty(options, "self_calibration", &ra::RotationAveragingOptions::self_calibration,
                &ra::CovarianceSelfCalibrationName, &ra::ParseCovarianceSelfCalibration, "loss_scale, floor");
 #define ROTAVG_FIELD(name) options.def_readwrite(#name, &ra::RotationAveragingOptions::name)
+#define ROTAVG_NESTED_FIELD(group, name)                                                                  \
+  options.def_property(                                                                                   \
+      #name, [](const ra::RotationAveragingOptions& o) { return o.group.name; },                          \
+      [](ra::RotationAveragingOptions& o,                                                                 \
+         std::remove_reference_t<decltype(std::declval<ra::RotationAveragingOptions&>().group.name)> v) { \
+        o.group.name = v;                                                                                 \
+      })
   ROTAVG_FIELD(loss_scale);
   ROTAVG_FIELD(paper_covariance_scale);
   ROTAVG_FIELD(warm_start);
-  ROTAVG_FIELD(warm_start_min_fraction);
-  ROTAVG_FIELD(l1_initialization);
-  ROTAVG_FIELD(l1_initialization_min_disagreement);
-  ROTAVG_FIELD(l1_init_max_iterations);
-  ROTAVG_FIELD(l1_init_smoothing_rad);
-  ROTAVG_FIELD(l1_init_function_tolerance);
-  ROTAVG_FIELD(isotropic_presolve_max_anisotropy);
-  ROTAVG_FIELD(isotropic_presolve_function_tolerance);
-  ROTAVG_FIELD(gnc_initial_scale_factor);
-  ROTAVG_FIELD(gnc_scale_step);
-  ROTAVG_FIELD(gnc_stage_max_iterations);
+  ROTAVG_NESTED_FIELD(robust_start, warm_start_min_fraction);
+  ROTAVG_NESTED_FIELD(robust_start, l1_initialization);
+  ROTAVG_NESTED_FIELD(robust_start, l1_initialization_min_disagreement);
+  ROTAVG_NESTED_FIELD(robust_start, l1_init_max_iterations);
+  ROTAVG_NESTED_FIELD(robust_start, l1_init_smoothing_rad);
+  ROTAVG_NESTED_FIELD(robust_start, l1_init_function_tolerance);
+  ROTAVG_NESTED_FIELD(linear, isotropic_presolve_max_anisotropy);
+  ROTAVG_NESTED_FIELD(linear, isotropic_presolve_function_tolerance);
+  ROTAVG_NESTED_FIELD(robust_start, gnc_initial_scale_factor);
+  ROTAVG_NESTED_FIELD(robust_start, gnc_scale_step);
+  ROTAVG_NESTED_FIELD(robust_start, gnc_stage_max_iterations);
   ROTAVG_FIELD(auto_scale_threshold);
   ROTAVG_FIELD(max_iterations);
   ROTAVG_FIELD(step_tolerance_rad);
   ROTAVG_FIELD(function_tolerance);
-  ROTAVG_FIELD(linear_solve_tolerance);
-  ROTAVG_FIELD(robust_start_linear_solve_tolerance);
-  ROTAVG_FIELD(multigrid_min_views);
-  ROTAVG_FIELD(block_cholesky_max_column_count);
-  ROTAVG_FIELD(block_multigrid_max_anisotropy);
-  ROTAVG_FIELD(multigrid_linear_solve_tolerance);
+  ROTAVG_NESTED_FIELD(linear, linear_solve_tolerance);
+  ROTAVG_NESTED_FIELD(linear, robust_start_linear_solve_tolerance);
+  ROTAVG_NESTED_FIELD(linear, multigrid_min_views);
+  ROTAVG_NESTED_FIELD(linear, block_cholesky_max_column_count);
+  ROTAVG_NESTED_FIELD(linear, block_multigrid_max_anisotropy);
+  ROTAVG_NESTED_FIELD(linear, multigrid_linear_solve_tolerance);
   ROTAVG_FIELD(num_threads);
   ROTAVG_FIELD(posterior_covariance_max_views);
   ROTAVG_FIELD(irls_extrapolation);
-  ROTAVG_FIELD(l1_max_iterations);
-  ROTAVG_FIELD(l1_admm_max_iterations);
-  ROTAVG_FIELD(l1_irls_sigma_deg);
-  ROTAVG_FIELD(l1_irls_max_iterations);
+  ROTAVG_NESTED_FIELD(l1_irls, l1_max_iterations);
+  ROTAVG_NESTED_FIELD(l1_irls, l1_admm_max_iterations);
+  ROTAVG_NESTED_FIELD(l1_irls, l1_irls_sigma_deg);
+  ROTAVG_NESTED_FIELD(l1_irls, l1_irls_max_iterations);
 #undef ROTAVG_FIELD
+#undef ROTAVG_NESTED_FIELD
   options.def("validate", &ValidateOrThrow<ra::RotationAveragingOptions>,
               "Raises ValueError naming the first field out of its range (solve() checks it too).");
   options.def("default_loss_scale", &ra::DefaultLossScale,

@@ -105,7 +105,7 @@ inline bool ParseAveragingOptions(const Args& args, ra::RotationAveragingOptions
     options->max_iterations = std::atoi(args.Get("--max-iterations").c_str());
     if (options->max_iterations < 0) return fail("--max-iterations must be >= 0");
   }
-  if (args.Has("--no-gnc")) options->gnc_initial_scale_factor = 1.0;
+  if (args.Has("--no-gnc")) options->robust_start.gnc_initial_scale_factor = 1.0;
   return options->Validate(error);
 }
 

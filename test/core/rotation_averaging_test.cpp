@@ -51,10 +51,10 @@ TEST(RotationAveraging, OptionsOutOfRangeAreRefusedByName) {
       {[](RotationAveragingOptions* o) { o->max_iterations = -1; }, "max_iterations must be at least 0 (got -1)"},
       {[](RotationAveragingOptions* o) { o->loss_scale = std::numeric_limits<double>::quiet_NaN(); },
        "loss_scale must be finite"},
-      {[](RotationAveragingOptions* o) { o->gnc_scale_step = 1.0; }, "gnc_scale_step must be above 1"},
-      {[](RotationAveragingOptions* o) { o->warm_start_min_fraction = 1.5; },
+      {[](RotationAveragingOptions* o) { o->robust_start.gnc_scale_step = 1.0; }, "gnc_scale_step must be above 1"},
+      {[](RotationAveragingOptions* o) { o->robust_start.warm_start_min_fraction = 1.5; },
        "warm_start_min_fraction must be in [0, 1]"},
-      {[](RotationAveragingOptions* o) { o->linear_solve_tolerance = 0.0; }, "linear_solve_tolerance must be in (0, 1)"},
+      {[](RotationAveragingOptions* o) { o->linear.linear_solve_tolerance = 0.0; }, "linear_solve_tolerance must be in (0, 1)"},
       {[](RotationAveragingOptions* o) { o->num_threads = 0; }, "num_threads must be at least 1"},
   };
   SyntheticGraphOptions go;
@@ -163,7 +163,7 @@ TEST(RotationAveraging, RobustSolveNeverEndsAboveItsStart) {
     EXPECT_EQ(exact, 3);
     EXPECT_EQ(summary.num_outlier_edges, 1u);
     // With GNC off the solve stays in the start's basin and does not need it.
-    options.gnc_initial_scale_factor = 1.0;
+    options.robust_start.gnc_initial_scale_factor = 1.0;
     ASSERT_TRUE(SolveRotationAveraging(graph, options, &out, &summary));
     EXPECT_FALSE(summary.components[0].refined_start) << summary.components[0].status;
     EXPECT_LE(summary.components[0].final_cost, summary.components[0].initial_cost * (1.0 + 1e-9));
@@ -220,9 +220,9 @@ TEST_P(MultigridAgainstFactor, MultigridSolvesReachTheFactorisationPathsMinimum)
   go.seed = 41;
   const SyntheticGraph sg = MakeSyntheticGraph(go);
   RotationAveragingOptions multigrid_options;
-  multigrid_options.multigrid_min_views = 1000;
+  multigrid_options.linear.multigrid_min_views = 1000;
   RotationAveragingOptions factor_options;
-  factor_options.multigrid_min_views = 0;
+  factor_options.linear.multigrid_min_views = 0;
   const Outcome multigrid = SolveAndScore(sg, multigrid_options);
   const Outcome factor = SolveAndScore(sg, factor_options);
   const ComponentSummary& m = multigrid.summary.components[0];
@@ -256,12 +256,12 @@ TEST(RotationAveraging, NearlyDegenerateInformationIsFactorised) {
   go.seed = 43;
   const SyntheticGraph sg = MakeSyntheticGraph(go);
   RotationAveragingOptions options;
-  options.multigrid_min_views = 1000;
+  options.linear.multigrid_min_views = 1000;
   const Outcome outcome = SolveAndScore(sg, options);
   const ComponentSummary& c = outcome.summary.components[0];
   EXPECT_EQ(c.multigrid_solves, 0);
   EXPECT_GT(c.factorizations, 0);
-  options.block_multigrid_max_anisotropy = std::numeric_limits<double>::infinity();
+  options.linear.block_multigrid_max_anisotropy = std::numeric_limits<double>::infinity();
   // Without the gate multigrid is tried (and solves some of the systems).
   EXPECT_GT(SolveAndScore(sg, options).summary.components[0].multigrid_solves, 0);
 }
@@ -575,7 +575,7 @@ TEST(RotationAveraging, MostlyWarmStartPlacesNewViewsByConsensus) {
   }
   ViewOrientations warm = solved;
   RotationAveragingOptions fast;
-  fast.warm_start_min_fraction = 0.99;  // keep the start: one new view of 201
+  fast.robust_start.warm_start_min_fraction = 0.99;  // keep the start: one new view of 201
   ASSERT_TRUE(SolveRotationAveraging(sg.graph, fast, &warm, &summary));
   EXPECT_LT(summary.components[0].iterations, cold_iterations / 2);
   const EvaluationResult e = EvaluateOrientations(NameOrientations(sg.graph, warm), NameOrientations(sg.graph, sg.ground_truth));

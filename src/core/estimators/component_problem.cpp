@@ -209,7 +209,7 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
                                 ? 1.0 / options.paper_covariance_scale
                                 : 1.0;
 
-  SpanningTreeWeight tree_weight = options.spanning_tree_weight;
+  SpanningTreeWeight tree_weight = options.robust_start.spanning_tree_weight;
   if (tree_weight == SpanningTreeWeight::kAuto) {
     tree_weight = weighting != EdgeWeighting::kNone ? SpanningTreeWeight::kInformation
                   : !inliers.empty()                ? SpanningTreeWeight::kInliers

@@ -271,12 +271,12 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
   Eigen::VectorXd previous_update;
   Eigen::MatrixXd delta;
   int iteration = 0;
-  const bool multigrid = options.multigrid_min_views > 0 && num_free >= options.multigrid_min_views &&
-                         (isotropic || MedianAnisotropy(*problem, &ws) <= options.block_multigrid_max_anisotropy);
+  const bool multigrid = options.linear.multigrid_min_views > 0 && num_free >= options.linear.multigrid_min_views &&
+                         (isotropic || MedianAnisotropy(*problem, &ws) <= options.linear.block_multigrid_max_anisotropy);
   system.SetUseMultigrid(multigrid);
-  system.SetBlockCholeskyMaxColumnCount(options.block_cholesky_max_column_count);
-  system.SetPcgTolerance(multigrid ? std::max(options.linear_solve_tolerance, options.multigrid_linear_solve_tolerance)
-                                   : options.linear_solve_tolerance);
+  system.SetBlockCholeskyMaxColumnCount(options.linear.block_cholesky_max_column_count);
+  system.SetPcgTolerance(multigrid ? std::max(options.linear.linear_solve_tolerance, options.linear.multigrid_linear_solve_tolerance)
+                                   : options.linear.linear_solve_tolerance);
   for (; iteration < options.max_iterations; ++iteration) {
     Assemble(*problem, residuals, weights, &ws);
     if (!system.Solve(1e-12, 6, &delta)) {

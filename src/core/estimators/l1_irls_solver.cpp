@@ -132,16 +132,16 @@ int RefineByL1(int max_outer_iterations, int max_admm_iterations, ComponentProbl
 void SolveComponentL1Irls(const RotationAveragingOptions& options, ComponentProblem* problem,
                           ComponentSummary* summary) {
   std::string l1_status;
-  const int iterations = RefineByL1(options.l1_max_iterations, options.l1_admm_max_iterations, problem, &l1_status);
+  const int iterations = RefineByL1(options.l1_irls.l1_max_iterations, options.l1_irls.l1_admm_max_iterations, problem, &l1_status);
 
   // IRLS stage: unweighted Geman-McClure.
   for (ComponentEdge& e : problem->edges) {
     e.information.setIdentity();
     e.sqrt_information.setIdentity();
   }
-  GemanMcClureLoss loss(DegToRad(options.l1_irls_sigma_deg));
+  GemanMcClureLoss loss(DegToRad(options.l1_irls.l1_irls_sigma_deg));
   RotationAveragingOptions irls_options = options;
-  irls_options.max_iterations = options.l1_irls_max_iterations;
+  irls_options.max_iterations = options.l1_irls.l1_irls_max_iterations;
   ComponentSummary irls_summary;
   SolveComponentIrls(irls_options, loss, problem, &irls_summary);
   summary->iterations += iterations + irls_summary.iterations;

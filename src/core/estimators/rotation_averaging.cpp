@@ -182,32 +182,32 @@ bool RotationAveragingOptions::Validate(std::string* error) const {
   return OptionCheck()
       .Finite("loss_scale", loss_scale)
       .Above("paper_covariance_scale", paper_covariance_scale, 0.0)
-      .Within("warm_start_min_fraction", warm_start_min_fraction, 0.0, 1.0)
-      .Within("l1_initialization_min_disagreement", l1_initialization_min_disagreement, 0.0, 1.0)
-      .AtLeast("l1_init_max_iterations", l1_init_max_iterations, 0)
-      .Above("l1_init_smoothing_rad", l1_init_smoothing_rad, 0.0)
-      .AtLeast("l1_init_function_tolerance", l1_init_function_tolerance, 0.0)
-      .NotNan("isotropic_presolve_max_anisotropy", isotropic_presolve_max_anisotropy)
-      .AtLeast("isotropic_presolve_function_tolerance", isotropic_presolve_function_tolerance, 0.0)
-      .AtLeast("gnc_initial_scale_factor", gnc_initial_scale_factor, 1.0)
-      .Above("gnc_scale_step", gnc_scale_step, 1.0)
-      .AtLeast("gnc_stage_max_iterations", gnc_stage_max_iterations, 0)
+      .Within("warm_start_min_fraction", robust_start.warm_start_min_fraction, 0.0, 1.0)
+      .Within("l1_initialization_min_disagreement", robust_start.l1_initialization_min_disagreement, 0.0, 1.0)
+      .AtLeast("l1_init_max_iterations", robust_start.l1_init_max_iterations, 0)
+      .Above("l1_init_smoothing_rad", robust_start.l1_init_smoothing_rad, 0.0)
+      .AtLeast("l1_init_function_tolerance", robust_start.l1_init_function_tolerance, 0.0)
+      .NotNan("isotropic_presolve_max_anisotropy", linear.isotropic_presolve_max_anisotropy)
+      .AtLeast("isotropic_presolve_function_tolerance", linear.isotropic_presolve_function_tolerance, 0.0)
+      .AtLeast("gnc_initial_scale_factor", robust_start.gnc_initial_scale_factor, 1.0)
+      .Above("gnc_scale_step", robust_start.gnc_scale_step, 1.0)
+      .AtLeast("gnc_stage_max_iterations", robust_start.gnc_stage_max_iterations, 0)
       .NotNan("auto_scale_threshold", auto_scale_threshold)
       .AtLeast("max_iterations", max_iterations, 0)
       .AtLeast("step_tolerance_rad", step_tolerance_rad, 0.0)
       .AtLeast("function_tolerance", function_tolerance, 0.0)
-      .Between("linear_solve_tolerance", linear_solve_tolerance, 0.0, 1.0)
-      .Between("robust_start_linear_solve_tolerance", robust_start_linear_solve_tolerance, 0.0, 1.0)
-      .AtLeast("multigrid_min_views", multigrid_min_views, 0)
-      .Above("block_multigrid_max_anisotropy", block_multigrid_max_anisotropy, 0.0)
-      .AtLeast("block_cholesky_max_column_count", block_cholesky_max_column_count, 0.0)
-      .Between("multigrid_linear_solve_tolerance", multigrid_linear_solve_tolerance, 0.0, 1.0)
+      .Between("linear_solve_tolerance", linear.linear_solve_tolerance, 0.0, 1.0)
+      .Between("robust_start_linear_solve_tolerance", linear.robust_start_linear_solve_tolerance, 0.0, 1.0)
+      .AtLeast("multigrid_min_views", linear.multigrid_min_views, 0)
+      .Above("block_multigrid_max_anisotropy", linear.block_multigrid_max_anisotropy, 0.0)
+      .AtLeast("block_cholesky_max_column_count", linear.block_cholesky_max_column_count, 0.0)
+      .Between("multigrid_linear_solve_tolerance", linear.multigrid_linear_solve_tolerance, 0.0, 1.0)
       .AtLeast("num_threads", num_threads, 1)
       .AtLeast("posterior_covariance_max_views", posterior_covariance_max_views, 0)
-      .AtLeast("l1_max_iterations", l1_max_iterations, 0)
-      .AtLeast("l1_admm_max_iterations", l1_admm_max_iterations, 0)
-      .Above("l1_irls_sigma_deg", l1_irls_sigma_deg, 0.0)
-      .AtLeast("l1_irls_max_iterations", l1_irls_max_iterations, 0)
+      .AtLeast("l1_max_iterations", l1_irls.l1_max_iterations, 0)
+      .AtLeast("l1_admm_max_iterations", l1_irls.l1_admm_max_iterations, 0)
+      .Above("l1_irls_sigma_deg", l1_irls.l1_irls_sigma_deg, 0.0)
+      .AtLeast("l1_irls_max_iterations", l1_irls.l1_irls_max_iterations, 0)
       .Ok(error);
 }
 
@@ -289,7 +289,7 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
   ComponentSummary cs;
   cs.num_views = problem.view_ids.size();
   cs.num_edges = problem.edges.size();
-  const bool all_warm = AllWarm(problem, options.warm_start_min_fraction);
+  const bool all_warm = AllWarm(problem, options.robust_start.warm_start_min_fraction);
   InitializeBySpanningTree(&problem);
   cs.gauge_view = problem.view_ids[problem.gauge];
   const std::vector<Eigen::Matrix3d> initial_rotations = problem.rotations;
@@ -316,40 +316,40 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
       // A start that already agrees with (almost) every edge needs neither
       // the L1 start nor graduated non-convexity.
       const bool needs_robust_start =
-          !all_warm && TreeDisagreement(problem, scale) > options.l1_initialization_min_disagreement;
-      if (options.l1_initialization && needs_robust_start) {
+          !all_warm && TreeDisagreement(problem, scale) > options.robust_start.l1_initialization_min_disagreement;
+      if (options.robust_start.l1_initialization && needs_robust_start) {
         // Unweighted, so the start does not depend on the covariances and
         // always takes the scalar-Laplacian path of the IRLS solver.
         RotationAveragingOptions l1_options = options;
-        l1_options.max_iterations = options.l1_init_max_iterations;
-        l1_options.function_tolerance = options.l1_init_function_tolerance;
-        l1_options.linear_solve_tolerance = options.robust_start_linear_solve_tolerance;
-        cs.iterations += SolveSurrogate(l1_options, SoftL1Loss(options.l1_init_smoothing_rad),
+        l1_options.max_iterations = options.robust_start.l1_init_max_iterations;
+        l1_options.function_tolerance = options.robust_start.l1_init_function_tolerance;
+        l1_options.linear.linear_solve_tolerance = options.linear.robust_start_linear_solve_tolerance;
+        cs.iterations += SolveSurrogate(l1_options, SoftL1Loss(options.robust_start.l1_init_smoothing_rad),
                                         [](const Eigen::Matrix3d&) { return 1.0; }, &problem, &workspace);
-      } else if (!all_warm && !needs_robust_start && options.isotropic_presolve_max_anisotropy > 1.0) {
+      } else if (!all_warm && !needs_robust_start && options.linear.isotropic_presolve_max_anisotropy > 1.0) {
         // Stops at the first edge beyond the limit.
         double max_anisotropy = 1.0;
         for (const ComponentEdge& e : problem.edges) {
           max_anisotropy = std::max(max_anisotropy, InformationAnisotropy(e.information));
-          if (max_anisotropy > options.isotropic_presolve_max_anisotropy) break;
+          if (max_anisotropy > options.linear.isotropic_presolve_max_anisotropy) break;
         }
-        if (max_anisotropy > 1.0 + 1e-9 && max_anisotropy <= options.isotropic_presolve_max_anisotropy) {
+        if (max_anisotropy > 1.0 + 1e-9 && max_anisotropy <= options.linear.isotropic_presolve_max_anisotropy) {
           RotationAveragingOptions iso_options = options;
-          iso_options.function_tolerance = options.isotropic_presolve_function_tolerance;
+          iso_options.function_tolerance = options.linear.isotropic_presolve_function_tolerance;
           cs.iterations += SolveSurrogate(iso_options, *component_loss,
                                           [](const Eigen::Matrix3d& w) { return w.trace() / 3.0; }, &problem,
                                           &workspace);
         }
       }
       // Graduated non-convexity for redescending losses started from a tree.
-      if (IsRedescending(options.loss) && needs_robust_start && options.gnc_initial_scale_factor > 1.0 &&
-          options.gnc_scale_step > 1.0) {
+      if (IsRedescending(options.loss) && needs_robust_start && options.robust_start.gnc_initial_scale_factor > 1.0 &&
+          options.robust_start.gnc_scale_step > 1.0) {
         // Intermediate stages only need to move into the right basin: a few
         // iterations each, not convergence.
         RotationAveragingOptions stage_options = options;
-        stage_options.max_iterations = std::min(options.max_iterations, options.gnc_stage_max_iterations);
-        stage_options.linear_solve_tolerance = options.robust_start_linear_solve_tolerance;
-        for (double s = scale * options.gnc_initial_scale_factor; s > scale * 1.0001; s /= options.gnc_scale_step) {
+        stage_options.max_iterations = std::min(options.max_iterations, options.robust_start.gnc_stage_max_iterations);
+        stage_options.linear.linear_solve_tolerance = options.linear.robust_start_linear_solve_tolerance;
+        for (double s = scale * options.robust_start.gnc_initial_scale_factor; s > scale * 1.0001; s /= options.robust_start.gnc_scale_step) {
           solve_with(stage_options, *CreateLoss(options.loss, s));
         }
       }
@@ -468,12 +468,12 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
     er.residual_rad = r.norm();
     er.whitened_squared = (e.sqrt_information * r).squaredNorm();
     er.robust_weight = options.solver == SolverType::kL1Irls
-                           ? GemanMcClureLoss(DegToRad(options.l1_irls_sigma_deg)).Weight(er.whitened_squared)
+                           ? GemanMcClureLoss(DegToRad(options.l1_irls.l1_irls_sigma_deg)).Weight(er.whitened_squared)
                            : component_loss->Weight(er.whitened_squared);
     er.solved = true;
     if (er.robust_weight < 0.01) ++summary->num_outlier_edges;
   }
-  cs.loss_scale = options.solver == SolverType::kL1Irls ? DegToRad(options.l1_irls_sigma_deg) : component_scale;
+  cs.loss_scale = options.solver == SolverType::kL1Irls ? DegToRad(options.l1_irls.l1_irls_sigma_deg) : component_scale;
   return cs;
 }
 

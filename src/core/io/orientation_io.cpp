@@ -173,7 +173,7 @@ ReadReport ReadChainedGroundTruth(const std::string& graph_path, GraphFormat for
   // A spanning tree with no noise reproduces the poses; solve nothing.
   RotationAveragingOptions options;
   options.max_iterations = 0;
-  options.gnc_initial_scale_factor = 1.0;
+  options.robust_start.gnc_initial_scale_factor = 1.0;
   options.weighting = EdgeWeighting::kNone;
   ViewOrientations solved;
   RotationAveragingSummary summary;

@@ -87,21 +87,10 @@ const char* CovarianceSelfCalibrationName(CovarianceSelfCalibration c);  // "los
 bool ParseCovarianceSelfCalibration(const std::string& text, CovarianceSelfCalibration* c);
 const std::vector<EdgeWeighting>& AllEdgeWeightings();
 
-struct RotationAveragingOptions {
-  SolverType solver = SolverType::kIrls;
-  LossType loss = LossType::kMagsac;
-  // Loss scale a (sigma_max for MAGSAC) in the unit of the whitened residual
-  // (standard deviations for covariance weighting, radians otherwise; see
-  // above). <= 0 selects DefaultLossScale().
-  double loss_scale = 0.0;
-  EdgeWeighting weighting = EdgeWeighting::kCovariance;
-  CovarianceNormalization covariance_normalization = CovarianceNormalization::kStandardDeviations;
-  double paper_covariance_scale = 1e8;  // kPaper: W = C^-1 / this
+// How a solve starts: the spanning tree, the L1 fit and graduated
+// non-convexity, and when they run (the robust start).
+struct RobustStartOptions {
   SpanningTreeWeight spanning_tree_weight = SpanningTreeWeight::kAuto;
-  // Use orientations passed in as the starting point (views without one are
-  // filled in along the spanning tree). The gauge view keeps its given value,
-  // so a warm-started solution stays in the frame of the previous one.
-  bool warm_start = true;
   // Refine a spanning-tree start by an L1 fit before the robust solve (not
   // used when every view is warm-started). The paper starts the robust loss
   // directly from the tree, which a single outlier in the tree can defeat.
@@ -130,6 +119,20 @@ struct RotationAveragingOptions {
   int l1_init_max_iterations = 20;       // IRLS iterations of the L1 start
   double l1_init_smoothing_rad = 0.01;   // Soft L1 scale: quadratic below ~0.6 deg
   double l1_init_function_tolerance = 1e-4;  // a start needs no more
+  // Graduated non-convexity for redescending losses (MAGSAC, Tukey,
+  // Geman-McClure): start at gnc_initial_scale_factor times the loss scale
+  // and divide it by gnc_scale_step until it reaches the loss scale. Protects
+  // against outliers in the spanning tree. 1 disables it.
+  double gnc_initial_scale_factor = 8.0;
+  double gnc_scale_step = 2.0;
+  int gnc_stage_max_iterations = 3;    // iterations of each intermediate GNC stage
+};
+
+// How the linear systems of the IRLS solver are solved: factorisations,
+// conjugate gradients preconditioned with an earlier factor or with
+// aggregation multigrid, and their tolerances: the time of a solve, not
+// its minimum.
+struct LinearSolverOptions {
   // A start that needs no robust start (clean pose graphs) but carries
   // anisotropic information is first solved with each W replaced by
   // (trace W / 3) I: a scalar-Laplacian IRLS solve, a fraction of the cost of
@@ -140,27 +143,6 @@ struct RotationAveragingOptions {
   // costs more than it saves. <= 1 disables it.
   double isotropic_presolve_max_anisotropy = 10.0;
   double isotropic_presolve_function_tolerance = 1e-4;
-  // Graduated non-convexity for redescending losses (MAGSAC, Tukey,
-  // Geman-McClure): start at gnc_initial_scale_factor times the loss scale
-  // and divide it by gnc_scale_step until it reaches the loss scale. Protects
-  // against outliers in the spanning tree. 1 disables it.
-  double gnc_initial_scale_factor = 8.0;
-  double gnc_scale_step = 2.0;
-  int gnc_stage_max_iterations = 3;    // iterations of each intermediate GNC stage
-  // Covariance weighting in standard deviations: if the median whitened
-  // squared residual at the solution says the covariances are optimistic
-  // (estimated scale sigma_hat = sqrt(median / 2.366) above this), re-solve
-  // with the loss scale multiplied by sigma_hat. 2.366 is the median of
-  // chi2(3), so the estimate is robust to up to half the edges being
-  // outliers. Real two-view covariances are optimistic (results/frontend.md, calibration).
-  // self_calibration says how the solve then corrects them. <= 0 disables.
-  double auto_scale_threshold = 1.5;
-  // kLossScale in the library and the node, whose local re-solves reuse the
-  // loss scale of the last full solve; `rotavg images` uses kFloor.
-  CovarianceSelfCalibration self_calibration = CovarianceSelfCalibration::kLossScale;
-  int max_iterations = 100;            // per component (IRLS iterations or Ceres iterations)
-  double step_tolerance_rad = 1e-6;    // stop when every update is smaller than this (1e-6 rad = 0.00006 deg)
-  double function_tolerance = 1e-8;    // relative cost decrease at which to stop
   // IRLS linear systems are first solved by conjugate gradients
   // preconditioned with the factor of an earlier iteration, to this relative
   // residual |H x - b| / |b|; a system that will not get there within a few
@@ -213,6 +195,45 @@ struct RotationAveragingOptions {
   // isotropic ones take about the same time either way (results/scale.md,
   // "Multigrid solve tolerance").
   double multigrid_linear_solve_tolerance = 1e-2;
+};
+
+// The L1-IRLS baseline (SolverType::kL1Irls; Theia's RobustRotationEstimator
+// defaults).
+struct L1IrlsOptions {
+  int l1_max_iterations = 5;              // outer L1 relinearisations
+  int l1_admm_max_iterations = 200;       // ADMM iterations per L1 step (stops earlier when x moves < 1e-5 rad)
+  double l1_irls_sigma_deg = 5.0;         // Geman-McClure scale of the IRLS stage, degrees
+  int l1_irls_max_iterations = 100;
+};
+
+struct RotationAveragingOptions {
+  SolverType solver = SolverType::kIrls;
+  LossType loss = LossType::kMagsac;
+  // Loss scale a (sigma_max for MAGSAC) in the unit of the whitened residual
+  // (standard deviations for covariance weighting, radians otherwise; see
+  // above). <= 0 selects DefaultLossScale().
+  double loss_scale = 0.0;
+  EdgeWeighting weighting = EdgeWeighting::kCovariance;
+  CovarianceNormalization covariance_normalization = CovarianceNormalization::kStandardDeviations;
+  double paper_covariance_scale = 1e8;  // kPaper: W = C^-1 / this
+  // Use orientations passed in as the starting point (views without one are
+  // filled in along the spanning tree). The gauge view keeps its given value,
+  // so a warm-started solution stays in the frame of the previous one.
+  bool warm_start = true;
+  // Covariance weighting in standard deviations: if the median whitened
+  // squared residual at the solution says the covariances are optimistic
+  // (estimated scale sigma_hat = sqrt(median / 2.366) above this), re-solve
+  // with the loss scale multiplied by sigma_hat. 2.366 is the median of
+  // chi2(3), so the estimate is robust to up to half the edges being
+  // outliers. Real two-view covariances are optimistic (results/frontend.md, calibration).
+  // self_calibration says how the solve then corrects them. <= 0 disables.
+  double auto_scale_threshold = 1.5;
+  // kLossScale in the library and the node, whose local re-solves reuse the
+  // loss scale of the last full solve; `rotavg images` uses kFloor.
+  CovarianceSelfCalibration self_calibration = CovarianceSelfCalibration::kLossScale;
+  int max_iterations = 100;            // per component (IRLS iterations or Ceres iterations)
+  double step_tolerance_rad = 1e-6;    // stop when every update is smaller than this (1e-6 rad = 0.00006 deg)
+  double function_tolerance = 1e-8;    // relative cost decrease at which to stop
   int num_threads = 1;                 // Ceres threads; the IRLS solver is single-threaded
   // Posterior covariances of the views (RotationAveragingSummary::
   // view_covariances) for components of at most this many views (0: never).
@@ -225,13 +246,13 @@ struct RotationAveragingOptions {
   // IRLS: jump along a geometrically shrinking step sequence (kept only when
   // it lowers the cost): fewer iterations, to a point closer to the minimum.
   bool irls_extrapolation = true;
-  // L1-IRLS baseline (Theia's RobustRotationEstimator defaults).
-  int l1_max_iterations = 5;              // outer L1 relinearisations
-  int l1_admm_max_iterations = 200;       // ADMM iterations per L1 step (stops earlier when x moves < 1e-5 rad)
-  double l1_irls_sigma_deg = 5.0;         // Geman-McClure scale of the IRLS stage, degrees
-  int l1_irls_max_iterations = 100;
 
-  // True if every field is within its range; otherwise false, with `error`
+  RobustStartOptions robust_start;
+  LinearSolverOptions linear;
+  L1IrlsOptions l1_irls;
+
+  // True if every field (the sub-structs' too) is within its range;
+  // otherwise false, with `error`
   // naming the first field that is not (e.g. "max_iterations must be at
   // least 0 (got -1)"). The solves refuse options that do not validate.
   bool Validate(std::string* error) const;
