@@ -5,9 +5,9 @@
 
 #include <algorithm>
 #include <cmath>
-#include <climits>
 #include <cstdint>
 #include <filesystem>
+#include <limits>
 #include <opencv2/imgcodecs.hpp>
 #include <string>
 #include <vector>
@@ -44,7 +44,7 @@ class ParameterReader {
     }
   }
   void Read(const std::string& name, std::size_t* field, std::initializer_list<const char*> former = {}) {
-    int value = static_cast<int>(std::min<std::size_t>(*field, static_cast<std::size_t>(INT32_MAX)));
+    int value = static_cast<int>(std::min<std::size_t>(*field, static_cast<std::size_t>(std::numeric_limits<int>::max())));
     Read(name, &value, former);
     if (value < 0) {
       Problem(name + " must be at least 0 (got " + std::to_string(value) + ")");

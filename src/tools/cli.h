@@ -101,10 +101,7 @@ inline bool ParseAveragingOptions(const Args& args, ra::RotationAveragingOptions
     options->loss_scale = std::atof(args.Get("--sigma-max").c_str());
     if (!(options->loss_scale > 0.0)) return fail("--sigma-max must be positive");
   }
-  if (args.Has("--max-iterations")) {
-    options->max_iterations = std::atoi(args.Get("--max-iterations").c_str());
-    if (options->max_iterations < 0) return fail("--max-iterations must be >= 0");
-  }
+  if (args.Has("--max-iterations")) options->max_iterations = std::atoi(args.Get("--max-iterations").c_str());
   if (args.Has("--no-gnc")) options->robust_start.gnc_initial_scale_factor = 1.0;
   return options->Validate(error);
 }
