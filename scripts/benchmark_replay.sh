@@ -28,7 +28,7 @@ for s in "${SCENES[@]}"; do
   C="$DATA/strecha/$s"
   "$BIN/rotation_averaging_images_to_bag" --images "$C/images" --intrinsics "$C/images/K.txt" --gt "$C" \
     --downsample 0.25 --output "$OUT/$s.bag" > /dev/null 2>&1
-  printf 'image_topics: ["/camera/image_raw"]\nfeatures: sift\nmax_features: 4000\n' > "$OUT/$s.yaml"
+  printf 'image_topics: ["/camera/image_raw"]\nkeyframe_selection: all\nfeatures: sift\nmax_features: 4000\n' > "$OUT/$s.yaml"
   { cat "$OUT/$s.yaml"; echo "vocabulary: none"; } > "$OUT/${s}_voting.yaml"
   { cat "$OUT/$s.yaml"; echo "compact_features: 2000"; } > "$OUT/${s}_compact2000.yaml"
   { cat "$OUT/$s.yaml"; echo "loop_jackknife_grid: 0"; } > "$OUT/${s}_pixel.yaml"

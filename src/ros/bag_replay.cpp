@@ -14,10 +14,12 @@
 #include <unistd.h>
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <iomanip>
+#include <iterator>
 #include <limits>
 #include <cstdio>
 #include <deque>
@@ -171,6 +173,7 @@ bool ReadGroundTruthFile(const std::string& path, const std::string& topic, Name
 // before the camera_info of the same stamp).
 struct CameraStream {
   bool compressed = false;
+  bool rectified = false;  // PipelineConfig::image_type for this topic
   std::string image_topic, info_topic;
   sensor_msgs::CameraInfo::ConstPtr info;
   std::deque<rosbag::MessageInstance> waiting;
@@ -278,6 +281,7 @@ bool FindInputTopics(const ReplayOptions& options, const PipelineConfig& config,
     stream.compressed = !present_normalised.count(t) && present_normalised.count(t + "/compressed");
     stream.image_topic = stream.compressed ? t + "/compressed" : t;
     stream.info_topic = WithSlash(image_transport::getCameraInfoTopic(t));
+    stream.rectified = IsRectifiedTopic(t, config.image_type);
     if (!present_normalised.count(stream.image_topic)) {
       warnings->push_back("image topic " + t + " (raw or compressed) is not in the bags");
     } else if (!present_normalised.count(stream.info_topic)) {
@@ -435,12 +439,37 @@ class Replayer {
     bool ok = false;
     if (stream.compressed) {
       sensor_msgs::CompressedImage::ConstPtr image = m.instantiate<sensor_msgs::CompressedImage>();
-      ok = image && pipeline_.DecodeCompressedImage(*image, *stream.info, &keyframe, &why);
+      ok = image && pipeline_.DecodeCompressedImage(*image, *stream.info, &keyframe, &why, stream.rectified);
     } else {
       sensor_msgs::Image::ConstPtr image = m.instantiate<sensor_msgs::Image>();
-      ok = image && pipeline_.DecodeImage(*image, *stream.info, &keyframe, &why);
+      ok = image && pipeline_.DecodeImage(*image, *stream.info, &keyframe, &why, stream.rectified);
+    }
+    for (std::string notice = pipeline_.TakeCameraModelNotice(); !notice.empty();) {
+      const std::size_t end = notice.find('\n');
+      if (result_.camera_models.size() < 50) result_.camera_models.push_back(notice.substr(0, end));
+      notice = end == std::string::npos ? "" : notice.substr(end + 1);
     }
     if (!ok) return Warn("image on " + stream.image_topic + " at " + std::to_string(time.toSec()) + " dropped: " + why);
+    offered_.insert(OnlineAverager::KeyframeName(keyframe.key));
+    for (const PendingKeyframe& k : pipeline_.SelectKeyframes(keyframe)) {
+      made_.insert(OnlineAverager::KeyframeName(k.key));
+      RunFrontend(k, time);
+    }
+  }
+
+
+ public:
+  // Images that keyframe selection passed over: their ground truth is not
+  // scored (a missing keyframe, one rejected or lost, still is).
+  std::set<std::string> NotKeyframes() const {
+    std::set<std::string> out;
+    std::set_difference(offered_.begin(), offered_.end(), made_.begin(), made_.end(), std::inserter(out, out.end()));
+    return out;
+  }
+
+ private:
+
+  void RunFrontend(const PendingKeyframe& keyframe, const ros::Time& time) {
     bool loop_closure = false;
     std::vector<std::string> warnings;
     const auto frontend_start = std::chrono::steady_clock::now();
@@ -480,6 +509,7 @@ class Replayer {
   rosbag::Bag& out_;
   ReplayResult& result_;
   bool dirty_ = false;  // input arrived since the last solve
+  std::set<std::string> offered_, made_;  // names of the images offered to keyframe selection, of the keyframes
 };
 
 // What the pipeline did, for the summary.
@@ -495,6 +525,9 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
   for (const ComponentSummary& c : solution.summary.components) result->final_cost += c.final_cost;
   for (const auto& [source, n] : averager.EdgesBySource()) result->edges_by_source[EdgeSourceName(source)] = n;
   result->keyframe_images = pipeline_stats.processed_images;
+  result->images_seen = pipeline_stats.frames;
+  result->images_skipped = pipeline_stats.frames_skipped;
+  result->keyframe_selection = pipeline.Config().keyframe_selection;
   result->rejected_images = pipeline_stats.rejected_images;
   result->rejected_messages = pipeline_stats.rejected_messages;
   if (const KeyframeFrontend* f = pipeline.Frontend()) {
@@ -605,6 +638,10 @@ std::string ReplayResult::Summary() const {
       << " s; peak memory: " << peak_rss_mib << " MiB\n";
   out << "keyframes: " << keyframes << " (" << keyframe_images << " images through the front end, " << rejected_images
       << " rejected); relative-pose messages rejected: " << rejected_messages << "\n";
+  if (images_seen > 0) {
+    out << "keyframe selection (" << keyframe_selection << "): " << images_seen << " images, " << keyframe_images
+        << " keyframes, " << images_skipped << " not keyframes\n";
+  }
   if (keyframe_images > 0) {
     out << "front end per keyframe: features " << 1e3 * frontend_features_s / keyframe_images << " ms, retrieval "
         << 1e3 * frontend_retrieval_s / keyframe_images << " ms, pair verification "
@@ -644,6 +681,7 @@ std::string ReplayResult::Summary() const {
     }
   }
   if (damaged_messages > 0) out << "damaged messages dropped: " << damaged_messages << "\n";
+  for (const std::string& camera : camera_models) out << "camera " << camera << "\n";
   if (!rig_cameras.empty()) {
     out << "rig cameras (one orientation per capture): ";
     for (std::size_t k = 0; k < rig_cameras.size(); ++k) out << (k ? ", " : "") << rig_cameras[k];
@@ -716,8 +754,15 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
   } catch (const rosbag::BagException& e) {
     return fail("cannot write " + result.output_bag + ": " + e.what());
   }
-  Replayer(config, &pipeline, &out, &result).Run(view, &topics, options.progress);
+  Replayer replayer(config, &pipeline, &out, &result);
+  replayer.Run(view, &topics, options.progress);
   out.close();
+  std::size_t unscored = 0;
+  for (const std::string& name : replayer.NotKeyframes()) unscored += ground_truth.erase(name);
+  if (unscored > 0) {
+    result.warnings.push_back("ground truth of " + std::to_string(unscored) +
+                              " images that keyframe selection passed over is not scored");
+  }
 
   // Outputs.
   const OnlineSolution solution = pipeline.CameraSolution(*averager.Solution());

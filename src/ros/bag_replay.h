@@ -40,9 +40,14 @@ struct ReplayResult {
   std::size_t variables = 0;   // solved views: keyframes, or captures of a rig with known extrinsics
   std::size_t edges = 0, components = 0, outlier_edges = 0;
   std::vector<std::string> rig_cameras;  // "camera in rig_frame"
+  // How each camera's keypoints were undistorted (or that they were not),
+  // once per camera and whenever its camera_info changed.
+  std::vector<std::string> camera_models;
   std::size_t absorbed_by_rig = 0;
   std::map<std::string, std::size_t> edges_by_source;
   std::size_t keyframe_images = 0, rejected_images = 0, rejected_messages = 0;
+  std::size_t images_seen = 0, images_skipped = 0;  // valid images offered to keyframe selection, not keyframes
+  std::string keyframe_selection;
   double frontend_features_s = 0.0, frontend_retrieval_s = 0.0, frontend_pairs_s = 0.0;
   // Two-view pairs of the front end: failed, edges from the rotation-only
   // model, and failed previous pairs bridged by an older keyframe.

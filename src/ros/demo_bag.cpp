@@ -7,7 +7,9 @@
 #include <sensor_msgs/Image.h>
 #include <tf2_msgs/TFMessage.h>
 
+#include <algorithm>
 #include <cstdio>
+#include <tuple>
 #include <opencv2/imgcodecs.hpp>
 
 #include "rotation_averaging/Orientations.h"
@@ -30,14 +32,20 @@ geometry_msgs::Quaternion ToQuaternion(const Eigen::Matrix3d& r) {
 }  // namespace
 
 void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
-                        const Eigen::Matrix3d& k, bool compressed) {
+                        const CameraIntrinsics& camera, bool compressed) {
+  const Eigen::Matrix3d& k = camera.k;
   sensor_msgs::CameraInfo info;
   info.header.stamp = stamp;
   info.header.frame_id = frame;
   info.width = grey.cols;
   info.height = grey.rows;
-  info.distortion_model = "plumb_bob";
-  info.D.assign(5, 0.0);
+  if (camera.distortion == DistortionModel::kNone) {
+    info.distortion_model = "plumb_bob";
+    info.D.assign(5, 0.0);
+  } else {
+    info.distortion_model = DistortionModelName(camera.distortion);
+    info.D = camera.coefficients;
+  }
   for (int i = 0; i < 9; ++i) info.K[i] = k(i / 3, i % 3);
   info.R = {1, 0, 0, 0, 1, 0, 0, 0, 1};
   info.P = {k(0, 0), k(0, 1), k(0, 2), 0, 0, k(1, 1), k(1, 2), 0, 0, 0, 1, 0};
@@ -62,9 +70,10 @@ void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::T
 }
 
 bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compressed, NamedOrientations* ground_truth,
-                      std::string* error, bool progress) {
+                      std::string* error, bool progress, const CameraIntrinsics& lens) {
   const RigSceneOptions& options = scene.Options();
-  const Eigen::Matrix3d k = scene.Intrinsics();
+  CameraIntrinsics camera = lens;
+  camera.k = scene.Intrinsics();
   rosbag::Bag bag;
   try {
     bag.open(path, rosbag::bagmode::Write);
@@ -98,8 +107,8 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
     const ros::Time stamp = t0 + ros::Duration(scene.CaptureTime(capture));
     for (std::size_t c = 0; c < scene.Cameras().size(); ++c) {
       const std::string& frame = scene.Cameras()[c].frame_id;
-      const cv::Mat image = scene.Render(capture, static_cast<int>(c));
-      WriteKeyframeImage(&bag, frame, stamp, image, k, compressed);
+      const cv::Mat image = DistortImage(scene.Render(capture, static_cast<int>(c)), camera);
+      WriteKeyframeImage(&bag, frame, stamp, image, camera, compressed);
       const KeyframeKey key{frame, ToNanoseconds(stamp)};
       const Eigen::Matrix3d world_to_camera = scene.WorldToCamera(capture, static_cast<int>(c));
       truth.keyframes.push_back(ToMsg(key, world_to_camera, 0));
@@ -118,6 +127,64 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
   }
   if (ground_truth) *ground_truth = std::move(truth_csv);
   return true;
+}
+
+std::size_t WriteEurocBag(const std::vector<EurocCamera>& cameras, const std::string& path, bool compressed,
+                          bool rectify, std::string* error) {
+  rosbag::Bag bag;
+  try {
+    bag.open(path, rosbag::bagmode::Write);
+  } catch (const rosbag::BagException& e) {
+    if (error) *error = "cannot write " + path + ": " + e.what();
+    return 0;
+  }
+  // Every image of every camera in stamp order (cameras of one capture share it).
+  std::vector<std::tuple<std::int64_t, std::size_t, std::string>> images;
+  for (std::size_t c = 0; c < cameras.size(); ++c) {
+    for (const auto& [stamp, file] : cameras[c].images) images.emplace_back(stamp, c, file);
+  }
+  std::sort(images.begin(), images.end());
+  if (images.empty()) {
+    if (error) *error = "the dataset lists no image that exists";
+    return 0;
+  }
+  const ros::Time first = FromNanoseconds(std::get<0>(images.front()));
+  tf2_msgs::TFMessage extrinsics;
+  for (const EurocCamera& c : cameras) {
+    geometry_msgs::TransformStamped t;
+    t.header.stamp = first;
+    t.header.frame_id = "body";
+    t.child_frame_id = c.name;
+    t.transform.translation.x = c.camera_in_body.x();
+    t.transform.translation.y = c.camera_in_body.y();
+    t.transform.translation.z = c.camera_in_body.z();
+    t.transform.rotation = ToQuaternion(c.body_from_camera);
+    extrinsics.transforms.push_back(t);
+  }
+  bag.write("/tf_static", first - ros::Duration(0.5), extrinsics);
+  std::size_t written = 0;
+  try {
+    for (const auto& [stamp, c, file] : images) {
+      cv::Mat grey = cv::imread(file, cv::IMREAD_GRAYSCALE);
+      if (grey.empty()) {
+        if (error) *error = "cannot read image " + file;
+        return 0;
+      }
+      CameraIntrinsics camera = cameras[c].intrinsics;
+      if (rectify) {
+        grey = UndistortImage(grey, camera);
+        camera.distortion = DistortionModel::kNone;
+        camera.coefficients.clear();
+      }
+      WriteKeyframeImage(&bag, cameras[c].name, FromNanoseconds(stamp), grey, camera, compressed);
+      ++written;
+    }
+    bag.close();
+  } catch (const rosbag::BagException& e) {
+    if (error) *error = "writing " + path + ": " + e.what();
+    return 0;
+  }
+  return written;
 }
 
 }  // namespace rotation_averaging

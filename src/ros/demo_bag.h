@@ -1,5 +1,6 @@
 // Internal to the package: may change between versions.
-// Writes a rendered rig scene (src/frontend/scene/rig_scene.h) as a bag: per camera
+// Bags of camera streams as drivers record them: a EuRoC-layout dataset
+// (WriteEurocBag), and a rendered rig scene (src/frontend/scene/rig_scene.h) as a bag: per camera
 // /<cam>/image_raw (mono8, or /<cam>/image_raw/compressed PNG) and
 // /<cam>/camera_info at every capture, the extrinsics base_link -> cam_* on
 // /tf_static (half a second before the first capture), and the ground truth
@@ -14,20 +15,35 @@
 #include <string>
 
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "frontend/io/euroc_dataset.h"
 #include "frontend/scene/rig_scene.h"
+#include "rotation_averaging/frontend/geometry/camera_model.h"
 
 namespace rotation_averaging {
 
 // One keyframe image of `frame` as the node reads it: /<frame>/camera_info
-// (K, no distortion) and /<frame>/image_raw (mono8) or, compressed,
-// /<frame>/image_raw/compressed (PNG).
+// (K, and the camera's distortion model and D; plumb_bob with D all zero for
+// a camera without distortion) and /<frame>/image_raw (mono8) or,
+// compressed, /<frame>/image_raw/compressed (PNG).
 void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
-                        const Eigen::Matrix3d& k, bool compressed);
+                        const CameraIntrinsics& camera, bool compressed);
 
 // `ground_truth` (optional) receives the world-to-camera orientations keyed
-// by keyframe name (<frame_id>@<stamp_ns>).
+// by keyframe name (<frame_id>@<stamp_ns>). With a `lens` distortion (its K
+// is ignored: the scene's), every image is what that lens would have seen
+// (DistortImage) and camera_info carries the model: a raw camera stream.
 bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compressed, NamedOrientations* ground_truth,
-                      std::string* error, bool progress = false);
+                      std::string* error, bool progress = false, const CameraIntrinsics& lens = CameraIntrinsics());
+
+// The cameras of a EuRoC-layout dataset (frontend/io/euroc_dataset.h) as
+// their driver publishes them: /<cam>/image_raw (mono8, or PNG on
+// /<cam>/image_raw/compressed) with /<cam>/camera_info (frame <cam>, the
+// distortion model and D of sensor.yaml; P = [K 0]) at the dataset's stamps,
+// and the extrinsics body -> <cam> from T_BS on /tf_static before the first
+// image. With `rectify` the images are rectified and camera_info carries no
+// distortion. Returns the images written.
+std::size_t WriteEurocBag(const std::vector<EurocCamera>& cameras, const std::string& path, bool compressed,
+                          bool rectify, std::string* error);
 
 }  // namespace rotation_averaging
 

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <limits>
 #include <opencv2/imgcodecs.hpp>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -145,12 +146,17 @@ PipelineConfig::PipelineConfig() {
 }
 
 bool PipelineConfig::Validate(std::string* error) const {
-  std::string averager_error, frontend_error;
+  std::string averager_error, frontend_error, selection_error;
   return OptionCheck()
       .Require(tf_mode == "all_keyframes" || tf_mode == "latest_per_camera" || tf_mode == "none",
                "tf_mode '" + tf_mode + "' is not one of all_keyframes, latest_per_camera, none")
       .Require(image_transport == "raw" || image_transport == "compressed",
                "image_transport '" + image_transport + "' is not one of raw, compressed")
+      .Require(image_type == "auto" || image_type == "raw" || image_type == "rectified",
+               "image_type '" + image_type + "' is not one of auto, raw, rectified")
+      .Require(keyframe_selection == "motion" || keyframe_selection == "all",
+               "keyframe_selection '" + keyframe_selection + "' is not one of motion, all")
+      .Require(selection.Validate(&selection_error), selection_error)
       .AtLeast("max_image_queue", static_cast<double>(max_image_queue), 1)
       .Above("marker_spacing_m", marker_spacing_m, 0.0)
       .AtLeast("marker_max_keyframes", marker_max_keyframes, 1)
@@ -192,12 +198,18 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
 
   r.Read("image_topics", &c.image_topics);
   r.Read("image_transport", &c.image_transport);
+  r.Read("image_type", &c.image_type);
   KeyframeFrontendOptions& f = c.frontend;
   r.Read("downsample", &f.features.downsample, {"image_downsample"});
   r.ReadChoice("features", &f.features.type, &FeatureTypeName, &ParseFeatureType, "sift, orb");
   r.Read("max_features", &f.features.max_features);
   r.Read("rig_stamp_tolerance_s", &f.rig_stamp_tolerance_s, {"rig_stamp_tolerance"});
   c.rig.stamp_tolerance_s = f.rig_stamp_tolerance_s;
+  c.selection.rig_stamp_tolerance_s = f.rig_stamp_tolerance_s;
+  r.Read("keyframe_selection", &c.keyframe_selection);
+  r.Read("keyframe_min_motion_deg", &c.selection.min_motion_deg);
+  r.Read("keyframe_min_tracked_fraction", &c.selection.min_tracked_fraction);
+  r.Read("keyframe_max_interval_s", &c.selection.max_interval_s);
   r.Read("use_rig_extrinsics", &c.rig.enabled);
   r.Read("rig_frame", &c.rig.rig_frame);
   r.Read("covisibility_window", &f.covisibility_window);
@@ -248,7 +260,10 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
 }
 
 KeyframePipeline::KeyframePipeline(const PipelineConfig& config)
-    : config_(config), averager_(std::make_unique<OnlineAverager>(config.averager)), rig_(config.rig) {
+    : config_(config),
+      averager_(std::make_unique<OnlineAverager>(config.averager)),
+      rig_(config.rig),
+      selector_(config.selection) {
   if (!config_.image_topics.empty()) frontend_ = std::make_unique<KeyframeFrontend>(config_.frontend);
 }
 
@@ -303,18 +318,81 @@ void KeyframePipeline::AcceptStaticTransforms(const tf2_msgs::TFMessage& msg) {
   }
 }
 
+bool IsRectifiedTopic(const std::string& topic, const std::string& image_type) {
+  if (image_type == "raw") return false;
+  if (image_type == "rectified") return true;
+  const std::size_t slash = topic.find_last_of('/');
+  const std::string name = slash == std::string::npos ? topic : topic.substr(slash + 1);
+  return name.rfind("image_rect", 0) == 0;
+}
+
+bool CameraFromInfo(const sensor_msgs::CameraInfo& info, bool rectified, CameraIntrinsics* camera,
+                    std::string* error) {
+  *camera = CameraIntrinsics();
+  if (rectified) {
+    // image_proc's rectified image is seen by the camera P describes; a
+    // camera_info without P (all zero) falls back to K.
+    const bool has_p = info.P[0] != 0.0 || info.P[5] != 0.0;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) camera->k(r, c) = has_p ? info.P[4 * r + c] : info.K[3 * r + c];
+    if (!IsCameraIntrinsics(camera->k)) {
+      *error = std::string("no valid ") + (has_p ? "P" : "K") + " for a rectified image (" + kCameraIntrinsicsRule + ")";
+      return false;
+    }
+    return true;
+  }
+  for (int i = 0; i < 9; ++i) camera->k(i / 3, i % 3) = info.K[i];
+  if (!ParseDistortionModel(info.distortion_model, &camera->distortion)) {
+    *error = "unknown distortion_model '" + info.distortion_model +
+             "' (plumb_bob, rational_polynomial, equidistant; none or empty with D all zero)";
+    return false;
+  }
+  camera->coefficients = info.D;
+  std::string why;
+  if (!IsCameraIntrinsics(camera->k)) {
+    *error = std::string("no valid K (") + kCameraIntrinsicsRule + ")";
+    return false;
+  }
+  if (!camera->Validate(&why)) {
+    *error = "D does not fit distortion_model '" + info.distortion_model + "': " + why;
+    return false;
+  }
+  return true;
+}
+
+namespace {
+std::string DescribeCamera(const std::string& frame, const CameraIntrinsics& camera, bool rectified) {
+  std::ostringstream out;
+  out << frame << ": f " << camera.k(0, 0) << ", " << camera.k(1, 1) << " px, ";
+  if (camera.HasDistortion()) {
+    out << "keypoints undistorted by " << DistortionModelName(camera.distortion) << " (";
+    for (std::size_t i = 0; i < camera.coefficients.size(); ++i) out << (i ? " " : "") << camera.coefficients[i];
+    out << ")";
+  } else {
+    out << (rectified ? "rectified image (camera_info's P)" : "no distortion in camera_info");
+  }
+  return out.str();
+}
+}  // namespace
+
+std::string KeyframePipeline::TakeCameraModelNotice() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::string notice;
+  notice.swap(camera_model_notice_);
+  return notice;
+}
+
 bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
-                                const sensor_msgs::CameraInfo& info, PendingKeyframe* out, std::string* error) {
+                                const sensor_msgs::CameraInfo& info, bool rectified, PendingKeyframe* out,
+                                std::string* error) {
   if (frame.empty()) return Reject(&stats_.rejected_images, "image with an empty frame_id", error);
   if (grey.empty()) return Reject(&stats_.rejected_images, "empty image from " + frame, error);
-  Eigen::Matrix3d k;
-  for (int i = 0; i < 9; ++i) k(i / 3, i % 3) = info.K[i];
+  CameraIntrinsics camera;
+  std::string why;
   // Refused here, once per image with its camera's name, rather than by the
   // two-view estimation of every pair the keyframe would be tried in.
-  if (!IsCameraIntrinsics(k)) {
-    return Reject(&stats_.rejected_images,
-                  "camera_info of " + frame + " has no valid K (" + kCameraIntrinsicsRule + ")",
-                  error);
+  if (!CameraFromInfo(info, rectified, &camera, &why)) {
+    return Reject(&stats_.rejected_images, "camera_info of " + frame + ": " + why, error);
   }
   if (info.width > 0 && (static_cast<int>(info.width) != grey.cols || static_cast<int>(info.height) != grey.rows)) {
     return Reject(&stats_.rejected_images, "image of " + frame + " does not match its camera_info size", error);
@@ -335,12 +413,21 @@ bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp
   }
   out->key = KeyframeKey{frame, ns};
   out->image = grey;
-  out->k = k;
+  out->camera = camera;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    std::string description = DescribeCamera(frame, camera, rectified);
+    std::string& known = camera_models_[frame];
+    if (known != description) {
+      camera_model_notice_ += (camera_model_notice_.empty() ? "" : "\n") + description;
+      known = std::move(description);
+    }
+  }
   return true;
 }
 
 bool KeyframePipeline::DecodeImage(const sensor_msgs::Image& image, const sensor_msgs::CameraInfo& info,
-                                   PendingKeyframe* out, std::string* error) {
+                                   PendingKeyframe* out, std::string* error, bool rectified) {
   // cv_bridge compares height * step with the data's size, and step with
   // width * bytes per pixel, in 32 bits: a product that wraps around passes,
   // and the copy then reads gigabytes past the data. Checked in 64 bits first.
@@ -371,12 +458,12 @@ bool KeyframePipeline::DecodeImage(const sensor_msgs::Image& image, const sensor
                   "image from " + image.header.frame_id + " does not decode (" + image.encoding + "): " + e.what(),
                   error);
   }
-  return Validate(image.header.frame_id, image.header.stamp, grey, info, out, error);
+  return Validate(image.header.frame_id, image.header.stamp, grey, info, rectified, out, error);
 }
 
 bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage& image,
                                              const sensor_msgs::CameraInfo& info, PendingKeyframe* out,
-                                             std::string* error) {
+                                             std::string* error, bool rectified) {
   auto from = [&image] { return "compressed image from " + image.header.frame_id + " (" + image.format + ")"; };
   std::uint32_t width = 0, height = 0;
   const std::string format = CompressedImageSize(image.data, &width, &height);
@@ -406,7 +493,39 @@ bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage&
     return Reject(&stats_.rejected_images,
                   from() + " does not decode", error);
   }
-  return Validate(image.header.frame_id, image.header.stamp, grey, info, out, error);
+  return Validate(image.header.frame_id, image.header.stamp, grey, info, rectified, out, error);
+}
+
+std::vector<PendingKeyframe> KeyframePipeline::SelectKeyframes(const PendingKeyframe& image) {
+  if (config_.keyframe_selection == "all") {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++stats_.frames;
+    return {image};
+  }
+  std::vector<SelectorFrame> selected;
+  std::uint64_t skipped = 0;
+  {
+    std::lock_guard<std::mutex> lock(selector_mutex_);
+    selected = selector_.Offer(SelectorFrame{image.key.frame_id, image.key.stamp_ns, image.image, image.camera});
+    skipped = selector_.Stats().skipped;
+  }
+  std::vector<PendingKeyframe> keyframes;
+  for (SelectorFrame& f : selected) {
+    PendingKeyframe k;
+    k.key = KeyframeKey{f.camera, f.stamp_ns};
+    k.image = f.image;
+    k.camera = f.intrinsics;
+    keyframes.push_back(std::move(k));
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  ++stats_.frames;
+  stats_.frames_skipped = skipped;
+  return keyframes;
+}
+
+void KeyframePipeline::ResetKeyframeSelection() {
+  std::lock_guard<std::mutex> lock(selector_mutex_);
+  selector_.Reset();
 }
 
 std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, bool* loop_closure,
@@ -415,7 +534,7 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   if (!frontend_) return 0;
   if (rig_.IsRigCamera(keyframe.key.frame_id)) frontend_->SetRigCalibrated(keyframe.key.frame_id);
   std::size_t added = 0;
-  for (const KeyframeRelativeRotation& e : frontend_->AddKeyframe(keyframe.key, keyframe.image, keyframe.k)) {
+  for (const KeyframeRelativeRotation& e : frontend_->AddKeyframe(keyframe.key, keyframe.image, keyframe.camera)) {
     std::string error;
     if (AddMeasurement(e, &error)) {
       ++added;

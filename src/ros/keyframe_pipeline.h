@@ -27,6 +27,7 @@
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePose.h"
 #include "frontend/controllers/keyframe_frontend.h"
+#include "frontend/controllers/keyframe_selector.h"
 #include "rotation_averaging/core/controllers/online_averager.h"
 #include "core/controllers/rig_model.h"
 
@@ -58,6 +59,19 @@ struct PipelineConfig {
   OnlineAveragerOptions averager;
   std::vector<std::string> image_topics;
   std::string image_transport = "raw";  // raw or compressed
+  // How camera_info describes the images (image_proc's convention: one
+  // camera_info serves both image_raw and image_rect): "raw" images are
+  // undistorted by camera_info's K, distortion_model and D; "rectified"
+  // images take the rectified camera, P's left 3x3, and no distortion;
+  // "auto" decides by topic: a topic whose last name starts with image_rect
+  // is rectified, any other raw.
+  std::string image_type = "auto";
+  // Which images become keyframes: "motion", those that moved enough since
+  // their camera's last keyframe, or that track too little of it
+  // (frontend/controllers/keyframe_selector.h; a raw 20-30 Hz stream);
+  // "all", every image (a stack that already publishes keyframes).
+  std::string keyframe_selection = "motion";
+  KeyframeSelectionOptions selection;  // keyframe_min_motion_deg, ...; its rig tolerance is rig_stamp_tolerance_s
   KeyframeFrontendOptions frontend;    // frontend.vocabulary: loaded from `vocabulary`
   // File of `rotavg vocabulary`; "default": DefaultVocabularyPath(); "" or
   // "none": no vocabulary (retrieval by voting, linear in the map).
@@ -91,12 +105,25 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
 // A decoded, validated keyframe image waiting for the front end.
 struct PendingKeyframe {
   KeyframeKey key;
-  cv::Mat image;  // 8-bit grey
-  Eigen::Matrix3d k = Eigen::Matrix3d::Identity();
+  cv::Mat image;  // 8-bit grey, as the camera took it
+  CameraIntrinsics camera;  // of that image: K and its lens distortion
 };
+
+// Whether images on `topic` are rectified under PipelineConfig::image_type.
+bool IsRectifiedTopic(const std::string& topic, const std::string& image_type);
+
+// The camera of an image described by `info`: K, distortion_model and D for
+// a raw image; P's left 3x3 and no distortion for a rectified one. False,
+// with `error`, for a K (or P) that is not a camera's, an unknown
+// distortion_model (named) or a D that does not fit its model, such as
+// non-zero coefficients with no model.
+bool CameraFromInfo(const sensor_msgs::CameraInfo& info, bool rectified, CameraIntrinsics* camera,
+                    std::string* error);
 
 // Counters of the inputs the pipeline turned away (the averager counts its own).
 struct PipelineStats {
+  std::uint64_t frames = 0;             // valid images offered to keyframe selection
+  std::uint64_t frames_skipped = 0;     // of them, not keyframes (keyframe_selection: motion)
   std::uint64_t rejected_messages = 0;  // relative poses that failed conversion or validation
   std::uint64_t rejected_images = 0;    // do not decode, bad camera_info, stamp not advancing, ...
   std::uint64_t processed_images = 0;   // keyframes through the front end
@@ -126,12 +153,26 @@ class KeyframePipeline {
   // After the averager's Reset().
   void ResetRig() { rig_.Clear(); }
 
-  // Decode and validate a keyframe image (frame id, K, size, a stamp that
-  // advances per camera). On failure the image is counted as rejected.
+  // Decode and validate a keyframe image (frame id, camera model, size, a
+  // stamp that advances per camera); `rectified` says how to read `info`
+  // (CameraFromInfo, IsRectifiedTopic). On failure the image is counted as
+  // rejected.
   bool DecodeImage(const sensor_msgs::Image& image, const sensor_msgs::CameraInfo& info, PendingKeyframe* out,
-                   std::string* error);
+                   std::string* error, bool rectified = false);
   bool DecodeCompressedImage(const sensor_msgs::CompressedImage& image, const sensor_msgs::CameraInfo& info,
-                             PendingKeyframe* out, std::string* error);
+                             PendingKeyframe* out, std::string* error, bool rectified = false);
+  // "cam0: plumb_bob (k1 -0.283, ...)": how each camera's keypoints are
+  // undistorted, once per camera and whenever its model changes (for the
+  // node's and the replay's log); empty when nothing is new.
+  std::string TakeCameraModelNotice();
+
+  // Keyframe selection (PipelineConfig::keyframe_selection) of one decoded
+  // image: the images that become keyframes now (none, this one, and/or
+  // the other rig cameras' images of its capture), in stamp order. Called
+  // from one thread (the image callbacks') in arrival order.
+  std::vector<PendingKeyframe> SelectKeyframes(const PendingKeyframe& image);
+  // After the averager's Reset(): the next image of each camera is a keyframe.
+  void ResetKeyframeSelection();
 
   // Runs the front end on one keyframe and enqueues its edges. Not
   // thread-safe with itself (one front-end thread). Returns the edges added;
@@ -166,7 +207,7 @@ class KeyframePipeline {
 
  private:
   bool Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
-                const sensor_msgs::CameraInfo& info, PendingKeyframe* out, std::string* error);
+                const sensor_msgs::CameraInfo& info, bool rectified, PendingKeyframe* out, std::string* error);
   bool Reject(std::uint64_t* counter, const std::string& why, std::string* error);
   bool AddMeasurement(const KeyframeRelativeRotation& m, std::string* error, bool* queue_full = nullptr);
   geometry_msgs::TransformStamped Transform(const ros::Time& stamp, const std::string& child,
@@ -176,11 +217,15 @@ class KeyframePipeline {
   std::unique_ptr<OnlineAverager> averager_;
   std::unique_ptr<KeyframeFrontend> frontend_;
   RigModel rig_;
+  std::mutex selector_mutex_;
+  KeyframeSelector selector_;
   mutable std::mutex mutex_;  // stats_, frontend_stats_, last_image_stamp_, last_latest_stamp_
   PipelineStats stats_;
   KeyframeFrontendStats frontend_stats_;
   std::map<std::string, std::int64_t> last_image_stamp_;
   std::map<std::string, ros::Time> last_latest_stamp_;
+  std::map<std::string, std::string> camera_models_;  // frame -> description of its model
+  std::string camera_model_notice_;
 };
 
 // The vocabulary the build trains (target `vocabulary`, run by

@@ -2,14 +2,24 @@
 // Strecha scene, or images with a COLMAP text model) as a bag of keyframes
 // for the node and the replay tool.
 //
-//   rotation_averaging_images_to_bag --images DIR --intrinsics K.txt|cameras.txt --output out.bag
+//   rotation_averaging_images_to_bag --images DIR --intrinsics CAMERA-FILE --output out.bag
 //       [--gt Strecha-folder|images.txt|orientations.csv] [--downsample 0.25] [--rate 1.0]
 //       [--frame-id camera] [--compressed] [--write-gt-csv ground_truth.csv]
+//       [--rectify | --distortion MODEL:c1,c2,...]
+//   rotation_averaging_images_to_bag --euroc mav0 --output out.bag [--compressed] [--rectify]
 //
-// Images are written in file-name order, 1/rate seconds apart, as mono8
-// <frame-id>/image_raw (or PNG <frame-id>/image_raw/compressed) with
-// <frame-id>/camera_info; radial distortion (COLMAP SIMPLE_RADIAL/RADIAL) is
-// removed from the images, so camera_info carries no distortion. Ground truth
+// CAMERA-FILE: K.txt, COLMAP cameras.txt, or a ROS / EuRoC / Kalibr YAML
+// (frontend/geometry/camera_model.h). Images are written in file-name order,
+// 1/rate seconds apart, as mono8 <frame-id>/image_raw (or PNG
+// <frame-id>/image_raw/compressed) with <frame-id>/camera_info carrying the
+// camera's distortion model and D, as a camera driver publishes them.
+// --rectify writes rectified images instead (camera_info without
+// distortion); --distortion warps images of an ideal camera (a file without
+// distortion) through that lens and writes its model: real image content
+// with a known distortion. --euroc writes every camera of a EuRoC-layout
+// dataset (EuRoC MAV, TUM-VI: mav0/camN/{sensor.yaml,data.csv,data/}) at its
+// own stamps, camera_info from sensor.yaml, T_BS as /tf_static body -> camN:
+// a stereo or multi-camera driver's raw stream. Ground truth
 // goes on /ground_truth/orientations, keyed by the keyframes' frame id and stamp,
 // and with --write-gt-csv also to a CSV keyed by keyframe name (for
 // rotation_averaging_replay --gt). No output may be one of the inputs: the
@@ -43,9 +53,12 @@ namespace {
 
 int Usage(const std::string& why) {
   if (!why.empty()) std::cerr << "rotation_averaging_images_to_bag: " << why << "\n";
-  std::cerr << "usage: rotation_averaging_images_to_bag --images DIR --intrinsics K.txt|cameras.txt --output out.bag\n"
+  std::cerr << "usage: rotation_averaging_images_to_bag --images DIR --intrinsics CAMERA-FILE --output out.bag\n"
                "           [--gt Strecha-folder|images.txt|orientations.csv] [--downsample 0.25] [--rate 1.0]\n"
-               "           [--frame-id camera] [--compressed] [--write-gt-csv ground_truth.csv]\n";
+               "           [--frame-id camera] [--compressed] [--write-gt-csv ground_truth.csv]\n"
+               "           [--rectify | --distortion MODEL:c1,c2,...]\n"
+               "       rotation_averaging_images_to_bag --euroc mav0 --output out.bag [--compressed] [--rectify]\n"
+               "CAMERA-FILE: K.txt, COLMAP cameras.txt, or a ROS camera_calibration / EuRoC / Kalibr YAML\n";
   return 2;
 }
 
@@ -65,12 +78,41 @@ std::string BaseName(const std::string& path) {
   return slash == std::string::npos ? path : path.substr(slash + 1);
 }
 
+int EurocToBag(const std::string& mav0, const std::string& output, bool compressed, bool rectify) {
+  if (output.empty()) return Usage("give --output");
+  std::vector<ra::EurocCamera> cameras;
+  std::size_t missing = 0;
+  std::string error;
+  if (!ra::ReadEurocCameras(mav0, &cameras, &missing, &error)) {
+    std::cerr << "rotation_averaging_images_to_bag: " << error << "\n";
+    return 1;
+  }
+  for (const ra::EurocCamera& c : cameras) {
+    for (const auto& [stamp, image] : c.images) {
+      if (SameFile(output, image)) return Usage("--output " + output + " is an image of --euroc: refusing to overwrite it");
+    }
+  }
+  const std::size_t written = ra::WriteEurocBag(cameras, output, compressed, rectify, &error);
+  if (written == 0) {
+    std::cerr << "rotation_averaging_images_to_bag: " << error << "\n";
+    return 1;
+  }
+  std::cout << "wrote " << output << ": " << written << " images of";
+  for (const ra::EurocCamera& c : cameras) {
+    std::cout << " " << c.name << " (" << c.images.size() << ", "
+              << (rectify ? "rectified" : ra::DistortionModelName(c.intrinsics.distortion)) << ")";
+  }
+  if (missing > 0) std::cout << "; " << missing << " images listed in data.csv are not on disk";
+  std::cout << "; extrinsics body -> camN on /tf_static" << std::endl;
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string images_dir, intrinsics_path, output, gt_path, gt_csv, frame_id = "camera";
+  std::string images_dir, intrinsics_path, output, gt_path, gt_csv, frame_id = "camera", distortion, euroc;
   double downsample = 1.0, rate = 1.0;
-  bool compressed = false;
+  bool compressed = false, rectify = false;
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
     const bool has_value = k + 1 < argc;
@@ -94,14 +136,22 @@ int main(int argc, char** argv) {
       rate = std::atof(argv[++k]);
     } else if (a == "--compressed") {
       compressed = true;
+    } else if (a == "--euroc" && has_value) {
+      euroc = argv[++k];
+    } else if (a == "--rectify") {
+      rectify = true;
+    } else if (a == "--distortion" && has_value) {
+      distortion = argv[++k];
     } else {
       return Usage("bad or incomplete option " + a);
     }
   }
+  if (!euroc.empty()) return EurocToBag(euroc, output, compressed, rectify);
   if (images_dir.empty() || intrinsics_path.empty() || output.empty()) return Usage("give --images, --intrinsics and --output");
   if (!(downsample > 0.0 && downsample <= 1.0)) return Usage("--downsample must be in (0, 1]");
   if (!(rate > 0.0)) return Usage("--rate must be positive");
   if (frame_id.empty()) return Usage("--frame-id must not be empty");
+  if (rectify && !distortion.empty()) return Usage("--rectify and --distortion exclude each other");
 
   if (!gt_csv.empty() && SameFile(gt_csv, output)) return Usage("--output and --write-gt-csv name the same file");
   const std::vector<std::string> images = ra::ListImages(images_dir);
@@ -121,6 +171,15 @@ int main(int argc, char** argv) {
   if (!ra::ReadCameraIntrinsics(intrinsics_path, &intrinsics, &error)) {
     std::cerr << "rotation_averaging_images_to_bag: " << error << "\n";
     return 1;
+  }
+  ra::CameraIntrinsics lens;  // the distortion --distortion adds
+  if (!distortion.empty()) {
+    if (intrinsics.HasDistortion()) {
+      return Usage("--distortion needs images of an ideal camera; " + intrinsics_path + " has a " +
+                   ra::DistortionModelName(intrinsics.distortion) + " distortion");
+    }
+    lens = intrinsics;
+    if (!ra::ParseDistortionSpec(distortion, &lens, &error)) return Usage("--distortion: " + error);
   }
   if (images.empty()) {
     std::cerr << "rotation_averaging_images_to_bag: no images in " << images_dir << "\n";
@@ -153,22 +212,26 @@ int main(int argc, char** argv) {
       std::cerr << "warning: cannot read " << images[i] << ", skipped\n";
       continue;
     }
-    Eigen::Matrix3d k = intrinsics.k;
-    if (intrinsics.k1 != 0.0 || intrinsics.k2 != 0.0) {
-      // COLMAP's radial model is OpenCV's with k1, k2 and no tangential terms.
-      cv::Mat cv_k = (cv::Mat_<double>(3, 3) << k(0, 0), k(0, 1), k(0, 2), k(1, 0), k(1, 1), k(1, 2), 0, 0, 1);
-      cv::Mat undistorted;
-      cv::undistort(grey, undistorted, cv_k, cv::Mat(std::vector<double>{intrinsics.k1, intrinsics.k2, 0.0, 0.0}));
-      grey = undistorted;
+    ra::CameraIntrinsics camera = intrinsics;
+    if (rectify) {
+      grey = ra::UndistortImage(grey, intrinsics);
+      camera = ra::CameraIntrinsics();
+      camera.k = intrinsics.k;
     }
     if (downsample < 1.0) {
+      // The distortion acts on normalised coordinates: resizing scales K only.
       cv::Mat small;
       cv::resize(grey, small, cv::Size(), downsample, downsample, cv::INTER_AREA);
       grey = small;
-      k = ra::ScaleIntrinsics(k, downsample);
+      camera.k = ra::ScaleIntrinsics(camera.k, downsample);
+    }
+    if (!distortion.empty()) {
+      lens.k = camera.k;
+      grey = ra::DistortImage(grey, lens);
+      camera = lens;
     }
     const ros::Time stamp = t0 + ros::Duration(written / rate);
-    ra::WriteKeyframeImage(&bag, frame_id, stamp, grey, k, compressed);
+    ra::WriteKeyframeImage(&bag, frame_id, stamp, grey, camera, compressed);
     ++written;
     auto gt = truth_by_image.find(BaseName(images[i]));
     if (gt != truth_by_image.end()) {

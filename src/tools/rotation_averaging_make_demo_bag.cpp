@@ -3,12 +3,15 @@
 //
 //   rotation_averaging_make_demo_bag --output demo.bag [--captures 60] [--cameras 2] [--laps 1]
 //       [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]
-//       [--gt-csv ground_truth.csv]
+//       [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]
 //
 // The bag holds, per camera, <cam>/image_raw (mono8, or <cam>/image_raw/compressed
 // PNG with --compressed) and <cam>/camera_info; the rig extrinsics on
 // /tf_static (base_link -> cam_*); and the ground truth as one
 // rotation_averaging/Orientations message on /ground_truth/orientations.
+// With --distortion (e.g. plumb_bob:-0.28,0.07,0,0 or equidistant:0.1,0,0,0)
+// the images are what that lens would have seen and camera_info carries the
+// model, as a camera driver's image_raw does.
 #include <cstdlib>
 #include <iostream>
 #include <string>
@@ -24,7 +27,7 @@ int Usage(const std::string& why) {
   if (!why.empty()) std::cerr << "rotation_averaging_make_demo_bag: " << why << "\n";
   std::cerr << "usage: rotation_averaging_make_demo_bag --output demo.bag [--captures 60] [--cameras 2] [--laps 1]\n"
                "           [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]\n"
-               "           [--gt-csv ground_truth.csv]\n";
+               "           [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]\n";
   return 2;
 }
 
@@ -34,6 +37,8 @@ int main(int argc, char** argv) {
   ra::RigSceneOptions options;
   std::string output, gt_csv;
   bool compressed = false;
+  ra::CameraIntrinsics lens;
+  std::string error;
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
     const bool has_value = k + 1 < argc;
@@ -48,6 +53,8 @@ int main(int argc, char** argv) {
       output = argv[++k];
     } else if (a == "--gt-csv" && has_value) {
       gt_csv = argv[++k];
+    } else if (a == "--distortion" && has_value) {
+      if (!ra::ParseDistortionSpec(argv[++k], &lens, &error)) return Usage("--distortion: " + error);
     } else if (a == "--compressed") {
       compressed = true;
     } else if (a == "--captures" && number(&v) && v >= 4) {
@@ -74,8 +81,7 @@ int main(int argc, char** argv) {
 
   const ra::RigScene scene(options);
   ra::NamedOrientations truth_csv;
-  std::string error;
-  if (!ra::WriteRigSceneBag(scene, output, compressed, &truth_csv, &error, /*progress=*/true)) {
+  if (!ra::WriteRigSceneBag(scene, output, compressed, &truth_csv, &error, /*progress=*/true, lens)) {
     std::cerr << "rotation_averaging_make_demo_bag: " << error << "\n";
     return 1;
   }

@@ -181,10 +181,16 @@ class RotationAveragingNode {
             }));
         compressed_subs_.push_back(nh.subscribe<sensor_msgs::CompressedImage>(
             topic + "/compressed", 10,
-            [this, topic](const sensor_msgs::CompressedImageConstPtr& m) { OnCompressedImage(topic, m); }));
+            [this, topic, rectified = IsRectifiedTopic(topic, config.image_type)](
+                const sensor_msgs::CompressedImageConstPtr& m) { OnCompressedImage(topic, m, rectified); }));
         ROS_INFO("keyframes from %s/compressed (+ %s)", topic.c_str(), info_topic.c_str());
       } else {
-        camera_subs_.push_back(image_transport_->subscribeCamera(topic, 10, &RotationAveragingNode::OnImage, this));
+        const bool rectified = IsRectifiedTopic(topic, config.image_type);
+        camera_subs_.push_back(image_transport_->subscribeCamera(
+            topic, 10,
+            [this, rectified](const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info) {
+              OnImage(image, info, rectified);
+            }));
         ROS_INFO("keyframes from %s (+ camera_info)", topic.c_str());
       }
     }
@@ -194,17 +200,18 @@ class RotationAveragingNode {
     image_spinner_->start();
   }
 
-  void OnImage(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info) {
+  void OnImage(const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info, bool rectified) {
     PendingKeyframe keyframe;
     std::string error;
-    if (!pipeline_->DecodeImage(*image, *info, &keyframe, &error)) {
+    if (!pipeline_->DecodeImage(*image, *info, &keyframe, &error, rectified)) {
       ROS_WARN_THROTTLE(5.0, "keyframe image dropped: %s", error.c_str());
       return;
     }
-    Enqueue(std::move(keyframe));
+    Select(keyframe);
   }
 
-  void OnCompressedImage(const std::string& topic, const sensor_msgs::CompressedImageConstPtr& image) {
+  void OnCompressedImage(const std::string& topic, const sensor_msgs::CompressedImageConstPtr& image,
+                         bool rectified) {
     sensor_msgs::CameraInfoConstPtr info;
     {
       std::lock_guard<std::mutex> lock(mutex_);
@@ -219,11 +226,20 @@ class RotationAveragingNode {
       ROS_WARN_THROTTLE(5.0, "keyframe image dropped: no camera_info yet for %s", topic.c_str());
       return;
     }
-    if (!pipeline_->DecodeCompressedImage(*image, *info, &keyframe, &error)) {
+    if (!pipeline_->DecodeCompressedImage(*image, *info, &keyframe, &error, rectified)) {
       ROS_WARN_THROTTLE(5.0, "keyframe image dropped: %s", error.c_str());
       return;
     }
-    Enqueue(std::move(keyframe));
+    Select(keyframe);
+  }
+
+  // Keyframe selection, here on the image callbacks' thread in arrival order
+  // (the same decisions as the replay's for the same images): an image that
+  // is not a keyframe costs its decoding and one tracking check.
+  void Select(const PendingKeyframe& image) {
+    const std::string notice = pipeline_->TakeCameraModelNotice();
+    if (!notice.empty()) ROS_INFO("camera model: %s", notice.c_str());
+    for (PendingKeyframe& keyframe : pipeline_->SelectKeyframes(image)) Enqueue(std::move(keyframe));
   }
 
   // Queues a decoded keyframe for the front-end worker. The queue is bounded:
@@ -330,6 +346,7 @@ class RotationAveragingNode {
   bool OnReset(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
     averager_->Reset();
     pipeline_->ResetRig();
+    pipeline_->ResetKeyframeSelection();
     pipeline_->ForgetLatestStamps();
     res.success = true;
     res.message = "graph cleared";
@@ -442,6 +459,8 @@ class RotationAveragingNode {
     last_received_ = s.received;
     last_images_ = p.processed_images;
     status.add("rejected messages", p.rejected_messages);
+    status.add("images seen", p.frames);
+    status.add("images that were not keyframes (keyframe_selection)", p.frames_skipped);
     status.add("keyframe images processed", p.processed_images);
     status.add("edges from images", p.edges_from_images);
     status.add("rig cameras (extrinsics known)", pipeline_->Rig().NumRigCameras());

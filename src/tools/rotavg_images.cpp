@@ -19,13 +19,16 @@ namespace {
 using namespace rotation_averaging_cli;  // NOLINT: the tool's own helpers
 
 const char* kUsage = R"(usage:
-  rotavg images --images DIR --intrinsics K.txt|cameras.txt [--downsample F] [--features sift|orb] [--max-features N]
+  rotavg images --images DIR --intrinsics CAMERA-FILE [--camera camN] [--downsample F] [--features sift|orb] [--max-features N]
                [--pairs exhaustive|sequential:N|list:FILE] [--covariance marginal|conditional] [--jackknife-grid N]
                [--graph-out graph.txt]
                [--output orientations.csv] [--gt PATH [--gt-format F]] [--verbose] [--json] [--refine]
                [--no-bundle-adjustment] [--no-rotation-model] [--no-focal-calibration]
                [the averaging options of rotavg solve: --solver --loss --weighting --sigma-max --normalization
                 --no-gnc --max-iterations --self-calibration (default here: floor)]
+      CAMERA-FILE: a K.txt (3x3), a COLMAP cameras.txt, or a YAML calibration (ROS camera_calibration,
+      EuRoC sensor.yaml, Kalibr camchain: --camera picks one of its cameras); its lens distortion
+      (plumb_bob / radtan, rational_polynomial, equidistant) is removed from the keypoints;
       features, matching, relative poses with rotation covariances, averaging (--refine: then the
       orientations refined on every pair's inlier correspondences), then bundle adjustment from the averaged
       orientations: the pairs' inliers linked into tracks, camera centres and points estimated and everything
@@ -46,13 +49,13 @@ int Images(int argc, char** argv) {
   std::string error;
   if (!ParseArgs(argc, argv, 1, {"--no-gnc", "--json", "--verbose", "--refine", "--no-bundle-adjustment", "--no-rotation-model", "--no-focal-calibration"}, &args, &error)) return Fail(error);
   if (!CheckKnown(args,
-                  Concat({"--images", "--intrinsics", "--downsample", "--features", "--max-features", "--pairs",
+                  Concat({"--images", "--intrinsics", "--camera", "--downsample", "--features", "--max-features", "--pairs",
                           "--covariance", "--jackknife-grid", "--graph-out", "--output", "--gt", "--gt-format"},
                          kAveragingFlags),
                   &error)) {
     return Fail(error);
   }
-  if (!args.Has("--images") || !args.Has("--intrinsics")) return Fail("images needs --images DIR and --intrinsics K.txt");
+  if (!args.Has("--images") || !args.Has("--intrinsics")) return Fail("images needs --images DIR and --intrinsics CAMERA-FILE");
   ra::ImagePipelineOptions pipeline;
   if (!ra::ParseFeatureType(args.Get("--features", "sift"), &pipeline.features.type)) return Fail("unknown --features");
   pipeline.features.downsample = std::atof(args.Get("--downsample", "1").c_str());
@@ -88,7 +91,9 @@ int Images(int argc, char** argv) {
     return Fail("images needs --output, --graph-out or --gt");
   }
   ra::CameraIntrinsics k;
-  if (!ra::ReadCameraIntrinsics(args.Get("--intrinsics"), &k, &error)) return Fail(error);
+  if (!ra::ReadCameraIntrinsics(args.Get("--intrinsics"), &k, &error, nullptr, nullptr, args.Get("--camera", ""))) {
+    return Fail(error);
+  }
   const std::vector<std::string> images = ra::ListImages(args.Get("--images"));
   if (images.size() < 2) return Fail("need at least two images in " + args.Get("--images"));
 

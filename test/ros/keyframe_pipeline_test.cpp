@@ -142,6 +142,67 @@ TEST(KeyframePipeline, BadImagesAreRejectedAndCounted) {
   EXPECT_EQ(pipeline.Stats().rejected_images, 11u);
 }
 
+// camera_info as image_proc reads it: a raw image's camera is K with its
+// distortion model and D; a rectified image's is P, without distortion.
+TEST(KeyframePipeline, CameraInfoGivesTheCameraModelOfRawAndRectifiedImages) {
+  sensor_msgs::CameraInfo info = Info(752, 480);
+  info.K = {458.654, 0, 367.215, 0, 457.296, 248.375, 0, 0, 1};
+  info.P = {435.2, 0, 367.4, 0, 0, 435.2, 252.2, 0, 0, 0, 1, 0};
+  info.distortion_model = "plumb_bob";
+  info.D = {-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0};
+  CameraIntrinsics camera;
+  std::string error;
+  ASSERT_TRUE(CameraFromInfo(info, /*rectified=*/false, &camera, &error)) << error;
+  EXPECT_EQ(camera.distortion, DistortionModel::kPlumbBob);
+  EXPECT_TRUE(camera.HasDistortion());
+  EXPECT_DOUBLE_EQ(camera.k(0, 0), 458.654);
+  ASSERT_TRUE(CameraFromInfo(info, /*rectified=*/true, &camera, &error)) << error;
+  EXPECT_FALSE(camera.HasDistortion());
+  EXPECT_DOUBLE_EQ(camera.k(0, 0), 435.2);
+  EXPECT_DOUBLE_EQ(camera.k(1, 2), 252.2);
+  info.distortion_model = "equidistant";
+  info.D = {0.01, 0.002, 0.0, 0.0};
+  ASSERT_TRUE(CameraFromInfo(info, false, &camera, &error)) << error;
+  EXPECT_EQ(camera.distortion, DistortionModel::kEquidistant);
+
+  // Refused with the reason, never read as no distortion.
+  info.distortion_model = "double_sphere";
+  EXPECT_FALSE(CameraFromInfo(info, false, &camera, &error));
+  EXPECT_NE(error.find("'double_sphere'"), std::string::npos) << error;
+  info.distortion_model = "";
+  info.D = {-0.28, 0.07, 0.0, 0.0, 0.0};
+  EXPECT_FALSE(CameraFromInfo(info, false, &camera, &error));
+  info.distortion_model = "plumb_bob";
+  info.D = {-0.28, 0.07};
+  EXPECT_FALSE(CameraFromInfo(info, false, &camera, &error));
+  info.D = {-0.28, 0.07, 0.0, std::nan(""), 0.0};
+  EXPECT_FALSE(CameraFromInfo(info, false, &camera, &error));
+
+  EXPECT_FALSE(IsRectifiedTopic("/cam0/image_raw", "auto"));
+  EXPECT_TRUE(IsRectifiedTopic("/cam0/image_rect", "auto"));
+  EXPECT_TRUE(IsRectifiedTopic("/stereo/left/image_rect_color", "auto"));
+  EXPECT_FALSE(IsRectifiedTopic("/image_rect/image_raw", "auto"));
+  EXPECT_FALSE(IsRectifiedTopic("/cam0/image_rect", "raw"));
+  EXPECT_TRUE(IsRectifiedTopic("/cam0/image_raw", "rectified"));
+
+  // Through the pipeline: the keyframe carries the camera; an unknown model
+  // rejects the image with its camera and model named.
+  KeyframePipeline pipeline(DefaultConfig());
+  PendingKeyframe k;
+  sensor_msgs::CameraInfo raw = Info(64, 48);
+  raw.distortion_model = "plumb_bob";
+  raw.D = {-0.2, 0.05, 0.0, 0.0, 0.0};
+  ASSERT_TRUE(pipeline.DecodeImage(Image("cam", 1.0, 64, 48, "mono8"), raw, &k, &error)) << error;
+  EXPECT_EQ(k.camera.coefficients, raw.D);
+  EXPECT_NE(pipeline.TakeCameraModelNotice().find("cam: f 100, 100 px, keypoints undistorted by plumb_bob"),
+            std::string::npos);
+  EXPECT_EQ(pipeline.TakeCameraModelNotice(), "");  // once per camera
+  raw.distortion_model = "fov";
+  EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 2.0, 64, 48, "mono8"), raw, &k, &error));
+  EXPECT_NE(error.find("camera_info of cam: unknown distortion_model 'fov'"), std::string::npos) << error;
+  EXPECT_EQ(pipeline.Stats().rejected_images, 1u);
+}
+
 sensor_msgs::CompressedImage Compressed(double t, const std::string& extension) {
   sensor_msgs::CompressedImage m;
   m.header.frame_id = "cam";

@@ -72,7 +72,9 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
   std::vector<std::string> warnings;
   ASSERT_TRUE(Read({{"loss_scale", "2.5"}, {"solve_period_s", "0.25"}, {"local_solve_min_views", "50"},
                     {"posterior_covariance_max_views", "7"}, {"jackknife_grid", "3"}, {"loss", "cauchy"},
-                    {"marker_spacing_m", "2"}},
+                    {"marker_spacing_m", "2"}, {"keyframe_selection", "all"}, {"keyframe_min_motion_deg", "7"},
+                    {"keyframe_min_tracked_fraction", "0.3"}, {"keyframe_max_interval_s", "2"},
+                    {"rig_stamp_tolerance_s", "0.01"}, {"image_type", "rectified"}},
                    &c, &warnings, &error))
       << error;
   EXPECT_TRUE(warnings.empty());
@@ -83,6 +85,14 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
   EXPECT_EQ(c.frontend.relative_pose.jackknife_grid, 3);
   EXPECT_EQ(c.averager.averaging.loss, LossType::kCauchy);
   EXPECT_EQ(c.marker_spacing_m, 2.0);
+  EXPECT_EQ(c.keyframe_selection, "all");
+  EXPECT_EQ(c.selection.min_motion_deg, 7.0);
+  EXPECT_EQ(c.selection.min_tracked_fraction, 0.3);
+  EXPECT_EQ(c.selection.max_interval_s, 2.0);
+  // One rig tolerance for the front end, the rig model and keyframe selection.
+  EXPECT_EQ(c.selection.rig_stamp_tolerance_s, 0.01);
+  EXPECT_EQ(c.frontend.rig_stamp_tolerance_s, 0.01);
+  EXPECT_EQ(c.image_type, "rectified");
 }
 
 TEST(PipelineConfig, FormerNamesAreReadWithADeprecationWarning) {
@@ -115,6 +125,10 @@ TEST(PipelineConfig, ValuesOutOfRangeAndUnknownChoicesAreRefusedByName) {
       {{{"features", "surf"}}, "features 'surf' is not one of sift, orb"},
       {{{"tf_mode", "some"}}, "tf_mode 'some' is not one of"},
       {{{"marker_spacing_m", "0"}}, "marker_spacing_m must be above 0"},
+      {{{"keyframe_selection", "every"}}, "keyframe_selection 'every' is not one of motion, all"},
+      {{{"keyframe_min_tracked_fraction", "2"}}, "keyframe_min_tracked_fraction must be in [0, 1]"},
+      {{{"keyframe_max_interval_s", "-1"}}, "keyframe_max_interval_s must be at least 0"},
+      {{{"image_type", "rect"}}, "image_type 'rect' is not one of auto, raw, rectified"},
   };
   for (const auto& [values, expected] : cases) {
     PipelineConfig c;

@@ -108,108 +108,6 @@ std::vector<std::string> ListImages(const std::string& directory) {
   return images;
 }
 
-Eigen::Vector2d CameraIntrinsics::Undistort(const Eigen::Vector2d& pixel, const Eigen::Matrix3d& scaled_k) const {
-  if (k1 == 0.0 && k2 == 0.0) return pixel;
-  const Eigen::Vector3d d = scaled_k.inverse() * pixel.homogeneous();
-  const Eigen::Vector2d distorted = d.hnormalized();
-  Eigen::Vector2d x = distorted;
-  for (int it = 0; it < 20; ++it) {  // fixed point: x = x_d / (1 + k1 r^2 + k2 r^4)
-    const double r2 = x.squaredNorm();
-    x = distorted / (1.0 + k1 * r2 + k2 * r2 * r2);
-  }
-  return (scaled_k * x.homogeneous()).hnormalized();
-}
-
-bool ReadCameraIntrinsics(const std::string& path, CameraIntrinsics* intrinsics, std::string* error) {
-  LineReader reader(path);
-  if (!reader.IsOpen()) {
-    *error = "cannot open " + path;
-    return false;
-  }
-  std::string line;
-  while (reader.Next(&line)) {
-    if (IsBlankOrComment(line)) continue;
-    const std::vector<std::string> t = SplitTokens(line);
-    if (t.size() >= 5 && (t[1] == "SIMPLE_PINHOLE" || t[1] == "PINHOLE" || t[1] == "SIMPLE_RADIAL" || t[1] == "RADIAL")) {
-      std::vector<double> p;
-      for (std::size_t i = 4; i < t.size(); ++i) {
-        double v;
-        if (!ParseDouble(t[i], &v)) {
-          *error = reader.Where("'" + t[i] + "' is not a number");
-          return false;
-        }
-        p.push_back(v);
-      }
-      const std::size_t needed = t[1] == "SIMPLE_PINHOLE" ? 3 : t[1] == "PINHOLE" ? 4 : t[1] == "SIMPLE_RADIAL" ? 4 : 5;
-      if (p.size() != needed) {
-        *error = reader.Where(t[1] + " needs " + std::to_string(needed) + " parameters");
-        return false;
-      }
-      Eigen::Matrix3d& k = intrinsics->k;
-      k.setIdentity();
-      if (t[1] == "PINHOLE") {
-        k(0, 0) = p[0];
-        k(1, 1) = p[1];
-        k(0, 2) = p[2];
-        k(1, 2) = p[3];
-      } else {
-        k(0, 0) = k(1, 1) = p[0];
-        k(0, 2) = p[1];
-        k(1, 2) = p[2];
-        if (t[1] == "SIMPLE_RADIAL") intrinsics->k1 = p[3];
-        if (t[1] == "RADIAL") {
-          intrinsics->k1 = p[3];
-          intrinsics->k2 = p[4];
-        }
-      }
-      // COLMAP puts the centre of the top-left pixel at (0.5, 0.5); OpenCV's
-      // keypoints, K.txt and camera_info put it at (0, 0).
-      k(0, 2) -= 0.5;
-      k(1, 2) -= 0.5;
-      if (!IsCameraIntrinsics(k) || !std::isfinite(intrinsics->k1) || !std::isfinite(intrinsics->k2)) {
-        *error = reader.Where(t[1] + " needs finite parameters and a K that is a camera's (" + kCameraIntrinsicsRule + ")");
-        return false;
-      }
-      return true;
-    }
-    break;  // not a COLMAP camera line: try K.txt
-  }
-  intrinsics->k1 = intrinsics->k2 = 0.0;
-  return ReadIntrinsics(path, &intrinsics->k, error);
-}
-
-bool ReadIntrinsics(const std::string& path, Eigen::Matrix3d* k, std::string* error) {
-  LineReader reader(path);
-  if (!reader.IsOpen()) {
-    *error = "cannot open " + path;
-    return false;
-  }
-  std::vector<double> values;
-  std::string line;
-  while (reader.Next(&line)) {
-    if (IsBlankOrComment(line)) continue;
-    for (const std::string& t : SplitTokens(line)) {
-      double v;
-      if (!ParseDouble(t, &v) || !std::isfinite(v)) {
-        *error = reader.Where("'" + t + "' is not a finite number");
-        return false;
-      }
-      values.push_back(v);
-    }
-  }
-  if (values.size() != 9) {
-    *error = path + ": expected 9 numbers (3x3 K), found " + std::to_string(values.size());
-    return false;
-  }
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) (*k)(r, c) = values[3 * r + c];
-  if (!IsCameraIntrinsics(*k)) {
-    *error = path + ": K must be a camera's (" + kCameraIntrinsicsRule + ")";
-    return false;
-  }
-  return true;
-}
-
 RelativeRotation EdgeFromPair(const PairReport& pair) {
   RelativeRotation edge;
   edge.view1 = static_cast<ViewId>(pair.image1);
@@ -503,7 +401,7 @@ std::vector<ImageFeatures> ExtractImageFeatures(const std::vector<std::string>& 
       continue;
     }
     features[i] = ExtractFeatures(image, options);
-    for (Eigen::Vector2d& p : features[i].keypoints_px) p = intrinsics.Undistort(p, scaled_k);
+    UndistortFeatures(intrinsics, scaled_k, &features[i]);
   }
   return features;
 }

@@ -222,15 +222,26 @@ void KeyframeFrontend::FilterInconsistentLoops(std::vector<KeyframeRelativeRotat
 
 std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
                                                                     const Eigen::Matrix3d& k) {
+  CameraIntrinsics camera;
+  camera.k = k;
+  return AddKeyframe(key, image, camera);
+}
+
+std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
+                                                                    const CameraIntrinsics& camera) {
   std::vector<KeyframeRelativeRotation> edges;
   auto kf = std::make_unique<Keyframe>();
   kf->key = key;
   const auto start = Clock::now();
   kf->features = ExtractFeatures(image, options_.features);
+  const double s = options_.features.downsample > 0.0 ? options_.features.downsample : 1.0;
+  kf->k = ScaleIntrinsics(camera.k, s);
+  // Every two-view step below assumes an ideal pinhole camera: keypoints of
+  // a raw image are moved to where that camera would have seen them. A
+  // rectified camera's are left exactly as detected.
+  stats_.keypoints_outside_model += UndistortFeatures(camera, kf->k, &kf->features);
   kf->index = std::make_unique<FeatureIndex>(kf->features);
   kf->inlier_hits.assign(kf->features.keypoints_px.size(), 0);
-  const double s = options_.features.downsample > 0.0 ? options_.features.downsample : 1.0;
-  kf->k = ScaleIntrinsics(k, s);
   stats_.last_features_s = Seconds(start);
   stats_.features_s += stats_.last_features_s;
   stats_.last_retrieval_s = stats_.last_pairs_s = 0.0;

@@ -34,6 +34,7 @@
 #include "rotation_averaging/frontend/estimators/relative_pose.h"
 #include "rotation_averaging/frontend/features/features.h"
 #include "rotation_averaging/frontend/features/vocabulary.h"
+#include "rotation_averaging/frontend/geometry/camera_model.h"
 
 namespace rotation_averaging {
 
@@ -116,6 +117,9 @@ struct KeyframeFrontendStats {
   std::uint64_t loop_candidates_tried = 0;
   std::uint64_t loops_rejected_inconsistent = 0;
   std::uint64_t failed_pairs = 0;
+  // Keypoints dropped because the camera's distortion model does not invert
+  // there (far outside its calibrated field of view).
+  std::uint64_t keypoints_outside_model = 0;
   std::map<std::string, std::uint64_t> failures;  // two-view failure reason -> count
   double features_s = 0.0, retrieval_s = 0.0, pairs_s = 0.0;  // wall time
   double last_features_s = 0.0, last_retrieval_s = 0.0, last_pairs_s = 0.0;  // of the latest keyframe
@@ -131,9 +135,13 @@ class KeyframeFrontend {
   explicit KeyframeFrontend(const KeyframeFrontendOptions& options);
   ~KeyframeFrontend();
 
-  // Adds a keyframe (8-bit image, intrinsics of that image, no distortion)
-  // and returns the verified relative rotations it produced. Images that
-  // yield too few features give no edges.
+  // Adds a keyframe (8-bit image as the camera took it, and that camera's
+  // intrinsics and lens distortion) and returns the verified relative
+  // rotations it produced. Keypoints are undistorted before any two-view
+  // step. Images that yield too few features give no edges.
+  std::vector<KeyframeRelativeRotation> AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
+                                                    const CameraIntrinsics& camera);
+  // A pinhole camera without distortion (a rectified image).
   std::vector<KeyframeRelativeRotation> AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
                                                     const Eigen::Matrix3d& k);
   const KeyframeFrontendStats& Stats() const { return stats_; }

@@ -12,6 +12,7 @@
 #include "rotation_averaging/frontend/estimators/correspondence_refinement.h"
 #include "rotation_averaging/frontend/estimators/relative_pose.h"
 #include "rotation_averaging/frontend/features/features.h"
+#include "rotation_averaging/frontend/geometry/camera_model.h"
 #include "rotation_averaging/core/scene/view_graph.h"
 
 namespace rotation_averaging {
@@ -26,23 +27,6 @@ struct PairSelection {
   static bool Parse(const std::string& text, PairSelection* selection, std::string* error = nullptr);
 };
 
-// Pinhole intrinsics of the full-resolution images plus radial distortion
-// (COLMAP SIMPLE_RADIAL / RADIAL): in normalised coordinates
-// x_distorted = x (1 + k1 r^2 + k2 r^4). Keypoints are undistorted before the
-// relative pose.
-struct CameraIntrinsics {
-  Eigen::Matrix3d k = Eigen::Matrix3d::Identity();
-  double k1 = 0.0, k2 = 0.0;
-  // Undistorts a pixel of an image whose intrinsics are `scaled_k`.
-  Eigen::Vector2d Undistort(const Eigen::Vector2d& pixel, const Eigen::Matrix3d& scaled_k) const;
-};
-
-// Reads intrinsics from a K.txt (3x3, row-major) or a COLMAP cameras.txt
-// (first camera; SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL or RADIAL). K is in
-// OpenCV's pixel convention (the centre of the top-left pixel at (0, 0)): a
-// COLMAP principal point, whose convention puts it at (0.5, 0.5), is moved
-// by half a pixel.
-bool ReadCameraIntrinsics(const std::string& path, CameraIntrinsics* intrinsics, std::string* error);
 
 // Self-calibration of the focal length for images whose intrinsics are not
 // trusted. A focal length 1% off moves two-view rotations by about 1% of
@@ -114,8 +98,6 @@ struct ImagePipelineResult {
 // sorted by name.
 std::vector<std::string> ListImages(const std::string& directory);
 
-// Reads a 3x3 intrinsics matrix (nine numbers, row-major, whitespace separated).
-bool ReadIntrinsics(const std::string& path, Eigen::Matrix3d* k, std::string* error);
 
 // The pinhole matrix of the images features are detected in (intrinsics.k
 // scaled by options.downsample).

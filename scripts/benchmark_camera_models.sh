@@ -1,0 +1,77 @@
+#!/usr/bin/env bash
+# Regenerates results/camera_models.md: what the lens distortion model does
+# for the node on raw camera streams.
+#  * EuRoC's real stereo camera (../shared/data/euroc_v1_01_micro, both
+#    cameras at 20 Hz, radial-tangential k1 = -0.28): its bag replayed with
+#    the model (image_raw), with the model ignored (image_type: rectified on
+#    the raw images), and rectified by image_proc's method (--rectify); the
+#    cam0 -> cam1 rotation of each capture's solved orientations against the
+#    calibration's.
+#  * Real image content with a known distortion: Strecha scenes (one camera,
+#    a quarter of full width) warped through a plumb_bob and an equidistant
+#    (fisheye) lens, and the demo renderer through a plumb_bob lens: median
+#    error against ground truth with the model, without it, and on the
+#    undistorted input.
+#   bash scripts/benchmark_camera_models.sh        (about fifteen minutes)
+source "$(dirname "$0")/common.sh"
+bash scripts/setup.sh > /dev/null
+OUT=build/benchmark_camera_models
+mkdir -p "$OUT"
+EUROC="$DATA/euroc_v1_01_micro/mav0"
+[ -d "$EUROC" ] || { echo "benchmark_camera_models: $EUROC is missing (see ../shared/data/README.md)" >&2; exit 1; }
+
+replay() {  # name, bag, config lines... (scored against the bag's ground truth if it has one)
+  local name=$1 bag=$2 gt=()
+  shift 2
+  printf '%s\n' "$@" > "$OUT/$name.yaml"
+  /usr/bin/rosbag info "$bag" | grep -q /ground_truth/orientations && gt=(--gt "$bag")
+  "$BIN/rotation_averaging_replay" --bag "$bag" --config "$OUT/$name.yaml" "${gt[@]}" --output-dir "$OUT/$name" \
+    --no-progress > "$OUT/$name.txt" 2>&1
+}
+
+# EuRoC: the rig's extrinsics are not used, so that each capture's cam0 and
+# cam1 keyframes are solved on their own and their relative rotation is
+# measured, not imposed.
+"$BIN/rotation_averaging_images_to_bag" --euroc "$EUROC" --output "$OUT/euroc.bag" > /dev/null
+"$BIN/rotation_averaging_images_to_bag" --euroc "$EUROC" --rectify --output "$OUT/euroc_rectified.bag" > /dev/null
+# Every image is a keyframe (keyframe_selection: all): the vehicle stands
+# still, and each stereo capture is a measurement of the rig.
+STEREO=('image_topics: ["/cam0/image_raw", "/cam1/image_raw"]' "use_rig_extrinsics: false" "keyframe_selection: all")
+replay euroc_model "$OUT/euroc.bag" "${STEREO[@]}"
+replay euroc_ignored "$OUT/euroc.bag" "${STEREO[@]}" "image_type: rectified"
+replay euroc_rectified "$OUT/euroc_rectified.bag" "${STEREO[@]}"
+
+# Strecha scenes through a lens; the lens keeps the scene's K.
+PLUMB_BOB=plumb_bob:-0.28,0.07,0.0002,0.00002
+FISHEYE=equidistant:0.02,-0.01,0.005,-0.001
+SCENES=()
+for s in fountain-P11 castle-P19; do
+  [ -d "$DATA/strecha/$s" ] && SCENES+=("$s")
+done
+STRECHA='image_topics: ["/camera/image_raw"]'
+# The scenes' images are keyframes (a photo collection played as a sequence).
+for s in "${SCENES[@]}"; do
+  C="$DATA/strecha/$s"
+  for lens in none plumb_bob equidistant; do
+    flags=()
+    [ "$lens" = plumb_bob ] && flags=(--distortion "$PLUMB_BOB")
+    [ "$lens" = equidistant ] && flags=(--distortion "$FISHEYE")
+    "$BIN/rotation_averaging_images_to_bag" --images "$C/images" --intrinsics "$C/images/K.txt" --gt "$C" \
+      --downsample 0.25 "${flags[@]}" --output "$OUT/${s}_$lens.bag" > /dev/null 2>&1
+    replay "${s}_${lens}_model" "$OUT/${s}_$lens.bag" "$STRECHA" "keyframe_selection: all" "max_features: 4000"
+    if [ "$lens" != none ]; then replay "${s}_${lens}_ignored" "$OUT/${s}_$lens.bag" "$STRECHA" "keyframe_selection: all" \
+      "max_features: 4000" "image_type: rectified"; fi
+  done
+done
+
+# The demo renderer (two cameras, 60 captures) through the plumb_bob lens.
+"$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_none.bag" > /dev/null
+"$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_plumb_bob.bag" --distortion "$PLUMB_BOB" > /dev/null
+DEMO=$(grep -v '^#' config/demo.yaml | grep .)
+replay demo_none_model "$OUT/demo_none.bag" "$DEMO"
+replay demo_plumb_bob_model "$OUT/demo_plumb_bob.bag" "$DEMO"
+replay demo_plumb_bob_ignored "$OUT/demo_plumb_bob.bag" "$DEMO" "image_type: rectified"
+
+python3 scripts/camera_models_report.py "$OUT" "$EUROC" "$PLUMB_BOB" "$FISHEYE" "${SCENES[@]}" \
+  > results/camera_models.md
+echo "wrote results/camera_models.md"

@@ -1,0 +1,118 @@
+"""Writes results/camera_models.md from the runs of scripts/benchmark_camera_models.sh.
+
+usage: camera_models_report.py OUT EUROC_MAV0 PLUMB_BOB FISHEYE SCENE...
+"""
+import datetime
+import os
+import re
+import sys
+
+import numpy as np
+
+
+def quaternion_matrix(w, x, y, z):
+    q = np.array([w, x, y, z]) / np.linalg.norm([w, x, y, z])
+    w, x, y, z = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def angle_deg(r):
+    return np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1)))
+
+
+def body_from_camera(sensor_yaml):
+    """T_BS's rotation (camera-to-body) from a EuRoC sensor.yaml."""
+    text = open(sensor_yaml).read()
+    block = re.search(r"T_BS:.*?data:\s*\[(.*?)\]", text, re.S).group(1)
+    t = np.array([float(v) for v in block.replace("\n", " ").split(",")]).reshape(4, 4)
+    return t[:3, :3]
+
+
+def stereo_errors(orientations_csv, r10):
+    """Per capture: angle between the solved cam0 -> cam1 rotation and r10."""
+    world_to_camera = {}
+    for line in open(orientations_csv).read().splitlines()[1:]:
+        name, *q = line.split(",")
+        camera, stamp = name.split("@")
+        world_to_camera[(camera, stamp)] = quaternion_matrix(*map(float, q))
+    errors = []
+    for (camera, stamp), r0 in world_to_camera.items():
+        r1 = world_to_camera.get(("cam1", stamp)) if camera == "cam0" else None
+        if r1 is not None:
+            errors.append(angle_deg(r1 @ r0.T @ r10.T))  # x_cam1 = R1 R0^T x_cam0
+    return np.array(errors)
+
+
+def summary_value(path, pattern):
+    match = re.search(pattern, open(path).read(), re.M)
+    return match.group(1) if match else "-"
+
+
+def main():
+    out, mav0, plumb_bob, fisheye, scenes = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4], sys.argv[5:]
+    r10 = body_from_camera(os.path.join(mav0, "cam1/sensor.yaml")).T @ body_from_camera(
+        os.path.join(mav0, "cam0/sensor.yaml"))
+    print("# Camera models: raw, distorted images")
+    print()
+    print("Reproduce with: `bash scripts/benchmark_camera_models.sh`. Generated %s UTC on a %d-core machine." %
+          (datetime.datetime.utcnow().strftime("%Y-%m-%d %H:%M"), os.cpu_count()))
+    print("Every run is `rotation_averaging_replay` (the node's pipeline) on a bag whose `camera_info` carries")
+    print("the lens's model, as a camera driver's `image_raw` does. *with the model*: `image_type: auto` (the")
+    print("default: keypoints undistorted by camera_info's K, distortion_model and D); *model ignored*: the same")
+    print("bag with `image_type: rectified` (camera_info's P, no undistortion), which is what the node did with")
+    print("every image before it read D; *rectified input*: the images themselves undistorted.")
+    print()
+    print("## EuRoC V1_01: a real stereo camera at 20 Hz")
+    print()
+    print("`rotation_averaging_images_to_bag --euroc` on `euroc_v1_01_micro/mav0`: 95 captures of cam0 and")
+    print("cam1 (752x480, radial-tangential, k1 = -0.28), their `camera_info` from `sensor.yaml`. The replay")
+    print("does not use the rig's extrinsics (`use_rig_extrinsics: false`), so each capture's two keyframes")
+    print("are solved on their own; the table compares their solved relative rotation with the calibration's")
+    print("(cam0 -> cam1 from the two T_BS: %.3f deg)." % angle_deg(r10))
+    print()
+    print("| input | captures | median error (deg) | 90th percentile (deg) | max (deg) | wall (s) |")
+    print("|---|---|---|---|---|---|")
+    for name, label in (("euroc_model", "image_raw, with the model"),
+                        ("euroc_ignored", "image_raw, model ignored"),
+                        ("euroc_rectified", "rectified images (`--rectify`)")):
+        e = stereo_errors(os.path.join(out, name, "orientations.csv"), r10)
+        wall = summary_value(os.path.join(out, name + ".txt"), r"wall time: ([0-9.]+) s")
+        print("| %s | %d | %.3f | %.3f | %.3f | %s |" % (label, len(e), np.median(e), np.percentile(e, 90), e.max(),
+                                                        wall))
+    print()
+    print("## Known distortion on real and rendered images")
+    print()
+    print("Strecha scenes (one camera, images at a quarter of full width, in name order as a sequence) and the")
+    print("demo renderer (two cameras, 60 captures, `config/demo.yaml`), written through a lens with")
+    print("`--distortion`: plumb_bob `%s` and equidistant (fisheye) `%s`, the scene's K kept. The" %
+          (plumb_bob.split(":", 1)[1], fisheye.split(":", 1)[1]))
+    print("corners of the plumb_bob images see rays outside the original image and are black. Median error of")
+    print("the keyframes' orientations against ground truth (one robustly fitted rotation).")
+    print()
+    print("| scene | lens | undistorted input: median (deg) | with the model: median (deg) | ratio | model ignored: median (deg) |")
+    print("|---|---|---|---|---|---|")
+    median = r"^median error: ([0-9.]+) deg"
+    for scene in list(scenes) + ["demo"]:
+        base = summary_value(os.path.join(out, scene + "_none_model.txt"), median)
+        for lens in ("plumb_bob", "equidistant"):
+            model_file = os.path.join(out, "%s_%s_model.txt" % (scene, lens))
+            if not os.path.exists(model_file):
+                continue
+            with_model = summary_value(model_file, median)
+            ignored = summary_value(os.path.join(out, "%s_%s_ignored.txt" % (scene, lens)), median)
+            ratio = "%.2f" % (float(with_model) / float(base)) if "-" not in (base, with_model) else "-"
+            print("| %s | %s | %s | %s | %s | %s |" % (scene, lens, base, with_model, ratio, ignored))
+    print()
+    print("## The replay's summary of the EuRoC run with the model")
+    print()
+    print("```")
+    print(open(os.path.join(out, "euroc_model.txt")).read().rstrip())
+    print("```")
+
+
+if __name__ == "__main__":
+    main()

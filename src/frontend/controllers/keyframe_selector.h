@@ -1,0 +1,108 @@
+// Internal to the package: may change between versions.
+// Keyframe selection for raw camera streams (20-30 Hz), free of ROS: which
+// frames of each camera go to the keyframe front end. Decided from the
+// images alone, as VINS-Mono and ORB-SLAM decide, so that a live node and a
+// replay of the same bag make the same keyframes whatever the timing:
+//  * the first frame of a camera is a keyframe;
+//  * a later frame is compared with that camera's last keyframe by KLT
+//    (pyramidal Lucas-Kanade on a reduced grey image, corners detected once
+//    per keyframe) and becomes a keyframe when the tracked corners moved by
+//    a median of `min_motion_deg` (the angle they subtend at the camera:
+//    rotation and parallax alike, independent of the image size), when
+//    fewer than `min_tracked_fraction` of them are still tracked (the view
+//    has left the keyframe's), or when `max_interval_s` has passed;
+//  * rig cameras of one capture (stamps within `rig_stamp_tolerance_s`)
+//    become keyframes together: a keyframe of one camera makes the frame of
+//    every other camera at that capture a keyframe too, whichever of them
+//    arrived first (the last `held_frames` frames of each camera are held
+//    for that).
+// A frame that is not a keyframe costs one resize and one KLT.
+#ifndef ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
+#define ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "rotation_averaging/frontend/geometry/camera_model.h"
+
+namespace rotation_averaging {
+
+struct KeyframeSelectionOptions {
+  // Median angle (deg) by which the corners tracked from the camera's last
+  // keyframe moved, and the fraction of them still tracked (occlusion,
+  // motion blur, a view turning away). Sparser keyframes mean fewer
+  // sequential edges whose errors add up along the path, until the pairs
+  // overlap too little to verify well: on a 20 Hz stream the median error
+  // fell with the keyframe count down to about 8 deg / 0.4 and rose beyond
+  // (results/keyframe_selection.md).
+  double min_motion_deg = 8.0;
+  double min_tracked_fraction = 0.4;
+  // A keyframe at least this often (s), even without motion; 0: never.
+  double max_interval_s = 0.0;
+  double rig_stamp_tolerance_s = 0.005;  // cameras of one capture: stamps within this
+  int tracking_width = 320;  // px: frames are reduced to at most this width for tracking
+  int corners = 150;         // detected per keyframe (Shi-Tomasi, spread out)
+  int held_frames = 4;       // per camera, for a rig capture whose other camera decides later
+
+  bool Validate(std::string* error) const;
+};
+
+struct KeyframeSelectionStats {
+  std::uint64_t frames = 0;            // every frame offered
+  std::uint64_t keyframes = 0;         // of them, made keyframes
+  std::uint64_t by_motion = 0, by_tracking = 0, by_interval = 0, first = 0, by_rig = 0;  // why
+  std::uint64_t skipped = 0;           // not keyframes
+  double tracking_s = 0.0;             // wall time of the checks
+};
+
+// One frame of a camera as the selector sees it.
+struct SelectorFrame {
+  std::string camera;
+  std::int64_t stamp_ns = 0;
+  cv::Mat image;  // 8-bit grey, full resolution
+  CameraIntrinsics intrinsics;
+};
+
+class KeyframeSelector {
+ public:
+  explicit KeyframeSelector(const KeyframeSelectionOptions& options);
+
+  // Offers one frame (stamps advancing per camera); returns the frames that
+  // become keyframes now, in stamp order, then camera order: none, this one,
+  // and/or held frames of other cameras at its capture. Not thread-safe.
+  std::vector<SelectorFrame> Offer(const SelectorFrame& frame);
+  const KeyframeSelectionStats& Stats() const { return stats_; }
+  void Reset();
+
+ private:
+  struct Camera {
+    cv::Mat keyframe_small;             // the last keyframe, reduced
+    std::vector<cv::Point2f> corners;   // detected in it
+    double scale = 1.0;                 // reduced / full resolution
+    double focal_px = 1.0;              // of the reduced image
+    std::int64_t keyframe_stamp_ns = 0;
+    bool has_keyframe = false;
+    std::deque<SelectorFrame> held;     // recent frames that were not keyframes
+  };
+  enum class Reason { kNone, kFirst, kMotion, kTracking, kInterval };
+  Reason Decide(Camera& camera, const SelectorFrame& frame, cv::Mat* small);
+  void MakeKeyframe(Camera& camera, const SelectorFrame& frame, const cv::Mat& small);
+  bool SameCapture(std::int64_t a, std::int64_t b) const;
+  cv::Mat Reduce(const cv::Mat& image) const;  // to at most tracking_width
+
+  KeyframeSelectionOptions options_;
+  std::map<std::string, Camera> cameras_;
+  // Stamps of recent keyframe captures: a frame of another camera within the
+  // tolerance of one is a keyframe too.
+  std::deque<std::int64_t> keyframe_stamps_;
+  KeyframeSelectionStats stats_;
+};
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_

@@ -1,0 +1,148 @@
+#include "frontend/controllers/keyframe_selector.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <iostream>
+#include <map>
+#include <set>
+
+#include "frontend/scene/rig_scene.h"
+#include "rotation_averaging/core/geometry/so3.h"
+
+namespace rotation_averaging {
+namespace {
+
+// The demo rig (two cameras, 90 deg apart) as a 20 Hz stream: 240 captures
+// over a quarter of its loop, at 320x240.
+RigSceneOptions StreamOptions() {
+  RigSceneOptions o;
+  o.WithWidth(320);
+  o.num_captures = 960;  // one lap in 48 s; the test plays the first 240 captures
+  o.capture_period_s = 0.05;
+  return o;
+}
+
+SelectorFrame Frame(const RigScene& scene, int capture, int camera) {
+  SelectorFrame f;
+  f.camera = scene.Cameras()[camera].frame_id;
+  f.stamp_ns = static_cast<std::int64_t>(std::llround(scene.CaptureTime(capture) * 1e9)) + 1'000'000'000LL;
+  f.image = scene.Render(capture, camera);
+  f.intrinsics.k = scene.Intrinsics();
+  return f;
+}
+
+std::string Name(const SelectorFrame& f) { return f.camera + "@" + std::to_string(f.stamp_ns); }
+
+TEST(KeyframeSelector, AStillCameraMakesOneKeyframeUnlessAnIntervalIsSet) {
+  const RigScene scene(StreamOptions());
+  const SelectorFrame first = Frame(scene, 0, 0);
+  for (double interval : {0.0, 0.5}) {
+    KeyframeSelectionOptions options;
+    options.max_interval_s = interval;
+    KeyframeSelector selector(options);
+    int keyframes = 0;
+    for (int i = 0; i < 40; ++i) {  // 2 s of the same view (the sensor noise of one frame)
+      SelectorFrame f = first;
+      f.stamp_ns += i * 50'000'000LL;
+      keyframes += static_cast<int>(selector.Offer(f).size());
+    }
+    EXPECT_EQ(keyframes, interval == 0.0 ? 1 : 4) << "interval " << interval;
+    EXPECT_EQ(selector.Stats().frames, 40u);
+    EXPECT_EQ(selector.Stats().first, 1u);
+    EXPECT_EQ(selector.Stats().keyframes + selector.Stats().skipped, 40u);
+  }
+}
+
+TEST(KeyframeSelector, KeyframesFollowTheMotionAndCostLittle) {
+  const RigScene scene(StreamOptions());
+  KeyframeSelectionOptions options;
+  KeyframeSelector selector(options);
+  std::vector<int> keyframe_captures;
+  for (int c = 0; c < 240; ++c) {
+    if (!selector.Offer(Frame(scene, c, 0)).empty()) keyframe_captures.push_back(c);
+  }
+  const KeyframeSelectionStats& stats = selector.Stats();
+  // The camera turns by 90 deg over these captures: a keyframe every few
+  // degrees, far fewer than the frames.
+  EXPECT_GE(keyframe_captures.size(), 6u);
+  EXPECT_LE(keyframe_captures.size(), 40u);
+  EXPECT_GT(stats.by_motion + stats.by_tracking, 0u);
+  // Between consecutive keyframes the camera moved at least about the
+  // threshold (image motion includes parallax, so a little less rotation
+  // can trigger one), and never many times it.
+  for (std::size_t k = 1; k < keyframe_captures.size(); ++k) {
+    const double turned = RadToDeg(RotationAngleRad(scene.WorldToCamera(keyframe_captures[k], 0) *
+                                                    scene.WorldToCamera(keyframe_captures[k - 1], 0).transpose()));
+    EXPECT_GT(turned, 0.3 * options.min_motion_deg) << "keyframes at " << keyframe_captures[k - 1] << ", "
+                                                    << keyframe_captures[k];
+    EXPECT_LT(turned, 2.5 * options.min_motion_deg);
+  }
+  std::cout << keyframe_captures.size() << " keyframes of 240 frames; tracking check "
+            << 1e3 * stats.tracking_s / stats.frames << " ms per frame at 320x240\n";
+}
+
+// The cameras of one capture become keyframes together, and the keyframes
+// do not depend on which camera's image of a capture arrives first.
+TEST(KeyframeSelector, RigCapturesBecomeKeyframesTogetherInAnyArrivalOrder) {
+  const RigScene scene(StreamOptions());
+  std::vector<std::array<SelectorFrame, 2>> captures;
+  for (int c = 0; c < 160; ++c) captures.push_back({Frame(scene, c, 0), Frame(scene, c, 1)});
+  std::vector<std::string> runs[3];
+  for (int order = 0; order < 3; ++order) {
+    KeyframeSelector selector{KeyframeSelectionOptions()};
+    for (std::size_t c = 0; c < captures.size(); ++c) {
+      // 0: front first; 1: left first; 2: alternating.
+      const bool left_first = order == 1 || (order == 2 && c % 2 == 1);
+      for (int i = 0; i < 2; ++i) {
+        for (const SelectorFrame& k : selector.Offer(captures[c][left_first ? 1 - i : i])) runs[order].push_back(Name(k));
+      }
+    }
+  }
+  std::set<std::string> sorted[3];
+  for (int order = 0; order < 3; ++order) sorted[order] = std::set<std::string>(runs[order].begin(), runs[order].end());
+  EXPECT_EQ(sorted[0], sorted[1]);
+  EXPECT_EQ(sorted[0], sorted[2]);
+  // Every keyframe capture holds both cameras.
+  std::map<std::string, int> per_stamp;
+  for (const std::string& name : sorted[0]) ++per_stamp[name.substr(name.find('@') + 1)];
+  EXPECT_GT(per_stamp.size(), 5u);
+  for (const auto& [stamp, n] : per_stamp) EXPECT_EQ(n, 2) << stamp;
+}
+
+TEST(KeyframeSelector, ABlankViewWaitsForTexture) {
+  KeyframeSelector selector{KeyframeSelectionOptions()};
+  SelectorFrame blank;
+  blank.camera = "cam";
+  blank.image = cv::Mat(240, 320, CV_8U, cv::Scalar(128));
+  blank.intrinsics.k << 300, 0, 160, 0, 300, 120, 0, 0, 1;
+  for (int i = 0; i < 5; ++i) {
+    blank.stamp_ns = (i + 1) * 50'000'000LL;
+    EXPECT_EQ(selector.Offer(blank).size(), i == 0 ? 1u : 0u) << i;  // the first, then nothing to gain
+  }
+  const RigScene scene(StreamOptions());
+  SelectorFrame textured = Frame(scene, 0, 0);
+  textured.camera = "cam";
+  textured.stamp_ns = 10 * 50'000'000LL;
+  EXPECT_EQ(selector.Offer(textured).size(), 1u);
+}
+
+TEST(KeyframeSelector, OptionsAreChecked) {
+  KeyframeSelectionOptions o;
+  std::string error;
+  EXPECT_TRUE(o.Validate(&error)) << error;
+  o.min_tracked_fraction = 1.5;
+  EXPECT_FALSE(o.Validate(&error));
+  EXPECT_NE(error.find("keyframe_min_tracked_fraction"), std::string::npos) << error;
+  o = KeyframeSelectionOptions();
+  o.min_motion_deg = std::nan("");
+  EXPECT_FALSE(o.Validate(&error));
+  o = KeyframeSelectionOptions();
+  o.corners = 3;
+  EXPECT_FALSE(o.Validate(&error));
+}
+
+}  // namespace
+}  // namespace rotation_averaging
