@@ -527,6 +527,7 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
   result->keyframe_images = pipeline_stats.processed_images;
   result->images_seen = pipeline_stats.frames;
   result->images_skipped = pipeline_stats.frames_skipped;
+  result->selection_s = pipeline_stats.selection_s;
   result->keyframe_selection = pipeline.Config().keyframe_selection;
   result->rejected_images = pipeline_stats.rejected_images;
   result->rejected_messages = pipeline_stats.rejected_messages;
@@ -640,7 +641,8 @@ std::string ReplayResult::Summary() const {
       << " rejected); relative-pose messages rejected: " << rejected_messages << "\n";
   if (images_seen > 0) {
     out << "keyframe selection (" << keyframe_selection << "): " << images_seen << " images, " << keyframe_images
-        << " keyframes, " << images_skipped << " not keyframes\n";
+        << " keyframes, " << images_skipped << " not keyframes; " << 1e3 * selection_s / images_seen
+        << " ms per image\n";
   }
   if (keyframe_images > 0) {
     out << "front end per keyframe: features " << 1e3 * frontend_features_s / keyframe_images << " ms, retrieval "

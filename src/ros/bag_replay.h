@@ -48,6 +48,7 @@ struct ReplayResult {
   std::size_t keyframe_images = 0, rejected_images = 0, rejected_messages = 0;
   std::size_t images_seen = 0, images_skipped = 0;  // valid images offered to keyframe selection, not keyframes
   std::string keyframe_selection;
+  double selection_s = 0.0;  // wall time of keyframe selection
   double frontend_features_s = 0.0, frontend_retrieval_s = 0.0, frontend_pairs_s = 0.0;
   // Two-view pairs of the front end: failed, edges from the rotation-only
   // model, and failed previous pairs bridged by an older keyframe.

@@ -29,6 +29,21 @@ geometry_msgs::Quaternion ToQuaternion(const Eigen::Matrix3d& r) {
   return m;
 }
 
+// parent -> child: the child frame's orientation and position in the parent.
+geometry_msgs::TransformStamped StaticTransform(const ros::Time& stamp, const std::string& parent,
+                                                const std::string& child, const Eigen::Matrix3d& parent_from_child,
+                                                const Eigen::Vector3d& child_in_parent) {
+  geometry_msgs::TransformStamped t;
+  t.header.stamp = stamp;
+  t.header.frame_id = parent;
+  t.child_frame_id = child;
+  t.transform.translation.x = child_in_parent.x();
+  t.transform.translation.y = child_in_parent.y();
+  t.transform.translation.z = child_in_parent.z();
+  t.transform.rotation = ToQuaternion(parent_from_child);
+  return t;
+}
+
 }  // namespace
 
 void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
@@ -86,15 +101,8 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
   // Rig extrinsics: the orientation of each camera's optical frame in base_link.
   tf2_msgs::TFMessage extrinsics;
   for (const RigCamera& c : scene.Cameras()) {
-    geometry_msgs::TransformStamped t;
-    t.header.stamp = t0;
-    t.header.frame_id = "base_link";
-    t.child_frame_id = c.frame_id;
-    t.transform.translation.x = c.position_in_rig.x();
-    t.transform.translation.y = c.position_in_rig.y();
-    t.transform.translation.z = c.position_in_rig.z();
-    t.transform.rotation = ToQuaternion(c.camera_from_rig.transpose());
-    extrinsics.transforms.push_back(t);
+    extrinsics.transforms.push_back(
+        StaticTransform(t0, "base_link", c.frame_id, c.camera_from_rig.transpose(), c.position_in_rig));
   }
   // Before the first image, as a recorder started with the robot would have it.
   bag.write("/tf_static", t0 - ros::Duration(0.5), extrinsics);
@@ -151,15 +159,7 @@ std::size_t WriteEurocBag(const std::vector<EurocCamera>& cameras, const std::st
   const ros::Time first = FromNanoseconds(std::get<0>(images.front()));
   tf2_msgs::TFMessage extrinsics;
   for (const EurocCamera& c : cameras) {
-    geometry_msgs::TransformStamped t;
-    t.header.stamp = first;
-    t.header.frame_id = "body";
-    t.child_frame_id = c.name;
-    t.transform.translation.x = c.camera_in_body.x();
-    t.transform.translation.y = c.camera_in_body.y();
-    t.transform.translation.z = c.camera_in_body.z();
-    t.transform.rotation = ToQuaternion(c.body_from_camera);
-    extrinsics.transforms.push_back(t);
+    extrinsics.transforms.push_back(StaticTransform(first, "body", c.name, c.body_from_camera, c.camera_in_body));
   }
   bag.write("/tf_static", first - ros::Duration(0.5), extrinsics);
   std::size_t written = 0;

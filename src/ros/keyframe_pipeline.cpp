@@ -503,11 +503,11 @@ std::vector<PendingKeyframe> KeyframePipeline::SelectKeyframes(const PendingKeyf
     return {image};
   }
   std::vector<SelectorFrame> selected;
-  std::uint64_t skipped = 0;
+  KeyframeSelectionStats selection;
   {
     std::lock_guard<std::mutex> lock(selector_mutex_);
     selected = selector_.Offer(SelectorFrame{image.key.frame_id, image.key.stamp_ns, image.image, image.camera});
-    skipped = selector_.Stats().skipped;
+    selection = selector_.Stats();
   }
   std::vector<PendingKeyframe> keyframes;
   for (SelectorFrame& f : selected) {
@@ -519,7 +519,8 @@ std::vector<PendingKeyframe> KeyframePipeline::SelectKeyframes(const PendingKeyf
   }
   std::lock_guard<std::mutex> lock(mutex_);
   ++stats_.frames;
-  stats_.frames_skipped = skipped;
+  stats_.frames_skipped = selection.skipped;
+  stats_.selection_s = selection.tracking_s;
   return keyframes;
 }
 

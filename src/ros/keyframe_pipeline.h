@@ -124,6 +124,7 @@ bool CameraFromInfo(const sensor_msgs::CameraInfo& info, bool rectified, CameraI
 struct PipelineStats {
   std::uint64_t frames = 0;             // valid images offered to keyframe selection
   std::uint64_t frames_skipped = 0;     // of them, not keyframes (keyframe_selection: motion)
+  double selection_s = 0.0;             // wall time of keyframe selection
   std::uint64_t rejected_messages = 0;  // relative poses that failed conversion or validation
   std::uint64_t rejected_images = 0;    // do not decode, bad camera_info, stamp not advancing, ...
   std::uint64_t processed_images = 0;   // keyframes through the front end

@@ -5,7 +5,7 @@
 //   rotation_averaging_images_to_bag --images DIR --intrinsics CAMERA-FILE --output out.bag
 //       [--gt Strecha-folder|images.txt|orientations.csv] [--downsample 0.25] [--rate 1.0]
 //       [--frame-id camera] [--compressed] [--write-gt-csv ground_truth.csv]
-//       [--rectify | --distortion MODEL:c1,c2,...]
+//       [--rectify] [--distortion MODEL:c1,c2,...]
 //   rotation_averaging_images_to_bag --euroc mav0 --output out.bag [--compressed] [--rectify]
 //
 // CAMERA-FILE: K.txt, COLMAP cameras.txt, or a ROS / EuRoC / Kalibr YAML
@@ -16,7 +16,7 @@
 // --rectify writes rectified images instead (camera_info without
 // distortion); --distortion warps images of an ideal camera (a file without
 // distortion) through that lens and writes its model: real image content
-// with a known distortion. --euroc writes every camera of a EuRoC-layout
+// with a known distortion (with --rectify too: warped, then rectified). --euroc writes every camera of a EuRoC-layout
 // dataset (EuRoC MAV, TUM-VI: mav0/camN/{sensor.yaml,data.csv,data/}) at its
 // own stamps, camera_info from sensor.yaml, T_BS as /tf_static body -> camN:
 // a stereo or multi-camera driver's raw stream. Ground truth
@@ -56,7 +56,7 @@ int Usage(const std::string& why) {
   std::cerr << "usage: rotation_averaging_images_to_bag --images DIR --intrinsics CAMERA-FILE --output out.bag\n"
                "           [--gt Strecha-folder|images.txt|orientations.csv] [--downsample 0.25] [--rate 1.0]\n"
                "           [--frame-id camera] [--compressed] [--write-gt-csv ground_truth.csv]\n"
-               "           [--rectify | --distortion MODEL:c1,c2,...]\n"
+               "           [--rectify] [--distortion MODEL:c1,c2,...]\n"
                "       rotation_averaging_images_to_bag --euroc mav0 --output out.bag [--compressed] [--rectify]\n"
                "CAMERA-FILE: K.txt, COLMAP cameras.txt, or a ROS camera_calibration / EuRoC / Kalibr YAML\n";
   return 2;
@@ -151,7 +151,6 @@ int main(int argc, char** argv) {
   if (!(downsample > 0.0 && downsample <= 1.0)) return Usage("--downsample must be in (0, 1]");
   if (!(rate > 0.0)) return Usage("--rate must be positive");
   if (frame_id.empty()) return Usage("--frame-id must not be empty");
-  if (rectify && !distortion.empty()) return Usage("--rectify and --distortion exclude each other");
 
   if (!gt_csv.empty() && SameFile(gt_csv, output)) return Usage("--output and --write-gt-csv name the same file");
   const std::vector<std::string> images = ra::ListImages(images_dir);
@@ -213,7 +212,7 @@ int main(int argc, char** argv) {
       continue;
     }
     ra::CameraIntrinsics camera = intrinsics;
-    if (rectify) {
+    if (rectify && distortion.empty()) {
       grey = ra::UndistortImage(grey, intrinsics);
       camera = ra::CameraIntrinsics();
       camera.k = intrinsics.k;
@@ -229,6 +228,11 @@ int main(int argc, char** argv) {
       lens.k = camera.k;
       grey = ra::DistortImage(grey, lens);
       camera = lens;
+      if (rectify) {  // through the lens and back: what the lens's resampling loses
+        grey = ra::UndistortImage(grey, lens);
+        camera.distortion = ra::DistortionModel::kNone;
+        camera.coefficients.clear();
+      }
     }
     const ros::Time stamp = t0 + ros::Duration(written / rate);
     ra::WriteKeyframeImage(&bag, frame_id, stamp, grey, camera, compressed);

@@ -461,6 +461,7 @@ class RotationAveragingNode {
     status.add("rejected messages", p.rejected_messages);
     status.add("images seen", p.frames);
     status.add("images that were not keyframes (keyframe_selection)", p.frames_skipped);
+    if (p.frames > 0) status.add("keyframe selection per image (ms)", 1e3 * p.selection_s / p.frames);
     status.add("keyframe images processed", p.processed_images);
     status.add("edges from images", p.edges_from_images);
     status.add("rig cameras (extrinsics known)", pipeline_->Rig().NumRigCameras());

@@ -21,6 +21,7 @@
 #include "ros/bag_replay.h"
 #include "ros/demo_bag.h"
 #include "ros/msg_conversion.h"
+#include "rostest/play_bag.h"
 
 namespace rotation_averaging {
 namespace {
@@ -53,42 +54,7 @@ TEST(NodeReplay, LiveNodeFedByRosbagPlayMatchesTheReplayTool) {
   NamedOrientations replayed;
   ASSERT_TRUE(ReadOrientationsCsv(replay.orientations_csv, &replayed).ok());
 
-  std::mutex mutex;
-  Orientations::ConstPtr latest;
-  ros::Subscriber sub = nh.subscribe<Orientations>("/rotation_averaging/orientations", 10,
-                                                   [&](const Orientations::ConstPtr& m) {
-                                                     std::lock_guard<std::mutex> lock(mutex);
-                                                     latest = m;
-                                                   });
-  ASSERT_TRUE(ros::service::waitForService("/rotation_averaging/solve", ros::Duration(30.0)));
-  const std::string play = "PATH=/usr/bin:$PATH rosbag play --clock --quiet --delay=1 " + bag + " > /dev/null 2>&1";
-  ASSERT_EQ(std::system(play.c_str()), 0) << play;
-
-  // The node has the last images queued or in its front end: wait until a
-  // solution holds every keyframe and no new solve came for three seconds.
-  NamedOrientations live;
-  std::uint64_t last_sequence = 0;
-  ros::WallTime settled_since = ros::WallTime::now();
-  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(90.0);
-  while (ros::WallTime::now() < deadline) {
-    ros::WallDuration(0.2).sleep();
-    std::lock_guard<std::mutex> lock(mutex);
-    if (!latest || latest->keyframes.size() < replay.keyframes) continue;
-    if (latest->solve_sequence != last_sequence) {
-      last_sequence = latest->solve_sequence;
-      settled_since = ros::WallTime::now();
-      continue;
-    }
-    if ((ros::WallTime::now() - settled_since).toSec() > 3.0) break;
-  }
-  {
-    std::lock_guard<std::mutex> lock(mutex);
-    ASSERT_TRUE(latest) << "no orientations from the node";
-    for (const KeyframeOrientation& k : latest->keyframes) {
-      live[OnlineAverager::KeyframeName({k.frame_id, ToNanoseconds(k.stamp)})] =
-          QuaternionToRotation(k.orientation.w, k.orientation.x, k.orientation.y, k.orientation.z).transpose();
-    }
-  }
+  const NamedOrientations live = PlayIntoNode("rotation_averaging", bag, replay.keyframes);
   ASSERT_EQ(live.size(), replayed.size());
 
   // The front end is deterministic: the node's graph is the replay's, edge

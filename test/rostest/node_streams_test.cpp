@@ -23,6 +23,7 @@
 #include "ros/bag_replay.h"
 #include "ros/demo_bag.h"
 #include "ros/msg_conversion.h"
+#include "rostest/play_bag.h"
 
 namespace rotation_averaging {
 namespace {
@@ -41,45 +42,6 @@ ReplayResult Replay(const std::string& dir, const std::string& bag, const std::s
   options.output_dir = dir + "/replay";
   options.progress = false;
   return ReplayBags(options);
-}
-
-// Plays `bag` in real time with its clock into the live node `node`, and
-// returns the node's orientations once every keyframe is in and no solve
-// came for three seconds.
-NamedOrientations PlayIntoNode(const std::string& node, const std::string& bag, std::size_t keyframes) {
-  ros::NodeHandle nh;
-  std::mutex mutex;
-  Orientations::ConstPtr latest;
-  ros::Subscriber sub = nh.subscribe<Orientations>("/" + node + "/orientations", 10,
-                                                   [&](const Orientations::ConstPtr& m) {
-                                                     std::lock_guard<std::mutex> lock(mutex);
-                                                     latest = m;
-                                                   });
-  EXPECT_TRUE(ros::service::waitForService("/" + node + "/solve", ros::Duration(30.0)));
-  const std::string play = "PATH=/usr/bin:$PATH rosbag play --clock --quiet --delay=1 " + bag + " > /dev/null 2>&1";
-  EXPECT_EQ(std::system(play.c_str()), 0) << play;
-  std::uint64_t last_sequence = 0;
-  ros::WallTime settled_since = ros::WallTime::now();
-  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(90.0);
-  while (ros::WallTime::now() < deadline) {
-    ros::WallDuration(0.2).sleep();
-    std::lock_guard<std::mutex> lock(mutex);
-    if (!latest || latest->keyframes.size() < keyframes) continue;
-    if (latest->solve_sequence != last_sequence) {
-      last_sequence = latest->solve_sequence;
-      settled_since = ros::WallTime::now();
-      continue;
-    }
-    if ((ros::WallTime::now() - settled_since).toSec() > 3.0) break;
-  }
-  NamedOrientations live;
-  std::lock_guard<std::mutex> lock(mutex);
-  if (!latest) return live;
-  for (const KeyframeOrientation& k : latest->keyframes) {
-    live[OnlineAverager::KeyframeName({k.frame_id, ToNanoseconds(k.stamp)})] =
-        QuaternionToRotation(k.orientation.w, k.orientation.x, k.orientation.y, k.orientation.z).transpose();
-  }
-  return live;
 }
 
 std::vector<std::string> Names(const NamedOrientations& orientations) {
