@@ -91,10 +91,12 @@ def main():
     print("`--distortion`: plumb_bob `%s` and equidistant (fisheye) `%s`, the scene's K kept. The" %
           (plumb_bob.split(":", 1)[1], fisheye.split(":", 1)[1]))
     print("corners of the plumb_bob images see rays outside the original image and are black. Median error of")
-    print("the keyframes' orientations against ground truth (one robustly fitted rotation).")
+    print("the keyframes' orientations against ground truth (one robustly fitted rotation). *warped, then")
+    print("rectified*: the lens's images undistorted again (`--distortion ... --rectify`), the same content")
+    print("through the same two resamplings, without a model to apply.")
     print()
-    print("| scene | lens | undistorted input: median (deg) | with the model: median (deg) | ratio | model ignored: median (deg) |")
-    print("|---|---|---|---|---|---|")
+    print("| scene | lens | original input: median (deg) | with the model: median (deg) | ratio | model ignored: median (deg) | warped, then rectified: median (deg) |")
+    print("|---|---|---|---|---|---|---|")
     median = r"^median error: ([0-9.]+) deg"
     for scene in list(scenes) + ["demo"]:
         base = summary_value(os.path.join(out, scene + "_none_model.txt"), median)
@@ -104,8 +106,10 @@ def main():
                 continue
             with_model = summary_value(model_file, median)
             ignored = summary_value(os.path.join(out, "%s_%s_ignored.txt" % (scene, lens)), median)
+            rectified_file = os.path.join(out, "%s_%s_rectified.txt" % (scene, lens))
+            rectified = summary_value(rectified_file, median) if os.path.exists(rectified_file) else "-"
             ratio = "%.2f" % (float(with_model) / float(base)) if "-" not in (base, with_model) else "-"
-            print("| %s | %s | %s | %s | %s | %s |" % (scene, lens, base, with_model, ratio, ignored))
+            print("| %s | %s | %s | %s | %s | %s | %s |" % (scene, lens, base, with_model, ratio, ignored, rectified))
     print()
     print("## The replay's summary of the EuRoC run with the model")
     print()

@@ -14,9 +14,11 @@
 #   node_benchmark.md  the running node: latency and message rate
 #   replay.md          bag replay of the demo and the Strecha scenes, loop-closure recall
 #   long_run.md        the keyframe front end over 800 keyframes and three laps
+#   camera_models.md   lens distortion: EuRoC's real stereo camera, scenes warped through known lenses
+#   keyframe_selection.md  keyframe selection on a rendered 20 Hz stream
 # results/README.md is the written summary of these files.
 #
-#   bash scripts/report.sh            about 50 minutes on 2 cores (the COLMAP comparison about 17 of them; 1,000,000 views alone: 3-4, beside the front end)
+#   bash scripts/report.sh            about 70 minutes on 2 cores (the COLMAP comparison about 17 of them; 1,000,000 views alone: 3-4, beside the front end)
 #   bash scripts/report.sh --quick    under 3 minutes; small sizes, written to build/report_quick/
 #                                     (CI runs it so the report code never rots)
 # Real data comes from ../shared/data (ROTAVG_DATA_DIR to override); parts that
@@ -70,4 +72,7 @@ step "bag replay"
 bash scripts/benchmark_replay.sh > /dev/null
 step "long image runs"
 bash scripts/benchmark_long_run.sh > /dev/null
+step "camera models (lens distortion) and keyframe selection on raw streams"
+bash scripts/benchmark_camera_models.sh > /dev/null
+bash scripts/benchmark_keyframe_selection.sh > /dev/null
 step "done: results/*.md and results/plots/ regenerated; summary in results/README.md"
