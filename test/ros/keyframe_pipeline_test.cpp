@@ -175,6 +175,10 @@ TEST(KeyframePipeline, CameraInfoGivesTheCameraModelOfRawAndRectifiedImages) {
   info.distortion_model = "plumb_bob";
   info.D = {-0.28, 0.07};
   EXPECT_FALSE(CameraFromInfo(info, false, &camera, &error));
+  // An uncalibrated camera_info: a model named, no coefficients.
+  info.D.clear();
+  ASSERT_TRUE(CameraFromInfo(info, false, &camera, &error)) << error;
+  EXPECT_FALSE(camera.HasDistortion());
   info.D = {-0.28, 0.07, 0.0, std::nan(""), 0.0};
   EXPECT_FALSE(CameraFromInfo(info, false, &camera, &error));
 

@@ -236,7 +236,9 @@ bool CameraIntrinsics::Validate(std::string* error) const {
   const std::string name = DistortionModelName(distortion);
   // Counts as ROS drivers fill D: plumb_bob with 4 or 5, rational_polynomial
   // with 8, equidistant with 4; more coefficients than the model has must be
-  // zero (some drivers pad D).
+  // zero (some drivers pad D). No coefficients at all is no distortion, as
+  // image_geometry reads it (an uncalibrated camera_info names a model with
+  // an empty D).
   std::size_t expected = 0;
   bool ok = true;
   switch (distortion) {
@@ -245,15 +247,15 @@ bool CameraIntrinsics::Validate(std::string* error) const {
       break;
     case DistortionModel::kPlumbBob:
       expected = 5;
-      ok = n >= 4;
+      ok = n == 0 || n >= 4;
       break;
     case DistortionModel::kRationalPolynomial:
       expected = 8;
-      ok = n >= 5;
+      ok = n == 0 || n >= 5;
       break;
     case DistortionModel::kEquidistant:
       expected = 4;
-      ok = n >= 4;
+      ok = n == 0 || n >= 4;
       break;
   }
   for (std::size_t i = expected; i < n; ++i) ok = ok && coefficients[i] == 0.0;

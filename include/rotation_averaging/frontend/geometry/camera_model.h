@@ -47,8 +47,9 @@ struct CameraIntrinsics {
   bool HasDistortion() const;
   // True if K is a camera's (IsCameraIntrinsics) and the coefficients are
   // finite and as many as the model takes (plumb_bob: 4 or 5; rational
-  // polynomial: 8, or 5 with the rest zero; equidistant: 4); otherwise false
-  // with `error` saying which.
+  // polynomial: 8, or 5 with the rest zero; equidistant: 4; none at all: no
+  // distortion, whatever the model); otherwise false with `error` saying
+  // which.
   bool Validate(std::string* error) const;
   // The ideal pinhole pixel of a pixel of an image whose intrinsics are
   // `scaled_k` (K, or K scaled for a resized image). Returns the pixel
