@@ -112,6 +112,22 @@ TEST(KeyframeSelector, RigCapturesBecomeKeyframesTogetherInAnyArrivalOrder) {
   for (const auto& [stamp, n] : per_stamp) EXPECT_EQ(n, 2) << stamp;
 }
 
+// A camera faster than the rig tolerance: its own keyframe does not make its
+// next frames keyframes (only other cameras' frames of a capture are).
+TEST(KeyframeSelector, AFastCameraIsNotItsOwnRig) {
+  KeyframeSelectionOptions options;
+  options.rig_stamp_tolerance_s = 0.02;  // loosely synchronised cameras
+  KeyframeSelector selector(options);
+  const RigScene scene(StreamOptions());
+  SelectorFrame f = Frame(scene, 0, 0);
+  int keyframes = 0;
+  for (int i = 0; i < 30; ++i) {  // 60 Hz, the same view
+    f.stamp_ns += 16'666'667LL;
+    keyframes += static_cast<int>(selector.Offer(f).size());
+  }
+  EXPECT_EQ(keyframes, 1);
+}
+
 TEST(KeyframeSelector, ABlankViewWaitsForTexture) {
   KeyframeSelector selector{KeyframeSelectionOptions()};
   SelectorFrame blank;

@@ -107,8 +107,12 @@ std::vector<SelectorFrame> KeyframeSelector::Offer(const SelectorFrame& frame) {
   std::vector<SelectorFrame> keyframes;
   Camera& camera = cameras_[frame.camera];
   cv::Mat small;
-  const bool rig_capture = std::any_of(keyframe_stamps_.begin(), keyframe_stamps_.end(),
-                                       [&](std::int64_t t) { return SameCapture(t, frame.stamp_ns); });
+  // A keyframe capture of another camera (never this camera's own: a camera
+  // faster than the tolerance would make every frame a keyframe).
+  const bool rig_capture =
+      std::any_of(keyframe_stamps_.begin(), keyframe_stamps_.end(), [&](const std::pair<std::int64_t, std::string>& k) {
+        return k.second != frame.camera && SameCapture(k.first, frame.stamp_ns);
+      });
   Reason reason = Reason::kNone;
   if (rig_capture) {
     // Another camera made this capture a keyframe: this camera's frame of it
@@ -130,7 +134,7 @@ std::vector<SelectorFrame> KeyframeSelector::Offer(const SelectorFrame& frame) {
     }
     MakeKeyframe(camera, frame, small);
     keyframes.push_back(frame);
-    keyframe_stamps_.push_back(frame.stamp_ns);
+    keyframe_stamps_.emplace_back(frame.stamp_ns, frame.camera);
     if (keyframe_stamps_.size() > kRememberedCaptures) keyframe_stamps_.pop_front();
     // The other cameras' frames of this capture that arrived before it.
     for (auto& [name, other] : cameras_) {

@@ -26,6 +26,7 @@
 #include <map>
 #include <opencv2/core.hpp>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "rotation_averaging/frontend/geometry/camera_model.h"
@@ -97,9 +98,9 @@ class KeyframeSelector {
 
   KeyframeSelectionOptions options_;
   std::map<std::string, Camera> cameras_;
-  // Stamps of recent keyframe captures: a frame of another camera within the
+  // Recent keyframes (stamp, camera): a frame of another camera within the
   // tolerance of one is a keyframe too.
-  std::deque<std::int64_t> keyframe_stamps_;
+  std::deque<std::pair<std::int64_t, std::string>> keyframe_stamps_;
   KeyframeSelectionStats stats_;
 };
 
