@@ -12,7 +12,7 @@
 #    (fisheye) lens, and the demo renderer through a plumb_bob lens: median
 #    error against ground truth on the original input, with the model,
 #    without it, and on the warped images rectified.
-#   bash scripts/benchmark_camera_models.sh        (about fifteen minutes)
+#   bash scripts/benchmark_camera_models.sh        (about ten minutes)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
 OUT=build/benchmark_camera_models

@@ -158,9 +158,10 @@ class RotationAveragingNode {
   }
 
  private:
-  // Keyframe images: every image on the configured topics is a keyframe.
-  // Their callbacks (decoding, validation) run on a spinner thread of their
-  // own, so that images never delay relative poses on the main thread.
+  // Camera images: keyframe selection (keyframe_selection) picks the
+  // keyframes of each topic's stream. Their callbacks (decoding, validation,
+  // selection) run on a spinner thread of their own, so that images never
+  // delay relative poses on the main thread.
   void SetUpImages(const ros::NodeHandle& node) {
     const PipelineConfig& config = pipeline_->Config();
     if (config.image_topics.empty()) return;
