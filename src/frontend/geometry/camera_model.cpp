@@ -98,6 +98,9 @@ bool ReadYamlCamera(const std::string& path, CameraIntrinsics* camera, int* widt
     }
     return true;
   };
+  if (node["camera_model"] && node["camera_model"].IsScalar() && node["camera_model"].Scalar() != "pinhole") {
+    return Fail(error, path + ": camera_model '" + node["camera_model"].Scalar() + "' is not supported (pinhole is)");
+  }
   std::vector<double> values;
   camera->k.setIdentity();
   if (node["camera_matrix"]) {
@@ -113,9 +116,6 @@ bool ReadYamlCamera(const std::string& path, CameraIntrinsics* camera, int* widt
     camera->k(1, 2) = values[3];
   } else {
     return Fail(error, path + ": the camera has neither camera_matrix nor intrinsics");
-  }
-  if (node["camera_model"] && node["camera_model"].IsScalar() && node["camera_model"].Scalar() != "pinhole") {
-    return Fail(error, path + ": camera_model '" + node["camera_model"].Scalar() + "' is not supported (pinhole is)");
   }
   const std::string model = node["distortion_model"] ? node["distortion_model"].as<std::string>("") : "";
   if (!ParseDistortionModel(model, &camera->distortion)) {
