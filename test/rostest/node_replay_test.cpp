@@ -59,52 +59,7 @@ TEST(NodeReplay, LiveNodeFedByRosbagPlayMatchesTheReplayTool) {
 
   // The front end is deterministic: the node's graph is the replay's, edge
   // for edge (pair, source, inliers, rotation).
-  SaveGraph save;
-  save.request.path = dir + "/live_graph.txt";
-  ASSERT_TRUE(ros::service::call("/rotation_averaging/save_graph", save));
-  ASSERT_TRUE(save.response.success) << save.response.message;
-  // Keyed by the names of the two keyframes and the source; a pair may hold
-  // several edges (one per camera of a rig), sorted by inliers and rotation
-  // (the cameras' images of one capture reach the node in either order).
-  using EdgeKey = std::tuple<std::string, std::string, int>;
-  using Edges = std::map<EdgeKey, std::vector<RelativeRotation>>;
-  auto edges_of = [](const std::string& path, Edges* edges) {
-    ViewGraph graph;
-    const ReadReport report = ReadRotavgGraph(path, &graph);
-    ASSERT_TRUE(report.ok()) << path << ": " << report.error;
-    for (const RelativeRotation& e : graph.Edges()) {
-      RelativeRotation named = e;
-      std::string a = graph.FindView(e.view1)->name, b = graph.FindView(e.view2)->name;
-      if (b < a) {
-        std::swap(a, b);
-        named = e.Inverted();
-      }
-      (*edges)[{a, b, static_cast<int>(e.source)}].push_back(named);
-    }
-    for (auto& [key, list] : *edges) {
-      std::sort(list.begin(), list.end(), [](const RelativeRotation& x, const RelativeRotation& y) {
-        return std::make_pair(x.num_inliers, x.rotation(0, 1)) < std::make_pair(y.num_inliers, y.rotation(0, 1));
-      });
-    }
-  };
-  Edges live_edges, replay_edges;
-  edges_of(save.request.path, &live_edges);
-  edges_of(replay.graph_file, &replay_edges);
-  ASSERT_FALSE(replay_edges.empty());
-  EXPECT_EQ(live_edges.size(), replay_edges.size());
-  for (const auto& [key, edges] : replay_edges) {
-    const std::string pair = std::get<0>(key) + " - " + std::get<1>(key);
-    auto it = live_edges.find(key);
-    if (it == live_edges.end()) {
-      ADD_FAILURE() << "the node lacks the edge " << pair;
-      continue;
-    }
-    ASSERT_EQ(it->second.size(), edges.size()) << pair;
-    for (std::size_t i = 0; i < edges.size(); ++i) {
-      EXPECT_EQ(it->second[i].num_inliers, edges[i].num_inliers) << pair;
-      EXPECT_LT(RadToDeg(AngularDistanceRad(it->second[i].rotation, edges[i].rotation)), 1e-6) << pair;
-    }
-  }
+  ExpectNodeGraphIsTheReplays("rotation_averaging", dir + "/live_graph.txt", replay.graph_file);
 
   const EvaluationResult between = EvaluateOrientations(live, replayed);
   EXPECT_EQ(between.views_common, replayed.size());

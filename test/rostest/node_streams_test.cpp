@@ -50,14 +50,19 @@ std::vector<std::string> Names(const NamedOrientations& orientations) {
   return names;
 }
 
-void ExpectSameKeyframesAndOrientations(const NamedOrientations& live, const NamedOrientations& replayed) {
+// The node made the replay's keyframes and, from them, its graph edge for
+// edge. Its orientations come from solves at other moments, each warm-started
+// from the one before: where a keyframe's edges disagree (a weak loop
+// closure), the robust loss can settle one keyframe elsewhere on a loaded
+// machine, so the orientations are compared by their median.
+void ExpectTheReplaysKeyframesAndGraph(const std::string& node, const std::string& dir, const ReplayResult& replay,
+                                       const NamedOrientations& live, const NamedOrientations& replayed) {
   EXPECT_EQ(Names(live), Names(replayed)) << "the live node made other keyframes than the replay";
+  ExpectNodeGraphIsTheReplays(node, dir + "/live_graph.txt", replay.graph_file);
   const EvaluationResult between = EvaluateOrientations(live, replayed);
-  double worst = 0.0;
-  for (const auto& [name, e] : between.errors_deg) worst = std::max(worst, e);
-  // Same graph, solved at other moments (see node_replay_test).
-  EXPECT_LT(worst, 0.1) << "median " << between.median_error_deg;
-  std::printf("live node vs replay over %zu keyframes: max %.6f deg apart\n", between.views_common, worst);
+  EXPECT_LT(between.median_error_deg, 0.01);
+  std::printf("live node vs replay over %zu keyframes: median %.6f deg apart\n", between.views_common,
+              between.median_error_deg);
 }
 
 TEST(NodeStreams, RenderedRigAt20HzMakesTheReplaysKeyframesInRealTime) {
@@ -92,7 +97,7 @@ TEST(NodeStreams, RenderedRigAt20HzMakesTheReplaysKeyframesInRealTime) {
   ASSERT_TRUE(ReadOrientationsCsv(replay.orientations_csv, &replayed).ok());
 
   const NamedOrientations live = PlayIntoNode("stream", bag, replayed.size());
-  ExpectSameKeyframesAndOrientations(live, replayed);
+  ExpectTheReplaysKeyframesAndGraph("stream", dir, replay, live, replayed);
   std::printf("%zu keyframes of %zu images\n", replay.keyframes, replay.images_seen);
 }
 
@@ -118,7 +123,7 @@ TEST(NodeStreams, EurocRawStereoUndistortedMatchesItsCalibration) {
   ASSERT_GE(replayed.size(), 16u);
 
   const NamedOrientations live = PlayIntoNode("euroc", bag, replayed.size());
-  ExpectSameKeyframesAndOrientations(live, replayed);
+  ExpectTheReplaysKeyframesAndGraph("euroc", dir, replay, live, replayed);
 
   // Each capture's cam0 -> cam1 rotation against the calibration's (x_cam1 = R x_cam0).
   const Eigen::Matrix3d r10 = cameras[1].body_from_camera.transpose() * cameras[0].body_from_camera;
