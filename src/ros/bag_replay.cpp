@@ -444,10 +444,8 @@ class Replayer {
       sensor_msgs::Image::ConstPtr image = m.instantiate<sensor_msgs::Image>();
       ok = image && pipeline_.DecodeImage(*image, *stream.info, &keyframe, &why, stream.rectified);
     }
-    for (std::string notice = pipeline_.TakeCameraModelNotice(); !notice.empty();) {
-      const std::size_t end = notice.find('\n');
-      if (result_.camera_models.size() < 50) result_.camera_models.push_back(notice.substr(0, end));
-      notice = end == std::string::npos ? "" : notice.substr(end + 1);
+    for (std::string& notice : pipeline_.TakeCameraModelNotices()) {
+      if (result_.camera_models.size() < 50) result_.camera_models.push_back(std::move(notice));
     }
     if (!ok) return Warn("image on " + stream.image_topic + " at " + std::to_string(time.toSec()) + " dropped: " + why);
     offered_.insert(OnlineAverager::KeyframeName(keyframe.key));

@@ -375,11 +375,11 @@ std::string DescribeCamera(const std::string& frame, const CameraIntrinsics& cam
 }
 }  // namespace
 
-std::string KeyframePipeline::TakeCameraModelNotice() {
+std::vector<std::string> KeyframePipeline::TakeCameraModelNotices() {
   std::lock_guard<std::mutex> lock(mutex_);
-  std::string notice;
-  notice.swap(camera_model_notice_);
-  return notice;
+  std::vector<std::string> notices;
+  notices.swap(camera_model_notices_);
+  return notices;
 }
 
 bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
@@ -419,8 +419,8 @@ bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp
     std::string description = DescribeCamera(frame, camera, rectified);
     std::string& known = camera_models_[frame];
     if (known != description) {
-      camera_model_notice_ += (camera_model_notice_.empty() ? "" : "\n") + description;
-      known = std::move(description);
+      known = description;
+      camera_model_notices_.push_back(std::move(description));
     }
   }
   return true;

@@ -162,10 +162,11 @@ class KeyframePipeline {
                    std::string* error, bool rectified = false);
   bool DecodeCompressedImage(const sensor_msgs::CompressedImage& image, const sensor_msgs::CameraInfo& info,
                              PendingKeyframe* out, std::string* error, bool rectified = false);
-  // "cam0: plumb_bob (k1 -0.283, ...)": how each camera's keypoints are
-  // undistorted, once per camera and whenever its model changes (for the
-  // node's and the replay's log); empty when nothing is new.
-  std::string TakeCameraModelNotice();
+  // "cam0: f 458.654, 457.296 px, keypoints undistorted by plumb_bob (...)":
+  // how each camera's keypoints are undistorted, once per camera and
+  // whenever its model changes (for the node's and the replay's log), one
+  // line per camera; empty when nothing is new.
+  std::vector<std::string> TakeCameraModelNotices();
 
   // Keyframe selection (PipelineConfig::keyframe_selection) of one decoded
   // image: the images that become keyframes now (none, this one, and/or
@@ -226,7 +227,7 @@ class KeyframePipeline {
   std::map<std::string, std::int64_t> last_image_stamp_;
   std::map<std::string, ros::Time> last_latest_stamp_;
   std::map<std::string, std::string> camera_models_;  // frame -> description of its model
-  std::string camera_model_notice_;
+  std::vector<std::string> camera_model_notices_;
 };
 
 // The vocabulary the build trains (target `vocabulary`, run by

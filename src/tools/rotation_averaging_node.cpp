@@ -238,8 +238,7 @@ class RotationAveragingNode {
   // (the same decisions as the replay's for the same images): an image that
   // is not a keyframe costs its decoding and one tracking check.
   void Select(const PendingKeyframe& image) {
-    const std::string notice = pipeline_->TakeCameraModelNotice();
-    if (!notice.empty()) ROS_INFO("camera model: %s", notice.c_str());
+    for (const std::string& notice : pipeline_->TakeCameraModelNotices()) ROS_INFO("camera model: %s", notice.c_str());
     for (PendingKeyframe& keyframe : pipeline_->SelectKeyframes(image)) Enqueue(std::move(keyframe));
   }
 

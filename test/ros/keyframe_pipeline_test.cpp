@@ -198,9 +198,10 @@ TEST(KeyframePipeline, CameraInfoGivesTheCameraModelOfRawAndRectifiedImages) {
   raw.D = {-0.2, 0.05, 0.0, 0.0, 0.0};
   ASSERT_TRUE(pipeline.DecodeImage(Image("cam", 1.0, 64, 48, "mono8"), raw, &k, &error)) << error;
   EXPECT_EQ(k.camera.coefficients, raw.D);
-  EXPECT_NE(pipeline.TakeCameraModelNotice().find("cam: f 100, 100 px, keypoints undistorted by plumb_bob"),
-            std::string::npos);
-  EXPECT_EQ(pipeline.TakeCameraModelNotice(), "");  // once per camera
+  const std::vector<std::string> notices = pipeline.TakeCameraModelNotices();
+  ASSERT_EQ(notices.size(), 1u);
+  EXPECT_NE(notices[0].find("cam: f 100, 100 px, keypoints undistorted by plumb_bob"), std::string::npos);
+  EXPECT_TRUE(pipeline.TakeCameraModelNotices().empty());  // once per camera
   raw.distortion_model = "fov";
   EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 2.0, 64, 48, "mono8"), raw, &k, &error));
   EXPECT_NE(error.find("camera_info of cam: unknown distortion_model 'fov'"), std::string::npos) << error;

@@ -7,6 +7,7 @@
 #include <opencv2/video/tracking.hpp>
 
 #include "core/util/option_check.h"
+#include "rotation_averaging/core/geometry/so3.h"
 
 namespace rotation_averaging {
 namespace {
@@ -20,8 +21,6 @@ constexpr std::size_t kMinCorners = 10;
 constexpr float kForwardBackwardPx = 1.0f;
 // Keyframe capture stamps remembered for the rig's other cameras.
 constexpr std::size_t kRememberedCaptures = 16;
-
-constexpr double kPi = 3.14159265358979323846;
 
 }  // namespace
 
@@ -92,7 +91,7 @@ KeyframeSelector::Reason KeyframeSelector::Decide(Camera& camera, const Selector
     const cv::Point2f d = back[i] - camera.corners[i];
     if (d.x * d.x + d.y * d.y > kForwardBackwardPx * kForwardBackwardPx) continue;
     const cv::Point2f m = next[i] - camera.corners[i];
-    moved.push_back(std::atan(std::sqrt(m.x * m.x + m.y * m.y) / camera.focal_px) * 180.0 / kPi);
+    moved.push_back(RadToDeg(std::atan(std::sqrt(m.x * m.x + m.y * m.y) / camera.focal_px)));
   }
   const double tracked = static_cast<double>(moved.size()) / camera.corners.size();
   if (tracked < options_.min_tracked_fraction) return Reason::kTracking;

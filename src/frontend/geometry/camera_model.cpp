@@ -194,7 +194,7 @@ bool ReadColmapCamera(const std::vector<std::string>& t, LineReader& reader, Cam
   if (width) *width = w;
   if (height) *height = h;
   std::string why;
-  if (!IsCameraIntrinsics(k) || !camera->Validate(&why)) {
+  if (!camera->Validate(&why)) {  // K a camera's, coefficients finite
     return Fail(error, reader.Where(t[1] + " needs finite parameters and a K that is a camera's (" +
                                     kCameraIntrinsicsRule + ")"));
   }
