@@ -15,32 +15,32 @@ SANITIZERS=1
 # CI always has ../shared/data: there a test that needs it fails instead of
 # skipping when it is missing.
 if [ "${CI:-}" = true ]; then export ROTAVG_REQUIRE_DATA=1; fi
+# Each stage says when it starts, so a slow stage shows in CI's log.
+stage() { echo; echo "== $1 ($SECONDS s so far) =="; }
+stage "Setup: dependencies and the build (scripts/setup.sh)"
 bash scripts/setup.sh
+stage "The tests (ctest)"
 cmake --build "$BUILD" --target tests
 # As many tests at a time as cores (the node's load tests alone, see
 # test/CMakeLists.txt).
 (cd "$BUILD" && ctest --output-on-failure -j "$(nproc)")
-echo
-echo "== The results report in its quick form (scripts/report.sh --quick), so the report code never rots =="
+stage "The results report in its quick form (scripts/report.sh --quick), so the report code never rots"
 bash scripts/report.sh --quick
-echo
-echo "== The README's commands as written (scripts/test_readme.sh), after the demo (scripts/demo.sh) =="
+stage "The README's commands as written (scripts/test_readme.sh), after the demo (scripts/demo.sh)"
 bash scripts/demo.sh > "$BUILD/demo.log" 2>&1 || { tail -40 "$BUILD/demo.log"; exit 1; }
 tail -4 "$BUILD/demo.log"
 bash scripts/test_readme.sh
-echo
-echo "== The package in a fresh catkin workspace: catkin_make, catkin_make install, the installed programs =="
+stage "The package in a fresh catkin workspace: catkin_make, catkin_make install, the installed programs"
 bash scripts/test_workspace.sh
 if [ "$SANITIZERS" = 1 ]; then
-  echo
-  echo "== The test suite again with AddressSanitizer and UndefinedBehaviorSanitizer =="
+  stage "The test suite again with AddressSanitizer and UndefinedBehaviorSanitizer"
   # node_streams is left out: it asserts that the node keeps up with 20 Hz
   # streams in real time, which the sanitizers' slowdown does not allow; the
   # code it drives (decoding, undistortion, keyframe selection, the replay)
   # runs under them in keyframe_pipeline_test, camera_model_test,
   # keyframe_selector_test and bag_replay_test.
   bash scripts/test_sanitizers.sh -j "$(nproc)" -E node_streams
-  echo
-  echo "== Fuzzing the file readers and the message path, 60 s each (libFuzzer) =="
+  stage "Fuzzing the file readers and the message path, 60 s each (libFuzzer)"
   bash scripts/fuzz.sh 60
 fi
+stage "All passed"

@@ -28,7 +28,12 @@ rm -rf "$WS"
 mkdir -p "$WS/src"
 ln -s "$ROOT" "$WS/src/rotation_averaging"
 echo "test_workspace: catkin_make and catkin_make install in $WS"
+# Release's -O3 is already built and tested in $BUILD; this build checks the
+# catkin machinery (build, install, run from the install space), which the
+# optimisation level does not touch, at -O1, which compiles the Eigen-heavy
+# files in well under half the time of -O3.
 if ! (cd "$WS" && catkin_make -DPYTHON_EXECUTABLE=/usr/bin/python3 -DCMAKE_BUILD_TYPE=Release \
+        -DCMAKE_CXX_FLAGS_RELEASE="-O1 -DNDEBUG" \
         -DCATKIN_ENABLE_TESTING=OFF -DROTAVG_BUILD_BENCHMARKS=OFF > build.log 2>&1 &&
       catkin_make vocabulary install >> build.log 2>&1); then
   tail -40 "$WS/build.log"
