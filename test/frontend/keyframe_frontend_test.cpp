@@ -4,7 +4,9 @@
 #include "common/test_data.h"
 
 #include <filesystem>
+#include <fstream>
 #include <functional>
+#include <iterator>
 #include <map>
 #include <opencv2/imgcodecs.hpp>
 #include <set>
@@ -23,6 +25,11 @@ namespace rotation_averaging {
 namespace {
 
 namespace fs = std::filesystem;
+
+std::string ReadAll(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
 
 struct CastleRun {
   KeyframeFrontendStats stats;
@@ -270,6 +277,110 @@ TEST(KeyframeFrontend, VocabularyClosesLoopsOnEveryLapWithCompactKeyframes) {
   EXPECT_EQ(stats.compacted_keyframes, static_cast<std::uint64_t>(o.num_captures - options.covisibility_window - 1));
   EXPECT_LE(stats.compact_bytes / stats.compacted_keyframes, 200u * 1024u);
   EXPECT_LT(stats.keyframe_bytes, o.num_captures * 200u * 1024u);
+}
+
+// A keyframe database saved after one lap and loaded by a new front end (a
+// restart): the second lap closes loops with the first lap's keyframes, so
+// the two sessions' edges make one graph, and no sequential edge bridges the
+// restart. Damaged, foreign or newer files are refused with the reason and
+// leave the keyframes held as they were.
+TEST(KeyframeFrontend, ASavedDatabaseLetsTheNextSessionCloseLoopsWithTheFirst) {
+  constexpr int kPerLap = 16;
+  RigSceneOptions o;
+  o.num_cameras = 1;
+  o.laps = 2;
+  o.num_captures = 2 * kPerLap;
+  o.WithWidth(480);
+  const RigScene scene(o);
+  RenderedSequence seq;
+  seq.k = scene.Intrinsics();
+  for (int c = 0; c < o.num_captures; ++c) {
+    seq.world_to_camera.push_back(scene.WorldToCamera(c, 0));
+    seq.images.push_back(scene.Render(c, 0));
+  }
+  KeyframeFrontendOptions options;
+  options.features.max_features = 600;
+  options.compact_features = 300;
+  options.vocabulary = TestVocabulary();
+  auto feed = [&](KeyframeFrontend* frontend, int from, int to) {
+    std::vector<KeyframeRelativeRotation> edges;
+    for (int i = from; i < to; ++i) {
+      const KeyframeKey key{"cam", static_cast<std::int64_t>(i + 1) * 1'000'000'000LL};
+      for (const KeyframeRelativeRotation& e : frontend->AddKeyframe(key, seq.images[i], seq.k)) edges.push_back(e);
+    }
+    return edges;
+  };
+  const std::string dir = ::testing::TempDir();
+  const std::string path = dir + "/first_lap.keyframes";
+  std::vector<KeyframeRelativeRotation> first_lap;
+  {
+    KeyframeFrontend first(options);
+    first_lap = feed(&first, 0, kPerLap);
+    std::string error;
+    ASSERT_TRUE(first.SaveDatabase(path, &error)) << error;
+  }
+  const std::uintmax_t bytes = fs::file_size(path);
+  std::cout << "database of " << kPerLap << " keyframes: " << bytes / 1024 << " KB\n";
+  EXPECT_LT(bytes, kPerLap * 120u * 1024u);
+
+  KeyframeFrontend second(options);
+  std::string error;
+  ASSERT_TRUE(second.LoadDatabase(path, &error)) << error;
+  EXPECT_EQ(second.NumKeyframes(), static_cast<std::size_t>(kPerLap));
+  EXPECT_EQ(second.Stats().loaded_keyframes, static_cast<std::uint64_t>(kPerLap));
+  // A key already held is refused: it would be a second view under one name.
+  EXPECT_TRUE(second.AddKeyframe(KeyframeKey{"cam", 1'000'000'000LL}, seq.images[0], seq.k).empty());
+  EXPECT_EQ(second.Stats().duplicate_keyframes, 1u);
+  const std::vector<KeyframeRelativeRotation> second_lap = feed(&second, kPerLap, 2 * kPerLap);
+  int across = 0;
+  for (const KeyframeRelativeRotation& e : second_lap) {
+    EXPECT_LT(EdgeErrorDeg(seq, e), 1.0) << Index(e.keyframe1) << "-" << Index(e.keyframe2);
+    if (Index(e.keyframe1) < kPerLap) {
+      ++across;
+      EXPECT_EQ(e.source, EdgeSource::kLoopClosure) << Index(e.keyframe1) << "-" << Index(e.keyframe2);
+    }
+  }
+  EXPECT_GE(across, 2);
+  std::set<int> all;
+  for (int c = 0; c < o.num_captures; ++c) all.insert(c);
+  std::vector<KeyframeRelativeRotation> both = first_lap;
+  both.insert(both.end(), second_lap.begin(), second_lap.end());
+  EXPECT_EQ(Components(both, all), 1);
+  // Without the database the second session is a map of its own.
+  KeyframeFrontend forgetful(options);
+  std::vector<KeyframeRelativeRotation> alone = first_lap;
+  for (const KeyframeRelativeRotation& e : feed(&forgetful, kPerLap, 2 * kPerLap)) alone.push_back(e);
+  EXPECT_EQ(Components(alone, all), 2);
+
+  // Refusals: each damaged copy is refused with its reason, and `second`
+  // keeps what it holds.
+  const std::string good = ReadAll(path);
+  ASSERT_GT(good.size(), 100u);
+  auto refused = [&](std::string bytes, const std::string& reason) {
+    const std::string damaged = dir + "/damaged.keyframes";
+    std::ofstream(damaged, std::ios::binary) << bytes;
+    std::string why;
+    EXPECT_FALSE(second.LoadDatabase(damaged, &why)) << reason;
+    EXPECT_NE(why.find(reason), std::string::npos) << why;
+    EXPECT_EQ(second.NumKeyframes(), static_cast<std::size_t>(2 * kPerLap));
+  };
+  refused(good.substr(0, good.size() / 2), "truncated");
+  std::string flipped = good;
+  flipped[good.size() - 100] ^= 0x10;
+  refused(flipped, "checksum mismatch");
+  std::string newer = good;
+  newer[16] = 2;  // the version, after the 16-byte magic
+  refused(newer, "newer version");
+  std::string foreign = good;
+  foreign[20] ^= 0x01;  // the vocabulary's fingerprint, after the version
+  refused(foreign, "another vocabulary");
+  refused("ROTAVGVOC2 and then something", "not a keyframe database");
+  // Retrieval by voting has no database to save or load.
+  KeyframeFrontendOptions voting = options;
+  voting.vocabulary.reset();
+  KeyframeFrontend without(voting);
+  EXPECT_FALSE(without.SaveDatabase(dir + "/voting.keyframes", &error));
+  EXPECT_NE(error.find("vocabulary"), std::string::npos) << error;
 }
 
 // The edges of the rendered rig's loop with `threads` threads; with

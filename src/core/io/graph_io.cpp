@@ -11,6 +11,7 @@
 #include <unordered_set>
 
 #include "rotation_averaging/core/geometry/so3.h"
+#include "core/io/binary_io.h"
 #include "core/io/text_lines.h"
 
 namespace rotation_averaging {
@@ -267,16 +268,6 @@ namespace {
 
 constexpr char kGraphHeader[] = "# rotation_averaging view graph v1";
 
-// FNV-1a, 64 bit, over the bytes of the lines before the END record (each
-// with its newline): detects truncation and corruption of saved graphs.
-struct Fnv1a {
-  std::uint64_t h = 0xcbf29ce484222325ULL;
-  void Add(std::string_view line) {
-    for (unsigned char c : line) h = (h ^ c) * 0x100000001b3ULL;
-    h = (h ^ static_cast<unsigned char>('\n')) * 0x100000001b3ULL;
-  }
-};
-
 std::string Hex(std::uint64_t v) {
   char buffer[17];
   std::snprintf(buffer, sizeof(buffer), "%016llx", static_cast<unsigned long long>(v));
@@ -311,7 +302,7 @@ ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph) {
       ended = true;
       continue;
     }
-    sum.Add(line);
+    sum.AddLine(line);
     ++lines_before_end;
     if (IsBlankOrComment(line)) continue;
     SplitTokens(line, &tokens);
@@ -401,7 +392,7 @@ bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::stri
     Fnv1a sum;
     std::size_t lines = 0;
     std::istringstream in(body);
-    for (std::string line; std::getline(in, line); ++lines) sum.Add(line);
+    for (std::string line; std::getline(in, line); ++lines) sum.AddLine(line);
     file << body << "END " << lines << ' ' << Hex(sum.h) << '\n';
     return "";
   }, error);

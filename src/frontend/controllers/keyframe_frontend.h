@@ -110,6 +110,8 @@ struct KeyframeFrontendOptions {
 
 struct KeyframeFrontendStats {
   std::uint64_t keyframes = 0;
+  std::uint64_t duplicate_keyframes = 0;  // refused: a keyframe with that key is held
+  std::uint64_t loaded_keyframes = 0;     // from the database (LoadDatabase)
   std::uint64_t sequential_edges = 0, rig_edges = 0, loop_closure_edges = 0;
   std::uint64_t rig_pairs_skipped = 0;   // same capture, both cameras with known extrinsics
   std::uint64_t chain_bridged = 0;         // previous pair failed, an older keyframe of the window verified
@@ -149,12 +151,35 @@ class KeyframeFrontend {
   // such cameras in one capture are not matched (the rig model relates them).
   void SetRigCalibrated(const std::string& camera_frame) { rig_calibrated_.insert(camera_frame); }
   std::size_t NumKeyframes() const { return keyframes_.size(); }
+
+  // The keyframe database: what loop-closure retrieval and verification need
+  // of every keyframe (the compact features with their words, the bag of
+  // words, the intrinsics, the chain of sequential rotations loop closures
+  // are checked along), in one binary file (magic "ROTAVG-KEYFRAMES",
+  // version, the vocabulary's fingerprint, a checksum of the contents),
+  // written atomically (a temporary file renamed over the old one: a crash
+  // mid-write leaves the previous database). Needs a vocabulary: retrieval
+  // by voting keeps every feature of every keyframe, too much to save.
+  // Keyframes are saved as their compact form whether or not they have left
+  // the recent window yet.
+  bool SaveDatabase(const std::string& path, std::string* error) const;
+  // Replaces every keyframe with those of a database (file of SaveDatabase).
+  // They take part in retrieval and loop-closure verification like any old
+  // keyframe, but start no chain: the next keyframe of each camera is the
+  // first of a new session, related to the old ones only by loop closures,
+  // which need more evidence than a sequential pair. A file of another
+  // version, another vocabulary, a truncated or corrupted one is refused
+  // with the reason, and the keyframes held are left as they were.
+  bool LoadDatabase(const std::string& path, std::string* error);
   bool UsesVocabulary() const { return options_.vocabulary != nullptr; }
   // "vocabulary of N words (inverted index)" or "voting over every keyframe (no vocabulary)".
   std::string RetrievalName() const;
 
  private:
   struct Keyframe;
+  // The sequential chain a keyframe belongs to: its camera's in this
+  // session, or one loaded from a database.
+  const std::vector<int>& ChainOf(const Keyframe& keyframe) const;
   // R_ab composed along the sequential edges of one camera (a before b);
   // false if the chain between them is broken.
   bool ChainRotation(int a, int b, Eigen::Matrix3d* r_ab) const;
@@ -194,6 +219,10 @@ class KeyframeFrontend {
   KeyframeFrontendOptions options_;
   std::vector<std::unique_ptr<Keyframe>> keyframes_;
   std::map<std::string, std::vector<int>> by_camera_;  // indices into keyframes_, in arrival order
+  // Chains of the keyframes loaded from a database, per camera (indices into
+  // keyframes_), apart from this session's in by_camera_.
+  std::vector<std::vector<int>> loaded_chains_;
+  std::set<KeyframeKey> keys_;  // of every keyframe held: a key added twice is refused
   KeyframeFrontendStats stats_;
   std::set<std::string> rig_calibrated_;
   std::unique_ptr<InvertedIndex> inverted_index_;  // with a vocabulary

@@ -9,6 +9,8 @@
 #include <cstring>
 #include <fstream>
 
+#include "core/io/binary_io.h"
+
 namespace rotation_averaging {
 namespace {
 
@@ -82,6 +84,21 @@ Vocabulary::~Vocabulary() = default;
 
 int Vocabulary::NumWords() const { return static_cast<int>(impl_->idf.size()); }
 int Vocabulary::Dimension() const { return impl_->dimension; }
+
+std::uint64_t Vocabulary::Fingerprint() const {
+  const Impl& impl = *impl_;
+  Fnv1a sum;
+  const std::int32_t header[3] = {impl.dimension, static_cast<std::int32_t>(impl.cells.size()), NumWords()};
+  sum.Add(header, sizeof(header));
+  sum.Add(impl.top->get_xb(), impl.cells.size() * impl.dimension * sizeof(float));
+  for (const auto& cell : impl.cells) {
+    const std::int64_t n = cell->ntotal;
+    sum.Add(&n, sizeof(n));
+    sum.Add(cell->get_xb(), static_cast<std::size_t>(n) * impl.dimension * sizeof(float));
+  }
+  sum.Add(impl.idf.data(), impl.idf.size() * sizeof(float));
+  return sum.h;
+}
 
 std::unique_ptr<Vocabulary> Vocabulary::Train(const std::vector<cv::Mat>& descriptors_per_image,
                                               const VocabularyOptions& options, std::string* error) {

@@ -50,6 +50,11 @@ class Vocabulary {
   int NumWords() const;
   int Dimension() const;
   int TrainingImages() const { return training_images_; }
+  // A 64-bit checksum of everything that decides words and scores (centroids,
+  // cells, idf): two vocabularies with the same fingerprint assign the same
+  // words. Saved keyframes record it, so that words of another vocabulary
+  // are never mixed into an index.
+  std::uint64_t Fingerprint() const;
 
   // The nearest word of each descriptor row (CV_32F or CV_8U, Dimension()
   // columns). Deterministic; safe to call from several threads at once.
