@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <fstream>
+#include <iterator>
 #include <memory>
 
 #include "rotation_averaging/core/geometry/so3.h"
@@ -124,6 +126,69 @@ TEST(RigModel, CamerasWithoutExtrinsicsStayKeyframes) {
   // Extrinsics that arrive after a camera was first seen do not move it.
   rig.AddStaticTransform("base_link", "cam_loose", Eigen::Matrix3d::Identity());
   EXPECT_FALSE(rig.IsRigCamera("cam_loose"));
+}
+
+// A saved rig model restores, in a model that has seen no static transform
+// (a restarted node), the same captures and the same camera keyframes in
+// them: a solution over the saved captures expands to the same cameras, and
+// a new measurement to an old keyframe maps to its old capture. A camera
+// without extrinsics stays on its own. Damaged files are refused with the
+// reason and change nothing.
+TEST(RigModel, SavedCapturesComeBackWithoutTheStaticTransforms) {
+  Fixture f;
+  const std::unique_ptr<RigModel> owned = f.Model();
+  RigModel& rig = *owned;
+  const KeyframeKey a0{"cam_a", 1000000000}, b0{"cam_b", 1002000000}, a1{"cam_a", 2000000000},
+      loose{"cam_loose", 1500000000};
+  const Eigen::Matrix3d r = ExpSO3(Eigen::Vector3d(0.3, 0.1, 0.0));
+  KeyframeRelativeRotation v;
+  ASSERT_TRUE(rig.ToVariables(Measure(b0, r, a1, Eigen::Matrix3d::Identity()), &v));
+  ASSERT_TRUE(rig.ToVariables(Measure(a0, r, loose, Eigen::Matrix3d::Identity()), &v));
+  const std::string path = ::testing::TempDir() + "/rig_model_test.rig";
+  std::string error;
+  ASSERT_TRUE(rig.Save(path, &error)) << error;
+
+  RigModel restored(RigModelOptions{});  // no static transform at all
+  ASSERT_TRUE(restored.Load(path, &error)) << error;
+  EXPECT_EQ(restored.NumCaptures(), 2u);
+  EXPECT_TRUE(restored.IsRigCamera("cam_a"));
+  EXPECT_FALSE(restored.IsRigCamera("cam_loose"));
+  OnlineSolution capture_level;
+  const KeyframeKey first_capture = rig.VariableOfKnown(a0), second_capture = rig.VariableOfKnown(a1);
+  EXPECT_EQ(first_capture.stamp_ns, b0.stamp_ns);  // founded by cam_b, whose keyframe came first
+  EXPECT_EQ(restored.VariableOfKnown(a0).stamp_ns, first_capture.stamp_ns);
+  capture_level.orientations[first_capture] = Eigen::Matrix3d::Identity();
+  capture_level.orientations[second_capture] = r;
+  capture_level.orientations[loose] = r;
+  const OnlineSolution before = rig.ToCameraKeyframes(capture_level);
+  const OnlineSolution after = restored.ToCameraKeyframes(capture_level);
+  ASSERT_EQ(after.orientations.size(), 4u);  // a0, b0, a1 and the loose camera's keyframe
+  for (const auto& [key, orientation] : before.orientations) {
+    ASSERT_TRUE(after.orientations.count(key)) << key.frame_id << "@" << key.stamp_ns;
+    EXPECT_LT(AngularDistanceRad(after.orientations.at(key), orientation), 1e-9);
+  }
+  KeyframeRelativeRotation old_end;
+  ASSERT_TRUE(restored.ToVariables(Measure(b0, r, KeyframeKey{"cam_a", 3000000000}, r), &old_end));
+  EXPECT_EQ(old_end.keyframe1.frame_id, "base_link");
+  EXPECT_EQ(old_end.keyframe1.stamp_ns, first_capture.stamp_ns);
+
+  std::ifstream in(path);
+  const std::string good((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::size_t held = restored.NumCaptures();  // the two loaded and the new one at 3 s
+  EXPECT_EQ(held, 3u);
+  auto refused = [&](const std::string& text, const std::string& reason) {
+    const std::string damaged = ::testing::TempDir() + "/rig_model_test_damaged.rig";
+    std::ofstream(damaged) << text;
+    std::string why;
+    EXPECT_FALSE(restored.Load(damaged, &why)) << reason;
+    EXPECT_NE(why.find(reason), std::string::npos) << why;
+    EXPECT_EQ(restored.NumCaptures(), held);
+  };
+  refused(good.substr(0, good.rfind("END")), "truncated");
+  std::string changed = good;
+  changed[changed.find("MEMBER cam_b 100") + 14] = '7';
+  refused(changed, "checksum mismatch");
+  refused("# rotation_averaging rig v9\nEND 1 0\n", "not a rig file of this version");
 }
 
 }  // namespace

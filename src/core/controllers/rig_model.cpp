@@ -5,6 +5,11 @@
 #include <cstdlib>
 #include <functional>
 #include <iterator>
+#include <sstream>
+
+#include "rotation_averaging/core/geometry/so3.h"
+#include "core/io/binary_io.h"
+#include "core/io/text_lines.h"
 
 namespace rotation_averaging {
 
@@ -154,6 +159,141 @@ void RigModel::Clear() {
   capture_stamps_.clear();
   members_.clear();
   variable_of_.clear();
+}
+
+std::size_t RigModel::NumCaptures() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return members_.size();
+}
+
+namespace {
+
+constexpr char kRigHeader[] = "# rotation_averaging rig v1";
+
+std::string Hex64(std::uint64_t v) {
+  std::ostringstream out;
+  out << std::hex;
+  out.width(16);
+  out.fill('0');
+  out << v;
+  return out.str();
+}
+
+bool IsName(const std::string& s) { return !s.empty() && s.find_first_of(" \t\r\n") == std::string::npos; }
+
+}  // namespace
+
+bool RigModel::Save(const std::string& path, std::string* error) const {
+  std::ostringstream body;
+  body.precision(17);
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    body << kRigHeader << "\n"
+         << "# CAMERA frame in_rig rig_frame qw qx qy qz (camera_from_rig) | CAPTURE rig_frame stamp_ns |"
+            " MEMBER camera_frame stamp_ns (a camera keyframe of the CAPTURE above)\n";
+    for (const auto& [frame, c] : cameras_) {
+      if (!IsName(frame) || (c.in_rig && !IsName(c.rig_frame))) {
+        if (error) *error = "frame name '" + frame + "' is empty or contains whitespace";
+        return false;
+      }
+      const Eigen::Vector4d q = RotationToQuaternion(c.camera_from_rig);
+      body << "CAMERA " << frame << ' ' << (c.in_rig ? 1 : 0) << ' ' << (c.in_rig ? c.rig_frame : "-") << ' ' << q[0]
+           << ' ' << q[1] << ' ' << q[2] << ' ' << q[3] << '\n';
+    }
+    for (const auto& [capture, members] : members_) {
+      body << "CAPTURE " << capture.frame_id << ' ' << capture.stamp_ns << '\n';
+      for (const KeyframeKey& m : members) body << "MEMBER " << m.frame_id << ' ' << m.stamp_ns << '\n';
+    }
+  }
+  const std::string text = body.str();
+  Fnv1a sum;
+  std::size_t lines = 0;
+  std::istringstream in(text);
+  for (std::string line; std::getline(in, line); ++lines) sum.AddLine(line);
+  return WriteFileAtomically(path, [&](std::ostream& out) -> std::string {
+    out << text << "END " << lines << ' ' << Hex64(sum.h) << '\n';
+    return "";
+  }, error);
+}
+
+bool RigModel::Load(const std::string& path, std::string* error) {
+  auto fail = [&](const std::string& why) {
+    if (error) *error = why;
+    return false;
+  };
+  LineReader reader(path);
+  if (!reader.IsOpen()) return fail("cannot open " + path);
+  std::map<std::string, Camera> cameras;
+  std::map<std::string, std::set<std::int64_t>> capture_stamps;
+  std::map<KeyframeKey, std::vector<KeyframeKey>> members;
+  std::map<KeyframeKey, KeyframeKey> variable_of;
+  std::string_view line;
+  std::vector<std::string_view> tokens;
+  Fnv1a sum;
+  std::size_t lines = 0;
+  bool ended = false;
+  const KeyframeKey* capture = nullptr;
+  while (reader.Next(&line)) {
+    if (ended) {
+      if (!IsBlankOrComment(line)) return fail(reader.Where("records after the END record"));
+      continue;
+    }
+    if (lines == 0 && line != kRigHeader) return fail(reader.Where("not a rig file of this version"));
+    if (line.rfind("END ", 0) == 0) {
+      SplitTokens(line, &tokens);
+      std::uint64_t count = 0;
+      if (tokens.size() != 3 || !ParseUint64(tokens[1], &count)) return fail(reader.Where("expected 'END lines checksum'"));
+      if (count != lines || tokens[2] != Hex64(sum.h)) return fail(reader.Where("checksum mismatch: the file is corrupted"));
+      ended = true;
+      continue;
+    }
+    sum.AddLine(line);
+    ++lines;
+    if (IsBlankOrComment(line)) continue;
+    SplitTokens(line, &tokens);
+    std::uint64_t stamp = 0;
+    if (tokens[0] == "CAMERA") {
+      double q[4];
+      int in_rig = 0;
+      if (tokens.size() != 8 || !ParseInt(tokens[2], &in_rig) || (in_rig != 0 && in_rig != 1) ||
+          !ParseDouble(tokens[4], &q[0]) || !ParseDouble(tokens[5], &q[1]) || !ParseDouble(tokens[6], &q[2]) ||
+          !ParseDouble(tokens[7], &q[3])) {
+        return fail(reader.Where("expected 'CAMERA frame in_rig rig_frame qw qx qy qz'"));
+      }
+      const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+      if (!std::isfinite(norm) || std::abs(norm - 1.0) > 1e-6) return fail(reader.Where("not a unit quaternion"));
+      Camera c;
+      c.in_rig = in_rig == 1;
+      if (c.in_rig) c.rig_frame = std::string(tokens[3]);
+      c.camera_from_rig = QuaternionToRotation(q[0], q[1], q[2], q[3]);
+      cameras[std::string(tokens[1])] = c;
+    } else if (tokens[0] == "CAPTURE") {
+      if (tokens.size() != 3 || !ParseUint64(tokens[2], &stamp)) return fail(reader.Where("expected 'CAPTURE rig_frame stamp_ns'"));
+      const KeyframeKey key{std::string(tokens[1]), static_cast<std::int64_t>(stamp)};
+      if (members.count(key)) return fail(reader.Where("capture listed twice"));
+      capture = &members.emplace(key, std::vector<KeyframeKey>()).first->first;
+      capture_stamps[key.frame_id].insert(key.stamp_ns);
+    } else if (tokens[0] == "MEMBER") {
+      if (tokens.size() != 3 || !ParseUint64(tokens[2], &stamp)) return fail(reader.Where("expected 'MEMBER camera_frame stamp_ns'"));
+      if (!capture) return fail(reader.Where("MEMBER before any CAPTURE"));
+      const KeyframeKey key{std::string(tokens[1]), static_cast<std::int64_t>(stamp)};
+      auto c = cameras.find(key.frame_id);
+      if (c == cameras.end() || !c->second.in_rig || c->second.rig_frame != capture->frame_id) {
+        return fail(reader.Where("camera '" + key.frame_id + "' is not a camera of rig '" + capture->frame_id + "'"));
+      }
+      if (!variable_of.emplace(key, *capture).second) return fail(reader.Where("a keyframe in two captures"));
+      members[*capture].push_back(key);
+    } else {
+      return fail(reader.Where("unknown record '" + std::string(tokens[0]) + "' (CAMERA, CAPTURE or MEMBER)"));
+    }
+  }
+  if (!ended) return fail(path + ": no END record: the file is truncated (a save that was interrupted?)");
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& [frame, c] : cameras) cameras_[frame] = c;
+  capture_stamps_ = std::move(capture_stamps);
+  members_ = std::move(members);
+  variable_of_ = std::move(variable_of);
+  return true;
 }
 
 }  // namespace rotation_averaging

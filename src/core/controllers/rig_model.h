@@ -63,6 +63,18 @@ class RigModel {
   std::map<std::string, std::pair<std::string, Eigen::Matrix3d>> RigCameras() const;
   void Clear();  // forgets captures (after a graph reset); extrinsics stay
 
+  // The resolved cameras (rig frame and camera_from_rig of each, or that it
+  // is solved on its own) and every capture's camera keyframes, as a text
+  // file with a checksum (written atomically): what a restart needs to put
+  // a saved graph's captures back into camera keyframes, and to map new
+  // measurements to the same captures, before any static transform arrives.
+  bool Save(const std::string& path, std::string* error) const;
+  // Replaces the captures, and the cameras the file names, with the file's;
+  // a malformed or corrupted file is refused with the reason and changes
+  // nothing.
+  bool Load(const std::string& path, std::string* error);
+  std::size_t NumCaptures() const;
+
  private:
   bool ResolveLocked(const std::string& camera_frame);
   KeyframeKey VariableLocked(const KeyframeKey& keyframe);
