@@ -702,6 +702,8 @@ std::string ReplayResult::Summary() const {
   if (have_scores) {
     out << "scores against ground truth:\n" << scores.ToText() << "\n";
   }
+  if (!map_loaded.empty()) out << "map loaded: " << map_loaded << "\n";
+  if (!map_saved.empty()) out << "map saved: " << map_saved << "\n";
   out << "outputs:\n  " << orientations_csv << "\n  " << graph_file << "\n  " << output_bag;
   if (!scores_file.empty()) out << "\n  " << scores_file;
   if (!plot_png.empty()) out << "\n  " << plot_png;
@@ -728,6 +730,12 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
   if (!ReadReplayConfig(options.config_path, &config, &result.warnings, &error)) return fail(error);
   KeyframePipeline pipeline(config);
   OnlineAverager& averager = pipeline.Averager();
+  // As the node: a map saved before (a restart, an earlier session) is what
+  // the bags add to. The node starts empty when it cannot load one; a
+  // replay, whose purpose is to test exactly that, stops.
+  if (!config.load_graph.empty() && !pipeline.LoadMap(config.load_graph, &error, &result.map_loaded)) {
+    return fail("load_graph: " + error);
+  }
 
   NamedOrientations ground_truth;
   if (!options.ground_truth_path.empty() &&
@@ -772,6 +780,9 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
   if (!WriteOrientationsCsv(result.orientations_csv, named, &error)) return fail(error);
   result.graph_file = options.output_dir + "/graph.txt";
   if (!averager.SaveGraph(result.graph_file, &error)) return fail(error);
+  if (!config.save_on_shutdown.empty() && !pipeline.SaveMap(config.save_on_shutdown, &error, &result.map_saved)) {
+    return fail("save_on_shutdown: " + error);
+  }
   CollectStatistics(pipeline, averager, solution, &result);
   if (!WriteFrontendCost(options.output_dir, &result, &error)) return fail(error);
   if (!ground_truth.empty() &&

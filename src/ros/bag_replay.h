@@ -71,6 +71,10 @@ struct ReplayResult {
   bool have_scores = false;
   EvaluationResult scores;
   std::string orientations_csv, graph_file, output_bag, scores_file, plot_png;
+  // The map the replay started from (load_graph) and the one it saved at
+  // the end (save_on_shutdown), as KeyframePipeline::LoadMap and SaveMap
+  // described them; empty when not asked for.
+  std::string map_loaded, map_saved;
   std::string Summary() const;  // the multi-line report printed at the end
 };
 

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "rotation_averaging/core/geometry/so3.h"
+#include "rotation_averaging/core/io/graph_io.h"
 #include "core/util/option_check.h"
 #include "ros/msg_conversion.h"
 
@@ -535,7 +536,14 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   if (!frontend_) return 0;
   if (rig_.IsRigCamera(keyframe.key.frame_id)) frontend_->SetRigCalibrated(keyframe.key.frame_id);
   std::size_t added = 0;
-  for (const KeyframeRelativeRotation& e : frontend_->AddKeyframe(keyframe.key, keyframe.image, keyframe.camera)) {
+  std::vector<KeyframeRelativeRotation> edges;
+  KeyframeFrontendStats frontend_stats;
+  {
+    std::lock_guard<std::mutex> lock(frontend_mutex_);
+    edges = frontend_->AddKeyframe(keyframe.key, keyframe.image, keyframe.camera);
+    frontend_stats = frontend_->Stats();
+  }
+  for (const KeyframeRelativeRotation& e : edges) {
     std::string error;
     if (AddMeasurement(e, &error)) {
       ++added;
@@ -547,8 +555,82 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   std::lock_guard<std::mutex> lock(mutex_);
   ++stats_.processed_images;
   stats_.edges_from_images += added;
-  frontend_stats_ = frontend_->Stats();
+  frontend_stats_ = std::move(frontend_stats);
   return added;
+}
+
+std::string KeyframeDatabasePath(const std::string& graph_path) { return graph_path + ".keyframes"; }
+std::string RigPath(const std::string& graph_path) { return graph_path + ".rig"; }
+
+bool KeyframePipeline::SaveMap(const std::string& graph_path, std::string* error, std::string* note) {
+  if (!averager_->SaveGraph(graph_path, error)) return false;
+  if (!rig_.Save(RigPath(graph_path), error)) return false;
+  std::string saved = "view graph saved to " + graph_path;
+  if (frontend_) {
+    const std::string database = KeyframeDatabasePath(graph_path);
+    std::lock_guard<std::mutex> lock(frontend_mutex_);
+    if (!frontend_->UsesVocabulary()) {
+      saved += "; no keyframe database (retrieval by voting: vocabulary none)";
+    } else if (!frontend_->SaveDatabase(database, error)) {
+      return false;
+    } else {
+      saved += ", " + std::to_string(frontend_->NumKeyframes()) + " keyframes to " + database;
+    }
+  }
+  if (note) *note = saved;
+  return true;
+}
+
+bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error, std::string* note) {
+  // The graph is read once to check it before the database replaces the
+  // front end's keyframes: a refused graph leaves both as they were.
+  ViewGraph check;
+  const ReadReport report = ReadRotavgGraph(graph_path, &check);
+  if (!report.ok()) {
+    if (error) *error = report.error;
+    return false;
+  }
+  for (const View& v : check.Views()) {
+    KeyframeKey key;
+    if (!OnlineAverager::ParseKeyframeName(v.name, &key)) {
+      if (error) *error = graph_path + ": view '" + v.name + "' is not named <frame_id>@<stamp_ns>";
+      return false;
+    }
+  }
+  std::string loaded = "view graph of " + std::to_string(check.NumViews()) + " views loaded from " + graph_path;
+  // The rig's captures: without them a saved capture would stay one
+  // orientation of the rig frame, and the cameras' keyframes in it unknown.
+  const std::string rig = RigPath(graph_path);
+  std::error_code ec;
+  const bool have_rig = std::filesystem::exists(rig, ec);
+  if (have_rig) {
+    RigModel staged(config_.rig);
+    if (!staged.Load(rig, error)) return false;
+  }
+  const std::string database = KeyframeDatabasePath(graph_path);
+  if (frontend_) {
+    if (!std::filesystem::exists(database, ec)) {
+      loaded += "; no keyframe database beside it: new keyframes cannot relate to the old ones";
+    } else {
+      std::lock_guard<std::mutex> lock(frontend_mutex_);
+      if (!frontend_->LoadDatabase(database, error)) return false;
+      loaded += ", " + std::to_string(frontend_->NumKeyframes()) + " keyframes from " + database;
+      std::lock_guard<std::mutex> stats_lock(mutex_);
+      frontend_stats_ = frontend_->Stats();
+    }
+  }
+  std::string graph_note;
+  if (!averager_->LoadGraph(graph_path, &graph_note)) {
+    if (error) *error = graph_note;
+    return false;
+  }
+  if (!graph_note.empty()) loaded += " (" + graph_note + ")";
+  if (have_rig) {
+    if (!rig_.Load(rig, error)) return false;
+    loaded += ", " + std::to_string(rig_.NumCaptures()) + " rig captures from " + rig;
+  }
+  if (note) *note = loaded;
+  return true;
 }
 
 KeyframeFrontendStats KeyframePipeline::FrontendStats() const {

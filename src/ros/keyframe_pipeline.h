@@ -142,6 +142,20 @@ class KeyframePipeline {
   bool HasFrontend() const { return frontend_ != nullptr; }
   const KeyframeFrontend* Frontend() const { return frontend_.get(); }
 
+  // The map on disk: the averager's view graph at `graph_path`, beside it
+  // the rig model's cameras and captures (RigPath; RigModel::Save) and, with
+  // an image front end that has a vocabulary, its keyframe database
+  // (KeyframeDatabasePath; KeyframeFrontend::SaveDatabase), each written
+  // atomically. `note` (if given) says what was saved or why the database
+  // was not.
+  bool SaveMap(const std::string& graph_path, std::string* error, std::string* note = nullptr);
+  // Loads a map saved by SaveMap: the view graph, the rig model if its file
+  // is beside it, and the keyframe database if there is one and the
+  // pipeline has an image front end, so that new keyframes relate to the old
+  // ones by loop closures. A file that is refused leaves, with the reason in
+  // `error`, what is held as it was.
+  bool LoadMap(const std::string& graph_path, std::string* error, std::string* note = nullptr);
+
   // Converts, validates and enqueues one relative pose. On failure the
   // message is counted as rejected and `error` says why.
   bool AcceptRelativePose(const RelativePose& msg, std::string* error);
@@ -218,6 +232,9 @@ class KeyframePipeline {
   PipelineConfig config_;
   std::unique_ptr<OnlineAverager> averager_;
   std::unique_ptr<KeyframeFrontend> frontend_;
+  // Held while the front end adds a keyframe, and while its database is
+  // saved or loaded (the node saves from a timer thread).
+  std::mutex frontend_mutex_;
   RigModel rig_;
   std::mutex selector_mutex_;
   KeyframeSelector selector_;
@@ -233,6 +250,12 @@ class KeyframePipeline {
 // The vocabulary the build trains (target `vocabulary`, run by
 // scripts/setup.sh) in the package's share folder of the devel space.
 std::string DefaultVocabularyPath();
+
+// Where SaveMap puts the keyframe database of the graph at `graph_path`:
+// beside it, with ".keyframes" appended.
+std::string KeyframeDatabasePath(const std::string& graph_path);
+// Where SaveMap puts the rig model (RigModel::Save): ".rig" appended.
+std::string RigPath(const std::string& graph_path);
 
 // "{frame_id}" and "{stamp_ns}" in a frame name pattern.
 std::string KeyframeFrameName(const std::string& format, const KeyframeKey& key);

@@ -98,7 +98,7 @@ class RotationAveragingNode {
       autosave_timer_ = pnh.createWallTimer(ros::WallDuration(config.autosave_period_s), [this](const ros::WallTimerEvent&) {
         std::string error;
         if (averager_->Stats().views == 0) return;
-        if (!averager_->SaveGraph(pipeline_->Config().autosave_path, &error)) {
+        if (!pipeline_->SaveMap(pipeline_->Config().autosave_path, &error)) {
           ROS_WARN_THROTTLE(60.0, "autosave to %s failed: %s", pipeline_->Config().autosave_path.c_str(), error.c_str());
         }
       });
@@ -107,9 +107,9 @@ class RotationAveragingNode {
     averager_->SetSolutionCallback([this](std::shared_ptr<const OnlineSolution> s) { Publish(*s); });
     const std::string& load = config.load_graph;
     if (!load.empty()) {
-      std::string error;
-      if (averager_->LoadGraph(load, &error)) {
-        ROS_INFO("loaded the view graph from %s", load.c_str());
+      std::string error, note;
+      if (pipeline_->LoadMap(load, &error, &note)) {
+        ROS_INFO("%s", note.c_str());
       } else {
         ROS_ERROR("could not load %s: %s; starting empty", load.c_str(), error.c_str());
       }
@@ -153,7 +153,12 @@ class RotationAveragingNode {
     const std::string& save = pipeline_->Config().save_on_shutdown;
     if (!save.empty()) {
       std::string error;
-      if (!averager_->SaveGraph(save, &error)) ROS_ERROR("saving on shutdown failed: %s", error.c_str());
+      std::string note;
+      if (pipeline_->SaveMap(save, &error, &note)) {
+        ROS_INFO("%s", note.c_str());
+      } else {
+        ROS_ERROR("saving on shutdown failed: %s", error.c_str());
+      }
     }
   }
 
@@ -354,16 +359,16 @@ class RotationAveragingNode {
   }
 
   bool OnSave(SaveGraph::Request& req, SaveGraph::Response& res) {
-    std::string error;
-    res.success = averager_->SaveGraph(req.path, &error);
-    res.message = res.success ? "saved to " + req.path : error;
+    std::string error, note;
+    res.success = pipeline_->SaveMap(req.path, &error, &note);
+    res.message = res.success ? note : error;
     return true;
   }
 
   bool OnLoad(LoadGraph::Request& req, LoadGraph::Response& res) {
-    std::string error;
-    res.success = averager_->LoadGraph(req.path, &error);
-    res.message = res.success ? "loaded " + req.path + (error.empty() ? "" : " (" + error + ")") : error;
+    std::string error, note;
+    res.success = pipeline_->LoadMap(req.path, &error, &note);
+    res.message = res.success ? note : error;
     return true;
   }
 

@@ -15,6 +15,7 @@
 #include <fstream>
 #include <iterator>
 #include <random>
+#include <set>
 #include <sstream>
 
 #include "rotation_averaging/RelativePose.h"
@@ -23,6 +24,8 @@
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "ros/demo_bag.h"
+#include "rotation_averaging/frontend/features/features.h"
+#include "rotation_averaging/frontend/features/vocabulary.h"
 #include "ros/msg_conversion.h"
 
 namespace rotation_averaging {
@@ -135,6 +138,106 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
   ASSERT_TRUE(second.ok) << second.error;
   EXPECT_EQ(ReadAll(first.orientations_csv), ReadAll(second.orientations_csv));
   EXPECT_EQ(ReadAll(first.graph_file), ReadAll(second.graph_file));
+}
+
+// A map saved at the end of one bag (save_on_shutdown) and loaded by the
+// replay of the next (load_graph), as a node restarted mid-run would: the
+// rig's second lap closes loops with the first lap's keyframes, so the two
+// sessions make one map, scored as one against the ground truth. A damaged
+// keyframe database stops the replay with the reason.
+TEST_F(BagReplay, TheNextSessionContinuesTheSavedMap) {
+  RigSceneOptions scene_options;
+  scene_options.laps = 2;
+  scene_options.num_captures = 32;
+  scene_options.WithWidth(320);
+  const RigScene scene(scene_options);
+  const std::string dir = TempDir() + "/sessions";
+  std::filesystem::create_directories(dir);
+  const std::string full = dir + "/both_laps.bag";
+  NamedOrientations truth;
+  std::string error;
+  ASSERT_TRUE(WriteRigSceneBag(scene, full, /*compressed=*/false, &truth, &error)) << error;
+  const std::string truth_csv = dir + "/truth.csv";
+  ASSERT_TRUE(WriteOrientationsCsv(truth_csv, truth, &error)) << error;
+
+  // One bag per lap; both carry the rig's static transforms.
+  std::set<ros::Time> captures;
+  {
+    rosbag::Bag in(full, rosbag::bagmode::Read);
+    for (const rosbag::MessageInstance& m : rosbag::View(in, rosbag::TopicQuery("/cam_front/image_raw"))) {
+      captures.insert(m.getTime());
+    }
+  }
+  ASSERT_EQ(captures.size(), 32u);
+  const ros::Time second_lap = *std::next(captures.begin(), 16);
+  const std::string first_bag = dir + "/first.bag", second_bag = dir + "/second.bag";
+  {
+    rosbag::Bag in(full, rosbag::bagmode::Read);
+    rosbag::Bag first(first_bag, rosbag::bagmode::Write), second(second_bag, rosbag::bagmode::Write);
+    for (const rosbag::MessageInstance& m : rosbag::View(in)) {
+      if (m.getTopic() == "/ground_truth/orientations") continue;
+      const bool both = m.getTopic() == "/tf_static";
+      if (both || m.getTime() < second_lap) first.write(m.getTopic(), m.getTime(), m, m.getConnectionHeader());
+      if (both || m.getTime() >= second_lap) second.write(m.getTopic(), m.getTime(), m, m.getConnectionHeader());
+    }
+  }
+
+  // A vocabulary trained on another room's textures.
+  const std::string vocabulary = dir + "/test.vocab";
+  {
+    RigSceneOptions other;
+    other.seed = 11;
+    other.num_cameras = 1;
+    other.num_captures = 12;
+    other.WithWidth(480);
+    const RigScene room(other);
+    FeatureOptions features;
+    features.max_features = 800;
+    std::vector<cv::Mat> descriptors;
+    for (int c = 0; c < other.num_captures; ++c) descriptors.push_back(ExtractFeatures(room.Render(c, 0), features).descriptors);
+    VocabularyOptions options;
+    options.words = 256;
+    const std::unique_ptr<Vocabulary> v = Vocabulary::Train(descriptors, options, &error);
+    ASSERT_TRUE(v) << error;
+    ASSERT_TRUE(v->Save(vocabulary, &error)) << error;
+  }
+  const std::string map = dir + "/map/graph.txt";
+  std::filesystem::create_directories(dir + "/map");
+  const std::string common = "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
+                             "keyframe_selection: all\nmax_features: 1000\nsolve_period: 2.0\nvocabulary: " +
+                             vocabulary + "\n";
+  WriteText(dir + "/first.yaml", common + "save_on_shutdown: " + map + "\n");
+  WriteText(dir + "/second.yaml", common + "load_graph: " + map + "\n");
+
+  ReplayOptions o1 = Options(first_bag, "session1");
+  o1.config_path = dir + "/first.yaml";
+  const ReplayResult first = ReplayBags(o1);
+  ASSERT_TRUE(first.ok) << first.error;
+  EXPECT_EQ(first.keyframes, 32u);
+  EXPECT_NE(first.map_saved.find("32 keyframes"), std::string::npos) << first.map_saved;
+  ASSERT_TRUE(std::filesystem::exists(map + ".keyframes"));
+
+  ReplayOptions o2 = Options(second_bag, "session2");
+  o2.config_path = dir + "/second.yaml";
+  o2.ground_truth_path = truth_csv;
+  const ReplayResult second = ReplayBags(o2);
+  ASSERT_TRUE(second.ok) << second.error;
+  std::cout << second.Summary() << "\n";
+  EXPECT_NE(second.map_loaded.find("32 keyframes"), std::string::npos) << second.map_loaded;
+  EXPECT_EQ(second.keyframes, 64u);   // both sessions' keyframes are oriented
+  EXPECT_EQ(second.variables, 32u);   // as rig captures: the loaded graph's and the new ones
+  EXPECT_EQ(second.components, 1u);   // joined by loop closures to the first session's keyframes
+  EXPECT_GT(second.loop_closure_edges, 0u);
+  ASSERT_TRUE(second.have_scores);
+  EXPECT_EQ(second.scores.views_common, 64u);
+  EXPECT_LT(second.scores.median_error_deg, 0.5);
+
+  // A truncated database: the replay stops and says why.
+  const std::string database = ReadAll(map + ".keyframes");
+  std::ofstream(map + ".keyframes", std::ios::binary) << database.substr(0, database.size() / 3);
+  const ReplayResult damaged = ReplayBags(o2);
+  EXPECT_FALSE(damaged.ok);
+  EXPECT_NE(damaged.error.find("truncated"), std::string::npos) << damaged.error;
 }
 
 TEST_F(BagReplay, RelativePosesAreAveragedAndTheOutlierRejected) {
