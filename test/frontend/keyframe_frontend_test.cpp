@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 #include "common/test_data.h"
+#include "common/test_vocabulary.h"
 
 #include <filesystem>
 #include <fstream>
@@ -136,6 +137,23 @@ std::vector<KeyframeRelativeRotation> Feed(KeyframeFrontend* frontend, const Ren
   return edges;
 }
 
+// One camera going `laps` times round the rendered room, 480 px wide.
+RenderedSequence RenderLaps(int laps, int per_lap) {
+  RigSceneOptions o;
+  o.num_cameras = 1;
+  o.laps = laps;
+  o.num_captures = laps * per_lap;
+  o.WithWidth(480);
+  const RigScene scene(o);
+  RenderedSequence seq;
+  seq.k = scene.Intrinsics();
+  for (int c = 0; c < o.num_captures; ++c) {
+    seq.world_to_camera.push_back(scene.WorldToCamera(c, 0));
+    seq.images.push_back(scene.Render(c, 0));
+  }
+  return seq;
+}
+
 int Index(const KeyframeKey& key) { return static_cast<int>(key.stamp_ns / 1'000'000'000LL) - 1; }
 
 // Components of the keyframes in `members` under `edges` (union-find).
@@ -211,49 +229,14 @@ TEST(KeyframeFrontend, AFailedPairDoesNotCutTheChain) {
   EXPECT_EQ(Components(Feed(&no_window, seq), members), 2);
 }
 
-// A small vocabulary trained on views of a room with other textures (the
-// front end never sees those images).
-std::shared_ptr<const Vocabulary> TestVocabulary() {
-  static const std::shared_ptr<const Vocabulary> vocabulary = [] {
-    RigSceneOptions o;
-    o.seed = 11;
-    o.num_cameras = 1;
-    o.num_captures = 12;
-    o.WithWidth(480);
-    const RigScene scene(o);
-    FeatureOptions f;
-    f.max_features = 800;
-    std::vector<cv::Mat> descriptors;
-    for (int c = 0; c < o.num_captures; ++c) descriptors.push_back(ExtractFeatures(scene.Render(c, 0), f).descriptors);
-    VocabularyOptions options;
-    options.words = 256;
-    std::string error;
-    std::shared_ptr<const Vocabulary> v = Vocabulary::Train(descriptors, options, &error);
-    EXPECT_TRUE(v) << error;
-    return v;
-  }();
-  return vocabulary;
-}
-
 // Three laps round the room: retrieval by vocabulary finds loop closures on
 // the second and third laps, none of them wrong, while keyframes that left
 // the recent window hold only their compact features.
 TEST(KeyframeFrontend, VocabularyClosesLoopsOnEveryLapWithCompactKeyframes) {
   constexpr int kPerLap = 16;
-  RigSceneOptions o;
-  o.num_cameras = 1;
-  o.laps = 3;
-  o.num_captures = 3 * kPerLap;
-  o.WithWidth(480);
-  const RigScene scene(o);
-  RenderedSequence seq;
-  seq.k = scene.Intrinsics();
+  const RenderedSequence seq = RenderLaps(3, kPerLap);
   std::set<int> members;
-  for (int c = 0; c < o.num_captures; ++c) {
-    seq.world_to_camera.push_back(scene.WorldToCamera(c, 0));
-    seq.images.push_back(scene.Render(c, 0));
-    members.insert(c);
-  }
+  for (int c = 0; c < 3 * kPerLap; ++c) members.insert(c);
   KeyframeFrontendOptions options;
   options.features.max_features = 600;
   options.compact_features = 300;
@@ -274,9 +257,9 @@ TEST(KeyframeFrontend, VocabularyClosesLoopsOnEveryLapWithCompactKeyframes) {
   const KeyframeFrontendStats& stats = frontend.Stats();
   // All that left the window, but the one the last capture pushed out (it
   // is compacted when the next capture comes).
-  EXPECT_EQ(stats.compacted_keyframes, static_cast<std::uint64_t>(o.num_captures - options.covisibility_window - 1));
+  EXPECT_EQ(stats.compacted_keyframes, static_cast<std::uint64_t>(3 * kPerLap - options.covisibility_window - 1));
   EXPECT_LE(stats.compact_bytes / stats.compacted_keyframes, 200u * 1024u);
-  EXPECT_LT(stats.keyframe_bytes, o.num_captures * 200u * 1024u);
+  EXPECT_LT(stats.keyframe_bytes, 3 * kPerLap * 200u * 1024u);
 }
 
 // A keyframe database saved after one lap and loaded by a new front end (a
@@ -286,18 +269,7 @@ TEST(KeyframeFrontend, VocabularyClosesLoopsOnEveryLapWithCompactKeyframes) {
 // leave the keyframes held as they were.
 TEST(KeyframeFrontend, ASavedDatabaseLetsTheNextSessionCloseLoopsWithTheFirst) {
   constexpr int kPerLap = 16;
-  RigSceneOptions o;
-  o.num_cameras = 1;
-  o.laps = 2;
-  o.num_captures = 2 * kPerLap;
-  o.WithWidth(480);
-  const RigScene scene(o);
-  RenderedSequence seq;
-  seq.k = scene.Intrinsics();
-  for (int c = 0; c < o.num_captures; ++c) {
-    seq.world_to_camera.push_back(scene.WorldToCamera(c, 0));
-    seq.images.push_back(scene.Render(c, 0));
-  }
+  const RenderedSequence seq = RenderLaps(2, kPerLap);
   KeyframeFrontendOptions options;
   options.features.max_features = 600;
   options.compact_features = 300;
@@ -342,7 +314,7 @@ TEST(KeyframeFrontend, ASavedDatabaseLetsTheNextSessionCloseLoopsWithTheFirst) {
   }
   EXPECT_GE(across, 2);
   std::set<int> all;
-  for (int c = 0; c < o.num_captures; ++c) all.insert(c);
+  for (int c = 0; c < 2 * kPerLap; ++c) all.insert(c);
   std::vector<KeyframeRelativeRotation> both = first_lap;
   both.insert(both.end(), second_lap.begin(), second_lap.end());
   EXPECT_EQ(Components(both, all), 1);

@@ -23,9 +23,8 @@
 
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
+#include "common/test_vocabulary.h"
 #include "ros/demo_bag.h"
-#include "rotation_averaging/frontend/features/features.h"
-#include "rotation_averaging/frontend/features/vocabulary.h"
 #include "ros/msg_conversion.h"
 
 namespace rotation_averaging {
@@ -184,23 +183,7 @@ TEST_F(BagReplay, TheNextSessionContinuesTheSavedMap) {
 
   // A vocabulary trained on another room's textures.
   const std::string vocabulary = dir + "/test.vocab";
-  {
-    RigSceneOptions other;
-    other.seed = 11;
-    other.num_cameras = 1;
-    other.num_captures = 12;
-    other.WithWidth(480);
-    const RigScene room(other);
-    FeatureOptions features;
-    features.max_features = 800;
-    std::vector<cv::Mat> descriptors;
-    for (int c = 0; c < other.num_captures; ++c) descriptors.push_back(ExtractFeatures(room.Render(c, 0), features).descriptors);
-    VocabularyOptions options;
-    options.words = 256;
-    const std::unique_ptr<Vocabulary> v = Vocabulary::Train(descriptors, options, &error);
-    ASSERT_TRUE(v) << error;
-    ASSERT_TRUE(v->Save(vocabulary, &error)) << error;
-  }
+  ASSERT_TRUE(TestVocabulary()->Save(vocabulary, &error)) << error;
   const std::string map = dir + "/map/graph.txt";
   std::filesystem::create_directories(dir + "/map");
   const std::string common = "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
