@@ -16,6 +16,7 @@
 #   long_run.md        the keyframe front end over 800 keyframes and three laps
 #   camera_models.md   lens distortion: EuRoC's real stereo camera, scenes warped through known lenses
 #   keyframe_selection.md  keyframe selection on a rendered 20 Hz stream
+#   restart.md         the demo replayed as a node restarted mid-run: the map saved and loaded
 # results/README.md is the written summary of these files.
 #
 #   bash scripts/report.sh            about 70 minutes on 2 cores (the COLMAP comparison about 17 of them; 1,000,000 views alone: 3-4, beside the front end)
@@ -75,4 +76,6 @@ bash scripts/benchmark_long_run.sh > /dev/null
 step "camera models (lens distortion) and keyframe selection on raw streams"
 bash scripts/benchmark_camera_models.sh > /dev/null
 bash scripts/benchmark_keyframe_selection.sh > /dev/null
+step "restarts: the map saved and loaded"
+bash scripts/benchmark_restart.sh > /dev/null
 step "done: results/*.md and results/plots/ regenerated; summary in results/README.md"

@@ -702,8 +702,12 @@ std::string ReplayResult::Summary() const {
   if (have_scores) {
     out << "scores against ground truth:\n" << scores.ToText() << "\n";
   }
-  if (!map_loaded.empty()) out << "map loaded: " << map_loaded << "\n";
-  if (!map_saved.empty()) out << "map saved: " << map_saved << "\n";
+  if (!map_loaded.empty()) {
+    out << "map loaded in " << std::setprecision(1) << 1e3 * map_load_s << " ms: " << map_loaded << "\n";
+  }
+  if (!map_saved.empty()) {
+    out << "map saved in " << std::setprecision(1) << 1e3 * map_save_s << " ms: " << map_saved << "\n";
+  }
   out << "outputs:\n  " << orientations_csv << "\n  " << graph_file << "\n  " << output_bag;
   if (!scores_file.empty()) out << "\n  " << scores_file;
   if (!plot_png.empty()) out << "\n  " << plot_png;
@@ -733,8 +737,10 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
   // As the node: a map saved before (a restart, an earlier session) is what
   // the bags add to. The node starts empty when it cannot load one; a
   // replay, whose purpose is to test exactly that, stops.
-  if (!config.load_graph.empty() && !pipeline.LoadMap(config.load_graph, &error, &result.map_loaded)) {
-    return fail("load_graph: " + error);
+  if (!config.load_graph.empty()) {
+    const auto load_start = std::chrono::steady_clock::now();
+    if (!pipeline.LoadMap(config.load_graph, &error, &result.map_loaded)) return fail("load_graph: " + error);
+    result.map_load_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - load_start).count();
   }
 
   NamedOrientations ground_truth;
@@ -780,8 +786,10 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
   if (!WriteOrientationsCsv(result.orientations_csv, named, &error)) return fail(error);
   result.graph_file = options.output_dir + "/graph.txt";
   if (!averager.SaveGraph(result.graph_file, &error)) return fail(error);
-  if (!config.save_on_shutdown.empty() && !pipeline.SaveMap(config.save_on_shutdown, &error, &result.map_saved)) {
-    return fail("save_on_shutdown: " + error);
+  if (!config.save_on_shutdown.empty()) {
+    const auto save_start = std::chrono::steady_clock::now();
+    if (!pipeline.SaveMap(config.save_on_shutdown, &error, &result.map_saved)) return fail("save_on_shutdown: " + error);
+    result.map_save_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - save_start).count();
   }
   CollectStatistics(pipeline, averager, solution, &result);
   if (!WriteFrontendCost(options.output_dir, &result, &error)) return fail(error);

@@ -75,6 +75,7 @@ struct ReplayResult {
   // the end (save_on_shutdown), as KeyframePipeline::LoadMap and SaveMap
   // described them; empty when not asked for.
   std::string map_loaded, map_saved;
+  double map_load_s = 0.0, map_save_s = 0.0;  // wall time of LoadMap and SaveMap
   std::string Summary() const;  // the multi-line report printed at the end
 };
 
