@@ -611,6 +611,9 @@ bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error
   if (frontend_) {
     if (!std::filesystem::exists(database, ec)) {
       loaded += "; no keyframe database beside it: new keyframes cannot relate to the old ones";
+    } else if (!frontend_->UsesVocabulary()) {
+      loaded += "; its keyframe database is not loaded (it needs a vocabulary, and vocabulary is none):"
+                " new keyframes cannot relate to the old ones";
     } else {
       std::lock_guard<std::mutex> lock(frontend_mutex_);
       if (!frontend_->LoadDatabase(database, error)) return false;
