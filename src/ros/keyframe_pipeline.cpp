@@ -566,16 +566,18 @@ bool KeyframePipeline::SaveMap(const std::string& graph_path, std::string* error
   if (!averager_->SaveGraph(graph_path, error)) return false;
   if (!rig_.Save(RigPath(graph_path), error)) return false;
   std::string saved = "view graph saved to " + graph_path;
-  if (frontend_) {
-    const std::string database = KeyframeDatabasePath(graph_path);
+  const std::string database = KeyframeDatabasePath(graph_path);
+  if (frontend_ && frontend_->UsesVocabulary()) {
     std::lock_guard<std::mutex> lock(frontend_mutex_);
-    if (!frontend_->UsesVocabulary()) {
-      saved += "; no keyframe database (retrieval by voting: vocabulary none)";
-    } else if (!frontend_->SaveDatabase(database, error)) {
-      return false;
-    } else {
-      saved += ", " + std::to_string(frontend_->NumKeyframes()) + " keyframes to " + database;
-    }
+    if (!frontend_->SaveDatabase(database, error)) return false;
+    saved += ", " + std::to_string(frontend_->NumKeyframes()) + " keyframes to " + database;
+  } else {
+    // A database left from an earlier save to this path belongs to another
+    // graph: loading it with this one would relate new keyframes to views
+    // the graph does not have.
+    std::error_code ec;
+    if (std::filesystem::remove(database, ec)) saved += "; the older " + database + " removed";
+    if (frontend_) saved += "; no keyframe database (retrieval by voting: vocabulary none)";
   }
   if (note) *note = saved;
   return true;

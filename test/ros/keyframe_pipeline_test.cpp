@@ -5,6 +5,8 @@
 #include <gtest/gtest.h>
 #include <ros/time.h>
 
+#include <filesystem>
+#include <fstream>
 #include <limits>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -345,6 +347,56 @@ TEST(KeyframePipeline, RigExtrinsicsFromStaticTransformsAndMarkers) {
   EXPECT_EQ(zero, 2);  // both cameras of the gauge capture
   EXPECT_EQ(positive, 14);
   EXPECT_EQ(pipeline.KeyframeTransforms(cameras).transforms.size(), 16u);
+}
+
+// The map of a pipeline without images: SaveMap writes the graph and the rig
+// beside it (and removes a keyframe database an earlier save left there,
+// which belongs to another graph); LoadMap in a pipeline that has seen no
+// static transform brings back the same camera keyframes. A corrupted rig
+// file refuses the map and leaves the graph held as it was.
+TEST(KeyframePipeline, AMapSavesAndLoadsTheGraphWithItsRig) {
+  KeyframePipeline pipeline(DefaultConfig());
+  tf2_msgs::TFMessage statics;
+  geometry_msgs::TransformStamped t;
+  t.header.frame_id = "base_link";
+  t.transform.rotation.w = 1.0;
+  for (const char* camera : {"cam_a", "cam_b"}) {
+    t.child_frame_id = camera;
+    statics.transforms.push_back(t);
+  }
+  pipeline.AcceptStaticTransforms(statics);
+  std::string error;
+  for (int k = 1; k < 6; ++k) {
+    const Eigen::Matrix3d r = ExpSO3(Eigen::Vector3d(0.0, 0.0, 0.2));
+    ASSERT_TRUE(pipeline.AcceptRelativePose(Pose("cam_a", k, "cam_b", k + 1.001, r), &error)) << error;
+  }
+  ASSERT_TRUE(pipeline.Averager().SolveNow());
+  const OnlineSolution before = pipeline.CameraSolution(*pipeline.Averager().Solution());
+  ASSERT_EQ(before.orientations.size(), 10u);  // cam_a at 1..5 s, cam_b at 2..6 s
+
+  const std::string graph = ::testing::TempDir() + "/keyframe_pipeline_test_map.txt";
+  std::ofstream(KeyframeDatabasePath(graph)) << "left by an earlier save";
+  std::string note;
+  ASSERT_TRUE(pipeline.SaveMap(graph, &error, &note)) << error;
+  EXPECT_TRUE(std::filesystem::exists(RigPath(graph)));
+  EXPECT_FALSE(std::filesystem::exists(KeyframeDatabasePath(graph))) << note;
+
+  KeyframePipeline restarted(DefaultConfig());  // no static transform
+  ASSERT_TRUE(restarted.LoadMap(graph, &error, &note)) << error;
+  EXPECT_NE(note.find("6 rig captures"), std::string::npos) << note;
+  ASSERT_TRUE(restarted.Averager().SolveNow());
+  const OnlineSolution after = restarted.CameraSolution(*restarted.Averager().Solution());
+  ASSERT_EQ(after.orientations.size(), before.orientations.size());
+  for (const auto& [key, r] : before.orientations) {
+    ASSERT_TRUE(after.orientations.count(key)) << key.frame_id << "@" << key.stamp_ns;
+    EXPECT_LT(RadToDeg(AngularDistanceRad(after.orientations.at(key), r)), 1e-6);
+  }
+
+  std::ofstream(RigPath(graph), std::ios::app) << "CAPTURE base_link 99\n";  // after END: not this file
+  KeyframePipeline refused(DefaultConfig());
+  EXPECT_FALSE(refused.LoadMap(graph, &error));
+  EXPECT_NE(error.find("after the END record"), std::string::npos) << error;
+  EXPECT_EQ(refused.Averager().Stats().views, 0u);
 }
 
 }  // namespace
