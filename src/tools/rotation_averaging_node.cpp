@@ -50,7 +50,22 @@ class NodeParameters : public ParameterSource {
   bool Get(const std::string& name, int* value) const override { return pnh_.getParam(name, *value); }
   bool Get(const std::string& name, bool* value) const override { return pnh_.getParam(name, *value); }
   bool Get(const std::string& name, std::vector<std::string>* value) const override {
-    return pnh_.getParam(name, *value);
+    if (pnh_.getParam(name, *value)) return true;
+    // On the command line (`rosrun ... _image_topics:=[/a/image_raw,/b/image_raw]`)
+    // roscpp stores a list as one string: read it as the list it spells.
+    std::string text;
+    if (!pnh_.getParam(name, text)) return false;
+    value->clear();
+    std::string item;
+    for (char c : text + ",") {
+      if (c == ',') {
+        if (!item.empty()) value->push_back(item);
+        item.clear();
+      } else if (c != '[' && c != ']' && c != '"' && c != '\'' && c != ' ' && c != '\t') {
+        item += c;
+      }
+    }
+    return true;
   }
 
  private:
