@@ -170,15 +170,6 @@ namespace {
 
 constexpr char kRigHeader[] = "# rotation_averaging rig v1";
 
-std::string Hex64(std::uint64_t v) {
-  std::ostringstream out;
-  out << std::hex;
-  out.width(16);
-  out.fill('0');
-  out << v;
-  return out.str();
-}
-
 bool IsName(const std::string& s) { return !s.empty() && s.find_first_of(" \t\r\n") == std::string::npos; }
 
 }  // namespace
@@ -211,7 +202,7 @@ bool RigModel::Save(const std::string& path, std::string* error) const {
   std::istringstream in(text);
   for (std::string line; std::getline(in, line); ++lines) sum.AddLine(line);
   return WriteFileAtomically(path, [&](std::ostream& out) -> std::string {
-    out << text << "END " << lines << ' ' << Hex64(sum.h) << '\n';
+    out << text << "END " << lines << ' ' << sum.Hex() << '\n';
     return "";
   }, error);
 }
@@ -243,7 +234,7 @@ bool RigModel::Load(const std::string& path, std::string* error) {
       SplitTokens(line, &tokens);
       std::uint64_t count = 0;
       if (tokens.size() != 3 || !ParseUint64(tokens[1], &count)) return fail(reader.Where("expected 'END lines checksum'"));
-      if (count != lines || tokens[2] != Hex64(sum.h)) return fail(reader.Where("checksum mismatch: the file is corrupted"));
+      if (count != lines || tokens[2] != sum.Hex()) return fail(reader.Where("checksum mismatch: the file is corrupted"));
       ended = true;
       continue;
     }

@@ -22,6 +22,13 @@ struct Fnv1a {
     const auto* p = static_cast<const unsigned char*>(data);
     for (std::size_t i = 0; i < size; ++i) h = (h ^ p[i]) * 0x100000001b3ULL;
   }
+  // The checksum as 16 lowercase hex digits (the END record of text files).
+  std::string Hex() const {
+    static const char kDigits[] = "0123456789abcdef";
+    std::string out(16, '0');
+    for (int i = 0; i < 16; ++i) out[15 - i] = kDigits[(h >> (4 * i)) & 0xf];
+    return out;
+  }
   // A text line and its newline.
   void AddLine(std::string_view line) {
     Add(line.data(), line.size());

@@ -268,12 +268,6 @@ namespace {
 
 constexpr char kGraphHeader[] = "# rotation_averaging view graph v1";
 
-std::string Hex(std::uint64_t v) {
-  char buffer[17];
-  std::snprintf(buffer, sizeof(buffer), "%016llx", static_cast<unsigned long long>(v));
-  return buffer;
-}
-
 }  // namespace
 
 ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph) {
@@ -295,7 +289,7 @@ ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph) {
       SplitTokens(line, &tokens);
       std::uint64_t count = 0;
       if (tokens.size() != 3 || !ParseUint64(tokens[1], &count)) return {reader.Where("expected 'END lines checksum'")};
-      if (count != lines_before_end || tokens[2] != Hex(sum.h)) {
+      if (count != lines_before_end || tokens[2] != sum.Hex()) {
         return {reader.Where("checksum mismatch: the file is corrupted (" + std::to_string(lines_before_end) +
                              " lines read, " + std::string(tokens[1]) + " written)")};
       }
@@ -393,7 +387,7 @@ bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::stri
     std::size_t lines = 0;
     std::istringstream in(body);
     for (std::string line; std::getline(in, line); ++lines) sum.AddLine(line);
-    file << body << "END " << lines << ' ' << Hex(sum.h) << '\n';
+    file << body << "END " << lines << ' ' << sum.Hex() << '\n';
     return "";
   }, error);
 }
