@@ -5,7 +5,9 @@
 # first part is replayed with `save_on_shutdown`, the rest with `load_graph`
 # on the map it saved (graph, rig captures, keyframe database), against the
 # uninterrupted replay: components, keyframes, accuracy over all of them,
-# the database's size per keyframe, the time to save and to load the map.
+# how far the keyframes of the saved map moved (at the first solve after
+# loading, and when the new keyframes joined them), the database's size per
+# keyframe, the time to save and to load the map.
 #   bash scripts/benchmark_restart.sh        (about five minutes)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
@@ -54,13 +56,17 @@ done
   echo "\`.rig\`, \`.keyframes\`), the part after it with \`load_graph\` on that map, as a node killed there and"
   echo "restarted would (\`rotation_averaging_replay\` runs the node's pipeline; docs/node.md, \"The map across"
   echo "restarts and sessions\"). Components, keyframes and accuracy are those of the second replay, over every"
-  echo "keyframe of both parts; the uninterrupted replay of the whole bag is the reference."
+  echo "keyframe of both parts; the uninterrupted replay of the whole bag is the reference. \"Moved at load\": the"
+  echo "largest angle between a saved keyframe's orientation in the map file and at the first solve after loading"
+  echo "(the frames published before the restart). \"Moved at the merge\": the largest move of a saved keyframe"
+  echo "from there to the first solve that joined a new keyframe to them, in degrees and in that keyframe's"
+  echo "posterior standard deviation along the move."
   echo
-  echo "| restart after capture | keyframes before / after the restart | keyframes in the final map | components | loop closures after the restart | median (deg) | median / uninterrupted | database per keyframe (KB) | save (ms) | load (ms) |"
-  echo "|---|---|---|---|---|---|---|---|---|---|"
+  echo "| restart after capture | keyframes before / after the restart | keyframes in the final map | components | loop closures after the restart | median (deg) | median / uninterrupted | moved at load (deg) | moved at the merge (deg / std) | database per keyframe (KB) | save (ms) | load (ms) |"
+  echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
   echo "| none (uninterrupted) | - | $(value "$OUT/full.txt" '^keyframes: \([0-9]*\) .*') |" \
     "$(value "$OUT/full.txt" '^components: \([0-9]*\);.*') | $(value "$OUT/full.txt" '^loop closures: \([0-9]*\) edges.*') |" \
-    "$full_median | 1.00 | - | - | - |"
+    "$full_median | 1.00 | - | - | - | - | - |"
   for n in "${CUTS[@]}"; do
     a=$OUT/before_$n.txt b=$OUT/after_$n.txt
     kf_before=$(value "$a" '^keyframes: \([0-9]*\) .*')
@@ -70,6 +76,9 @@ done
       "$(value "$b" '^keyframes: \([0-9]*\) .*') | $(value "$b" '^components: \([0-9]*\);.*') |" \
       "$(value "$b" '^loop closures: \([0-9]*\) edges.*') | $median |" \
       "$(awk -v a="$median" -v b="$full_median" 'BEGIN { printf "%.2f", a / b }') |" \
+      "$(value "$b" '^loaded keyframes at the first solve: moved at most \([0-9.]*\) deg.*') |" \
+      "$(value "$b" '^loaded keyframes when .*moved at most \([0-9.]*\) deg, .*') /" \
+      "$(value "$b" '^loaded keyframes when .* deg, \([0-9.]*\) posterior.*') |" \
       "$(awk -v s="$db_bytes" -v k="$kf_before" 'BEGIN { printf "%.1f", s / 1024 / k }') |" \
       "$(value "$a" '^map saved in \([0-9.]*\) ms.*') | $(value "$b" '^map loaded in \([0-9.]*\) ms.*') |"
   done

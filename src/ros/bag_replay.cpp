@@ -33,6 +33,7 @@
 #include "rotation_averaging/RelativePoseArray.h"
 #include "frontend/eval/error_plot.h"
 #include "rotation_averaging/core/geometry/so3.h"
+#include "rotation_averaging/core/io/graph_io.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "ros/keyframe_pipeline.h"
 #include "ros/msg_conversion.h"
@@ -340,6 +341,10 @@ class Replayer {
   Replayer(const PipelineConfig& config, KeyframePipeline* pipeline, rosbag::Bag* out, ReplayResult* result)
       : config_(config), pipeline_(*pipeline), out_(*out), result_(*result) {}
 
+  // The first solution after load_graph: the keyframes of the loaded map,
+  // followed until a new keyframe joins them (MeasureMerge).
+  void FollowLoadedMap(std::shared_ptr<const OnlineSolution> loaded) { loaded_ = std::move(loaded); }
+
   void Run(rosbag::View& view, InputTopics* topics, bool progress) {
     const ros::Time bag_start = view.getBeginTime();
     const double period = config_.averager.solve_period_s;
@@ -379,6 +384,40 @@ class Replayer {
   }
 
  private:
+  // At the first solve where a keyframe that is not in the loaded map shares
+  // a component with one that is: how far the loaded keyframes moved from
+  // the first solve after loading, in degrees and in that solve's posterior
+  // standard deviation along the move (a left perturbation, as the
+  // covariance). The gauge keyframe has no covariance: degrees only.
+  void MeasureMerge(const OnlineSolution& solution) {
+    std::set<int> loaded_components;
+    for (const auto& [key, r] : loaded_->orientations) {
+      const auto it = solution.component.find(key);
+      if (it != solution.component.end()) loaded_components.insert(it->second);
+    }
+    bool merged = false;
+    for (const auto& [key, c] : solution.component) {
+      if (loaded_components.count(c) && !loaded_->orientations.count(key)) {
+        merged = true;
+        break;
+      }
+    }
+    if (!merged) return;
+    result_.map_merged = true;
+    result_.map_merged_at_solve = result_.solves;
+    for (const auto& [key, before] : loaded_->orientations) {
+      const auto it = solution.orientations.find(key);
+      if (it == solution.orientations.end()) continue;
+      const Eigen::Vector3d d = LogSO3(it->second * before.transpose());
+      result_.map_merge_move_deg = std::max(result_.map_merge_move_deg, RadToDeg(d.norm()));
+      const auto cov = loaded_->covariance.find(key);
+      if (cov == loaded_->covariance.end() || d.norm() == 0.0) continue;
+      const Eigen::Vector3d u = d.normalized();
+      const double sigma = std::sqrt(std::max(0.0, u.dot(cov->second * u)));
+      if (sigma > 0.0) result_.map_merge_move_sigma = std::max(result_.map_merge_move_sigma, d.norm() / sigma);
+    }
+  }
+
   void Dispatch(const rosbag::MessageInstance& m, const ros::Time& time, InputTopics* topics) {
     const std::string topic = WithSlash(m.getTopic());
     if (topic == topics->pose_topic || topic == topics->poses_topic) {
@@ -417,6 +456,7 @@ class Replayer {
     if (!averager.SolveNow()) return;
     ++result_.solves;
     const std::shared_ptr<const OnlineSolution> solution = averager.Solution();
+    if (loaded_ && !result_.map_merged) MeasureMerge(*solution);
     const OnlineSolution cameras = pipeline_.CameraSolution(*solution);
     out_.write("/rotation_averaging/orientations", when, pipeline_.OrientationsMsg(cameras, when));
     if (config_.tf_mode == "all_keyframes") {
@@ -507,8 +547,30 @@ class Replayer {
   rosbag::Bag& out_;
   ReplayResult& result_;
   bool dirty_ = false;  // input arrived since the last solve
+  std::shared_ptr<const OnlineSolution> loaded_;  // see FollowLoadedMap
   std::set<std::string> offered_, made_;  // names of the images offered to keyframe selection, of the keyframes
 };
+
+// The largest angle between an orientation saved with the map at `path` and
+// the same keyframe in `solution`, the first solve after loading it; -1 when
+// the map holds no orientations.
+bool MapLoadShift(const std::string& path, const OnlineSolution& solution, double* shift_deg, std::string* error) {
+  ViewGraph graph;
+  std::map<ViewId, Eigen::Matrix3d> saved;
+  const ReadReport report = ReadRotavgGraph(path, &graph, &saved);
+  if (!report.ok()) {
+    *error = report.error;
+    return false;
+  }
+  *shift_deg = saved.empty() ? -1.0 : 0.0;
+  for (const auto& [id, r] : saved) {
+    KeyframeKey key;
+    if (!OnlineAverager::ParseKeyframeName(graph.FindView(id)->name, &key)) continue;
+    const auto it = solution.orientations.find(key);
+    if (it != solution.orientations.end()) *shift_deg = std::max(*shift_deg, RadToDeg(AngularDistanceRad(r, it->second)));
+  }
+  return true;
+}
 
 // What the pipeline did, for the summary.
 void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& averager, const OnlineSolution& solution,
@@ -704,6 +766,17 @@ std::string ReplayResult::Summary() const {
   }
   if (!map_loaded.empty()) {
     out << "map loaded in " << std::setprecision(1) << 1e3 * map_load_s << " ms: " << map_loaded << "\n";
+    if (map_load_shift_deg >= 0.0) {
+      out << "loaded keyframes at the first solve: moved at most " << std::setprecision(4) << map_load_shift_deg
+          << " deg from where the map had them\n";
+    }
+    if (map_merged) {
+      out << "loaded keyframes when new keyframes joined them (solve " << map_merged_at_solve << "): moved at most "
+          << std::setprecision(4) << map_merge_move_deg << " deg, " << std::setprecision(3) << map_merge_move_sigma
+          << " posterior standard deviations\n";
+    } else {
+      out << "loaded keyframes: no new keyframe joined them\n";
+    }
   }
   if (!map_saved.empty()) {
     out << "map saved in " << std::setprecision(1) << 1e3 * map_save_s << " ms: " << map_saved << "\n";
@@ -741,6 +814,9 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
     const auto load_start = std::chrono::steady_clock::now();
     if (!pipeline.LoadMap(config.load_graph, &error, &result.map_loaded)) return fail("load_graph: " + error);
     result.map_load_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - load_start).count();
+    if (!MapLoadShift(config.load_graph, *averager.Solution(), &result.map_load_shift_deg, &error)) {
+      return fail("load_graph: " + error);
+    }
   }
 
   NamedOrientations ground_truth;
@@ -769,6 +845,7 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
     return fail("cannot write " + result.output_bag + ": " + e.what());
   }
   Replayer replayer(config, &pipeline, &out, &result);
+  if (!config.load_graph.empty()) replayer.FollowLoadedMap(averager.Solution());
   replayer.Run(view, &topics, options.progress);
   out.close();
   std::size_t unscored = 0;

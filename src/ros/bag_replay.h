@@ -76,6 +76,15 @@ struct ReplayResult {
   // described them; empty when not asked for.
   std::string map_loaded, map_saved;
   double map_load_s = 0.0, map_save_s = 0.0;  // wall time of LoadMap and SaveMap
+  // The keyframes of the loaded map: the largest angle between where the map
+  // had them and the first solve after loading (< 0: the map holds no
+  // orientations); at the first solve that joined a new keyframe to them,
+  // their largest move since that first solve, in degrees and in posterior
+  // standard deviations along the move.
+  double map_load_shift_deg = -1.0;
+  bool map_merged = false;
+  std::size_t map_merged_at_solve = 0;
+  double map_merge_move_deg = 0.0, map_merge_move_sigma = 0.0;
   std::string Summary() const;  // the multi-line report printed at the end
 };
 

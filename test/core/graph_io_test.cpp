@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
@@ -138,6 +139,50 @@ TEST(GraphIo, NativeGraphFormatRoundTripsEveryField) {
   const std::string bad = dir.Write("bad.txt", "VIEW 1 a\nEDGE 1 2 other 1 0 0 0 5 -\n");
   ViewGraph h;
   EXPECT_NE(ReadViewGraph(bad, GraphFormat::kAuto, &h).error.find("bad.txt:2:"), std::string::npos);
+}
+
+// Orientations saved with the graph (v2) come back with it; a file of a
+// newer format and an orientation of an undeclared view are refused.
+TEST(GraphIo, OrientationsSavedWithTheGraphComeBack) {
+  TempDir dir;
+  ViewGraph g;
+  g.AddView(0, "a");
+  g.AddView(1, "b");
+  RelativeRotation e;
+  e.view1 = 0;
+  e.view2 = 1;
+  e.rotation = ExpSO3(Eigen::Vector3d(0.1, -0.2, 0.3));
+  g.AddEdge(e);
+  std::map<ViewId, Eigen::Matrix3d> orientations{{0, ExpSO3(Eigen::Vector3d(0.5, 0.1, -0.4))},
+                                                 {1, ExpSO3(Eigen::Vector3d(-1.0, 2.0, 0.2))}};
+  const std::string p = dir.Path() + "/graph.txt";
+  std::string error;
+  ASSERT_TRUE(WriteRotavgGraph(p, g, &error, &orientations)) << error;
+  ViewGraph back;
+  std::map<ViewId, Eigen::Matrix3d> read;
+  const ReadReport report = ReadRotavgGraph(p, &back, &read);
+  ASSERT_TRUE(report.ok()) << report.error;
+  ASSERT_EQ(read.size(), 2u);
+  for (const auto& [id, r] : orientations) EXPECT_LT((read.at(id) - r).norm(), 1e-14);
+  // Readers that do not ask for them still read the graph.
+  ViewGraph graph_only;
+  EXPECT_TRUE(ReadViewGraph(p, GraphFormat::kAuto, &graph_only).ok());
+  EXPECT_EQ(graph_only.NumEdges(), 1u);
+  // Without orientations the file stays v1, which earlier readers read.
+  ASSERT_TRUE(WriteRotavgGraph(p, g, &error)) << error;
+  std::ifstream in(p);
+  std::string header;
+  std::getline(in, header);
+  EXPECT_EQ(header, "# rotation_averaging view graph v1");
+  // An orientation of a view not in the graph cannot be written.
+  orientations[5] = Eigen::Matrix3d::Identity();
+  EXPECT_FALSE(WriteRotavgGraph(p, g, &error, &orientations));
+
+  ViewGraph h;
+  const std::string newer = dir.Write("newer.txt", "# rotation_averaging view graph v3\nVIEW 0 a\n");
+  EXPECT_NE(ReadRotavgGraph(newer, &h).error.find("newer version"), std::string::npos);
+  const std::string undeclared = dir.Write("undeclared.txt", "VIEW 0 a\nORIENTATION 4 1 0 0 0\n");
+  EXPECT_NE(ReadRotavgGraph(undeclared, &h).error.find("undeclared.txt:2:"), std::string::npos);
 }
 
 // Saved graphs end with a checksum record: a save cut short or corrupted is

@@ -11,6 +11,7 @@
 #include <tuple>
 
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "rotation_averaging/core/io/graph_io.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "common/synthetic_rig.h"
 
@@ -430,6 +431,47 @@ TEST(OnlineAverager, JoiningComponentsTakesAFullSolve) {
     EXPECT_EQ(averager.Solution()->local, min_views > 0);
     EXPECT_LT(MedianErrorDeg(*averager.Solution(), d), 1.0);
   }
+}
+
+double WorstMoveDeg(const OnlineSolution& from, const OnlineSolution& to) {
+  double worst = 0.0;
+  for (const auto& [key, r] : from.orientations) {
+    const auto it = to.orientations.find(key);
+    EXPECT_NE(it, to.orientations.end()) << OnlineAverager::KeyframeName(key);
+    if (it != to.orientations.end()) worst = std::max(worst, AngularDistanceRad(r, it->second));
+  }
+  return RadToDeg(worst);
+}
+
+// A node restarted on its saved graph publishes the old keyframes where it
+// published them before: the orientations saved with the graph are the
+// first solve's start and keep its gauge. The map grows capture by capture,
+// so its frame is the one of its first solve; a cold solve of the whole
+// graph (a file without orientations) picks another gauge.
+TEST(OnlineAverager, ALoadedGraphKeepsThePublishedFrames) {
+  const RigData d = MakeRig(40, 0.05, 9);
+  OnlineAverager a(OnlineAveragerOptions{});
+  FeedCaptures(d, 3, &a);
+  const std::shared_ptr<const OnlineSolution> saved = a.Solution();
+  const std::string path =
+      (std::filesystem::temp_directory_path() / ("rotavg_frames_" + std::to_string(::getpid()) + ".txt")).string();
+  std::string error;
+  ASSERT_TRUE(a.SaveGraph(path, &error)) << error;
+  OnlineAverager b(OnlineAveragerOptions{});
+  ASSERT_TRUE(b.LoadGraph(path, &error)) << error;
+  EXPECT_LT(WorstMoveDeg(*saved, *b.Solution()), 0.01);
+
+  // The same graph without its orientations (format v1).
+  ViewGraph graph;
+  std::map<ViewId, Eigen::Matrix3d> orientations;
+  ASSERT_TRUE(ReadRotavgGraph(path, &graph, &orientations).ok());
+  EXPECT_EQ(orientations.size(), saved->orientations.size());
+  ASSERT_TRUE(WriteRotavgGraph(path, graph, &error)) << error;
+  OnlineAverager cold(OnlineAveragerOptions{});
+  ASSERT_TRUE(cold.LoadGraph(path, &error)) << error;
+  EXPECT_GT(WorstMoveDeg(*saved, *cold.Solution()), 1.0);
+  EXPECT_LT(MedianErrorDeg(*cold.Solution(), d), 1.0);
+  std::filesystem::remove(path);
 }
 
 TEST(OnlineAverager, SaveLoadAndReset) {

@@ -214,6 +214,13 @@ TEST_F(BagReplay, TheNextSessionContinuesTheSavedMap) {
   ASSERT_TRUE(second.have_scores);
   EXPECT_EQ(second.scores.views_common, 64u);
   EXPECT_LT(second.scores.median_error_deg, 0.5);
+  // The first session's keyframes keep the frames they were published in:
+  // where the map had them at the first solve after loading, and within
+  // their posterior standard deviation when the second session joined them.
+  EXPECT_GE(second.map_load_shift_deg, 0.0);  // the map holds orientations
+  EXPECT_LT(second.map_load_shift_deg, 0.01);
+  EXPECT_TRUE(second.map_merged);
+  EXPECT_LT(second.map_merge_move_sigma, 1.0);
 
   // A truncated database: the replay stops and says why.
   const std::string database = ReadAll(map + ".keyframes");

@@ -647,16 +647,25 @@ void OnlineAverager::SetSolutionCallback(std::function<void(std::shared_ptr<cons
 
 bool OnlineAverager::SaveGraph(const std::string& path, std::string* error) const {
   ViewGraph copy;
+  std::map<ViewId, Eigen::Matrix3d> orientations;
+  const std::shared_ptr<const OnlineSolution> solution = Solution();
   {
     std::lock_guard<std::mutex> lock(graph_mutex_);
     copy = graph_;
+    // The published orientations go with the graph: a restarted node starts
+    // from them and keeps the frames it published (LoadGraph).
+    for (const auto& [key, r] : solution->orientations) {
+      const auto it = ids_.find(key);
+      if (it != ids_.end()) orientations.emplace(it->second, r);
+    }
   }
-  return WriteRotavgGraph(path, copy, error);
+  return WriteRotavgGraph(path, copy, error, &orientations);
 }
 
 bool OnlineAverager::LoadGraph(const std::string& path, std::string* error) {
   ViewGraph loaded;
-  const ReadReport report = ReadRotavgGraph(path, &loaded);
+  std::map<ViewId, Eigen::Matrix3d> saved_orientations;
+  const ReadReport report = ReadRotavgGraph(path, &loaded, &saved_orientations);
   if (!report.ok()) {
     if (error) *error = report.error;
     return false;
@@ -682,6 +691,11 @@ bool OnlineAverager::LoadGraph(const std::string& path, std::string* error) {
     e.view2 = old_to_new.at(e.view2);
     renumbered.AddEdge(e, nullptr, DuplicatePolicy::kKeepBoth);
   }
+  // The first solve starts from the orientations saved with the graph: its
+  // gauge views keep them, so the keyframes stay in the frames published
+  // before the save instead of moving to a new gauge.
+  ViewOrientations start;
+  for (const auto& [id, r] : saved_orientations) start.emplace(old_to_new.at(id), r);
   {
     std::lock_guard<std::mutex> solve_lock(solve_mutex_);
     {
@@ -689,7 +703,7 @@ bool OnlineAverager::LoadGraph(const std::string& path, std::string* error) {
       graph_ = std::move(renumbered);
       ids_ = std::move(ids);
       keys_ = std::move(keys);
-      warm_start_.clear();
+      warm_start_ = std::move(start);
       ++generation_;
     }
     {

@@ -266,12 +266,16 @@ ReadReport ReadIRotAvg(const std::string& path, ViewGraph* graph) {
 
 namespace {
 
-constexpr char kGraphHeader[] = "# rotation_averaging view graph v1";
+// v1: VIEW and EDGE records; v2 adds ORIENTATION records. A file is written
+// as v1 when it has no orientations, so that earlier readers still read it.
+constexpr char kGraphHeader[] = "# rotation_averaging view graph v";
+constexpr int kGraphVersion = 2;
 
 }  // namespace
 
-ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph) {
+ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph, std::map<ViewId, Eigen::Matrix3d>* orientations) {
   ReadReport report;
+  std::map<ViewId, Eigen::Matrix3d> read_orientations;
   LineReader reader(path);
   if (!reader.IsOpen()) return {"cannot open " + path};
   std::string_view line;
@@ -284,7 +288,17 @@ ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph) {
       if (!IsBlankOrComment(line)) return {reader.Where("records after the END record")};
       continue;
     }
-    if (lines_before_end == 0 && line.rfind(kGraphHeader, 0) == 0) ours = true;
+    if (lines_before_end == 0 && line.rfind(kGraphHeader, 0) == 0) {
+      ours = true;
+      int version = 0;
+      if (!ParseInt(line.substr(std::string_view(kGraphHeader).size()), &version) || version < 1) {
+        return {reader.Where("malformed header '" + std::string(line) + "'")};
+      }
+      if (version > kGraphVersion) {
+        return {reader.Where("written by a newer version of the package (format v" + std::to_string(version) +
+                             "); this one reads v1 to v" + std::to_string(kGraphVersion))};
+      }
+    }
     if (line.rfind("END ", 0) == 0) {
       SplitTokens(line, &tokens);
       std::uint64_t count = 0;
@@ -336,21 +350,39 @@ ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph) {
       if (graph->AddEdge(edge, &why, DuplicatePolicy::kKeepBoth) == AddEdgeResult::kRejected) {
         report.warnings.push_back(reader.Where("edge skipped: " + why));
       }
+    } else if (tokens[0] == "ORIENTATION") {
+      ViewId id;
+      double q[4];
+      if (tokens.size() != 6 || !ParseUint64(tokens[1], &id) || !ParseDoubles(tokens, 2, 4, q)) {
+        return {reader.Where("expected 'ORIENTATION id qw qx qy qz'")};
+      }
+      if (!graph->HasView(id)) return {reader.Where("orientation of a view that no VIEW line declared")};
+      const double norm = Eigen::Vector4d(q[0], q[1], q[2], q[3]).norm();
+      if (!(std::abs(norm - 1.0) < 1e-3)) {
+        report.warnings.push_back(reader.Where("orientation skipped: quaternion is not unit (norm " +
+                                               std::to_string(norm) + ")"));
+        continue;
+      }
+      read_orientations[id] = QuaternionToRotation(q[0], q[1], q[2], q[3]);
     } else {
-      return {reader.Where("unknown record '" + std::string(tokens[0]) + "' (VIEW or EDGE)")};
+      return {reader.Where("unknown record '" + std::string(tokens[0]) + "' (VIEW, EDGE or ORIENTATION)")};
     }
   }
   // A file we wrote always ends with END: without it, it was cut short.
   if (ours && !ended) return {path + ": no END record: the file is truncated (a save that was interrupted?)"};
   report.lines = reader.LineNumber();
+  if (orientations) *orientations = std::move(read_orientations);
   return report;
 }
 
-bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::string* error) {
-  return WriteFileAtomically(path, [&graph](std::ostream& file) -> std::string {
+bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::string* error,
+                      const std::map<ViewId, Eigen::Matrix3d>* orientations) {
+  const bool with_orientations = orientations && !orientations->empty();
+  return WriteFileAtomically(path, [&graph, orientations, with_orientations](std::ostream& file) -> std::string {
     std::ostringstream out;
-    out << kGraphHeader << "\n"
-        << "# VIEW id name | EDGE id1 id2 source qw qx qy qz num_inliers (c00 c01 c02 c11 c12 c22 | -)\n"
+    out << kGraphHeader << (with_orientations ? kGraphVersion : 1) << "\n"
+        << "# VIEW id name | EDGE id1 id2 source qw qx qy qz num_inliers (c00 c01 c02 c11 c12 c22 | -)"
+        << (with_orientations ? " | ORIENTATION id qw qx qy qz" : "") << "\n"
         << "# R_12 = R_1 R_2^T (world-to-camera R); covariance of a right perturbation, rad^2\n"
         << std::setprecision(17);
     std::vector<View> views = graph.Views();
@@ -380,6 +412,18 @@ bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::stri
         line += " -";
       }
       out << line << '\n';
+    }
+    if (with_orientations) {
+      for (const auto& [id, r] : *orientations) {
+        if (!graph.HasView(id)) return "orientation of view " + std::to_string(id) + ", which is not in the graph";
+        const Eigen::Vector4d q = RotationToQuaternion(r);
+        line = "ORIENTATION " + std::to_string(id);
+        for (int k = 0; k < 4; ++k) {
+          line += ' ';
+          AppendDouble(&line, q[k]);
+        }
+        out << line << '\n';
+      }
     }
     // Trailer: the number of lines before it and their checksum.
     const std::string body = out.str();

@@ -9,6 +9,7 @@
 #ifndef ROTATION_AVERAGING_CORE_IO_GRAPH_IO_H_
 #define ROTATION_AVERAGING_CORE_IO_GRAPH_IO_H_
 
+#include <map>
 #include <string>
 #include <utility>
 #include <vector>
@@ -52,17 +53,25 @@ ReadReport ReadIRotAvg(const std::string& path, ViewGraph* graph);
 // The package's own view-graph text format (written by `rotavg images`, read
 // by `rotavg solve`); conventions of core/geometry/so3.h, one record per line:
 //
-//   # rotation_averaging view graph v1
+//   # rotation_averaging view graph v2
 //   VIEW <id> <name>
 //   EDGE <id1> <id2> <source> <qw> <qx> <qy> <qz> <num_inliers> <covariance>
+//   ORIENTATION <id> <qw> <qx> <qy> <qz>
 //
 // <source> is rig | sequential | loop_closure | other; the quaternion is
 // R_12 = R_1 R_2^T; <covariance> is the upper triangle c00 c01 c02 c11 c12 c22
 // of the right-perturbation covariance in rad^2, or a single '-' when there is
 // none. Names contain no whitespace. VIEW lines come before the EDGE lines
 // that use them. Edges are kept as listed (repeated pairs are kept).
-ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph);
-bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::string* error);
+// ORIENTATION (v2, optional) is a view's world-to-camera orientation when the
+// file was saved: the node starts from them after a restart, so that the
+// keyframes it published keep their frames (the gauge). A file without them
+// is written as v1. The last line is "END <lines> <checksum>" (FNV-1a of the
+// lines before it): a file without it, or whose checksum differs, is refused.
+ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph,
+                           std::map<ViewId, Eigen::Matrix3d>* orientations = nullptr);
+bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::string* error,
+                      const std::map<ViewId, Eigen::Matrix3d>* orientations = nullptr);
 
 enum class GraphFormat { kAuto, kOneDsfm, kG2o, kToro, kIRotAvg, kRotavg };
 const char* GraphFormatName(GraphFormat format);
