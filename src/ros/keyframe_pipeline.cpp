@@ -563,6 +563,9 @@ std::string KeyframeDatabasePath(const std::string& graph_path) { return graph_p
 std::string RigPath(const std::string& graph_path) { return graph_path + ".rig"; }
 
 bool KeyframePipeline::SaveMap(const std::string& graph_path, std::string* error, std::string* note) {
+  std::lock_guard<std::mutex> save_lock(save_mutex_);
+  // The graph first, the database last: a save cut short between them leaves
+  // a database older than the graph, whose keyframes are all in it.
   if (!averager_->SaveGraph(graph_path, error)) return false;
   if (!rig_.Save(RigPath(graph_path), error)) return false;
   std::string saved = "view graph saved to " + graph_path;

@@ -235,6 +235,9 @@ class KeyframePipeline {
   // Held while the front end adds a keyframe, and while its database is
   // saved or loaded (the node saves from a timer thread).
   std::mutex frontend_mutex_;
+  // One save at a time: the autosave timer and ~save_graph may both save to
+  // the same path, and its files are written through the same temporaries.
+  std::mutex save_mutex_;
   RigModel rig_;
   std::mutex selector_mutex_;
   KeyframeSelector selector_;

@@ -10,6 +10,7 @@
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "core/io/text_lines.h"
+#include "common/kill_during_writes.h"
 
 namespace rotation_averaging {
 namespace {
@@ -230,6 +231,51 @@ TEST(GraphIo, TruncatedOrCorruptedSavesAreDetected) {
   ViewGraph e;
   EXPECT_TRUE(ReadViewGraph(dir.Write("hand.txt", "VIEW 1 a\nVIEW 2 b\nEDGE 1 2 other 1 0 0 0 5 -\n"),
                             GraphFormat::kRotavg, &e).ok());
+}
+
+// A process killed while it saves (a SIGKILLed node during autosave) leaves
+// the graph saved before, or the new one, whole: never a partial file.
+TEST(GraphIo, ASaveKilledMidWriteLeavesTheFormerFileWhole) {
+  TempDir dir;
+  ViewGraph a, b;
+  std::map<ViewId, Eigen::Matrix3d> orientations;
+  for (ViewId v = 0; v < 3000; ++v) {
+    a.AddView(v, "cam@" + std::to_string(1'000'000'000LL + 50'000'000LL * v));
+    orientations[v] = ExpSO3(Eigen::Vector3d(0.001 * v, 0.2, -0.1));
+  }
+  b = a;
+  for (ViewId v = 1; v < 3000; ++v) {
+    RelativeRotation e;
+    e.view1 = v - 1;
+    e.view2 = v;
+    e.rotation = ExpSO3(Eigen::Vector3d(0.01, 0.002 * (v % 7), 0.0));
+    e.has_covariance = true;
+    e.covariance = 1e-6 * Eigen::Matrix3d::Identity();
+    a.AddEdge(e);
+    if (v % 2 == 0) b.AddEdge(e);
+  }
+  const std::string path = dir.Path() + "/autosave.txt";
+  bool next_is_a = true;
+  std::string error;
+  int interrupted = 0;
+  const int killed = KillDuringWrites(
+      [&] {
+        const bool ok = WriteRotavgGraph(path, next_is_a ? a : b, &error, &orientations);
+        next_is_a = !next_is_a;
+        return ok;
+      },
+      [&](int round) {
+        interrupted += fs::exists(path + ".tmp");
+        ViewGraph back;
+        const ReadReport report = ReadRotavgGraph(path, &back);
+        ASSERT_TRUE(report.ok()) << "round " << round << ": " << report.error;
+        EXPECT_TRUE(back.NumEdges() == a.NumEdges() || back.NumEdges() == b.NumEdges()) << back.NumEdges();
+        fs::remove(path + ".tmp");
+      },
+      24);
+  EXPECT_EQ(killed, 24);
+  // Some kills came while a temporary was being written.
+  EXPECT_GT(interrupted, 0);
 }
 
 TEST(OrientationIo, CsvRoundTripIsExact) {

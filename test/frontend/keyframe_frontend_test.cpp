@@ -1,6 +1,7 @@
 #include "frontend/controllers/keyframe_frontend.h"
 
 #include <gtest/gtest.h>
+#include "common/kill_during_writes.h"
 #include "common/test_data.h"
 #include "common/test_vocabulary.h"
 
@@ -353,6 +354,23 @@ TEST(KeyframeFrontend, ASavedDatabaseLetsTheNextSessionCloseLoopsWithTheFirst) {
   KeyframeFrontend without(voting);
   EXPECT_FALSE(without.SaveDatabase(dir + "/voting.keyframes", &error));
   EXPECT_NE(error.find("vocabulary"), std::string::npos) << error;
+
+  // A save killed mid-write (the node SIGKILLed during autosave) leaves the
+  // database saved before it whole and readable.
+  const std::string autosave = dir + "/autosave.keyframes";
+  int interrupted = 0;
+  const int killed = KillDuringWrites([&] { return second.SaveDatabase(autosave, nullptr); },
+                                      [&](int round) {
+                                        interrupted += fs::exists(autosave + ".tmp");
+                                        KeyframeFrontend restarted(options);
+                                        std::string why;
+                                        ASSERT_TRUE(restarted.LoadDatabase(autosave, &why)) << round << ": " << why;
+                                        EXPECT_EQ(restarted.NumKeyframes(), static_cast<std::size_t>(2 * kPerLap));
+                                        fs::remove(autosave + ".tmp");
+                                      },
+                                      12);
+  EXPECT_EQ(killed, 12);
+  EXPECT_GT(interrupted, 0);
 }
 
 // The edges of the rendered rig's loop with `threads` threads; with

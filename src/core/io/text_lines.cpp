@@ -1,5 +1,8 @@
 #include "core/io/text_lines.h"
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <charconv>
 #include <cstdio>
 #include <cstring>
@@ -141,6 +144,18 @@ std::string LineReader::Where(const std::string& message) const {
   return path_ + ":" + std::to_string(line_number_) + ": " + message;
 }
 
+namespace {
+
+bool SyncToDisk(const std::string& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return false;
+  const bool ok = ::fsync(fd) == 0;
+  ::close(fd);
+  return ok;
+}
+
+}  // namespace
+
 bool WriteFileAtomically(const std::string& path, const std::function<std::string(std::ostream&)>& write,
                          std::string* error) {
   const std::string temporary = path + ".tmp";
@@ -158,6 +173,14 @@ bool WriteFileAtomically(const std::string& path, const std::function<std::strin
       return false;
     }
   }
+  // The contents reach the disk before the rename does, and the rename before
+  // this returns: after a power cut (not only a killed process) the file is
+  // the old one or the new one, never a renamed empty one.
+  if (!SyncToDisk(temporary)) {
+    std::remove(temporary.c_str());
+    if (error) *error = "cannot flush " + temporary + " to disk";
+    return false;
+  }
   std::error_code ec;
   std::filesystem::rename(temporary, path, ec);
   if (ec) {
@@ -165,6 +188,8 @@ bool WriteFileAtomically(const std::string& path, const std::function<std::strin
     if (error) *error = "cannot rename " + temporary + " to " + path + ": " + ec.message();
     return false;
   }
+  const std::filesystem::path parent = std::filesystem::path(path).parent_path();
+  SyncToDisk(parent.empty() ? std::string(".") : parent.string());  // best effort: some file systems refuse it
   return true;
 }
 

@@ -65,7 +65,10 @@ bool IsBlankOrComment(std::string_view line);
 
 // Writes `path` atomically: `write` fills a temporary file beside it, which is
 // renamed over `path` only when everything was written, so a reader never
-// sees half a file. `write` returns an empty string or why it gave up.
+// sees half a file, and flushed to disk (fsync) before the rename, so a
+// power cut leaves the old file or the new one. Saves to one path must not
+// run concurrently (they share the temporary). `write` returns an empty
+// string or why it gave up.
 bool WriteFileAtomically(const std::string& path, const std::function<std::string(std::ostream&)>& write,
                          std::string* error);
 
