@@ -8,7 +8,6 @@
 #include <sstream>
 
 #include "rotation_averaging/core/geometry/so3.h"
-#include "core/io/binary_io.h"
 #include "core/io/text_lines.h"
 
 namespace rotation_averaging {
@@ -197,12 +196,8 @@ bool RigModel::Save(const std::string& path, std::string* error) const {
     }
   }
   const std::string text = body.str();
-  Fnv1a sum;
-  std::size_t lines = 0;
-  std::istringstream in(text);
-  for (std::string line; std::getline(in, line); ++lines) sum.AddLine(line);
   return WriteFileAtomically(path, [&](std::ostream& out) -> std::string {
-    out << text << "END " << lines << ' ' << sum.Hex() << '\n';
+    out << text << EndRecord(text);
     return "";
   }, error);
 }
@@ -220,27 +215,16 @@ bool RigModel::Load(const std::string& path, std::string* error) {
   std::map<KeyframeKey, KeyframeKey> variable_of;
   std::string_view line;
   std::vector<std::string_view> tokens;
-  Fnv1a sum;
-  std::size_t lines = 0;
-  bool ended = false;
+  EndRecordCheck end;
   const KeyframeKey* capture = nullptr;
   while (reader.Next(&line)) {
-    if (ended) {
-      if (!IsBlankOrComment(line)) return fail(reader.Where("records after the END record"));
-      continue;
+    if (end.ContentLines() == 0 && !end.Ended() && line != kRigHeader) {
+      return fail(reader.Where("not a rig file of this version"));
     }
-    if (lines == 0 && line != kRigHeader) return fail(reader.Where("not a rig file of this version"));
-    if (line.rfind("END ", 0) == 0) {
-      SplitTokens(line, &tokens);
-      std::uint64_t count = 0;
-      if (tokens.size() != 3 || !ParseUint64(tokens[1], &count)) return fail(reader.Where("expected 'END lines checksum'"));
-      if (count != lines || tokens[2] != sum.Hex()) return fail(reader.Where("checksum mismatch: the file is corrupted"));
-      ended = true;
-      continue;
-    }
-    sum.AddLine(line);
-    ++lines;
-    if (IsBlankOrComment(line)) continue;
+    std::string why;
+    const EndRecordCheck::Line kind = end.Take(line, &why);
+    if (kind == EndRecordCheck::Line::kError) return fail(reader.Where(why));
+    if (kind != EndRecordCheck::Line::kContent || IsBlankOrComment(line)) continue;
     SplitTokens(line, &tokens);
     std::uint64_t stamp = 0;
     if (tokens[0] == "CAMERA") {
@@ -278,7 +262,7 @@ bool RigModel::Load(const std::string& path, std::string* error) {
       return fail(reader.Where("unknown record '" + std::string(tokens[0]) + "' (CAMERA, CAPTURE or MEMBER)"));
     }
   }
-  if (!ended) return fail(path + ": no END record: the file is truncated (a save that was interrupted?)");
+  if (!end.Ended()) return fail(path + ": no END record: the file is truncated (a save that was interrupted?)");
   std::lock_guard<std::mutex> lock(mutex_);
   for (const auto& [frame, c] : cameras) cameras_[frame] = c;
   capture_stamps_ = std::move(capture_stamps);

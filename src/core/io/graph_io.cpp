@@ -11,7 +11,6 @@
 #include <unordered_set>
 
 #include "rotation_averaging/core/geometry/so3.h"
-#include "core/io/binary_io.h"
 #include "core/io/text_lines.h"
 
 namespace rotation_averaging {
@@ -280,15 +279,10 @@ ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph, std::map<V
   if (!reader.IsOpen()) return {"cannot open " + path};
   std::string_view line;
   std::vector<std::string_view> tokens;
-  Fnv1a sum;
-  std::size_t lines_before_end = 0;
-  bool ours = false, ended = false;
+  EndRecordCheck end;
+  bool ours = false;
   while (reader.Next(&line)) {
-    if (ended) {
-      if (!IsBlankOrComment(line)) return {reader.Where("records after the END record")};
-      continue;
-    }
-    if (lines_before_end == 0 && line.rfind(kGraphHeader, 0) == 0) {
+    if (end.ContentLines() == 0 && line.rfind(kGraphHeader, 0) == 0) {
       ours = true;
       int version = 0;
       if (!ParseInt(line.substr(std::string_view(kGraphHeader).size()), &version) || version < 1) {
@@ -299,20 +293,10 @@ ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph, std::map<V
                              "); this one reads v1 to v" + std::to_string(kGraphVersion))};
       }
     }
-    if (line.rfind("END ", 0) == 0) {
-      SplitTokens(line, &tokens);
-      std::uint64_t count = 0;
-      if (tokens.size() != 3 || !ParseUint64(tokens[1], &count)) return {reader.Where("expected 'END lines checksum'")};
-      if (count != lines_before_end || tokens[2] != sum.Hex()) {
-        return {reader.Where("checksum mismatch: the file is corrupted (" + std::to_string(lines_before_end) +
-                             " lines read, " + std::string(tokens[1]) + " written)")};
-      }
-      ended = true;
-      continue;
-    }
-    sum.AddLine(line);
-    ++lines_before_end;
-    if (IsBlankOrComment(line)) continue;
+    std::string why;
+    const EndRecordCheck::Line kind = end.Take(line, &why);
+    if (kind == EndRecordCheck::Line::kError) return {reader.Where(why)};
+    if (kind != EndRecordCheck::Line::kContent || IsBlankOrComment(line)) continue;
     SplitTokens(line, &tokens);
     if (tokens[0] == "VIEW") {
       ViewId id;
@@ -369,7 +353,7 @@ ReadReport ReadRotavgGraph(const std::string& path, ViewGraph* graph, std::map<V
     }
   }
   // A file we wrote always ends with END: without it, it was cut short.
-  if (ours && !ended) return {path + ": no END record: the file is truncated (a save that was interrupted?)"};
+  if (ours && !end.Ended()) return {path + ": no END record: the file is truncated (a save that was interrupted?)"};
   report.lines = reader.LineNumber();
   if (orientations) *orientations = std::move(read_orientations);
   return report;
@@ -425,13 +409,8 @@ bool WriteRotavgGraph(const std::string& path, const ViewGraph& graph, std::stri
         out << line << '\n';
       }
     }
-    // Trailer: the number of lines before it and their checksum.
     const std::string body = out.str();
-    Fnv1a sum;
-    std::size_t lines = 0;
-    std::istringstream in(body);
-    for (std::string line; std::getline(in, line); ++lines) sum.AddLine(line);
-    file << body << "END " << lines << ' ' << sum.Hex() << '\n';
+    file << body << EndRecord(body);
     return "";
   }, error);
 }

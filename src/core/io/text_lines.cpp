@@ -3,11 +3,14 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <charconv>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+
+#include "core/io/binary_io.h"
 
 namespace rotation_averaging {
 
@@ -142,6 +145,44 @@ bool LineReader::Next(std::string* line) {
 
 std::string LineReader::Where(const std::string& message) const {
   return path_ + ":" + std::to_string(line_number_) + ": " + message;
+}
+
+std::string EndRecord(const std::string& body) {
+  Fnv1a sum;
+  sum.Add(body.data(), body.size());
+  const std::size_t lines = static_cast<std::size_t>(std::count(body.begin(), body.end(), '\n'));
+  return "END " + std::to_string(lines) + ' ' + sum.Hex() + '\n';
+}
+
+EndRecordCheck::Line EndRecordCheck::Take(std::string_view line, std::string* why) {
+  if (ended_) {
+    if (IsBlankOrComment(line)) return Line::kAfterEnd;
+    *why = "records after the END record";
+    return Line::kError;
+  }
+  if (line.rfind("END ", 0) == 0) {
+    SplitTokens(line, &tokens_);
+    std::uint64_t count = 0;
+    if (tokens_.size() != 3 || !ParseUint64(tokens_[1], &count)) {
+      *why = "expected 'END lines checksum'";
+      return Line::kError;
+    }
+    Fnv1a sum;
+    sum.h = sum_;
+    if (count != lines_ || tokens_[2] != sum.Hex()) {
+      *why = "checksum mismatch: the file is corrupted (" + std::to_string(lines_) + " lines read, " +
+             std::string(tokens_[1]) + " written)";
+      return Line::kError;
+    }
+    ended_ = true;
+    return Line::kEnd;
+  }
+  Fnv1a sum;
+  sum.h = sum_;
+  sum.AddLine(line);
+  sum_ = sum.h;
+  ++lines_;
+  return Line::kContent;
 }
 
 namespace {

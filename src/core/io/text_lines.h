@@ -63,6 +63,28 @@ class LineReader {
 // True for empty lines and lines starting with '#'.
 bool IsBlankOrComment(std::string_view line);
 
+// The last record of the package's own text files (the view graph, the rig
+// file): "END <lines> <checksum>", the number of lines before it and their
+// FNV-1a checksum (Fnv1a::AddLine), so that a file cut short or changed is
+// refused instead of read in part. EndRecord(body) is that record for
+// `body` (whole lines, each ending in a newline), newline included.
+std::string EndRecord(const std::string& body);
+// Follows a file line by line through its END record: Take says what each
+// line is, and why it is wrong (kError; the caller adds the file and line).
+class EndRecordCheck {
+ public:
+  enum class Line { kContent, kEnd, kAfterEnd, kError };
+  Line Take(std::string_view line, std::string* why);
+  bool Ended() const { return ended_; }
+  std::size_t ContentLines() const { return lines_; }
+
+ private:
+  std::uint64_t sum_ = 0xcbf29ce484222325ULL;  // Fnv1a's start
+  std::size_t lines_ = 0;
+  bool ended_ = false;
+  std::vector<std::string_view> tokens_;
+};
+
 // Writes `path` atomically: `write` fills a temporary file beside it, which is
 // renamed over `path` only when everything was written, so a reader never
 // sees half a file, and flushed to disk (fsync) before the rename, so a
