@@ -18,6 +18,7 @@ PACKAGES=(
   pybind11-dev python3-dev python3-numpy python3-pytest  # Python bindings and their tests
   libopenblas0-pthread  # BLAS for CHOLMOD's supernodal solves, thread-safe (see src/backends/CMakeLists.txt)
   libfaiss-dev  # k-means and nearest-word search of the loop-closure vocabulary
+  libxxhash-dev  # the keyframe database's checksum
   opencv-doc    # OpenCV's example photographs: what the default vocabulary is trained on
 )
 missing=()

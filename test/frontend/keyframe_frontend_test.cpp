@@ -5,6 +5,7 @@
 #include "common/test_data.h"
 #include "common/test_vocabulary.h"
 
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -21,6 +22,7 @@
 #include "rotation_averaging/frontend/features/vocabulary.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
+#include "core/io/binary_io.h"
 #include "frontend/scene/rig_scene.h"
 
 namespace rotation_averaging {
@@ -342,8 +344,20 @@ TEST(KeyframeFrontend, ASavedDatabaseLetsTheNextSessionCloseLoopsWithTheFirst) {
   flipped[good.size() - 100] ^= 0x10;
   refused(flipped, "checksum mismatch");
   std::string newer = good;
-  newer[16] = 2;  // the version, after the 16-byte magic
+  newer[16] = 3;  // the version, after the 16-byte magic
   refused(newer, "newer version");
+  // A version 1 file (FNV-1a checksum, stored after the size, at byte 36)
+  // still loads.
+  std::string version1 = good;
+  version1[16] = 1;
+  Fnv1a fnv;
+  fnv.Add(good.data() + 44, good.size() - 44);
+  std::memcpy(&version1[36], &fnv.h, sizeof(fnv.h));
+  const std::string old_format = dir + "/version1.keyframes";
+  std::ofstream(old_format, std::ios::binary) << version1;
+  KeyframeFrontend reader(options);
+  ASSERT_TRUE(reader.LoadDatabase(old_format, &error)) << error;
+  EXPECT_EQ(reader.NumKeyframes(), static_cast<std::size_t>(kPerLap));
   std::string foreign = good;
   foreign[20] ^= 0x01;  // the vocabulary's fingerprint, after the version
   refused(foreign, "another vocabulary");

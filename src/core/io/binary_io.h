@@ -1,7 +1,8 @@
 // Internal to the package: may change between versions.
 // Little helpers for the package's binary files (the keyframe database):
 // a byte buffer written field by field, a bounds-checked reader over one, and
-// the 64-bit FNV-1a checksum the text graph file uses too. Values are stored
+// the 64-bit FNV-1a checksum of the text files (and of version 1 keyframe
+// databases). Values are stored
 // in the machine's byte order (little-endian on every supported platform).
 #ifndef ROTATION_AVERAGING_SRC_CORE_IO_BINARY_IO_H_
 #define ROTATION_AVERAGING_SRC_CORE_IO_BINARY_IO_H_
@@ -58,6 +59,7 @@ class BinaryWriter {
     bytes_.insert(bytes_.end(), p, p + size);
   }
   const std::vector<char>& Bytes() const { return bytes_; }
+  void Clear() { bytes_.clear(); }  // keeps the capacity, for the next block
 
  private:
   std::vector<char> bytes_;

@@ -4,13 +4,9 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
-#include <fstream>
-#include <iterator>
 #include <set>
 
 #include "rotation_averaging/core/geometry/so3.h"
-#include "core/io/binary_io.h"
-#include "core/io/text_lines.h"
 #include "core/util/option_check.h"
 #include "core/util/parallel_for.h"
 
@@ -495,182 +491,74 @@ std::vector<int> KeyframeFrontend::RetrieveByVoting(const Keyframe& kf, const st
   return out;
 }
 
-namespace {
-
-constexpr char kDatabaseMagic[16] = {'R', 'O', 'T', 'A', 'V', 'G', '-', 'K', 'E', 'Y', 'F', 'R', 'A', 'M', 'E', 'S'};
-constexpr std::uint32_t kDatabaseVersion = 1;
-
-void PutMatrix(BinaryWriter* w, const Eigen::Matrix3d& m) { w->PutArray(m.data(), 9); }
-bool GetMatrix(BinaryReader* r, Eigen::Matrix3d* m) { return r->GetArray(m->data(), 9) && m->allFinite(); }
-
-}  // namespace
-
-bool KeyframeFrontend::SaveDatabase(const std::string& path, std::string* error) const {
+bool KeyframeFrontend::SnapshotDatabase(KeyframeDatabase* database, std::string* error) const {
   if (!options_.vocabulary) {
     if (error) *error = "the keyframe database needs a vocabulary (retrieval by voting keeps every feature)";
     return false;
   }
-  BinaryWriter w;
-  w.Put(static_cast<std::int32_t>(options_.features.type));
-  w.Put(static_cast<std::int32_t>(options_.vocabulary->NumWords()));
-  w.Put(static_cast<std::uint32_t>(keyframes_.size()));
+  database->feature_type = options_.features.type;
+  database->num_words = options_.vocabulary->NumWords();
+  database->vocabulary_fingerprint = options_.vocabulary->Fingerprint();
+  database->keyframes.clear();
+  database->keyframes.reserve(keyframes_.size());
   // Chains are numbered in the file as they come: a loaded chain and this
   // session's chain of the same camera stay apart.
   std::map<std::pair<int, std::string>, std::uint32_t> chain_ids;
   for (const std::unique_ptr<Keyframe>& kf : keyframes_) {
+    StoredKeyframe& stored = database->keyframes.emplace_back();
     const std::string chain_camera = kf->loaded_chain >= 0 ? std::string() : kf->key.frame_id;
-    const std::uint32_t chain =
-        chain_ids.emplace(std::make_pair(kf->loaded_chain, chain_camera), chain_ids.size()).first->second;
-    w.PutString(kf->key.frame_id);
-    w.Put(static_cast<std::int64_t>(kf->key.stamp_ns));
-    w.Put(chain);
-    w.Put(static_cast<std::uint8_t>(kf->has_sequential));
-    PutMatrix(&w, kf->k);
-    PutMatrix(&w, kf->has_sequential ? kf->sequential_rotation : Eigen::Matrix3d::Identity().eval());
-    PutMatrix(&w, kf->has_sequential ? kf->sequential_covariance : Eigen::Matrix3d::Zero().eval());
-    const ImageFeatures compact =
-        kf->compact ? kf->features : CompactFeatures(kf->features, options_.compact_features, kf->inlier_hits);
-    w.Put(static_cast<std::int32_t>(compact.type));
-    w.Put(static_cast<std::int32_t>(compact.width));
-    w.Put(static_cast<std::int32_t>(compact.height));
-    const std::size_t n = compact.keypoints_px.size();
-    w.Put(static_cast<std::uint32_t>(n));
-    for (const Eigen::Vector2d& p : compact.keypoints_px) w.PutArray(p.data(), 2);
-    w.Put(static_cast<std::uint32_t>(compact.strength.size()));
-    w.PutArray(compact.strength.data(), compact.strength.size());
-    const cv::Mat d = compact.descriptors.isContinuous() ? compact.descriptors : compact.descriptors.clone();
-    w.Put(static_cast<std::int32_t>(d.rows));
-    w.Put(static_cast<std::int32_t>(d.cols));
-    w.Put(static_cast<std::int32_t>(d.type()));
-    w.PutBytes(d.data, d.total() * d.elemSize());
-    w.Put(static_cast<std::uint32_t>(compact.words.size()));
-    w.PutArray(compact.words.data(), compact.words.size());
-    w.Put(static_cast<std::uint32_t>(kf->bow.size()));
-    for (const auto& [word, weight] : kf->bow) {
-      w.Put(static_cast<std::int32_t>(word));
-      w.Put(weight);
+    stored.chain = chain_ids.emplace(std::make_pair(kf->loaded_chain, chain_camera), chain_ids.size()).first->second;
+    stored.key = kf->key;
+    stored.has_sequential = kf->has_sequential;
+    stored.k = kf->k;
+    if (kf->has_sequential) {
+      stored.sequential_rotation = kf->sequential_rotation;
+      stored.sequential_covariance = kf->sequential_covariance;
     }
+    // A compact keyframe's features are never changed in place (Compact
+    // replaces them): sharing its descriptors with the snapshot is safe.
+    stored.features =
+        kf->compact ? kf->features : CompactFeatures(kf->features, options_.compact_features, kf->inlier_hits);
+    stored.bow = kf->bow;
   }
-  Fnv1a sum;
-  sum.Add(w.Bytes().data(), w.Bytes().size());
-  return WriteFileAtomically(path, [&](std::ostream& out) -> std::string {
-    BinaryWriter header;
-    header.PutBytes(kDatabaseMagic, sizeof(kDatabaseMagic));
-    header.Put(kDatabaseVersion);
-    header.Put(options_.vocabulary->Fingerprint());
-    header.Put(static_cast<std::uint64_t>(w.Bytes().size()));
-    header.Put(sum.h);
-    out.write(header.Bytes().data(), static_cast<std::streamsize>(header.Bytes().size()));
-    out.write(w.Bytes().data(), static_cast<std::streamsize>(w.Bytes().size()));
-    return out ? "" : "write to " + path + " failed";
-  }, error);
+  return true;
+}
+
+bool KeyframeFrontend::SaveDatabase(const std::string& path, std::string* error) const {
+  KeyframeDatabase database;
+  return SnapshotDatabase(&database, error) && WriteKeyframeDatabase(path, database, error);
 }
 
 bool KeyframeFrontend::LoadDatabase(const std::string& path, std::string* error) {
-  auto fail = [&](const std::string& why) {
-    if (error) *error = path + ": " + why;
+  if (!options_.vocabulary) {
+    if (error) *error = path + ": a keyframe database needs a vocabulary to load into (vocabulary: none)";
     return false;
-  };
-  if (!options_.vocabulary) return fail("a keyframe database needs a vocabulary to load into (vocabulary: none)");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return fail("cannot open the keyframe database");
-  const std::vector<char> file((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  BinaryReader header(file.data(), file.size());
-  char magic[sizeof(kDatabaseMagic)];
-  if (!header.GetBytes(magic, sizeof(magic)) || std::memcmp(magic, kDatabaseMagic, sizeof(magic)) != 0) {
-    return fail("not a keyframe database");
   }
-  std::uint32_t version = 0;
-  std::uint64_t fingerprint = 0, size = 0, checksum = 0;
-  if (!header.Get(&version) || !header.Get(&fingerprint) || !header.Get(&size) || !header.Get(&checksum)) {
-    return fail("truncated header");
-  }
-  if (version != kDatabaseVersion) {
-    return fail("format version " + std::to_string(version) + ", this build reads version " +
-                std::to_string(kDatabaseVersion) + (version > kDatabaseVersion ? " (written by a newer version)" : ""));
-  }
-  if (fingerprint != options_.vocabulary->Fingerprint()) {
-    return fail("written with another vocabulary (its words mean nothing to this one's index)");
-  }
-  if (size != header.Remaining()) {
-    return fail("truncated or extended: " + std::to_string(header.Remaining()) + " bytes of contents, " +
-                std::to_string(size) + " written (a save that was interrupted?)");
-  }
-  const char* payload = file.data() + (file.size() - size);
-  Fnv1a sum;
-  sum.Add(payload, size);
-  if (sum.h != checksum) return fail("checksum mismatch: the file is corrupted");
-
-  BinaryReader r(payload, size);
-  std::int32_t feature_type = 0, words = 0;
-  std::size_t count = 0;
-  if (!r.Get(&feature_type) || !r.Get(&words) || !r.GetCount(64, &count)) return fail("truncated contents");
-  if (feature_type != static_cast<std::int32_t>(options_.features.type) ||
-      words != options_.vocabulary->NumWords()) {
-    return fail("keyframes of another feature type or vocabulary size");
+  KeyframeDatabase database;
+  if (!ReadKeyframeDatabase(path, options_.vocabulary->Fingerprint(), &database, error)) return false;
+  if (database.feature_type != options_.features.type || database.num_words != options_.vocabulary->NumWords()) {
+    if (error) *error = path + ": keyframes of another feature type or vocabulary size";
+    return false;
   }
   const int num_words = options_.vocabulary->NumWords();
   std::vector<std::unique_ptr<Keyframe>> loaded;
   std::vector<std::uint32_t> chain_of;
   std::set<KeyframeKey> keys;
-  for (std::size_t i = 0; i < count; ++i) {
+  loaded.reserve(database.keyframes.size());
+  for (StoredKeyframe& stored : database.keyframes) {
     auto kf = std::make_unique<Keyframe>();
-    const std::string which = "keyframe " + std::to_string(i) + ": ";
-    std::int64_t stamp = 0;
-    std::uint32_t chain = 0;
-    std::uint8_t has_sequential = 0;
-    if (!r.GetString(&kf->key.frame_id) || !r.Get(&stamp) || !r.Get(&chain) || !r.Get(&has_sequential) ||
-        !GetMatrix(&r, &kf->k) || !GetMatrix(&r, &kf->sequential_rotation) ||
-        !GetMatrix(&r, &kf->sequential_covariance)) {
-      return fail(which + "truncated or not finite");
-    }
-    kf->key.stamp_ns = stamp;
-    kf->has_sequential = has_sequential != 0;
-    if (kf->key.frame_id.empty() || !keys.insert(kf->key).second) return fail(which + "empty or repeated key");
-    if (chain > count) return fail(which + "bad chain");
-    if (!IsCameraIntrinsics(kf->k)) return fail(which + "not camera intrinsics");
-    ImageFeatures& f = kf->features;
-    std::int32_t type = 0, width = 0, height = 0, rows = 0, cols = 0, cv_type = 0;
-    std::size_t n = 0, strengths = 0, word_count = 0, bow_size = 0;
-    if (!r.Get(&type) || !r.Get(&width) || !r.Get(&height) || !r.GetCount(16, &n)) return fail(which + "truncated");
-    f.type = static_cast<FeatureType>(type);
-    f.width = width;
-    f.height = height;
-    f.keypoints_px.resize(n);
-    for (Eigen::Vector2d& p : f.keypoints_px) {
-      if (!r.GetArray(p.data(), 2) || !p.allFinite()) return fail(which + "keypoints truncated or not finite");
-    }
-    if (!r.GetCount(sizeof(float), &strengths) || (strengths != 0 && strengths != n)) return fail(which + "strengths");
-    f.strength.resize(strengths);
-    if (!r.GetArray(f.strength.data(), strengths)) return fail(which + "strengths truncated");
-    if (!r.Get(&rows) || !r.Get(&cols) || !r.Get(&cv_type) || rows != static_cast<std::int32_t>(n) || cols < 1 ||
-        cols > 128 || (cv_type != CV_8U && cv_type != CV_32F)) {
-      return fail(which + "descriptors do not fit the keypoints");
-    }
-    f.descriptors.create(rows, cols, cv_type);
-    if (!r.GetBytes(f.descriptors.data, f.descriptors.total() * f.descriptors.elemSize())) {
-      return fail(which + "descriptors truncated");
-    }
-    if (!r.GetCount(sizeof(int), &word_count) || (word_count != 0 && word_count != n)) return fail(which + "words");
-    f.words.resize(word_count);
-    if (!r.GetArray(f.words.data(), word_count)) return fail(which + "words truncated");
-    for (int word : f.words) {
-      if (word < 0 || word >= num_words) return fail(which + "a word the vocabulary does not have");
-    }
-    if (!r.GetCount(8, &bow_size)) return fail(which + "bag of words truncated");
-    kf->bow.resize(bow_size);
-    for (auto& [word, weight] : kf->bow) {
-      std::int32_t w = 0;
-      if (!r.Get(&w) || !r.Get(&weight) || w < 0 || w >= num_words || !std::isfinite(weight)) {
-        return fail(which + "bag of words truncated or out of range");
-      }
-      word = w;
-    }
+    kf->key = stored.key;
+    kf->has_sequential = stored.has_sequential;
+    kf->k = stored.k;
+    kf->sequential_rotation = stored.sequential_rotation;
+    kf->sequential_covariance = stored.sequential_covariance;
+    kf->features = std::move(stored.features);
+    kf->bow = std::move(stored.bow);
     kf->compact = true;
+    keys.insert(kf->key);
+    chain_of.push_back(stored.chain);
     loaded.push_back(std::move(kf));
-    chain_of.push_back(chain);
   }
-  if (r.Remaining() != 0) return fail("bytes after the last keyframe");
 
   // Everything read: replace what is held.
   keyframes_.clear();

@@ -35,6 +35,7 @@
 #include "rotation_averaging/frontend/features/features.h"
 #include "rotation_averaging/frontend/features/vocabulary.h"
 #include "rotation_averaging/frontend/geometry/camera_model.h"
+#include "frontend/io/keyframe_database.h"
 
 namespace rotation_averaging {
 
@@ -163,6 +164,10 @@ class KeyframeFrontend {
   // Keyframes are saved as their compact form whether or not they have left
   // the recent window yet.
   bool SaveDatabase(const std::string& path, std::string* error) const;
+  // What SaveDatabase writes, copied out (descriptors of compact keyframes
+  // are shared, not copied), so that a caller can write it
+  // (WriteKeyframeDatabase) without holding the front end.
+  bool SnapshotDatabase(KeyframeDatabase* database, std::string* error) const;
   // Replaces every keyframe with those of a database (file of SaveDatabase).
   // They take part in retrieval and loop-closure verification like any old
   // keyframe, but start no chain: the next keyframe of each camera is the
