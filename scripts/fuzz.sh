@@ -4,7 +4,8 @@
 # from its seed corpus:
 #   fuzz_readers   every file reader (1DSfM, g2o, TORO, iRotAvg, the package's
 #                  graph file, orientations CSV, COLMAP and chained ground
-#                  truth, format detection); seeds in test/fuzz/corpus
+#                  truth, format detection, the rig file, the keyframe
+#                  database); seeds in test/fuzz/corpus
 #   fuzz_messages  the message-to-graph path: serialised RelativePose(Array),
 #                  CameraInfo, Image, CompressedImage and /tf_static messages
 #                  through the KeyframePipeline, the averager and the output
