@@ -180,7 +180,8 @@ struct CameraStream {
   std::deque<rosbag::MessageInstance> waiting;
 };
 
-// The node's parameters from the replay's YAML file (none: the defaults).
+}  // namespace
+
 bool ReadReplayConfig(const std::string& path, PipelineConfig* config, std::vector<std::string>* warnings,
                       std::string* error) {
   YAML::Node root;
@@ -205,6 +206,8 @@ bool ReadReplayConfig(const std::string& path, PipelineConfig* config, std::vect
   for (const std::string& p : params.Problems()) warnings->push_back(p);
   return true;
 }
+
+namespace {
 
 // Opens every bag; an unindexed one (truncated while recording) cannot be
 // read in time order without `rosbag reindex`, which the error names.
@@ -779,7 +782,9 @@ std::string ReplayResult::Summary() const {
     }
   }
   if (!map_saved.empty()) {
-    out << "map saved in " << std::setprecision(1) << 1e3 * map_save_s << " ms: " << map_saved << "\n";
+    out << "map saved in " << std::setprecision(1) << 1e3 * map_save_s << " ms (the graph held "
+        << 1e3 * map_save_graph_lock_s << " ms, the front end " << 1e3 * map_save_frontend_lock_s
+        << " ms): " << map_saved << "\n";
   }
   out << "outputs:\n  " << orientations_csv << "\n  " << graph_file << "\n  " << output_bag;
   if (!scores_file.empty()) out << "\n  " << scores_file;
@@ -867,6 +872,9 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
     const auto save_start = std::chrono::steady_clock::now();
     if (!pipeline.SaveMap(config.save_on_shutdown, &error, &result.map_saved)) return fail("save_on_shutdown: " + error);
     result.map_save_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - save_start).count();
+    const MapSaveTiming timing = pipeline.LastSaveTiming();
+    result.map_save_graph_lock_s = timing.graph_lock_s;
+    result.map_save_frontend_lock_s = timing.frontend_lock_s;
   }
   CollectStatistics(pipeline, averager, solution, &result);
   if (!WriteFrontendCost(options.output_dir, &result, &error)) return fail(error);

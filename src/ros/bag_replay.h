@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "ros/keyframe_pipeline.h"
 
 namespace rotation_averaging {
 
@@ -76,6 +77,7 @@ struct ReplayResult {
   // described them; empty when not asked for.
   std::string map_loaded, map_saved;
   double map_load_s = 0.0, map_save_s = 0.0;  // wall time of LoadMap and SaveMap
+  double map_save_graph_lock_s = 0.0, map_save_frontend_lock_s = 0.0;  // of SaveMap: MapSaveTiming
   // The keyframes of the loaded map: the largest angle between where the map
   // had them and the first solve after loading (< 0: the map holds no
   // orientations); at the first solve that joined a new keyframe to them,
@@ -89,6 +91,12 @@ struct ReplayResult {
 };
 
 ReplayResult ReplayBags(const ReplayOptions& options);
+
+// The node's parameters from a YAML file of them, as the replay reads its
+// --config (none: the defaults), with the solves made independent of the
+// machine's speed (no background full solves).
+bool ReadReplayConfig(const std::string& path, PipelineConfig* config, std::vector<std::string>* warnings,
+                      std::string* error);
 
 }  // namespace rotation_averaging
 

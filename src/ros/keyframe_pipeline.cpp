@@ -4,10 +4,12 @@
 #include <sensor_msgs/image_encodings.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
 #include <limits>
+#include <map>
 #include <opencv2/imgcodecs.hpp>
 #include <sstream>
 #include <string>
@@ -563,27 +565,53 @@ std::string KeyframeDatabasePath(const std::string& graph_path) { return graph_p
 std::string RigPath(const std::string& graph_path) { return graph_path + ".rig"; }
 
 bool KeyframePipeline::SaveMap(const std::string& graph_path, std::string* error, std::string* note) {
+  using Clock = std::chrono::steady_clock;
+  auto seconds_since = [](Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); };
   std::lock_guard<std::mutex> save_lock(save_mutex_);
+  MapSaveTiming timing;
+  const auto start = Clock::now();
+  // Each part is copied while its lock is held and written after: a solve or
+  // a keyframe waits for the copy, not for the disk.
+  ViewGraph graph;
+  std::map<ViewId, Eigen::Matrix3d> orientations;
+  averager_->SnapshotGraph(&graph, &orientations);
+  timing.graph_lock_s = seconds_since(start);
   // The graph first, the database last: a save cut short between them leaves
-  // a database older than the graph, whose keyframes are all in it.
-  if (!averager_->SaveGraph(graph_path, error)) return false;
+  // a database older than the graph.
+  if (!WriteRotavgGraph(graph_path, graph, error, &orientations)) return false;
   if (!rig_.Save(RigPath(graph_path), error)) return false;
   std::string saved = "view graph saved to " + graph_path;
-  const std::string database = KeyframeDatabasePath(graph_path);
+  const std::string database_path = KeyframeDatabasePath(graph_path);
   if (frontend_ && frontend_->UsesVocabulary()) {
-    std::lock_guard<std::mutex> lock(frontend_mutex_);
-    if (!frontend_->SaveDatabase(database, error)) return false;
-    saved += ", " + std::to_string(frontend_->NumKeyframes()) + " keyframes to " + database;
+    KeyframeDatabase database;
+    const auto frontend_start = Clock::now();
+    {
+      std::lock_guard<std::mutex> lock(frontend_mutex_);
+      if (!frontend_->SnapshotDatabase(&database, error)) return false;
+    }
+    timing.frontend_lock_s = seconds_since(frontend_start);
+    if (!WriteKeyframeDatabase(database_path, database, error)) return false;
+    saved += ", " + std::to_string(database.keyframes.size()) + " keyframes to " + database_path;
   } else {
     // A database left from an earlier save to this path belongs to another
     // graph: loading it with this one would relate new keyframes to views
     // the graph does not have.
     std::error_code ec;
-    if (std::filesystem::remove(database, ec)) saved += "; the older " + database + " removed";
+    if (std::filesystem::remove(database_path, ec)) saved += "; the older " + database_path + " removed";
     if (frontend_) saved += "; no keyframe database (retrieval by voting: vocabulary none)";
+  }
+  timing.total_s = seconds_since(start);
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    last_save_timing_ = timing;
   }
   if (note) *note = saved;
   return true;
+}
+
+MapSaveTiming KeyframePipeline::LastSaveTiming() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return last_save_timing_;
 }
 
 bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error, std::string* note) {

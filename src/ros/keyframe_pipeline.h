@@ -132,6 +132,14 @@ struct PipelineStats {
   std::uint64_t absorbed_by_rig = 0;    // measurements within one rig capture (extrinsics known)
 };
 
+// How long a SaveMap held what the node's other threads wait for, and how
+// long it took in all (the files written after the copies; seconds).
+struct MapSaveTiming {
+  double graph_lock_s = 0.0;     // the graph and solution copied: solves wait
+  double frontend_lock_s = 0.0;  // the keyframes copied: new keyframes wait
+  double total_s = 0.0;
+};
+
 class KeyframePipeline {
  public:
   explicit KeyframePipeline(const PipelineConfig& config);
@@ -149,6 +157,8 @@ class KeyframePipeline {
   // atomically. `note` (if given) says what was saved or why the database
   // was not.
   bool SaveMap(const std::string& graph_path, std::string* error, std::string* note = nullptr);
+  // Of the last SaveMap that succeeded.
+  MapSaveTiming LastSaveTiming() const;
   // Loads a map saved by SaveMap: the view graph, the rig model if its file
   // is beside it, and the keyframe database if there is one and the
   // pipeline has an image front end, so that new keyframes relate to the old
@@ -241,9 +251,10 @@ class KeyframePipeline {
   RigModel rig_;
   std::mutex selector_mutex_;
   KeyframeSelector selector_;
-  mutable std::mutex mutex_;  // stats_, frontend_stats_, last_image_stamp_, last_latest_stamp_
+  mutable std::mutex mutex_;  // stats_, frontend_stats_, last_save_timing_, last_image_stamp_, last_latest_stamp_
   PipelineStats stats_;
   KeyframeFrontendStats frontend_stats_;
+  MapSaveTiming last_save_timing_;  // under mutex_
   std::map<std::string, std::int64_t> last_image_stamp_;
   std::map<std::string, ros::Time> last_latest_stamp_;
   std::map<std::string, std::string> camera_models_;  // frame -> description of its model

@@ -645,21 +645,24 @@ void OnlineAverager::SetSolutionCallback(std::function<void(std::shared_ptr<cons
   callback_ = std::move(callback);
 }
 
-bool OnlineAverager::SaveGraph(const std::string& path, std::string* error) const {
-  ViewGraph copy;
-  std::map<ViewId, Eigen::Matrix3d> orientations;
+void OnlineAverager::SnapshotGraph(ViewGraph* graph, std::map<ViewId, Eigen::Matrix3d>* orientations) const {
   const std::shared_ptr<const OnlineSolution> solution = Solution();
-  {
-    std::lock_guard<std::mutex> lock(graph_mutex_);
-    copy = graph_;
-    // The published orientations go with the graph: a restarted node starts
-    // from them and keeps the frames it published (LoadGraph).
-    for (const auto& [key, r] : solution->orientations) {
-      const auto it = ids_.find(key);
-      if (it != ids_.end()) orientations.emplace(it->second, r);
-    }
+  orientations->clear();
+  std::lock_guard<std::mutex> lock(graph_mutex_);
+  *graph = graph_;
+  // The published orientations go with the graph: a restarted node starts
+  // from them and keeps the frames it published (LoadGraph).
+  for (const auto& [key, r] : solution->orientations) {
+    const auto it = ids_.find(key);
+    if (it != ids_.end()) orientations->emplace(it->second, r);
   }
-  return WriteRotavgGraph(path, copy, error, &orientations);
+}
+
+bool OnlineAverager::SaveGraph(const std::string& path, std::string* error) const {
+  ViewGraph graph;
+  std::map<ViewId, Eigen::Matrix3d> orientations;
+  SnapshotGraph(&graph, &orientations);
+  return WriteRotavgGraph(path, graph, error, &orientations);
 }
 
 bool OnlineAverager::LoadGraph(const std::string& path, std::string* error) {

@@ -165,6 +165,10 @@ class OnlineAverager {
   // Graph persistence in the package's graph file format (core/io/graph_io.h);
   // view names encode the keyframe as "<frame_id>@<stamp_ns>".
   bool SaveGraph(const std::string& path, std::string* error) const;
+  // What SaveGraph writes: the graph and the published orientations by view,
+  // copied under the graph lock only (a solve waits for that much, not for
+  // the file).
+  void SnapshotGraph(ViewGraph* graph, std::map<ViewId, Eigen::Matrix3d>* orientations) const;
   bool LoadGraph(const std::string& path, std::string* error);  // replaces the graph, then solves
   static std::string KeyframeName(const KeyframeKey& key);
   static bool ParseKeyframeName(const std::string& name, KeyframeKey* key);
