@@ -55,6 +55,7 @@ class BinaryWriter {
     PutBytes(s.data(), s.size());
   }
   void PutBytes(const void* data, std::size_t size) {
+    if (size == 0) return;
     const auto* p = static_cast<const char*>(data);
     bytes_.insert(bytes_.end(), p, p + size);
   }
@@ -100,6 +101,7 @@ class BinaryReader {
   }
   bool GetBytes(void* out, std::size_t size) {
     if (!ok_ || size > Remaining()) return Fail();
+    if (size == 0) return true;  // `out` may be an empty vector's null data()
     std::memcpy(out, data_ + offset_, size);
     offset_ += size;
     return true;
