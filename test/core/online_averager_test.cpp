@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <functional>
 #include <map>
+#include <memory>
 #include <limits>
 #include <random>
 #include <thread>
@@ -472,6 +473,81 @@ TEST(OnlineAverager, ALoadedGraphKeepsThePublishedFrames) {
   EXPECT_GT(WorstMoveDeg(*saved, *cold.Solution()), 1.0);
   EXPECT_LT(MedianErrorDeg(*cold.Solution(), d), 1.0);
   std::filesystem::remove(path);
+}
+
+// Maps of two sessions added together: each keeps the frames it was
+// published in, apart, until edges join them; then the larger keeps its
+// frame and the other is placed in it. A map that continued one held (saved
+// from the same history) adds only what it has beyond it.
+TEST(OnlineAverager, AddedGraphsKeepTheirFramesUntilJoined) {
+  const RigData d = MakeRig(40, 0.0, 10);
+  auto part = [&](int from, int to) {  // edges among captures [from, to)
+    std::vector<KeyframeRelativeRotation> out;
+    for (const auto& m : d.measurements) {
+      const int a = CaptureOf(m.keyframe1), b = CaptureOf(m.keyframe2);
+      if (a >= from && a < to && b >= from && b < to) out.push_back(m);
+    }
+    return out;
+  };
+  auto session = [&](const std::vector<KeyframeRelativeRotation>& edges, const std::string& path) {
+    auto averager = std::make_unique<OnlineAverager>(OnlineAveragerOptions{});
+    for (const auto& m : edges) EXPECT_TRUE(averager->AddRelativeRotation(m));
+    EXPECT_TRUE(averager->SolveNow());
+    std::string error;
+    EXPECT_TRUE(averager->SaveGraph(path, &error)) << error;
+    return averager;
+  };
+  const std::string dir = std::filesystem::temp_directory_path().string();
+  const std::string a_path = dir + "/rotavg_add_a_" + std::to_string(::getpid()) + ".txt";
+  const std::string b_path = dir + "/rotavg_add_b_" + std::to_string(::getpid()) + ".txt";
+  const std::string c_path = dir + "/rotavg_add_c_" + std::to_string(::getpid()) + ".txt";
+  const auto a = session(part(0, 25), a_path);
+  const auto b = session(part(25, 40), b_path);
+  std::vector<KeyframeRelativeRotation> continued = part(0, 25);
+  for (const auto& m : part(25, 32)) {
+    if (CaptureOf(m.keyframe1) >= 25 || CaptureOf(m.keyframe2) >= 25) continued.push_back(m);
+  }
+  for (const auto& m : d.measurements) {  // the edges from the first map into the continuation
+    const int x = CaptureOf(m.keyframe1), y = CaptureOf(m.keyframe2);
+    if (std::min(x, y) < 25 && std::max(x, y) >= 25 && std::max(x, y) < 32) continued.push_back(m);
+  }
+  const auto c = session(continued, c_path);
+
+  OnlineAverager merged(OnlineAveragerOptions{});
+  std::string error;
+  ASSERT_TRUE(merged.LoadGraph(a_path, &error)) << error;
+  OnlineAverager::AddedGraph added;
+  ASSERT_TRUE(merged.AddGraph(b_path, &added, &error)) << error;
+  EXPECT_EQ(added.views, 30u);
+  EXPECT_EQ(added.views_held, 0u);
+  EXPECT_EQ(merged.Stats().components, 2u);
+  EXPECT_LT(WorstMoveDeg(*a->Solution(), *merged.Solution()), 0.01);
+  EXPECT_LT(WorstMoveDeg(*b->Solution(), *merged.Solution()), 0.01);
+
+  // The edges between the two (a third session passing both places) join
+  // them: the larger map keeps its frame, the other is placed in it.
+  for (const auto& m : d.measurements) {
+    if ((CaptureOf(m.keyframe1) < 25) != (CaptureOf(m.keyframe2) < 25)) ASSERT_TRUE(merged.AddRelativeRotation(m));
+  }
+  ASSERT_TRUE(merged.SolveNow());
+  EXPECT_EQ(merged.Stats().components, 1u);
+  EXPECT_LT(WorstMoveDeg(*a->Solution(), *merged.Solution()), 1.0);
+  EXPECT_LT(MedianErrorDeg(*merged.Solution(), d), 1.0);
+
+  // The continued map shares the first map's keyframes and edges.
+  OnlineAverager shared(OnlineAveragerOptions{});
+  ASSERT_TRUE(shared.LoadGraph(a_path, &error)) << error;
+  ASSERT_TRUE(shared.AddGraph(c_path, &added, &error)) << error;
+  EXPECT_EQ(added.views_held, 50u);
+  EXPECT_EQ(added.views, 14u);
+  EXPECT_EQ(added.edges_held, part(0, 25).size());
+  EXPECT_EQ(shared.Stats().edges, continued.size());
+  EXPECT_EQ(shared.Stats().components, 1u);
+  EXPECT_LT(WorstMoveDeg(*a->Solution(), *shared.Solution()), 0.5);
+  // A file that is not a graph changes nothing.
+  EXPECT_FALSE(shared.AddGraph(dir + "/rotavg_no_such_map.txt", &added, &error));
+  EXPECT_EQ(shared.Stats().edges, continued.size());
+  for (const std::string& p : {a_path, b_path, c_path}) std::filesystem::remove(p);
 }
 
 TEST(OnlineAverager, SaveLoadAndReset) {

@@ -189,6 +189,19 @@ TEST(RigModel, SavedCapturesComeBackWithoutTheStaticTransforms) {
   changed[changed.find("MEMBER cam_b 100") + 14] = '7';
   refused(changed, "checksum mismatch");
   refused("# rotation_averaging rig v9\nEND 1 0\n", "not a rig file of this version");
+
+  // Adding a map's rig file (another session's) to a model: its captures
+  // come in beside those held, and a capture held already stays as it is.
+  const std::string continued = ::testing::TempDir() + "/rig_model_test_continued.rig";
+  ASSERT_TRUE(restored.Save(continued, &error)) << error;
+  RigModel merged(RigModelOptions{});
+  ASSERT_TRUE(merged.Load(path, &error)) << error;
+  ASSERT_TRUE(merged.Add(continued, &error)) << error;
+  EXPECT_EQ(merged.NumCaptures(), 3u);
+  EXPECT_EQ(merged.VariableOfKnown(KeyframeKey{"cam_a", 3000000000}).stamp_ns, 3000000000);
+  EXPECT_EQ(merged.VariableOfKnown(a0).stamp_ns, first_capture.stamp_ns);
+  EXPECT_FALSE(merged.Add(::testing::TempDir() + "/rig_model_test_damaged.rig", &error));
+  EXPECT_EQ(merged.NumCaptures(), 3u);
 }
 
 }  // namespace

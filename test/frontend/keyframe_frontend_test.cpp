@@ -324,8 +324,54 @@ TEST(KeyframeFrontend, ASavedDatabaseLetsTheNextSessionCloseLoopsWithTheFirst) {
   // Without the database the second session is a map of its own.
   KeyframeFrontend forgetful(options);
   std::vector<KeyframeRelativeRotation> alone = first_lap;
-  for (const KeyframeRelativeRotation& e : feed(&forgetful, kPerLap, 2 * kPerLap)) alone.push_back(e);
+  std::vector<KeyframeRelativeRotation> second_alone = feed(&forgetful, kPerLap, 2 * kPerLap);
+  alone.insert(alone.end(), second_alone.begin(), second_alone.end());
   EXPECT_EQ(Components(alone, all), 2);
+
+  // Two maps made apart (the first lap's, and the second lap's by a front end
+  // that never saw the first) added to one front end: a third session
+  // passing the start again closes loops to both, which makes one map.
+  const std::string apart = dir + "/second_lap_apart.keyframes";
+  ASSERT_TRUE(forgetful.SaveDatabase(apart, &error)) << error;
+  KeyframeFrontend third(options);
+  ASSERT_TRUE(third.LoadDatabase(path, &error)) << error;
+  std::size_t already_held = 99;
+  ASSERT_TRUE(third.AddDatabase(apart, &already_held, &error)) << error;
+  EXPECT_EQ(already_held, 0u);
+  EXPECT_EQ(third.NumKeyframes(), static_cast<std::size_t>(2 * kPerLap));
+  std::vector<KeyframeRelativeRotation> third_edges;
+  for (int i = 0; i < 4; ++i) {
+    // Half a second after the first lap's keyframe of the same image.
+    const KeyframeKey key{"cam", static_cast<std::int64_t>(i + 1) * 1'000'000'000LL + 500'000'000LL};
+    for (const KeyframeRelativeRotation& e : third.AddKeyframe(key, seq.images[i], seq.k)) {
+      EXPECT_LT(EdgeErrorDeg(seq, e), 1.0);
+      third_edges.push_back(e);
+    }
+  }
+  // Components over keys (Index would take a third-session keyframe for the
+  // first lap's of its image).
+  std::map<KeyframeKey, KeyframeKey> parent;
+  std::function<KeyframeKey(const KeyframeKey&)> find = [&](const KeyframeKey& k) {
+    auto it = parent.emplace(k, k).first;
+    if (it->second.frame_id == k.frame_id && it->second.stamp_ns == k.stamp_ns) return k;
+    return it->second = find(it->second);
+  };
+  std::vector<KeyframeRelativeRotation> three_sessions = first_lap;
+  three_sessions.insert(three_sessions.end(), second_alone.begin(), second_alone.end());
+  three_sessions.insert(three_sessions.end(), third_edges.begin(), third_edges.end());
+  for (const KeyframeRelativeRotation& e : three_sessions) parent[find(e.keyframe1)] = find(e.keyframe2);
+  std::set<KeyframeKey> roots;
+  for (const auto& [key, p] : parent) roots.insert(find(key));
+  EXPECT_EQ(roots.size(), 1u);
+  // A map saved from the same history as one held shares its keyframes:
+  // those are not added twice.
+  const std::string continued = dir + "/both_laps.keyframes";
+  ASSERT_TRUE(second.SaveDatabase(continued, &error)) << error;
+  KeyframeFrontend fourth(options);
+  ASSERT_TRUE(fourth.LoadDatabase(path, &error)) << error;
+  ASSERT_TRUE(fourth.AddDatabase(continued, &already_held, &error)) << error;
+  EXPECT_EQ(already_held, static_cast<std::size_t>(kPerLap));
+  EXPECT_EQ(fourth.NumKeyframes(), static_cast<std::size_t>(2 * kPerLap));
 
   // Refusals: each damaged copy is refused with its reason, and `second`
   // keeps what it holds.

@@ -3,6 +3,7 @@
 #include "rotation_averaging/core/geometry/so3.h"
 
 #include <algorithm>
+#include <set>
 
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/io/graph_io.h"
@@ -716,6 +717,87 @@ bool OnlineAverager::LoadGraph(const std::string& path, std::string* error) {
     ClearLocalState();
     SolveLocked(true);
   }
+  if (!report.warnings.empty() && error) *error = report.warnings.front();
+  return true;
+}
+
+bool OnlineAverager::AddGraph(const std::string& path, AddedGraph* added, std::string* error) {
+  ViewGraph loaded;
+  std::map<ViewId, Eigen::Matrix3d> saved_orientations;
+  const ReadReport report = ReadRotavgGraph(path, &loaded, &saved_orientations);
+  if (!report.ok()) {
+    if (error) *error = report.error;
+    return false;
+  }
+  std::map<ViewId, KeyframeKey> key_of;
+  for (const View& v : loaded.Views()) {
+    if (!ParseKeyframeName(v.name, &key_of[v.id])) {
+      if (error) *error = path + ": view '" + v.name + "' is not named <frame_id>@<stamp_ns>";
+      return false;
+    }
+  }
+  AddedGraph result;
+  {
+    std::lock_guard<std::mutex> solve_lock(solve_mutex_);
+    {
+      std::lock_guard<std::mutex> lock(graph_mutex_);
+      if (graph_.NumViews() + loaded.NumViews() > options_.max_views ||
+          graph_.NumEdges() + loaded.NumEdges() > options_.max_edges) {
+        if (error) *error = path + ": the map would exceed max_views or max_edges";
+        return false;
+      }
+      // A keyframe already held is the same keyframe: maps saved from one
+      // history (a session that loaded the other's map) share it, and the
+      // edges among such keyframes, which are held already.
+      std::map<ViewId, ViewId> id_of;
+      std::set<ViewId> held;
+      for (const auto& [old_id, key] : key_of) {
+        const auto it = ids_.find(key);
+        if (it != ids_.end()) {
+          id_of[old_id] = it->second;
+          held.insert(old_id);
+          continue;
+        }
+        const ViewId id = keys_.size();
+        ids_[key] = id;
+        keys_.push_back(key);
+        graph_.AddView(id, KeyframeName(key));
+        id_of[old_id] = id;
+        ++result.views;
+      }
+      result.views_held = held.size();
+      for (RelativeRotation e : loaded.Edges()) {
+        if (held.count(e.view1) && held.count(e.view2)) {
+          ++result.edges_held;
+          continue;
+        }
+        e.view1 = id_of.at(e.view1);
+        e.view2 = id_of.at(e.view2);
+        if (graph_.AddEdge(e, nullptr, DuplicatePolicy::kKeepBoth) != AddEdgeResult::kRejected) ++result.edges;
+      }
+      // The added keyframes start where their map had them, in the frame of
+      // the keyframes held if the maps share some (one rotation fitted on
+      // those), else in their map's own frame: a component of their own
+      // until a loop closure joins it to another, keeping the tf frames it
+      // was published in.
+      std::vector<Eigen::Matrix3d> mine, theirs;
+      for (const auto& [old_id, r] : saved_orientations) {
+        if (!held.count(old_id)) continue;
+        const auto it = warm_start_.find(id_of.at(old_id));
+        if (it == warm_start_.end()) continue;
+        mine.push_back(it->second);
+        theirs.push_back(r);
+      }
+      const Eigen::Matrix3d g = mine.empty() ? Eigen::Matrix3d::Identity() : AlignRotations(mine, theirs);
+      for (const auto& [old_id, r] : saved_orientations) {
+        if (!held.count(old_id)) warm_start_[id_of.at(old_id)] = r * g.transpose();
+      }
+      ++generation_;
+    }
+    ClearLocalState();
+    SolveLocked(true);
+  }
+  if (added) *added = result;
   if (!report.warnings.empty() && error) *error = report.warnings.front();
   return true;
 }

@@ -202,7 +202,11 @@ bool RigModel::Save(const std::string& path, std::string* error) const {
   }, error);
 }
 
-bool RigModel::Load(const std::string& path, std::string* error) {
+bool RigModel::Load(const std::string& path, std::string* error) { return Read(path, /*add=*/false, error); }
+
+bool RigModel::Add(const std::string& path, std::string* error) { return Read(path, /*add=*/true, error); }
+
+bool RigModel::Read(const std::string& path, bool add, std::string* error) {
   auto fail = [&](const std::string& why) {
     if (error) *error = why;
     return false;
@@ -264,10 +268,25 @@ bool RigModel::Load(const std::string& path, std::string* error) {
   }
   if (!end.Ended()) return fail(path + ": no END record: the file is truncated (a save that was interrupted?)");
   std::lock_guard<std::mutex> lock(mutex_);
-  for (const auto& [frame, c] : cameras) cameras_[frame] = c;
-  capture_stamps_ = std::move(capture_stamps);
-  members_ = std::move(members);
-  variable_of_ = std::move(variable_of);
+  for (const auto& [frame, c] : cameras) {
+    if (add) cameras_.emplace(frame, c);  // a camera held keeps what it resolved
+    else cameras_[frame] = c;
+  }
+  if (!add) {
+    capture_stamps_ = std::move(capture_stamps);
+    members_ = std::move(members);
+    variable_of_ = std::move(variable_of);
+    return true;
+  }
+  for (const auto& [capture, keyframes] : members) {
+    if (members_.count(capture)) continue;
+    std::vector<KeyframeKey> kept;
+    for (const KeyframeKey& k : keyframes) {
+      if (variable_of_.emplace(k, capture).second) kept.push_back(k);  // else in a capture held already
+    }
+    capture_stamps_[capture.frame_id].insert(capture.stamp_ns);
+    members_.emplace(capture, std::move(kept));
+  }
   return true;
 }
 

@@ -73,9 +73,13 @@ class RigModel {
   // a malformed or corrupted file is refused with the reason and changes
   // nothing.
   bool Load(const std::string& path, std::string* error);
+  // As Load, but adds the file's captures to those held (another session's
+  // or robot's map); a capture already held is kept as it is.
+  bool Add(const std::string& path, std::string* error);
   std::size_t NumCaptures() const;
 
  private:
+  bool Read(const std::string& path, bool add, std::string* error);
   bool ResolveLocked(const std::string& camera_frame);
   KeyframeKey VariableLocked(const KeyframeKey& keyframe);
 

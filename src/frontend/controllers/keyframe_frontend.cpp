@@ -530,6 +530,15 @@ bool KeyframeFrontend::SaveDatabase(const std::string& path, std::string* error)
 }
 
 bool KeyframeFrontend::LoadDatabase(const std::string& path, std::string* error) {
+  return TakeDatabase(path, /*add=*/false, nullptr, error);
+}
+
+bool KeyframeFrontend::AddDatabase(const std::string& path, std::size_t* already_held, std::string* error) {
+  return TakeDatabase(path, /*add=*/true, already_held, error);
+}
+
+bool KeyframeFrontend::TakeDatabase(const std::string& path, bool add, std::size_t* already_held,
+                                    std::string* error) {
   if (!options_.vocabulary) {
     if (error) *error = path + ": a keyframe database needs a vocabulary to load into (vocabulary: none)";
     return false;
@@ -540,50 +549,55 @@ bool KeyframeFrontend::LoadDatabase(const std::string& path, std::string* error)
     if (error) *error = path + ": keyframes of another feature type or vocabulary size";
     return false;
   }
-  const int num_words = options_.vocabulary->NumWords();
-  std::vector<std::unique_ptr<Keyframe>> loaded;
-  std::vector<std::uint32_t> chain_of;
-  std::set<KeyframeKey> keys;
-  loaded.reserve(database.keyframes.size());
+  // Everything read and checked: now replace what is held, or add to it.
+  if (!add) {
+    keyframes_.clear();
+    by_camera_.clear();
+    loaded_chains_.clear();
+    keys_.clear();
+    due_compaction_.clear();
+    inverted_index_ = std::make_unique<InvertedIndex>(options_.vocabulary->NumWords());
+    const std::uint64_t duplicates = stats_.duplicate_keyframes;
+    stats_ = KeyframeFrontendStats();
+    stats_.duplicate_keyframes = duplicates;
+  }
+  // A keyframe already held (added maps share the history they were saved
+  // from) is the same keyframe: skipped. The rest of its chain then starts
+  // a chain of its own, since a sequential rotation relates only neighbours.
+  std::size_t skipped = 0;
+  std::map<std::uint32_t, int> chain_index;  // the file's chain -> loaded_chains_ index
   for (StoredKeyframe& stored : database.keyframes) {
+    if (keys_.count(stored.key)) {
+      ++skipped;
+      chain_index.erase(stored.chain);
+      continue;
+    }
     auto kf = std::make_unique<Keyframe>();
     kf->key = stored.key;
-    kf->has_sequential = stored.has_sequential;
     kf->k = stored.k;
     kf->sequential_rotation = stored.sequential_rotation;
     kf->sequential_covariance = stored.sequential_covariance;
     kf->features = std::move(stored.features);
     kf->bow = std::move(stored.bow);
     kf->compact = true;
-    keys.insert(kf->key);
-    chain_of.push_back(stored.chain);
-    loaded.push_back(std::move(kf));
+    auto chain = chain_index.find(stored.chain);
+    kf->has_sequential = stored.has_sequential && chain != chain_index.end();
+    if (chain == chain_index.end()) {
+      chain = chain_index.emplace(stored.chain, static_cast<int>(loaded_chains_.size())).first;
+      loaded_chains_.emplace_back();
+    }
+    const int index = static_cast<int>(keyframes_.size());
+    kf->loaded_chain = chain->second;
+    kf->camera_position = static_cast<int>(loaded_chains_[chain->second].size());
+    loaded_chains_[chain->second].push_back(index);
+    inverted_index_->Add(index, kf->bow);
+    keys_.insert(kf->key);
+    stats_.keyframe_bytes += KeyframeBytes(*kf);
+    stats_.compact_bytes += KeyframeBytes(*kf);
+    ++stats_.loaded_keyframes;
+    keyframes_.push_back(std::move(kf));
   }
-
-  // Everything read: replace what is held.
-  keyframes_.clear();
-  by_camera_.clear();
-  loaded_chains_.clear();
-  keys_ = keys;
-  due_compaction_.clear();
-  inverted_index_ = std::make_unique<InvertedIndex>(num_words);
-  const std::uint64_t duplicates = stats_.duplicate_keyframes;
-  stats_ = KeyframeFrontendStats();
-  stats_.duplicate_keyframes = duplicates;
-  std::map<std::uint32_t, int> chain_index;
-  for (std::size_t i = 0; i < loaded.size(); ++i) {
-    Keyframe& kf = *loaded[i];
-    const int chain = chain_index.emplace(chain_of[i], static_cast<int>(loaded_chains_.size())).first->second;
-    if (chain == static_cast<int>(loaded_chains_.size())) loaded_chains_.emplace_back();
-    kf.loaded_chain = chain;
-    kf.camera_position = static_cast<int>(loaded_chains_[chain].size());
-    loaded_chains_[chain].push_back(static_cast<int>(i));
-    inverted_index_->Add(static_cast<int>(i), kf.bow);
-    stats_.keyframe_bytes += KeyframeBytes(kf);
-    stats_.compact_bytes += KeyframeBytes(kf);
-    keyframes_.push_back(std::move(loaded[i]));
-  }
-  stats_.loaded_keyframes = keyframes_.size();
+  if (already_held) *already_held = skipped;
   return true;
 }
 

@@ -176,12 +176,19 @@ class KeyframeFrontend {
   // version, another vocabulary, a truncated or corrupted one is refused
   // with the reason, and the keyframes held are left as they were.
   bool LoadDatabase(const std::string& path, std::string* error);
+  // Adds the keyframes of a database (another session's or another robot's
+  // map) to those held, as LoadDatabase loads them. A keyframe already held
+  // is the same keyframe (maps saved from one history share it): skipped,
+  // and counted in `already_held`. Refusals as LoadDatabase, leaving what is
+  // held as it was.
+  bool AddDatabase(const std::string& path, std::size_t* already_held, std::string* error);
   bool UsesVocabulary() const { return options_.vocabulary != nullptr; }
   // "vocabulary of N words (inverted index)" or "voting over every keyframe (no vocabulary)".
   std::string RetrievalName() const;
 
  private:
   struct Keyframe;
+  bool TakeDatabase(const std::string& path, bool add, std::size_t* already_held, std::string* error);
   // The sequential chain a keyframe belongs to: its camera's in this
   // session, or one loaded from a database.
   const std::vector<int>& ChainOf(const Keyframe& keyframe) const;

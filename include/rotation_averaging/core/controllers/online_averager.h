@@ -170,6 +170,17 @@ class OnlineAverager {
   // the file).
   void SnapshotGraph(ViewGraph* graph, std::map<ViewId, Eigen::Matrix3d>* orientations) const;
   bool LoadGraph(const std::string& path, std::string* error);  // replaces the graph, then solves
+  // Adds a saved graph (another session's or robot's map) to the one held,
+  // then solves. Its keyframes already held are the same keyframes, and the
+  // edges among them are not added again. Its other keyframes start where it
+  // had them: rotated into the frame of the keyframes held when the two
+  // share some, else in its own frame, a component of its own until a loop
+  // closure joins it to another. A refused file leaves the graph as it was.
+  struct AddedGraph {
+    std::size_t views = 0, views_held = 0;  // added; already held
+    std::size_t edges = 0, edges_held = 0;  // added; among keyframes already held, left out
+  };
+  bool AddGraph(const std::string& path, AddedGraph* added, std::string* error);
   static std::string KeyframeName(const KeyframeKey& key);
   static bool ParseKeyframeName(const std::string& name, KeyframeKey* key);
 
