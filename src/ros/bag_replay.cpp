@@ -781,6 +781,7 @@ std::string ReplayResult::Summary() const {
       out << "loaded keyframes: no new keyframe joined them\n";
     }
   }
+  for (const std::string& added : maps_added) out << added << "\n";
   if (!map_saved.empty()) {
     out << "map saved in " << std::setprecision(1) << 1e3 * map_save_s << " ms (the graph held "
         << 1e3 * map_save_graph_lock_s << " ms, the front end " << 1e3 * map_save_frontend_lock_s
@@ -823,6 +824,14 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
       return fail("load_graph: " + error);
     }
   }
+  // The keyframes followed to the merge are the loaded map's: an added map
+  // joining it is placed in its frame (the larger of the two keeps its own).
+  const std::shared_ptr<const OnlineSolution> loaded_map = averager.Solution();
+  for (const std::string& map : config.add_maps) {
+    std::string note;
+    if (!pipeline.AddMap(map, &error, &note)) return fail("add_maps: " + error);
+    result.maps_added.push_back(note);
+  }
 
   NamedOrientations ground_truth;
   if (!options.ground_truth_path.empty() &&
@@ -850,7 +859,7 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
     return fail("cannot write " + result.output_bag + ": " + e.what());
   }
   Replayer replayer(config, &pipeline, &out, &result);
-  if (!config.load_graph.empty()) replayer.FollowLoadedMap(averager.Solution());
+  if (!config.load_graph.empty()) replayer.FollowLoadedMap(loaded_map);
   replayer.Run(view, &topics, options.progress);
   out.close();
   std::size_t unscored = 0;

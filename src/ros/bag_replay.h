@@ -76,6 +76,7 @@ struct ReplayResult {
   // the end (save_on_shutdown), as KeyframePipeline::LoadMap and SaveMap
   // described them; empty when not asked for.
   std::string map_loaded, map_saved;
+  std::vector<std::string> maps_added;  // what AddMap said of each of add_maps
   double map_load_s = 0.0, map_save_s = 0.0;  // wall time of LoadMap and SaveMap
   double map_save_graph_lock_s = 0.0, map_save_frontend_lock_s = 0.0;  // of SaveMap: MapSaveTiming
   // The keyframes of the loaded map: the largest angle between where the map

@@ -233,6 +233,7 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("max_edges", &a.max_edges);
 
   r.Read("load_graph", &c.load_graph);
+  r.Read("add_maps", &c.add_maps);
   r.Read("save_on_shutdown", &c.save_on_shutdown);
   r.Read("autosave_path", &c.autosave_path);
   r.Read("autosave_period_s", &c.autosave_period_s, {"autosave_period"});
@@ -666,6 +667,58 @@ bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error
     loaded += ", " + std::to_string(rig_.NumCaptures()) + " rig captures from " + rig;
   }
   if (note) *note = loaded;
+  return true;
+}
+
+bool KeyframePipeline::AddMap(const std::string& graph_path, std::string* error, std::string* note) {
+  // The files are checked before anything is added (the graph and the rig
+  // file read once for it; each database check is its own load): a refused
+  // map leaves what is held as it was.
+  ViewGraph check;
+  const ReadReport report = ReadRotavgGraph(graph_path, &check);
+  if (!report.ok()) {
+    if (error) *error = report.error;
+    return false;
+  }
+  const std::string rig = RigPath(graph_path);
+  std::error_code ec;
+  const bool have_rig = std::filesystem::exists(rig, ec);
+  if (have_rig) {
+    RigModel staged(config_.rig);
+    if (!staged.Load(rig, error)) return false;
+  }
+  std::string added_note = "map " + graph_path + " added:";
+  const std::string database = KeyframeDatabasePath(graph_path);
+  if (frontend_ && frontend_->UsesVocabulary() && std::filesystem::exists(database, ec)) {
+    std::lock_guard<std::mutex> lock(frontend_mutex_);
+    std::size_t already_held = 0;
+    const std::size_t before = frontend_->NumKeyframes();
+    if (!frontend_->AddDatabase(database, &already_held, error)) return false;
+    added_note += " " + std::to_string(frontend_->NumKeyframes() - before) + " keyframes to retrieve from (" +
+                  std::to_string(already_held) + " already held),";
+    std::lock_guard<std::mutex> stats_lock(mutex_);
+    frontend_stats_ = frontend_->Stats();
+  } else if (frontend_) {
+    added_note += " no keyframe database (" +
+                  std::string(frontend_->UsesVocabulary() ? "none beside it" : "vocabulary none") +
+                  "): new keyframes cannot relate to its keyframes,";
+  }
+  OnlineAverager::AddedGraph added;
+  std::string graph_note;
+  if (!averager_->AddGraph(graph_path, &added, &graph_note)) {
+    if (error) *error = graph_note;
+    return false;
+  }
+  added_note += " " + std::to_string(added.views) + " views and " + std::to_string(added.edges) + " edges (" +
+                std::to_string(added.views_held) + " views and " + std::to_string(added.edges_held) +
+                " edges already held)";
+  if (!graph_note.empty()) added_note += " (" + graph_note + ")";
+  if (have_rig) {
+    const std::size_t before = rig_.NumCaptures();
+    if (!rig_.Add(rig, error)) return false;
+    added_note += ", " + std::to_string(rig_.NumCaptures() - before) + " rig captures";
+  }
+  if (note) *note = added_note;
   return true;
 }
 

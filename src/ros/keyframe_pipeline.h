@@ -84,6 +84,7 @@ struct PipelineConfig {
   double marker_spacing_m = 0.5;       // between consecutive keyframes of a lane
   int marker_max_keyframes = 2000;     // only the newest are drawn beyond this
   std::string load_graph, save_on_shutdown;
+  std::vector<std::string> add_maps;  // added after load_graph (AddMap): other sessions', other robots
   std::string autosave_path;    // graph saved atomically every autosave_period_s s ("" = off)
   double autosave_period_s = 30.0;
 
@@ -165,6 +166,15 @@ class KeyframePipeline {
   // ones by loop closures. A file that is refused leaves, with the reason in
   // `error`, what is held as it was.
   bool LoadMap(const std::string& graph_path, std::string* error, std::string* note = nullptr);
+  // Adds a map saved by SaveMap (another session's, another robot's) to the
+  // one held: its graph (OnlineAverager::AddGraph: keyframes already held
+  // are shared history, its others keep its frame until a loop closure
+  // joins them to another component), its rig captures and its keyframes,
+  // which new keyframes are then retrieved against and verified with. The
+  // two maps join where a new keyframe closes loops to both. Keyframes are
+  // told apart by camera frame and stamp: two robots need distinct camera
+  // frame ids. A refused map leaves what is held as it was.
+  bool AddMap(const std::string& graph_path, std::string* error, std::string* note = nullptr);
 
   // Converts, validates and enqueues one relative pose. On failure the
   // message is counted as rejected and `error` says why.

@@ -103,6 +103,7 @@ class RotationAveragingNode {
     reset_srv_ = pnh.advertiseService("reset", &RotationAveragingNode::OnReset, this);
     save_srv_ = pnh.advertiseService("save_graph", &RotationAveragingNode::OnSave, this);
     load_srv_ = pnh.advertiseService("load_graph", &RotationAveragingNode::OnLoad, this);
+    add_map_srv_ = pnh.advertiseService("add_map", &RotationAveragingNode::OnAddMap, this);
 
     diagnostics_.setHardwareID("rotation_averaging");
     diagnostics_.add("rotation averaging", this, &RotationAveragingNode::Diagnose);
@@ -127,6 +128,14 @@ class RotationAveragingNode {
         ROS_INFO("%s", note.c_str());
       } else {
         ROS_ERROR("could not load %s: %s; starting empty", load.c_str(), error.c_str());
+      }
+    }
+    for (const std::string& map : config.add_maps) {
+      std::string error, note;
+      if (pipeline_->AddMap(map, &error, &note)) {
+        ROS_INFO("%s", note.c_str());
+      } else {
+        ROS_ERROR("could not add the map %s: %s; going on without it", map.c_str(), error.c_str());
       }
     }
     // dynamic_reconfigure starts from the values loaded above.
@@ -387,6 +396,13 @@ class RotationAveragingNode {
     return true;
   }
 
+  bool OnAddMap(LoadGraph::Request& req, LoadGraph::Response& res) {
+    std::string error, note;
+    res.success = pipeline_->AddMap(req.path, &error, &note);
+    res.message = res.success ? note : error;
+    return true;
+  }
+
   // Called from the averager's worker thread after each successful solve.
   void Publish(const OnlineSolution& solution) {
     const ros::Time now = ros::Time::now();
@@ -526,7 +542,7 @@ class RotationAveragingNode {
   std::unique_ptr<dynamic_reconfigure::Server<RotationAveragingConfig>> reconfigure_;
   ros::Publisher orientations_pub_, markers_pub_;
   ros::Subscriber single_sub_, array_sub_, tf_static_sub_;
-  ros::ServiceServer solve_srv_, reset_srv_, save_srv_, load_srv_;
+  ros::ServiceServer solve_srv_, reset_srv_, save_srv_, load_srv_, add_map_srv_;
   tf2_ros::TransformBroadcaster broadcaster_;
   ros::Publisher static_tf_pub_;
   diagnostic_updater::Updater diagnostics_;

@@ -6,6 +6,8 @@
 #include <gtest/gtest.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
 #include <std_msgs/String.h>
 #include <unistd.h>
 
@@ -221,6 +223,60 @@ TEST_F(BagReplay, TheNextSessionContinuesTheSavedMap) {
   EXPECT_LT(second.map_load_shift_deg, 0.01);
   EXPECT_TRUE(second.map_merged);
   EXPECT_LT(second.map_merge_move_sigma, 1.0);
+
+  // Two maps made apart: the first lap's (above), and the second lap's by a
+  // session that never saw the first. A third session starts from both
+  // (load_graph and add_maps) and passes the start again: its keyframes
+  // close loops to both maps, which become one, each having kept its frames
+  // until then.
+  const std::string apart = dir + "/apart/graph.txt";
+  std::filesystem::create_directories(dir + "/apart");
+  WriteText(dir + "/apart.yaml", common + "save_on_shutdown: " + apart + "\n");
+  ReplayOptions o_apart = Options(second_bag, "apart");
+  o_apart.config_path = dir + "/apart.yaml";
+  const ReplayResult second_apart = ReplayBags(o_apart);
+  ASSERT_TRUE(second_apart.ok) << second_apart.error;
+  EXPECT_EQ(second_apart.components, 1u);
+  // The third session: the first four captures again, 1,000 s later.
+  const std::string third_bag = dir + "/third.bag";
+  {
+    const ros::Duration later(1000.0);
+    const ros::Time end = *std::next(captures.begin(), 4);
+    rosbag::Bag in(full, rosbag::bagmode::Read);
+    rosbag::Bag third(third_bag, rosbag::bagmode::Write);
+    for (const rosbag::MessageInstance& m : rosbag::View(in)) {
+      if (m.getTopic() == "/tf_static") {
+        third.write(m.getTopic(), m.getTime(), m, m.getConnectionHeader());
+      } else if (sensor_msgs::Image::ConstPtr image = m.instantiate<sensor_msgs::Image>()) {
+        if (m.getTime() >= end) continue;
+        sensor_msgs::Image shifted = *image;
+        shifted.header.stamp += later;
+        third.write(m.getTopic(), m.getTime() + later, shifted);
+      } else if (sensor_msgs::CameraInfo::ConstPtr info = m.instantiate<sensor_msgs::CameraInfo>()) {
+        if (m.getTime() >= end) continue;
+        sensor_msgs::CameraInfo shifted = *info;
+        shifted.header.stamp += later;
+        third.write(m.getTopic(), m.getTime() + later, shifted);
+      }
+    }
+  }
+  WriteText(dir + "/third.yaml", common + "load_graph: " + map + "\nadd_maps: [\"" + apart + "\"]\n");
+  ReplayOptions o3 = Options(third_bag, "session3");
+  o3.config_path = dir + "/third.yaml";
+  o3.ground_truth_path = truth_csv;
+  const ReplayResult third = ReplayBags(o3);
+  ASSERT_TRUE(third.ok) << third.error;
+  std::cout << third.Summary() << "\n";
+  ASSERT_EQ(third.maps_added.size(), 1u);
+  EXPECT_NE(third.maps_added[0].find("32 keyframes to retrieve from (0 already held)"), std::string::npos)
+      << third.maps_added[0];
+  EXPECT_EQ(third.keyframes, 72u);  // both maps' and the third session's
+  EXPECT_EQ(third.components, 1u);
+  ASSERT_TRUE(third.have_scores);
+  EXPECT_EQ(third.scores.views_common, 64u);  // the third session's stamps have no ground truth
+  EXPECT_LT(third.scores.median_error_deg, 0.5);
+  EXPECT_TRUE(third.map_merged);
+  EXPECT_LT(third.map_merge_move_sigma, 1.0);  // the loaded map kept its frames; the added one was placed in them
 
   // A truncated database: the replay stops and says why.
   const std::string database = ReadAll(map + ".keyframes");

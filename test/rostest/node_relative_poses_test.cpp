@@ -210,6 +210,17 @@ TEST_F(NodeTest, LatchedOrientationsAndGraphServices) {
   load.request.path = path + ".missing";
   ASSERT_TRUE(ros::service::call("/averaging_magsac/load_graph", load));
   EXPECT_FALSE(load.response.success);
+  // The same map added to itself: every keyframe and edge is held already.
+  LoadGraph add;
+  add.request.path = path;
+  ASSERT_TRUE(ros::service::call("/averaging_magsac/add_map", add));
+  ASSERT_TRUE(add.response.success) << add.response.message;
+  EXPECT_NE(add.response.message.find("0 views and 0 edges (" + std::to_string(rig.truth.size()) + " views"),
+            std::string::npos)
+      << add.response.message;
+  add.request.path = path + ".missing";
+  ASSERT_TRUE(ros::service::call("/averaging_magsac/add_map", add));
+  EXPECT_FALSE(add.response.success);
   std::filesystem::remove(path);
 }
 
