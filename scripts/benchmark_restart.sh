@@ -60,13 +60,15 @@ done
   echo "largest angle between a saved keyframe's orientation in the map file and at the first solve after loading"
   echo "(the frames published before the restart). \"Moved at the merge\": the largest move of a saved keyframe"
   echo "from there to the first solve that joined a new keyframe to them, in degrees and in that keyframe's"
-  echo "posterior standard deviation along the move."
+  echo "posterior standard deviation along the move (relative to the gauge keyframe, which the solve holds where"
+  echo "it was published), and the rotation of their frame as a whole (the one rotation that best maps them from"
+  echo "before to after: a new gauge would turn it by degrees)."
   echo
-  echo "| restart after capture | keyframes before / after the restart | keyframes in the final map | components | loop closures after the restart | median (deg) | median / uninterrupted | moved at load (deg) | moved at the merge (deg / std) | database per keyframe (KB) | save (ms) | load (ms) |"
-  echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
+  echo "| restart after capture | keyframes before / after the restart | keyframes in the final map | components | loop closures after the restart | median (deg) | median / uninterrupted | moved at load (deg) | moved at the merge (deg / std) | frame rotated at the merge (deg) | database per keyframe (KB) | save (ms) | load (ms) |"
+  echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|"
   echo "| none (uninterrupted) | - | $(value "$OUT/full.txt" '^keyframes: \([0-9]*\) .*') |" \
     "$(value "$OUT/full.txt" '^components: \([0-9]*\);.*') | $(value "$OUT/full.txt" '^loop closures: \([0-9]*\) edges.*') |" \
-    "$full_median | 1.00 | - | - | - | - | - |"
+    "$full_median | 1.00 | - | - | - | - | - | - |"
   for n in "${CUTS[@]}"; do
     a=$OUT/before_$n.txt b=$OUT/after_$n.txt
     kf_before=$(value "$a" '^keyframes: \([0-9]*\) .*')
@@ -79,6 +81,7 @@ done
       "$(value "$b" '^loaded keyframes at the first solve: moved at most \([0-9.]*\) deg.*') |" \
       "$(value "$b" '^loaded keyframes when .*moved at most \([0-9.]*\) deg, .*') /" \
       "$(value "$b" '^loaded keyframes when .* deg, \([0-9.]*\) posterior.*') |" \
+      "$(value "$b" '^loaded keyframes when .*rotated by \([0-9.]*\) deg$') |" \
       "$(awk -v s="$db_bytes" -v k="$kf_before" 'BEGIN { printf "%.1f", s / 1024 / k }') |" \
       "$(value "$a" '^map saved in \([0-9.]*\) ms.*') | $(value "$b" '^map loaded in \([0-9.]*\) ms.*') |"
   done

@@ -408,9 +408,12 @@ class Replayer {
     if (!merged) return;
     result_.map_merged = true;
     result_.map_merged_at_solve = result_.solves;
+    std::vector<Eigen::Matrix3d> before_all, after_all;
     for (const auto& [key, before] : loaded_->orientations) {
       const auto it = solution.orientations.find(key);
       if (it == solution.orientations.end()) continue;
+      before_all.push_back(before);
+      after_all.push_back(it->second);
       const Eigen::Vector3d d = LogSO3(it->second * before.transpose());
       result_.map_merge_move_deg = std::max(result_.map_merge_move_deg, RadToDeg(d.norm()));
       const auto cov = loaded_->covariance.find(key);
@@ -418,6 +421,13 @@ class Replayer {
       const Eigen::Vector3d u = d.normalized();
       const double sigma = std::sqrt(std::max(0.0, u.dot(cov->second * u)));
       if (sigma > 0.0) result_.map_merge_move_sigma = std::max(result_.map_merge_move_sigma, d.norm() / sigma);
+    }
+    // The frame as a whole: the one rotation that best maps the loaded
+    // keyframes' orientations onto their new ones (a gauge jump would show
+    // here; a correction the new evidence brings to single keyframes not).
+    if (!before_all.empty()) {
+      result_.map_merge_frame_deg =
+          RadToDeg(AngularDistanceRad(AlignRotations(before_all, after_all), Eigen::Matrix3d::Identity()));
     }
   }
 
@@ -776,7 +786,8 @@ std::string ReplayResult::Summary() const {
     if (map_merged) {
       out << "loaded keyframes when new keyframes joined them (solve " << map_merged_at_solve << "): moved at most "
           << std::setprecision(4) << map_merge_move_deg << " deg, " << std::setprecision(3) << map_merge_move_sigma
-          << " posterior standard deviations\n";
+          << " posterior standard deviations; their frame as a whole rotated by " << std::setprecision(4)
+          << map_merge_frame_deg << " deg\n";
     } else {
       out << "loaded keyframes: no new keyframe joined them\n";
     }

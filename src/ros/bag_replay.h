@@ -83,11 +83,13 @@ struct ReplayResult {
   // had them and the first solve after loading (< 0: the map holds no
   // orientations); at the first solve that joined a new keyframe to them,
   // their largest move since that first solve, in degrees and in posterior
-  // standard deviations along the move.
+  // standard deviations along the move, and the rotation of their frame as
+  // a whole (AlignRotations).
   double map_load_shift_deg = -1.0;
   bool map_merged = false;
   std::size_t map_merged_at_solve = 0;
   double map_merge_move_deg = 0.0, map_merge_move_sigma = 0.0;
+  double map_merge_frame_deg = 0.0;  // the one rotation that best maps them from before to after
   std::string Summary() const;  // the multi-line report printed at the end
 };
 

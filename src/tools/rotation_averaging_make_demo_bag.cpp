@@ -4,6 +4,7 @@
 //   rotation_averaging_make_demo_bag --output demo.bag [--captures 60] [--cameras 2] [--laps 1]
 //       [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]
 //       [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]
+//       [--start-angle 0] [--start-time 0] [--light-gain 1] [--light-gradient 0] [--noise-seed 0]
 //
 // The bag holds, per camera, <cam>/image_raw (mono8, or <cam>/image_raw/compressed
 // PNG with --compressed) and <cam>/camera_info; the rig extrinsics on
@@ -11,7 +12,10 @@
 // rotation_averaging/Orientations message on /ground_truth/orientations.
 // With --distortion (e.g. plumb_bob:-0.28,0.07,0,0 or equidistant:0.1,0,0,0)
 // the images are what that lens would have seen and camera_info carries the
-// model, as a camera driver's image_raw does.
+// model, as a camera driver's image_raw does. The --start-* and --light-*
+// options and --noise-seed make another session in the same room (same
+// --seed): starting elsewhere on the loop, later, under other lighting.
+#include <cmath>
 #include <cstdlib>
 #include <iostream>
 #include <string>
@@ -27,7 +31,8 @@ int Usage(const std::string& why) {
   if (!why.empty()) std::cerr << "rotation_averaging_make_demo_bag: " << why << "\n";
   std::cerr << "usage: rotation_averaging_make_demo_bag --output demo.bag [--captures 60] [--cameras 2] [--laps 1]\n"
                "           [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]\n"
-               "           [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]\n";
+               "           [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]\n"
+               "           [--start-angle 0] [--start-time 0] [--light-gain 1] [--light-gradient 0] [--noise-seed 0]\n";
   return 2;
 }
 
@@ -46,7 +51,7 @@ int main(int argc, char** argv) {
       if (!has_value) return false;
       char* end = nullptr;
       *out = std::strtod(argv[++k], &end);
-      return end && *end == '\0';
+      return end && *end == '\0' && std::isfinite(*out);
     };
     double v = 0.0;
     if (a == "--output" && has_value) {
@@ -73,6 +78,16 @@ int main(int argc, char** argv) {
       options.capture_period_s = v;
     } else if (a == "--seed" && number(&v) && v >= 0) {
       options.seed = static_cast<std::uint64_t>(v);
+    } else if (a == "--start-angle" && number(&v)) {
+      options.start_angle_deg = v;
+    } else if (a == "--start-time" && number(&v) && v >= 0) {
+      options.start_time_s = v;
+    } else if (a == "--light-gain" && number(&v) && v > 0) {
+      options.light_gain = v;
+    } else if (a == "--light-gradient" && number(&v) && v >= 0 && v < 2) {
+      options.light_gradient = v;
+    } else if (a == "--noise-seed" && number(&v) && v >= 0) {
+      options.noise_seed = static_cast<std::uint64_t>(v);
     } else {
       return Usage("bad or incomplete option " + a);
     }

@@ -133,12 +133,13 @@ Eigen::Matrix3d RigScene::Intrinsics() const {
 }
 
 double RigScene::Phase(int capture) const {
-  return 2.0 * kPi * std::max(1, options_.laps) * capture / std::max(1, options_.num_captures);
+  return DegToRad(options_.start_angle_deg) +
+         2.0 * kPi * std::max(1, options_.laps) * capture / std::max(1, options_.num_captures);
 }
 
 Eigen::Vector3d RigScene::RigPosition(int capture) const {
   const double phase = Phase(capture);
-  const int lap = static_cast<int>(std::floor(phase / (2.0 * kPi) + 1e-9));
+  const int lap = static_cast<int>(std::floor((phase - DegToRad(options_.start_angle_deg)) / (2.0 * kPi) + 1e-9));
   // The capture after the last closes the last lap where it started.
   const double radius = options_.path_radius_m + options_.lap_radius_step_m * std::clamp(lap, 0, std::max(1, options_.laps) - 1);
   return Eigen::Vector3d(radius * std::cos(phase), radius * std::sin(phase),
@@ -167,8 +168,9 @@ Eigen::Vector3d RigScene::CameraCentre(int capture, int camera) const {
 }
 
 cv::Mat RigScene::Render(int capture, int camera) const {
+  const std::uint64_t noise = options_.noise_seed != 0 ? options_.noise_seed : options_.seed;
   return RenderView(WorldToCamera(capture, camera), CameraCentre(capture, camera),
-                    options_.seed * 7919 + static_cast<std::uint64_t>(capture) * 104729 + camera * 15485863);
+                    noise * 7919 + static_cast<std::uint64_t>(capture) * 104729 + camera * 15485863);
 }
 
 cv::Mat RigScene::RenderView(const Eigen::Matrix3d& world_to_camera, const Eigen::Vector3d& centre,
@@ -177,6 +179,7 @@ cv::Mat RigScene::RenderView(const Eigen::Matrix3d& world_to_camera, const Eigen
   const double cx = 0.5 * options_.width, cy = 0.5 * options_.height, f = options_.focal_px;
   cv::Mat image(options_.height, options_.width, CV_8UC1);
   cv::RNG rng(noise_seed);
+  const bool lit = options_.light_gain != 1.0 || options_.light_gradient != 0.0;
   for (int y = 0; y < options_.height; ++y) {
     std::uint8_t* row = image.ptr<std::uint8_t>(y);
     for (int x = 0; x < options_.width; ++x) {
@@ -193,6 +196,10 @@ cv::Mat RigScene::RenderView(const Eigen::Matrix3d& world_to_camera, const Eigen
         best = t;
         // Faces seen obliquely are a little darker: planes stay distinguishable.
         value = s.Sample(u, v) * (0.75 + 0.25 * std::abs(dn) / d.norm());
+        if (lit) {
+          const double across = std::clamp((centre + t * d).x() / options_.half_extent_m, -1.0, 1.0);
+          value *= options_.light_gain * (1.0 + 0.5 * options_.light_gradient * across);
+        }
       }
       const double noisy = value + (options_.noise_grey > 0.0 ? rng.gaussian(options_.noise_grey) : 0.0);
       row[x] = static_cast<std::uint8_t>(std::clamp(std::lround(noisy), 0L, 255L));

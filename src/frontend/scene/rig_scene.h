@@ -38,6 +38,16 @@ struct RigSceneOptions {
   double half_extent_m = 4.0;     // room half width
   double room_height_m = 3.0;
   std::uint64_t seed = 1;         // textures and noise
+  // Another session in the same room: where on the loop the first capture is
+  // (degrees counter-clockwise), when it is taken (the bag's stamps follow),
+  // its lighting (a gain, and a brightness that changes across the room by
+  // `light_gradient` of it from one wall to the opposite one, as a lamp on
+  // one side gives), and its image noise (0: from `seed`).
+  double start_angle_deg = 0.0;
+  double start_time_s = 0.0;
+  double light_gain = 1.0;
+  double light_gradient = 0.0;
+  std::uint64_t noise_seed = 0;
 
   // The same field of view at another image width (4:3, focal scaled).
   RigSceneOptions& WithWidth(int w) {
@@ -64,7 +74,7 @@ class RigScene {
   const RigSceneOptions& Options() const { return options_; }
   const std::vector<RigCamera>& Cameras() const { return cameras_; }
   Eigen::Matrix3d Intrinsics() const;
-  double CaptureTime(int capture) const { return capture * options_.capture_period_s; }
+  double CaptureTime(int capture) const { return options_.start_time_s + capture * options_.capture_period_s; }
   // World-to-rig rotation and rig position (world frame) at a capture.
   Eigen::Matrix3d WorldToRig(int capture) const;
   Eigen::Vector3d RigPosition(int capture) const;
