@@ -32,9 +32,6 @@ for setting in "${SETTINGS[@]}"; do
     --output-dir "$OUT/$name" --no-progress > "$OUT/$name.txt"
 done
 
-value() {  # file, sed pattern whose first group is the value
-  sed -n "s/$2/\1/p" "$1" | head -1
-}
 row() {  # label, summary file
   local f=$2
   echo "| $1 | $(value "$f" '^keyframe selection ([a-z]*): \([0-9]*\) images.*' | grep . || value "$f" '^keyframes: .* (\([0-9]*\) images through.*') |" \

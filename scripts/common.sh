@@ -10,3 +10,8 @@ BUILD=build
 DEVEL=devel
 BIN=$DEVEL/lib/rotation_averaging
 DATA=${ROTAVG_DATA_DIR:-../shared/data}
+# The first value a tool's summary gives: file, sed pattern whose first
+# group is the value.
+value() {
+  sed -n "s/$2/\1/p" "$1" | head -1
+}

@@ -615,9 +615,8 @@ MapSaveTiming KeyframePipeline::LastSaveTiming() const {
   return last_save_timing_;
 }
 
-bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error, std::string* note) {
-  // The graph is read once to check it before the database replaces the
-  // front end's keyframes: a refused graph leaves both as they were.
+bool KeyframePipeline::CheckMap(const std::string& graph_path, std::size_t* views, bool* have_rig,
+                                std::string* error) const {
   ViewGraph check;
   const ReadReport report = ReadRotavgGraph(graph_path, &check);
   if (!report.ok()) {
@@ -631,16 +630,25 @@ bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error
       return false;
     }
   }
-  std::string loaded = "view graph of " + std::to_string(check.NumViews()) + " views loaded from " + graph_path;
+  *views = check.NumViews();
   // The rig's captures: without them a saved capture would stay one
   // orientation of the rig frame, and the cameras' keyframes in it unknown.
+  std::error_code ec;
+  *have_rig = std::filesystem::exists(RigPath(graph_path), ec);
+  RigModel staged(config_.rig);
+  return !*have_rig || staged.Load(RigPath(graph_path), error);
+}
+
+bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error, std::string* note) {
+  // The graph and the rig file are read once to check them before the
+  // database replaces the front end's keyframes: a refused map leaves
+  // everything as it was.
+  std::size_t views = 0;
+  bool have_rig = false;
+  if (!CheckMap(graph_path, &views, &have_rig, error)) return false;
+  std::string loaded = "view graph of " + std::to_string(views) + " views loaded from " + graph_path;
   const std::string rig = RigPath(graph_path);
   std::error_code ec;
-  const bool have_rig = std::filesystem::exists(rig, ec);
-  if (have_rig) {
-    RigModel staged(config_.rig);
-    if (!staged.Load(rig, error)) return false;
-  }
   const std::string database = KeyframeDatabasePath(graph_path);
   if (frontend_) {
     if (!std::filesystem::exists(database, ec)) {
@@ -672,21 +680,13 @@ bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error
 
 bool KeyframePipeline::AddMap(const std::string& graph_path, std::string* error, std::string* note) {
   // The files are checked before anything is added (the graph and the rig
-  // file read once for it; each database check is its own load): a refused
-  // map leaves what is held as it was.
-  ViewGraph check;
-  const ReadReport report = ReadRotavgGraph(graph_path, &check);
-  if (!report.ok()) {
-    if (error) *error = report.error;
-    return false;
-  }
+  // file read once for it; the database is checked as it is added): a
+  // refused map leaves what is held as it was.
+  std::size_t views = 0;
+  bool have_rig = false;
+  if (!CheckMap(graph_path, &views, &have_rig, error)) return false;
   const std::string rig = RigPath(graph_path);
   std::error_code ec;
-  const bool have_rig = std::filesystem::exists(rig, ec);
-  if (have_rig) {
-    RigModel staged(config_.rig);
-    if (!staged.Load(rig, error)) return false;
-  }
   std::string added_note = "map " + graph_path + " added:";
   const std::string database = KeyframeDatabasePath(graph_path);
   if (frontend_ && frontend_->UsesVocabulary() && std::filesystem::exists(database, ec)) {

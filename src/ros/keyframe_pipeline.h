@@ -242,6 +242,9 @@ class KeyframePipeline {
   KeyframeFrontendStats FrontendStats() const;
 
  private:
+  // Reads the graph of a saved map and its rig file, if any, to check them
+  // (views named as keyframes, a rig file that loads) before they are used.
+  bool CheckMap(const std::string& graph_path, std::size_t* views, bool* have_rig, std::string* error) const;
   bool Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
                 const sensor_msgs::CameraInfo& info, bool rectified, PendingKeyframe* out, std::string* error);
   bool Reject(std::uint64_t* counter, const std::string& why, std::string* error);

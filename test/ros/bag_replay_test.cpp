@@ -141,6 +141,18 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
   EXPECT_EQ(ReadAll(first.graph_file), ReadAll(second.graph_file));
 }
 
+// The node's configuration for sessions of the rendered rig: its two
+// cameras' streams, every image a keyframe, and a vocabulary trained on
+// another room's textures (saved in `dir`).
+std::string SessionConfig(const std::string& dir) {
+  const std::string vocabulary = dir + "/test.vocab";
+  std::string error;
+  EXPECT_TRUE(TestVocabulary()->Save(vocabulary, &error)) << error;
+  return "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
+         "keyframe_selection: all\nmax_features: 1000\nsolve_period: 2.0\nvocabulary: " +
+         vocabulary + "\n";
+}
+
 // A map saved at the end of one bag (save_on_shutdown) and loaded by the
 // replay of the next (load_graph), as a node restarted mid-run would: the
 // rig's second lap closes loops with the first lap's keyframes, so the two
@@ -183,14 +195,9 @@ TEST_F(BagReplay, TheNextSessionContinuesTheSavedMap) {
     }
   }
 
-  // A vocabulary trained on another room's textures.
-  const std::string vocabulary = dir + "/test.vocab";
-  ASSERT_TRUE(TestVocabulary()->Save(vocabulary, &error)) << error;
   const std::string map = dir + "/map/graph.txt";
   std::filesystem::create_directories(dir + "/map");
-  const std::string common = "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
-                             "keyframe_selection: all\nmax_features: 1000\nsolve_period: 2.0\nvocabulary: " +
-                             vocabulary + "\n";
+  const std::string common = SessionConfig(dir);
   WriteText(dir + "/first.yaml", common + "save_on_shutdown: " + map + "\n");
   WriteText(dir + "/second.yaml", common + "load_graph: " + map + "\n");
 
@@ -320,12 +327,8 @@ TEST_F(BagReplay, ASessionUnderOtherLightingJoinsTheSavedMap) {
   const cv::Scalar second_mean = cv::mean(second_scene.Render(0, 0));  // 90 deg on: the first's capture 4
   EXPECT_LT(second_mean[0], 0.9 * first_mean[0]);
 
-  const std::string vocabulary = dir + "/test.vocab";
-  ASSERT_TRUE(TestVocabulary()->Save(vocabulary, &error)) << error;
   const std::string map = dir + "/map/graph.txt";
-  const std::string common = "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
-                             "keyframe_selection: all\nmax_features: 1000\nsolve_period: 2.0\nvocabulary: " +
-                             vocabulary + "\n";
+  const std::string common = SessionConfig(dir);
   WriteText(dir + "/first.yaml", common + "save_on_shutdown: " + map + "\n");
   WriteText(dir + "/second.yaml", common + "load_graph: " + map + "\n");
   ReplayOptions o1 = Options(first_bag, "lighting1");

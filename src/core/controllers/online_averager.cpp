@@ -666,31 +666,56 @@ bool OnlineAverager::SaveGraph(const std::string& path, std::string* error) cons
   return WriteRotavgGraph(path, graph, error, &orientations);
 }
 
-bool OnlineAverager::LoadGraph(const std::string& path, std::string* error) {
-  ViewGraph loaded;
-  std::map<ViewId, Eigen::Matrix3d> saved_orientations;
-  const ReadReport report = ReadRotavgGraph(path, &loaded, &saved_orientations);
+namespace {
+
+// A graph file the averager saved: its graph, the orientations saved with
+// it, and the keyframe each view names.
+struct SavedKeyframeGraph {
+  ViewGraph graph;
+  std::map<ViewId, Eigen::Matrix3d> orientations;
+  std::map<ViewId, KeyframeKey> keys;
+  std::vector<std::string> warnings;
+};
+
+bool ReadSavedKeyframeGraph(const std::string& path, SavedKeyframeGraph* saved, std::string* error) {
+  const ReadReport report = ReadRotavgGraph(path, &saved->graph, &saved->orientations);
   if (!report.ok()) {
     if (error) *error = report.error;
     return false;
   }
+  saved->warnings = report.warnings;
+  std::set<KeyframeKey> seen;
+  for (const View& v : saved->graph.Views()) {
+    KeyframeKey& key = saved->keys[v.id];
+    if (!OnlineAverager::ParseKeyframeName(v.name, &key)) {
+      if (error) *error = path + ": view '" + v.name + "' is not named <frame_id>@<stamp_ns>";
+      return false;
+    }
+    if (!seen.insert(key).second) {
+      if (error) *error = path + ": two views are named '" + v.name + "'";
+      return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
+bool OnlineAverager::LoadGraph(const std::string& path, std::string* error) {
+  SavedKeyframeGraph saved;
+  if (!ReadSavedKeyframeGraph(path, &saved, error)) return false;
   std::map<KeyframeKey, ViewId> ids;
   std::vector<KeyframeKey> keys;
   ViewGraph renumbered;
   std::map<ViewId, ViewId> old_to_new;
-  for (const View& v : loaded.Views()) {
-    KeyframeKey key;
-    if (!ParseKeyframeName(v.name, &key)) {
-      if (error) *error = path + ": view '" + v.name + "' is not named <frame_id>@<stamp_ns>";
-      return false;
-    }
+  for (const auto& [old_id, key] : saved.keys) {
     const ViewId id = keys.size();
     ids[key] = id;
     keys.push_back(key);
-    old_to_new[v.id] = id;
-    renumbered.AddView(id, v.name);
+    old_to_new[old_id] = id;
+    renumbered.AddView(id, KeyframeName(key));
   }
-  for (RelativeRotation e : loaded.Edges()) {
+  for (RelativeRotation e : saved.graph.Edges()) {
     e.view1 = old_to_new.at(e.view1);
     e.view2 = old_to_new.at(e.view2);
     renumbered.AddEdge(e, nullptr, DuplicatePolicy::kKeepBoth);
@@ -699,7 +724,7 @@ bool OnlineAverager::LoadGraph(const std::string& path, std::string* error) {
   // gauge views keep them, so the keyframes stay in the frames published
   // before the save instead of moving to a new gauge.
   ViewOrientations start;
-  for (const auto& [id, r] : saved_orientations) start.emplace(old_to_new.at(id), r);
+  for (const auto& [id, r] : saved.orientations) start.emplace(old_to_new.at(id), r);
   {
     std::lock_guard<std::mutex> solve_lock(solve_mutex_);
     {
@@ -717,25 +742,16 @@ bool OnlineAverager::LoadGraph(const std::string& path, std::string* error) {
     ClearLocalState();
     SolveLocked(true);
   }
-  if (!report.warnings.empty() && error) *error = report.warnings.front();
+  if (!saved.warnings.empty() && error) *error = saved.warnings.front();
   return true;
 }
 
 bool OnlineAverager::AddGraph(const std::string& path, AddedGraph* added, std::string* error) {
-  ViewGraph loaded;
-  std::map<ViewId, Eigen::Matrix3d> saved_orientations;
-  const ReadReport report = ReadRotavgGraph(path, &loaded, &saved_orientations);
-  if (!report.ok()) {
-    if (error) *error = report.error;
-    return false;
-  }
-  std::map<ViewId, KeyframeKey> key_of;
-  for (const View& v : loaded.Views()) {
-    if (!ParseKeyframeName(v.name, &key_of[v.id])) {
-      if (error) *error = path + ": view '" + v.name + "' is not named <frame_id>@<stamp_ns>";
-      return false;
-    }
-  }
+  SavedKeyframeGraph saved;
+  if (!ReadSavedKeyframeGraph(path, &saved, error)) return false;
+  const ViewGraph& loaded = saved.graph;
+  const std::map<ViewId, KeyframeKey>& key_of = saved.keys;
+  const std::map<ViewId, Eigen::Matrix3d>& saved_orientations = saved.orientations;
   AddedGraph result;
   {
     std::lock_guard<std::mutex> solve_lock(solve_mutex_);
@@ -798,7 +814,7 @@ bool OnlineAverager::AddGraph(const std::string& path, AddedGraph* added, std::s
     SolveLocked(true);
   }
   if (added) *added = result;
-  if (!report.warnings.empty() && error) *error = report.warnings.front();
+  if (!saved.warnings.empty() && error) *error = saved.warnings.front();
   return true;
 }
 
