@@ -19,9 +19,6 @@ CONFIG=$(grep -v '^#' config/demo.yaml)
 "$BIN/rotation_averaging_replay" --bag "$DEMO" --config config/demo.yaml --gt "$DEMO" --output-dir "$OUT/full" \
   --no-progress > "$OUT/full.txt"
 
-value() {  # file, sed pattern whose first group is the value
-  sed -n "s/$2/\1/p" "$1" | head -1
-}
 full_median=$(value "$OUT/full.txt" '^median error: \([0-9.]*\) deg')
 CUTS=(15 30 45)
 for n in "${CUTS[@]}"; do

@@ -18,6 +18,7 @@
 #   keyframe_selection.md  keyframe selection on a rendered 20 Hz stream
 #   restart.md         the demo replayed as a node restarted mid-run: the map saved and loaded
 #   map.md             the saved map at 800 and 10,000 keyframes: size on disk, load and save times
+#   sessions.md        two 400-capture sessions (other start, other lighting) merged, against one 800-capture run
 # results/README.md is the written summary of these files.
 #
 #   bash scripts/report.sh            about 70 minutes on 2 cores (the COLMAP comparison about 17 of them; 1,000,000 views alone: 3-4, beside the front end)
@@ -80,4 +81,5 @@ bash scripts/benchmark_keyframe_selection.sh > /dev/null
 step "restarts: the map saved and loaded"
 bash scripts/benchmark_restart.sh > /dev/null
 bash scripts/benchmark_map.sh > /dev/null
+bash scripts/benchmark_sessions.sh > /dev/null
 step "done: results/*.md and results/plots/ regenerated; summary in results/README.md"
