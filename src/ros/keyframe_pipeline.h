@@ -171,9 +171,9 @@ class KeyframePipeline {
   // are shared history, its others keep its frame until a loop closure
   // joins them to another component), its rig captures and its keyframes,
   // which new keyframes are then retrieved against and verified with. The
-  // two maps join where a new keyframe closes loops to both. Keyframes are
-  // told apart by camera frame and stamp: two robots need distinct camera
-  // frame ids. A refused map leaves what is held as it was.
+  // two maps join where a new keyframe closes loops to both. Keyframes and
+  // captures are told apart by frame id and stamp: two robots need distinct
+  // camera and rig frame ids. A refused map leaves what is held as it was.
   bool AddMap(const std::string& graph_path, std::string* error, std::string* note = nullptr);
 
   // Converts, validates and enqueues one relative pose. On failure the
