@@ -25,6 +25,7 @@ SYSTEM = {
     "Ceres": ("libceres-dev", "libceres-dev"),
     "OpenCV": ("libopencv-dev", "libopencv-dev"),
     "faiss": ("libfaiss-dev", "libfaiss-dev"),
+    "xxhash": ("libxxhash-dev", "libxxhash-dev"),
     "yaml-cpp": ("yaml-cpp", "libyaml-cpp-dev"),
     "pybind11": ("pybind11-dev", "pybind11-dev"),
     "rostest": ("rostest", "librostest-dev"),
