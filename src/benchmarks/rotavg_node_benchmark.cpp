@@ -25,6 +25,7 @@
 #include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "ros/msg_conversion.h"
+#include "core/util/random_draws.h"
 
 namespace ra = rotation_averaging;
 
@@ -41,7 +42,7 @@ struct Trajectory {
   Eigen::Matrix3d Next() {
     std::normal_distribution<double> step(0.0, 0.02);
     Eigen::Matrix3d r = Eigen::Matrix3d::Identity();
-    if (!rotations.empty()) r = ra::ExpSO3(Eigen::Vector3d(step(rng), step(rng), step(rng))) * rotations.back();
+    if (!rotations.empty()) r = ra::ExpSO3(ra::DrawVector3(rng, step)) * rotations.back();
     rotations.push_back(r);
     return r;
   }

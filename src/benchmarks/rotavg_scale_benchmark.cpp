@@ -34,6 +34,7 @@
 #include "core/io/text_lines.h"
 #include "rotation_averaging/core/scene/synthetic_graph.h"
 #include "report.h"
+#include "core/util/random_draws.h"
 
 namespace ra = rotation_averaging;
 using ra::Fixed;
@@ -278,7 +279,7 @@ OnlineRun RunOnline(int keyframes, int additions, double rate_hz, const OnlineMo
   Eigen::Matrix3d r = Eigen::Matrix3d::Identity();
   for (int i = 0; i < keyframes + additions; ++i) {
     truth.push_back(r);
-    r = ra::ExpSO3(Eigen::Vector3d(walk(rng), walk(rng), 0.05 + walk(rng))) * r;
+    r = ra::ExpSO3(ra::DrawVector3(rng, walk) + Eigen::Vector3d(0.0, 0.0, 0.05)) * r;
   }
   std::vector<ra::KeyframeRelativeRotation> all;
   auto key = [](int i) { return ra::KeyframeKey{"cam", 1'000'000'000LL + 100'000'000LL * i}; };
@@ -293,9 +294,9 @@ OnlineRun RunOnline(int keyframes, int additions, double rate_hz, const OnlineMo
     Eigen::Matrix3d axes = Eigen::Matrix3d::Identity();
     if (mode.anisotropic) {
       for (int a = 1; a < 3; ++a) sds(a) = ra::DegToRad(0.3) * std::exp(0.5 * n01(rng));
-      axes = ra::ExpSO3(Eigen::Vector3d(n01(rng), n01(rng), n01(rng)));
+      axes = ra::ExpSO3(ra::DrawVector3(rng, n01));
     }
-    const Eigen::Vector3d noise(n01(rng), n01(rng), n01(rng));
+    const Eigen::Vector3d noise = ra::DrawVector3(rng, n01);
     m.rotation = truth[i] * truth[j].transpose() * ra::ExpSO3(axes * sds.cwiseProduct(noise));
     if (unit(rng) < 0.05) m.rotation = m.rotation * ra::ExpSO3(Eigen::Vector3d(1.0, 0.5, 0.0));
     m.has_covariance = true;

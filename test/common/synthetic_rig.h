@@ -10,6 +10,7 @@
 
 #include "rotation_averaging/core/controllers/online_averager.h"
 #include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/random_draws.h"
 
 namespace rotation_averaging {
 
@@ -47,9 +48,9 @@ inline RigData MakeRig(int captures, double outlier_ratio, unsigned seed) {
     m.num_inliers = 100;
     const Eigen::Matrix3d true_rel = d.truth[a] * d.truth[b].transpose();
     if (unit(rng) < outlier_ratio) {
-      m.rotation = ExpSO3(Eigen::Vector3d(unit(rng) * 2 - 1, unit(rng) * 2 - 1, unit(rng) * 2 - 1) * 2.0);
+      m.rotation = ExpSO3((DrawVector3(rng, unit) * 2.0 - Eigen::Vector3d::Ones()) * 2.0);
     } else {
-      m.rotation = true_rel * ExpSO3(Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
+      m.rotation = true_rel * ExpSO3(DrawVector3(rng, noise));
     }
     d.measurements.push_back(m);
   };

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "core/linalg/block_sparse_system.h"
+#include "core/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {
@@ -121,9 +122,10 @@ BlockLaplacian GridBlockLaplacian(int side, int reach, double decades, double an
   };
   for (std::size_t k = 0; k < l.pairs.size(); ++k) {
     const Eigen::Quaterniond q =
-        Eigen::Quaterniond(normal(rng), normal(rng), normal(rng), normal(rng)).normalized();
-    const Eigen::Vector3d axes(std::pow(anisotropy, unit(rng)), std::pow(anisotropy, unit(rng)),
-                               std::pow(anisotropy, unit(rng)));
+        DrawQuaternion(rng, normal).normalized();
+    const Eigen::Vector3d exponents = DrawVector3(rng, unit);
+    const Eigen::Vector3d axes(std::pow(anisotropy, exponents.x()), std::pow(anisotropy, exponents.y()),
+                               std::pow(anisotropy, exponents.z()));
     const Eigen::Matrix3d g = scalar.weights[k] * q.toRotationMatrix() * axes.asDiagonal() *
                               q.toRotationMatrix().transpose() / axes.maxCoeff();
     l.g.push_back(g);

@@ -16,6 +16,7 @@
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "rotation_averaging/core/scene/synthetic_graph.h"
+#include "core/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {
@@ -462,7 +463,7 @@ SyntheticGraph GraphWithCovarianceFloor(std::uint64_t seed, double floor_deg, do
   std::normal_distribution<double> normal(0.0, 1.0);
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
   auto random_rotation = [&] {
-    Eigen::Quaterniond q(normal(rng), normal(rng), normal(rng), normal(rng));
+    Eigen::Quaterniond q = DrawQuaternion(rng, normal);
     return Eigen::Matrix3d(q.normalized().toRotationMatrix());
   };
   SyntheticGraph sg;
@@ -485,7 +486,7 @@ SyntheticGraph GraphWithCovarianceFloor(std::uint64_t seed, double floor_deg, do
     RelativeRotation e;
     e.view1 = a;
     e.view2 = b;
-    const Eigen::Vector3d eta(actual * normal(rng), actual * normal(rng), actual * normal(rng));
+    const Eigen::Vector3d eta = actual * DrawVector3(rng, normal);
     e.rotation = outlier ? random_rotation()
                          : Eigen::Matrix3d(sg.ground_truth[a] * sg.ground_truth[b].transpose() * ExpSO3(eta));
     e.has_covariance = true;

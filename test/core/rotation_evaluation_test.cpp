@@ -7,6 +7,7 @@
 #include <random>
 
 #include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {
@@ -29,9 +30,9 @@ TEST(Evaluation, AlignmentIsRobustToOutlierViews) {
   NamedOrientations gt, est;
   for (int i = 0; i < 100; ++i) {
     const std::string name = "v" + std::to_string(i);
-    gt[name] = ExpSO3(Eigen::Vector3d(normal(rng), normal(rng), normal(rng)));
+    gt[name] = ExpSO3(DrawVector3(rng, normal));
     const double noise = i < 30 ? 1.0 : 0.001;  // 30% of views far off
-    est[name] = gt[name] * g * ExpSO3(noise * Eigen::Vector3d(normal(rng), normal(rng), normal(rng)));
+    est[name] = gt[name] * g * ExpSO3(noise * DrawVector3(rng, normal));
   }
   gt["missing"] = Eigen::Matrix3d::Identity();
   const EvaluationResult r = EvaluateOrientations(est, gt);
@@ -56,7 +57,7 @@ struct CalibrationScene {
 CalibrationScene MakeCalibrationScene(std::mt19937* rng, int num_views, double view_sd = 0.0,
                                       const Eigen::Vector3d& pair_sd = Eigen::Vector3d(0.001, 0.01, 0.1)) {
   std::normal_distribution<double> normal;
-  auto gaussian = [&] { return Eigen::Vector3d(normal(*rng), normal(*rng), normal(*rng)); };
+  auto gaussian = [&] { return DrawVector3(*rng, normal); };
   CalibrationScene scene;
   for (int i = 0; i < num_views; ++i) {
     const std::string name = "v" + std::to_string(i);
@@ -127,7 +128,7 @@ TEST(EdgeCalibration, PerViewOffsetsSeparateAReferencesErrorFromThePairs) {
   NamedOrientations reference;
   std::map<std::string, Eigen::Vector3d> offset;
   for (const auto& [name, r] : scene.truth) {
-    offset[name] = 0.05 * Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+    offset[name] = 0.05 * DrawVector3(rng, normal).normalized();
     reference[name] = ExpSO3(offset[name]) * r;
   }
   const EdgeCalibration truth = EvaluateEdgeCovariances(scene.graph, scene.truth);

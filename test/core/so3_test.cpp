@@ -1,4 +1,5 @@
 #include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/random_draws.h"
 
 #include <gtest/gtest.h>
 
@@ -12,7 +13,7 @@ TEST(So3, ExpLogRoundTripIncludingNearZeroAndNearPi) {
   std::normal_distribution<double> normal;
   for (double angle : {0.0, 1e-12, 1e-7, 1e-3, 0.5, 2.0, kPi - 1e-3, kPi - 1e-8}) {
     for (int k = 0; k < 20; ++k) {
-      const Eigen::Vector3d axis = Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+      const Eigen::Vector3d axis = DrawVector3(rng, normal).normalized();
       const Eigen::Vector3d w = angle * axis;
       const Eigen::Matrix3d r = ExpSO3(w);
       EXPECT_TRUE(IsRotationMatrix(r, 1e-12));
@@ -33,7 +34,7 @@ TEST(So3, LogSeriesBranchAgreesWithAtan2) {
   std::normal_distribution<double> normal;
   double worst = 0.0;
   for (double angle = 1e-7; angle < 0.2; angle *= 1.05) {
-    const Eigen::Vector3d axis = Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+    const Eigen::Vector3d axis = DrawVector3(rng, normal).normalized();
     const Eigen::Matrix3d r = ExpSO3(angle * axis);
     const long double c = 0.5L * (static_cast<long double>(r.trace()) - 1.0L);
     const Eigen::Vector3d v(0.5 * (r(2, 1) - r(1, 2)), 0.5 * (r(0, 2) - r(2, 0)), 0.5 * (r(1, 0) - r(0, 1)));
@@ -51,7 +52,7 @@ TEST(So3, LogOfAUnitQuaternionAgreesWithLogOfItsMatrix) {
   std::normal_distribution<double> normal;
   double worst = 0.0;
   for (double angle = 1e-8; angle < kPi - 1e-6; angle = std::min(angle * 1.05, angle + 0.01)) {
-    const Eigen::Vector3d omega = angle * Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+    const Eigen::Vector3d omega = angle * DrawVector3(rng, normal).normalized();
     const Eigen::Quaterniond q(Eigen::AngleAxisd(angle, omega.normalized()));
     // Either sign of the quaternion is the same rotation.
     for (const double sign : {1.0, -1.0}) {

@@ -7,6 +7,7 @@
 
 #include "frontend/refinement_test_util.h"
 #include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {
@@ -29,7 +30,10 @@ Scene MakeScene(int views, double noise_px, std::uint32_t seed) {
   std::normal_distribution<double> noise(0.0, noise_px / kFocal);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   Scene scene;
-  for (int k = 0; k < 300; ++k) scene.points.emplace_back(3.0 * u(rng), 2.0 * u(rng), 6.0 + 2.0 * u(rng));
+  for (int k = 0; k < 300; ++k) {
+    const Eigen::Vector3d d = DrawVector3(rng, u);
+    scene.points.emplace_back(3.0 * d.x(), 2.0 * d.y(), 6.0 + 2.0 * d.z());
+  }
   for (int v = 0; v < views; ++v) {
     const double angle = DegToRad(-20.0 + 40.0 * v / (views - 1));
     const Eigen::Vector3d centre(6.0 * std::sin(angle), 0.3 * u(rng), 6.0 - 6.0 * std::cos(angle));
@@ -43,7 +47,7 @@ Scene MakeScene(int views, double noise_px, std::uint32_t seed) {
     scene.centres.push_back(centre);
     std::vector<Eigen::Vector2d> seen;
     for (const Eigen::Vector3d& p : scene.points) {
-      seen.push_back((r * (p - centre)).hnormalized() + Eigen::Vector2d(noise(rng), noise(rng)));
+      seen.push_back((r * (p - centre)).hnormalized() + DrawVector2(rng, noise));
     }
     scene.keypoints.push_back(seen);
   }
@@ -135,7 +139,7 @@ TEST(BundleAdjustment, RotationOnlyPairsJoinTheTracks) {
   std::normal_distribution<double> noise(0.0, 0.3 / kFocal);
   std::vector<Eigen::Vector2d> seen;
   for (const Eigen::Vector3d& p : base.points) {
-    seen.push_back((turned * (p - base.centres[0])).hnormalized() + Eigen::Vector2d(noise(rng), noise(rng)));
+    seen.push_back((turned * (p - base.centres[0])).hnormalized() + DrawVector2(rng, noise));
   }
   for (EdgeCorrespondences e : base.edges) {
     e.view1 = renumbered(e.view1);
@@ -223,7 +227,8 @@ TEST(BundleAdjustment, TwoViewTracksAreLeftOutByDefault) {
   for (EdgeCorrespondences& e : scene.edges) {
     if (e.view1 != 0 || e.view2 != 3) continue;
     for (int k = 0; k < 100; ++k) {
-      const Eigen::Vector3d p(3.0 * u(rng), 2.0 * u(rng), 6.0 + 2.0 * u(rng));
+      const Eigen::Vector3d d = DrawVector3(rng, u);
+      const Eigen::Vector3d p(3.0 * d.x(), 2.0 * d.y(), 6.0 + 2.0 * d.z());
       e.points1.push_back((scene.truth.at(0) * (p - scene.centres[0])).hnormalized());
       e.points2.push_back((scene.truth.at(3) * (p - scene.centres[3])).hnormalized() + Eigen::Vector2d(0.0, 1.5 / kFocal));
     }

@@ -7,6 +7,7 @@
 
 #include "frontend/refinement_test_util.h"
 #include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {
@@ -25,7 +26,10 @@ Scene MakeScene(int views, double noise_px, std::uint32_t seed) {
   std::normal_distribution<double> noise(0.0, noise_px / kFocal);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   std::vector<Eigen::Vector3d> points;
-  for (int k = 0; k < 300; ++k) points.emplace_back(3.0 * u(rng), 2.0 * u(rng), 6.0 + 2.0 * u(rng));
+  for (int k = 0; k < 300; ++k) {
+    const Eigen::Vector3d d = DrawVector3(rng, u);
+    points.emplace_back(3.0 * d.x(), 2.0 * d.y(), 6.0 + 2.0 * d.z());
+  }
   Scene scene;
   std::vector<Eigen::Vector3d> centers;
   for (int v = 0; v < views; ++v) {
@@ -49,8 +53,8 @@ Scene MakeScene(int views, double noise_px, std::uint32_t seed) {
       const Eigen::Matrix3d& rj = scene.truth[e.view2];
       for (const Eigen::Vector3d& p : points) {
         const Eigen::Vector3d a = ri * (p - centers[i]), b = rj * (p - centers[j]);
-        e.points1.push_back(a.hnormalized() + Eigen::Vector2d(noise(rng), noise(rng)));
-        e.points2.push_back(b.hnormalized() + Eigen::Vector2d(noise(rng), noise(rng)));
+        e.points1.push_back(a.hnormalized() + DrawVector2(rng, noise));
+        e.points2.push_back(b.hnormalized() + DrawVector2(rng, noise));
       }
       e.translation = (rj * (centers[i] - centers[j])).normalized();
       e.sigma = std::max(noise_px, 0.05) / kFocal;

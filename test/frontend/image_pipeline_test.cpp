@@ -16,6 +16,7 @@
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
+#include "core/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {
@@ -96,7 +97,7 @@ FocalScene MakeFocalScene(const Eigen::Matrix3d& k_true, const Eigen::Matrix3d& 
   std::uniform_real_distribution<double> xy(-4.0, 4.0), z(6.0, 12.0), unit(0.0, 1.0);
   std::normal_distribution<double> noise(0.0, 0.3);
   std::vector<Eigen::Vector3d> cloud(600);
-  for (Eigen::Vector3d& x : cloud) x = Eigen::Vector3d(xy(rng), xy(rng), z(rng));
+  for (Eigen::Vector3d& x : cloud) x = DrawVector3(rng, xy, xy, z);
   std::vector<Eigen::Matrix3d> rotations;
   std::vector<Eigen::Vector3d> centres;
   for (int c = 0; c < 8; ++c) {
@@ -116,9 +117,9 @@ FocalScene MakeFocalScene(const Eigen::Matrix3d& k_true, const Eigen::Matrix3d& 
       for (const Eigen::Vector3d& x : cloud) {
         Eigen::Vector2d u1, u2;
         if (!project(a, x, &u1) || !project(b, x, &u2)) continue;
-        p1.push_back(u1 + Eigen::Vector2d(noise(rng), noise(rng)));
-        p2.push_back(unit(rng) < 0.1 ? Eigen::Vector2d(640 * unit(rng), 480 * unit(rng))
-                                     : Eigen::Vector2d(u2 + Eigen::Vector2d(noise(rng), noise(rng))));
+        p1.push_back(u1 + DrawVector2(rng, noise));
+        p2.push_back(unit(rng) < 0.1 ? Eigen::Vector2d(Eigen::Vector2d(640.0, 480.0).cwiseProduct(DrawVector2(rng, unit)))
+                                     : Eigen::Vector2d(u2 + DrawVector2(rng, noise)));
       }
       scene.poses.push_back(EstimateRelativePoseWithCovariance(p1, p2, k_given, k_given, options));
       scene.points1.push_back(std::move(p1));

@@ -12,6 +12,7 @@
 
 #include "rotation_averaging/frontend/estimators/correspondence_refinement.h"
 #include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/random_draws.h"
 
 namespace rotation_averaging {
 
@@ -31,7 +32,7 @@ inline ViewOrientations Perturbed(const ViewOrientations& truth, double degrees,
   std::mt19937 rng(seed);
   std::normal_distribution<double> n(0.0, DegToRad(degrees) / std::sqrt(3.0));
   ViewOrientations out;
-  for (const auto& [id, r] : truth) out[id] = ExpSO3(Eigen::Vector3d(n(rng), n(rng), n(rng))) * r;
+  for (const auto& [id, r] : truth) out[id] = ExpSO3(DrawVector3(rng, n)) * r;
   return out;
 }
 

@@ -11,6 +11,7 @@
 
 #include "frontend/geometry/epipolar.h"
 #include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {
@@ -29,7 +30,7 @@ Scene MakeScene(double baseline, std::mt19937& rng) {
   s.translation = baseline * Eigen::Vector3d(-1.0, 0.1, 0.05).normalized();
   std::uniform_real_distribution<double> xy(-2.0, 2.0), z(4.0, 8.0);
   while (s.points.size() < 300) {
-    const Eigen::Vector3d p(xy(rng), xy(rng), z(rng));
+    const Eigen::Vector3d p = DrawVector3(rng, xy, xy, z);
     const Eigen::Vector3d q = s.rotation * p + s.translation;
     const Eigen::Vector3d u1 = s.k * p, u2 = s.k * q;
     if (q.z() < 1.0) continue;
@@ -48,11 +49,14 @@ void Observe(const Scene& s, double sigma_px, double outlier_ratio, std::mt19937
   p2->clear();
   for (const Eigen::Vector3d& p : s.points) {
     const Eigen::Vector3d u1 = s.k * p, u2 = s.k * (s.rotation * p + s.translation);
-    p1->emplace_back(u1.x() / u1.z() + noise(rng), u1.y() / u1.z() + noise(rng));
+    const Eigen::Vector2d e1 = DrawVector2(rng, noise);
+    p1->emplace_back(u1.x() / u1.z() + e1.x(), u1.y() / u1.z() + e1.y());
     if (unit(rng) < outlier_ratio) {
-      p2->emplace_back(640 * unit(rng), 480 * unit(rng));
+      const Eigen::Vector2d o = DrawVector2(rng, unit);
+      p2->emplace_back(640 * o.x(), 480 * o.y());
     } else {
-      p2->emplace_back(u2.x() / u2.z() + noise(rng), u2.y() / u2.z() + noise(rng));
+      const Eigen::Vector2d e2 = DrawVector2(rng, noise);
+      p2->emplace_back(u2.x() / u2.z() + e2.x(), u2.y() / u2.z() + e2.y());
     }
   }
 }
@@ -67,7 +71,9 @@ TEST(RelativePose, SampsonGradientMatchesAutomaticDerivatives) {
   for (int trial = 0; trial < 200; ++trial) {
     Eigen::Matrix3d f;
     for (int i = 0; i < 9; ++i) f.data()[i] = entry(rng) * (i % 3 == 2 || i >= 6 ? 1e-2 : 1e-5);
-    const Eigen::Vector3d x1(pixel(rng), pixel(rng), 1.0), x2(pixel(rng), pixel(rng), 1.0);
+    const Eigen::Vector2d q1 = DrawVector2(rng, pixel);
+    const Eigen::Vector2d q2 = DrawVector2(rng, pixel);
+    const Eigen::Vector3d x1(q1.x(), q1.y(), 1.0), x2(q2.x(), q2.y(), 1.0);
     Eigen::Matrix<Jet, 3, 3> f_jet;
     for (int i = 0; i < 9; ++i) f_jet.data()[i] = Jet(f.data()[i], i);
     const Jet expected = SampsonError<Jet>(f_jet, x1.cast<Jet>(), x2.cast<Jet>());
@@ -161,7 +167,7 @@ TEST(RelativePose, TheCellJackknifeCoversErrorsSharedByARegion) {
   for (int k = 0; k < 80; ++k) {
     Observe(s, 0.2, 0.0, rng, &p1, &p2);
     std::vector<Eigen::Vector2d> offsets(8 * 6);
-    for (Eigen::Vector2d& o : offsets) o = Eigen::Vector2d(block_noise(rng), block_noise(rng));
+    for (Eigen::Vector2d& o : offsets) o = DrawVector2(rng, block_noise);
     for (Eigen::Vector2d& p : p2) {
       const int bx = std::clamp(static_cast<int>(p.x() / 80.0), 0, 7), by = std::clamp(static_cast<int>(p.y() / 80.0), 0, 5);
       p += offsets[by * 8 + bx];
@@ -235,7 +241,7 @@ TEST(RelativePose, DegenerateInputsFailWithAReason) {
       << TwoViewFailureName(pure.failure);
   // Pure noise: no consistent geometry.
   std::uniform_real_distribution<double> u(0.0, 480.0);
-  for (auto& p : p2) p = Eigen::Vector2d(u(rng), u(rng));
+  for (auto& p : p2) p = DrawVector2(rng, u);
   EXPECT_FALSE(EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k).success);
   // Input that cannot be a pair of views is refused as such, with the reason.
   p2.pop_back();
@@ -324,12 +330,12 @@ TEST(RelativePose, SidewaysPairsGiveTheirPoseWhateverSignTheRobustModelHad) {
   for (; pairs < 150; ++pairs) {
     Scene s;
     s.k << 500, 0, 320, 0, 500, 240, 0, 0, 1;
-    const Eigen::Vector3d jitter = DegToRad(1.5) * Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+    const Eigen::Vector3d jitter = DegToRad(1.5) * DrawVector3(rng, normal).normalized();
     s.rotation = ExpSO3(Eigen::Vector3d(0.0, DegToRad(-6.0), 0.0)) * ExpSO3(jitter);
     const Eigen::Vector3d step(0.31, 0.3 * normal(rng), 0.0);  // centre of camera 2 in camera 1
     s.translation = -s.rotation * step;
     while (s.points.size() < 400) {
-      const Eigen::Vector3d p(x(rng), y(rng), z(rng)), q = s.rotation * p + s.translation;
+      const Eigen::Vector3d p = DrawVector3(rng, x, y, z), q = s.rotation * p + s.translation;
       const Eigen::Vector3d u1 = s.k * p, u2 = s.k * q;
       const Eigen::Vector2d a = u1.hnormalized(), b = u2.hnormalized();
       if (q.z() > 1.0 && a.minCoeff() >= 0 && a.x() < 640 && a.y() < 480 && b.minCoeff() >= 0 && b.x() < 640 &&
@@ -372,7 +378,7 @@ TEST(RelativePose, RotationModelRejectsNoise) {
   std::vector<Eigen::Vector2d> p1, p2;
   Observe(s, 0.5, 0.0, rng, &p1, &p2);
   std::uniform_real_distribution<double> u(0.0, 480.0);
-  for (auto& p : p2) p = Eigen::Vector2d(u(rng), u(rng));
+  for (auto& p : p2) p = DrawVector2(rng, u);
   EXPECT_FALSE(EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k).success);
 }
 

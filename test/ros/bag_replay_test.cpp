@@ -28,6 +28,7 @@
 #include "common/test_vocabulary.h"
 #include "ros/demo_bag.h"
 #include "ros/msg_conversion.h"
+#include "core/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {
@@ -75,7 +76,7 @@ class BagReplay : public ::testing::Test {
       KeyframeRelativeRotation m;
       m.keyframe1 = {"cam", 1000000000LL * (a + 1)};
       m.keyframe2 = {"cam", 1000000000LL * (b + 1)};
-      m.rotation = truth[a] * truth[b].transpose() * ExpSO3(Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
+      m.rotation = truth[a] * truth[b].transpose() * ExpSO3(DrawVector3(rng, noise));
       if (outlier) m.rotation = m.rotation * ExpSO3(Eigen::Vector3d(0.0, 0.0, 1.0));
       m.has_covariance = true;
       m.covariance = std::pow(DegToRad(0.5), 2) * Eigen::Matrix3d::Identity();

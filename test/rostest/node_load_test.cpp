@@ -27,6 +27,7 @@
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "ros/msg_conversion.h"
+#include "core/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {
@@ -66,7 +67,7 @@ class NodeLoad : public ::testing::Test {
     Eigen::Matrix3d r = Eigen::Matrix3d::Identity();
     for (int i = 0; i < kKeyframes + 300; ++i) {
       truth_.push_back(r);
-      r = ExpSO3(Eigen::Vector3d(walk(rng), walk(rng), 0.1 + walk(rng))) * r;
+      r = ExpSO3(DrawVector3(rng, walk) + Eigen::Vector3d(0.0, 0.0, 0.1)) * r;
     }
   }
 
@@ -77,7 +78,7 @@ class NodeLoad : public ::testing::Test {
     KeyframeRelativeRotation m;
     m.keyframe1 = Key(a);
     m.keyframe2 = Key(b);
-    m.rotation = truth_[a] * truth_[b].transpose() * ExpSO3(Eigen::Vector3d(noise(*rng), noise(*rng), noise(*rng)));
+    m.rotation = truth_[a] * truth_[b].transpose() * ExpSO3(DrawVector3(*rng, noise));
     if (outlier) m.rotation = m.rotation * ExpSO3(Eigen::Vector3d(1.0, -0.5, 0.8));
     m.has_covariance = true;
     m.covariance = std::pow(DegToRad(1.0), 2) * Eigen::Matrix3d::Identity();

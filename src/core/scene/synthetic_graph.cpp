@@ -6,13 +6,14 @@
 #include <set>
 
 #include "rotation_averaging/core/geometry/so3.h"
+#include "core/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {
 
 Eigen::Matrix3d RandomRotation(std::mt19937_64& rng) {
   std::normal_distribution<double> normal(0.0, 1.0);
-  Eigen::Quaterniond q(normal(rng), normal(rng), normal(rng), normal(rng));
+  Eigen::Quaterniond q = DrawQuaternion(rng, normal);
   q.normalize();
   return q.toRotationMatrix();
 }
@@ -77,7 +78,7 @@ SyntheticGraph MakeSyntheticGraph(const SyntheticGraphOptions& options) {
     if (outlier) {
       edge.rotation = RandomRotation(rng);
     } else {
-      const Eigen::Vector3d eta = axes * stddev.cwiseProduct(Eigen::Vector3d(normal(rng), normal(rng), normal(rng)));
+      const Eigen::Vector3d eta = axes * stddev.cwiseProduct(DrawVector3(rng, normal));
       edge.rotation = truth * ExpSO3(eta);
     }
     edge.has_covariance = options.with_covariance;

@@ -27,7 +27,10 @@ Eigen::Matrix3d CameraFromRig(const Eigen::Vector3d& forward) {
 }
 
 // Random shapes in random greys on a grey ground, lightly blurred: plenty of
-// corners and blobs, no repetition.
+// corners and blobs, no repetition. One draw per statement: C++ leaves the
+// order of a call's arguments unspecified, and drawing inside one call made
+// the texture depend on the compiler (the draws follow the order gcc gave
+// those calls, last argument first; core/util/random_draws.h).
 cv::Mat MakeTexture(double width_m, double height_m, std::uint64_t seed) {
   const int w = std::max(8, static_cast<int>(std::lround(width_m / kTexelM)));
   const int h = std::max(8, static_cast<int>(std::lround(height_m / kTexelM)));
@@ -35,28 +38,39 @@ cv::Mat MakeTexture(double width_m, double height_m, std::uint64_t seed) {
   cv::Mat t(h, w, CV_8UC1, cv::Scalar(rng.uniform(70, 180)));
   const int shapes = static_cast<int>(70.0 * width_m * height_m) + 20;
   for (int k = 0; k < shapes; ++k) {
-    const cv::Point c(rng.uniform(0, w), rng.uniform(0, h));
+    const int cy = rng.uniform(0, h);
+    const int cx = rng.uniform(0, w);
+    const cv::Point c(cx, cy);
     const cv::Scalar grey(rng.uniform(0, 256));
     switch (rng.uniform(0, 4)) {
       case 0:
         cv::circle(t, c, rng.uniform(3, 14), grey, cv::FILLED, cv::LINE_AA);
         break;
       case 1: {
-        const cv::RotatedRect rect(c, cv::Size2f(rng.uniform(4.f, 30.f), rng.uniform(4.f, 30.f)),
-                                   rng.uniform(0.f, 180.f));
+        const float angle = rng.uniform(0.f, 180.f);
+        const float height = rng.uniform(4.f, 30.f);
+        const float width = rng.uniform(4.f, 30.f);
+        const cv::RotatedRect rect(c, cv::Size2f(width, height), angle);
         cv::Point2f p[4];
         rect.points(p);
         std::vector<cv::Point> poly(p, p + 4);
         cv::fillConvexPoly(t, poly, grey, cv::LINE_AA);
         break;
       }
-      case 2:
-        cv::line(t, c, c + cv::Point(rng.uniform(-40, 40), rng.uniform(-40, 40)), grey, rng.uniform(1, 4), cv::LINE_AA);
+      case 2: {
+        const int thickness = rng.uniform(1, 4);
+        const int dy = rng.uniform(-40, 40);
+        const int dx = rng.uniform(-40, 40);
+        cv::line(t, c, c + cv::Point(dx, dy), grey, thickness, cv::LINE_AA);
         break;
-      default:
-        cv::ellipse(t, c, cv::Size(rng.uniform(3, 20), rng.uniform(2, 10)), rng.uniform(0.0, 180.0), 0, 360, grey,
-                    cv::FILLED, cv::LINE_AA);
+      }
+      default: {
+        const double angle = rng.uniform(0.0, 180.0);
+        const int half_height = rng.uniform(2, 10);
+        const int half_width = rng.uniform(3, 20);
+        cv::ellipse(t, c, cv::Size(half_width, half_height), angle, 0, 360, grey, cv::FILLED, cv::LINE_AA);
         break;
+      }
     }
   }
   cv::GaussianBlur(t, t, cv::Size(0, 0), 0.8);
