@@ -689,11 +689,15 @@ bool KeyframePipeline::AddMap(const std::string& graph_path, std::string* error,
   std::error_code ec;
   std::string added_note = "map " + graph_path + " added:";
   const std::string database = KeyframeDatabasePath(graph_path);
+  // Loop closures between its keyframes and those held, found as it is added
+  // (a map that shares none of them); they go to the averager after its
+  // graph and rig captures, which they refer to.
+  std::vector<KeyframeRelativeRotation> links;
+  std::size_t already_held = 0;
   if (frontend_ && frontend_->UsesVocabulary() && std::filesystem::exists(database, ec)) {
     std::lock_guard<std::mutex> lock(frontend_mutex_);
-    std::size_t already_held = 0;
     const std::size_t before = frontend_->NumKeyframes();
-    if (!frontend_->AddDatabase(database, &already_held, error)) return false;
+    if (!frontend_->AddDatabase(database, &already_held, error, &links)) return false;
     added_note += " " + std::to_string(frontend_->NumKeyframes() - before) + " keyframes to retrieve from (" +
                   std::to_string(already_held) + " already held),";
     std::lock_guard<std::mutex> stats_lock(mutex_);
@@ -717,6 +721,20 @@ bool KeyframePipeline::AddMap(const std::string& graph_path, std::string* error,
     const std::size_t before = rig_.NumCaptures();
     if (!rig_.Add(rig, error)) return false;
     added_note += ", " + std::to_string(rig_.NumCaptures() - before) + " rig captures";
+  }
+  if (frontend_ && frontend_->UsesVocabulary() && std::filesystem::exists(database, ec)) {
+    std::size_t linked = 0;
+    for (const KeyframeRelativeRotation& e : links) {
+      std::string why;
+      if (AddMeasurement(e, &why)) ++linked;
+    }
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stats_.edges_from_images += linked;
+    }
+    added_note += already_held > 0 ? "; joined through the keyframes it shares"
+                                   : "; " + std::to_string(linked) + " loop closures to the keyframes held";
+    averager_->RequestSolve();
   }
   if (note) *note = added_note;
   return true;

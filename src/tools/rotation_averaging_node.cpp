@@ -515,6 +515,7 @@ class RotationAveragingNode {
       status.add("loop-closure retrieval", pipeline_->Frontend()->RetrievalName());
       status.add("front-end memory of keyframes (MiB)", f.keyframe_bytes / 1048576.0);
       status.add("loop-closure edges", f.loop_closure_edges);
+      status.add("of them, between added maps and the map held", f.map_links);
       status.add("failed two-view pairs", f.failed_pairs);
     }
     status.add("dropped (queue full)", s.dropped_queue_full);

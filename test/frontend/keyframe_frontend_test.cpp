@@ -363,15 +363,42 @@ TEST(KeyframeFrontend, ASavedDatabaseLetsTheNextSessionCloseLoopsWithTheFirst) {
   std::set<KeyframeKey> roots;
   for (const auto& [key, p] : parent) roots.insert(find(key));
   EXPECT_EQ(roots.size(), 1u);
+  // Asked for links, the front end matches the added map against the one
+  // it holds: the loop closures found join the two maps made apart with no
+  // new keyframe.
+  KeyframeFrontend linked(options);
+  ASSERT_TRUE(linked.LoadDatabase(path, &error)) << error;
+  std::vector<KeyframeRelativeRotation> links;
+  ASSERT_TRUE(linked.AddDatabase(apart, &already_held, &error, &links)) << error;
+  EXPECT_EQ(already_held, 0u);
+  EXPECT_EQ(linked.Stats().map_links, links.size());
+  std::cout << "links between the maps made apart:";
+  for (const KeyframeRelativeRotation& e : links) {
+    std::cout << " " << Index(e.keyframe1) << "-" << Index(e.keyframe2) << " (" << e.num_inliers << " inliers, "
+              << EdgeErrorDeg(seq, e) << " deg)";
+    EXPECT_EQ(e.source, EdgeSource::kLoopClosure);
+    EXPECT_LT(Index(e.keyframe1), kPerLap);   // held
+    EXPECT_GE(Index(e.keyframe2), kPerLap);   // added
+    EXPECT_LT(EdgeErrorDeg(seq, e), 1.0) << Index(e.keyframe1) << "-" << Index(e.keyframe2);
+  }
+  std::cout << "\n";
+  EXPECT_GE(links.size(), 2u);
+  std::vector<KeyframeRelativeRotation> linked_maps = first_lap;
+  linked_maps.insert(linked_maps.end(), second_alone.begin(), second_alone.end());
+  linked_maps.insert(linked_maps.end(), links.begin(), links.end());
+  EXPECT_EQ(Components(linked_maps, all), 1);
   // A map saved from the same history as one held shares its keyframes:
-  // those are not added twice.
+  // those are not added twice, and it is not matched against the held map
+  // (its loop closures to the shared keyframes are in its own graph).
   const std::string continued = dir + "/both_laps.keyframes";
   ASSERT_TRUE(second.SaveDatabase(continued, &error)) << error;
   KeyframeFrontend fourth(options);
   ASSERT_TRUE(fourth.LoadDatabase(path, &error)) << error;
-  ASSERT_TRUE(fourth.AddDatabase(continued, &already_held, &error)) << error;
+  links.assign(1, KeyframeRelativeRotation());
+  ASSERT_TRUE(fourth.AddDatabase(continued, &already_held, &error, &links)) << error;
   EXPECT_EQ(already_held, static_cast<std::size_t>(kPerLap));
   EXPECT_EQ(fourth.NumKeyframes(), static_cast<std::size_t>(2 * kPerLap));
+  EXPECT_TRUE(links.empty());
 
   // Refusals: each damaged copy is refused with its reason, and `second`
   // keeps what it holds.

@@ -69,46 +69,70 @@ KeyframeFrontend::~KeyframeFrontend() = default;
 
 std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const std::vector<PairTask>& tasks,
                                                                          const Keyframe& newer) {
+  return VerifyPairs(tasks, std::vector<const Keyframe*>{&newer});
+}
+
+std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const std::vector<PairTask>& tasks,
+                                                                         const std::vector<const Keyframe*>& newers) {
   const auto start = Clock::now();
   std::vector<PairOutcome> outcomes(tasks.size());
   // A compact keyframe is matched within the vocabulary's branches (no
   // index to build); without branch matching it gets a temporary index,
   // built here on one thread: FLANN draws its trees from the global
-  // std::rand, which threads would race for.
-  auto by_branch = [&](const Keyframe& a) {
+  // std::rand, which threads would race for. A new keyframe is compact
+  // only when it comes from an added database (LinkAddedKeyframes).
+  auto by_branch = [&](const Keyframe& a, const Keyframe& newer) {
     return a.compact && options_.match_compact_by_vocabulary && options_.vocabulary &&
            a.features.words.size() == a.features.keypoints_px.size() &&
            newer.features.words.size() == newer.features.keypoints_px.size();
   };
-  std::vector<int> newer_branches;  // its two nearest, for matches across a boundary
-  for (const PairTask& task : tasks) {
-    if (!by_branch(*keyframes_[task.older])) continue;
-    newer_branches = options_.vocabulary->NearestCells(newer.features.descriptors, 2);
-    break;
-  }
+  // Each new keyframe's two nearest branches per feature, for matches across
+  // a boundary (a compact one's descriptors unpacked to find them).
+  std::vector<std::vector<int>> newer_branches(newers.size());
+  std::vector<bool> have_branches(newers.size(), false);
+  std::vector<ImageFeatures> newer_matchable(newers.size());
+  std::vector<std::unique_ptr<FeatureIndex>> newer_temporary(newers.size());
   std::vector<ImageFeatures> matchable(tasks.size());
   std::vector<std::unique_ptr<FeatureIndex>> temporary(tasks.size());
   for (std::size_t t = 0; t < tasks.size(); ++t) {
     const Keyframe& a = *keyframes_[tasks[t].older];
-    if (!a.compact || by_branch(a)) continue;
+    const int n = tasks[t].newer;
+    const Keyframe& newer = *newers[n];
+    if (by_branch(a, newer)) {
+      if (!have_branches[n]) {
+        newer_branches[n] = options_.vocabulary->NearestCells(
+            newer.compact ? SiftDescriptorsAsFloat(newer.features) : newer.features.descriptors, 2);
+        have_branches[n] = true;
+      }
+      continue;
+    }
+    if (newer.compact && !newer_temporary[n]) {
+      newer_matchable[n] = MatchableFeatures(newer.features);
+      newer_temporary[n] = std::make_unique<FeatureIndex>(newer_matchable[n]);
+    }
+    if (!a.compact) continue;
     matchable[t] = MatchableFeatures(a.features);
     temporary[t] = std::make_unique<FeatureIndex>(matchable[t]);
   }
   ParallelFor(static_cast<int>(tasks.size()), ResolveThreadCount(options_.num_threads), [&](int t) {
     const Keyframe& a = *keyframes_[tasks[t].older];
+    const int n = tasks[t].newer;
+    const Keyframe& newer = *newers[n];
     const ImageFeatures& a_features = a.compact && temporary[t] ? matchable[t] : a.features;
+    const ImageFeatures& newer_features = newer_temporary[n] ? newer_matchable[n] : newer.features;
+    const FeatureIndex* newer_index = newer_temporary[n] ? newer_temporary[n].get() : newer.index.get();
     // A pair within one capture is estimated in the order of the camera
     // frames, whichever image came first (see PairTask::newer_first).
     const bool swap = tasks[t].newer_first && !a.compact;
     std::vector<std::pair<int, int>> matches;
     if (swap) {
       matches = MatchFeatures(newer.features, *newer.index, a.features, *a.index, options_.matching);
-    } else if (by_branch(a)) {
+    } else if (by_branch(a, newer)) {
       std::vector<int> a_branches;
       for (int w : a.features.words) a_branches.push_back(options_.vocabulary->CellOf(w));
-      matches = MatchFeaturesByGroup(a.features, a_branches, newer.features, newer_branches, options_.matching);
+      matches = MatchFeaturesByGroup(a.features, a_branches, newer.features, newer_branches[n], options_.matching);
     } else {
-      matches = MatchFeatures(a_features, a.compact ? *temporary[t] : *a.index, newer.features, *newer.index,
+      matches = MatchFeatures(a_features, a.compact ? *temporary[t] : *a.index, newer_features, *newer_index,
                               options_.matching);
     }
     const Keyframe& first = swap ? newer : a;
@@ -366,33 +390,9 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     }
   }
   // Loop closures: enough inliers, and consistent with each other.
-  std::vector<KeyframeRelativeRotation> loops;
-  std::vector<int> old_ends;
-  for (std::size_t c = 0; c < candidates.size(); ++c) {
-    Count(verified_loops[c]);
-    if (!verified_loops[c].success) continue;
-    const double needed = keyframes_[candidates[c].older]->compact
-                              ? options_.compact_loop_inlier_fraction * options_.min_loop_inliers
-                              : options_.min_loop_inliers;
-    if (verified_loops[c].edge.num_inliers < needed) {
-      ++stats_.failed_pairs;
-      ++stats_.failures["loop_too_few_inliers"];
-      continue;
-    }
-    loops.push_back(verified_loops[c].edge);
-    old_ends.push_back(candidates[c].older);
-  }
-  FilterInconsistentLoops(&loops, old_ends);
-  for (const KeyframeRelativeRotation& e : loops) {
-    edges.push_back(e);
-    ++stats_.loop_closure_edges;
-    for (std::size_t c = 0; c < candidates.size(); ++c) {
-      const KeyframeKey& k1 = keyframes_[candidates[c].older]->key;
-      if (k1.frame_id == e.keyframe1.frame_id && k1.stamp_ns == e.keyframe1.stamp_ns) {
-        CountInliers(candidates[c], verified_loops[c], kf.get());
-      }
-    }
-  }
+  std::vector<std::size_t> accepted;
+  for (const KeyframeRelativeRotation& e : AcceptLoops(candidates, verified_loops, &accepted)) edges.push_back(e);
+  for (std::size_t c : accepted) CountInliers(candidates[c], verified_loops[c], kf.get());
   if (inverted_index_) inverted_index_->Add(static_cast<int>(keyframes_.size()), kf->bow);
   stats_.keyframe_bytes += KeyframeBytes(*kf);
   keyframes_.push_back(std::move(kf));
@@ -408,6 +408,87 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   }
   stats_.last_pairs_s = stats_.pairs_s - pairs_before;
   return edges;
+}
+
+std::vector<KeyframeRelativeRotation> KeyframeFrontend::AcceptLoops(const std::vector<PairTask>& candidates,
+                                                                     const std::vector<PairOutcome>& verified,
+                                                                     std::vector<std::size_t>* accepted) {
+  std::vector<KeyframeRelativeRotation> loops;
+  std::vector<int> old_ends;
+  for (std::size_t c = 0; c < candidates.size(); ++c) {
+    Count(verified[c]);
+    if (!verified[c].success) continue;
+    const double needed = keyframes_[candidates[c].older]->compact
+                              ? options_.compact_loop_inlier_fraction * options_.min_loop_inliers
+                              : options_.min_loop_inliers;
+    if (verified[c].edge.num_inliers < needed) {
+      ++stats_.failed_pairs;
+      ++stats_.failures["loop_too_few_inliers"];
+      continue;
+    }
+    loops.push_back(verified[c].edge);
+    old_ends.push_back(candidates[c].older);
+  }
+  FilterInconsistentLoops(&loops, old_ends);
+  accepted->clear();
+  for (const KeyframeRelativeRotation& e : loops) {
+    ++stats_.loop_closure_edges;
+    for (std::size_t c = 0; c < candidates.size(); ++c) {
+      const KeyframeKey& k1 = keyframes_[candidates[c].older]->key;
+      if (k1.frame_id == e.keyframe1.frame_id && k1.stamp_ns == e.keyframe1.stamp_ns) accepted->push_back(c);
+    }
+  }
+  return loops;
+}
+
+std::vector<KeyframeRelativeRotation> KeyframeFrontend::LinkAddedKeyframes(int first_added) {
+  std::vector<KeyframeRelativeRotation> links;
+  const int end = static_cast<int>(keyframes_.size());
+  if (first_added <= 0 || first_added >= end || options_.max_loop_candidates <= 0 || !inverted_index_) return links;
+  // Retrieval per added keyframe, in order; verification of many added
+  // keyframes' candidates at once, so that every thread has pairs to verify.
+  const auto start = Clock::now();
+  const double pairs_before = stats_.pairs_s;
+  constexpr int kKeyframesPerBatch = 64;
+  for (int batch = first_added; batch < end; batch += kKeyframesPerBatch) {
+    std::vector<PairTask> tasks;
+    std::vector<const Keyframe*> newers;
+    std::vector<std::pair<std::size_t, std::size_t>> ranges;  // each added keyframe's tasks
+    for (int i = batch; i < std::min(end, batch + kKeyframesPerBatch); ++i) {
+      const Keyframe& added = *keyframes_[i];
+      const std::size_t first_task = tasks.size();
+      if (added.features.keypoints_px.size() >= 20) {
+        double min_score = 0.0;
+        if (options_.min_retrieval_score_ratio > 0.0 && added.camera_position > 0) {
+          const int previous = ChainOf(added)[added.camera_position - 1];
+          min_score = options_.min_retrieval_score_ratio * BowScore(added.bow, keyframes_[previous]->bow);
+        }
+        const std::vector<std::pair<double, int>> hits =
+            inverted_index_->Query(added.bow, options_.max_loop_candidates, min_score, [&](int id) {
+              return id >= first_added || keyframes_[id]->features.keypoints_px.size() < 20;
+            });
+        for (const auto& [score, id] : hits) {
+          PairTask task{id, EdgeSource::kLoopClosure};
+          task.newer = static_cast<int>(newers.size());
+          tasks.push_back(task);
+        }
+      }
+      newers.push_back(&added);
+      ranges.emplace_back(first_task, tasks.size());
+    }
+    stats_.loop_candidates_tried += tasks.size();
+    const std::vector<PairOutcome> verified = VerifyPairs(tasks, newers);
+    for (const auto& [first, last] : ranges) {
+      const std::vector<PairTask> candidates(tasks.begin() + first, tasks.begin() + last);
+      const std::vector<PairOutcome> outcomes(verified.begin() + first, verified.begin() + last);
+      std::vector<std::size_t> accepted;
+      for (const KeyframeRelativeRotation& e : AcceptLoops(candidates, outcomes, &accepted)) links.push_back(e);
+    }
+  }
+  stats_.pairs_s = pairs_before;  // VerifyPairs counts there
+  stats_.map_links += links.size();
+  stats_.map_link_s += Seconds(start);
+  return links;
 }
 
 std::string KeyframeFrontend::RetrievalName() const {
@@ -533,8 +614,14 @@ bool KeyframeFrontend::LoadDatabase(const std::string& path, std::string* error)
   return TakeDatabase(path, /*add=*/false, nullptr, error);
 }
 
-bool KeyframeFrontend::AddDatabase(const std::string& path, std::size_t* already_held, std::string* error) {
-  return TakeDatabase(path, /*add=*/true, already_held, error);
+bool KeyframeFrontend::AddDatabase(const std::string& path, std::size_t* already_held, std::string* error,
+                                   std::vector<KeyframeRelativeRotation>* links) {
+  const int first_added = static_cast<int>(keyframes_.size());
+  std::size_t shared = 0;
+  if (!TakeDatabase(path, /*add=*/true, &shared, error)) return false;
+  if (already_held) *already_held = shared;
+  if (links) *links = shared == 0 ? LinkAddedKeyframes(first_added) : std::vector<KeyframeRelativeRotation>();
+  return true;
 }
 
 bool KeyframeFrontend::TakeDatabase(const std::string& path, bool add, std::size_t* already_held,

@@ -119,6 +119,12 @@ struct KeyframeFrontendStats {
   std::uint64_t rotation_model_edges = 0;  // edges from the rotation-only two-view model (no parallax)
   std::uint64_t loop_candidates_tried = 0;
   std::uint64_t loops_rejected_inconsistent = 0;
+  // Loop closures between an added database's keyframes and those held
+  // (AddDatabase with links; also counted in loop_closure_edges and
+  // loop_candidates_tried), and the wall time of that matching (apart from
+  // features_s, retrieval_s and pairs_s, which are per new keyframe).
+  std::uint64_t map_links = 0;
+  double map_link_s = 0.0;
   std::uint64_t failed_pairs = 0;
   // Keypoints dropped because the camera's distortion model does not invert
   // there (far outside its calibrated field of view).
@@ -181,7 +187,17 @@ class KeyframeFrontend {
   // is the same keyframe (maps saved from one history share it): skipped,
   // and counted in `already_held`. Refusals as LoadDatabase, leaving what is
   // held as it was.
-  bool AddDatabase(const std::string& path, std::size_t* already_held, std::string* error);
+  // With `links`, a database that shares no keyframe with those held (two
+  // maps that never met) is matched against them: each added keyframe's
+  // loop-closure candidates among the keyframes held before are retrieved
+  // and verified as a new keyframe's are (same evidence, same consistency
+  // check), and the loop closures found are returned there, so that maps
+  // loaded together join where they saw the same place without waiting for
+  // a new keyframe there. A database that shares keyframes is joined through
+  // them, and its own loop closures to them are in its graph already:
+  // matching it again would count those pairs twice.
+  bool AddDatabase(const std::string& path, std::size_t* already_held, std::string* error,
+                   std::vector<KeyframeRelativeRotation>* links = nullptr);
   bool UsesVocabulary() const { return options_.vocabulary != nullptr; }
   // "vocabulary of N words (inverted index)" or "voting over every keyframe (no vocabulary)".
   std::string RetrievalName() const;
@@ -202,6 +218,7 @@ class KeyframeFrontend {
     // The new keyframe is the edge's first: two cameras of one capture are
     // related in the order of their frame ids, not of their arrival.
     bool newer_first = false;
+    int newer = 0;  // index into VerifyPairs' `newers`
   };
   // Keeps only what loop-closure verification needs of a keyframe that left
   // the recent window.
@@ -226,6 +243,16 @@ class KeyframeFrontend {
   // are in task order. Count adds an outcome whose result is used to the
   // statistics (speculative ones are not counted when not needed).
   std::vector<PairOutcome> VerifyPairs(const std::vector<PairTask>& tasks, const Keyframe& newer);
+  // The same for tasks of several new keyframes (PairTask::newer).
+  std::vector<PairOutcome> VerifyPairs(const std::vector<PairTask>& tasks, const std::vector<const Keyframe*>& newers);
+  // The loop closures of one new keyframe (`verified` of `candidates`) that
+  // have enough inliers and agree with each other, with the candidates they
+  // came from; counts them and the rejected ones.
+  std::vector<KeyframeRelativeRotation> AcceptLoops(const std::vector<PairTask>& candidates,
+                                                    const std::vector<PairOutcome>& verified,
+                                                    std::vector<std::size_t>* accepted);
+  // Loop closures from the keyframes at [first_added, end) to those before.
+  std::vector<KeyframeRelativeRotation> LinkAddedKeyframes(int first_added);
   void Count(const PairOutcome& outcome);
 
   KeyframeFrontendOptions options_;
