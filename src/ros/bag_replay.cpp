@@ -18,6 +18,7 @@
 #include <cerrno>
 #include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <iomanip>
 #include <iterator>
 #include <limits>
@@ -348,16 +349,30 @@ class Replayer {
   // followed until a new keyframe joins them (MeasureMerge).
   void FollowLoadedMap(std::shared_ptr<const OnlineSolution> loaded) { loaded_ = std::move(loaded); }
 
+  // A map to save once the replay has passed `after` (the last input
+  // message of a bag).
+  struct Checkpoint {
+    ros::Time after;
+    std::string path;
+  };
+  // In order of time.
+  void SaveAt(std::vector<Checkpoint> checkpoints) { checkpoints_ = std::move(checkpoints); }
+  const std::string& Error() const { return error_; }
+
   void Run(rosbag::View& view, InputTopics* topics, bool progress) {
     const ros::Time bag_start = view.getBeginTime();
     const double period = config_.averager.solve_period_s;
     ros::Time next_solve = period > 0.0 ? bag_start + ros::Duration(period) : ros::TIME_MAX;
     ProgressBar bar(progress, result_.messages_total);
     ros::Time last_time = bag_start;
+    std::size_t next_checkpoint = 0;
     try {
       for (const rosbag::MessageInstance& m : view) {
         const ros::Time time = m.getTime();
         last_time = time;
+        while (next_checkpoint < checkpoints_.size() && time > checkpoints_[next_checkpoint].after) {
+          SaveMap(checkpoints_[next_checkpoint++]);
+        }
         while (time >= next_solve) {
           Solve(next_solve);
           next_solve += ros::Duration(period);
@@ -384,6 +399,8 @@ class Replayer {
     bar.Update(result_.messages_read, (last_time - bag_start).toSec(), /*final=*/true);
     result_.bag_duration_s = (last_time - bag_start).toSec();
     Solve(last_time);  // the final solve, at the last message's time
+    // Bags that ended with the last message (or after damage: what was read).
+    while (next_checkpoint < checkpoints_.size()) SaveMap(checkpoints_[next_checkpoint++]);
   }
 
  private:
@@ -481,6 +498,18 @@ class Replayer {
     }
   }
 
+  // The map as the session that ends here leaves it: solved with every
+  // input so far, then saved.
+  void SaveMap(const Checkpoint& checkpoint) {
+    Solve(checkpoint.after);
+    std::string note, error;
+    if (pipeline_.SaveMap(checkpoint.path, &error, &note)) {
+      result_.maps_saved_after_bags.push_back(note);
+    } else if (error_.empty()) {
+      error_ = "saving the map after a bag: " + error;
+    }
+  }
+
   void Warn(const std::string& w) {
     if (result_.warnings.size() < 50) result_.warnings.push_back(w);
     if (result_.warnings.size() == 50) result_.warnings.push_back("(further warnings not shown)");
@@ -561,8 +590,33 @@ class Replayer {
   ReplayResult& result_;
   bool dirty_ = false;  // input arrived since the last solve
   std::shared_ptr<const OnlineSolution> loaded_;  // see FollowLoadedMap
+  std::vector<Checkpoint> checkpoints_;  // see SaveAt
+  std::string error_;  // the first failed save
   std::set<std::string> offered_, made_;  // names of the images offered to keyframe selection, of the keyframes
 };
+
+// Where and when save_after_each_bag saves: after each bag's last message on
+// the input topics, to output_dir/map_after_bag<N>_<stem>.txt; in order of
+// time (bags replayed together may overlap).
+std::vector<Replayer::Checkpoint> BagCheckpoints(const ReplayOptions& options,
+                                                 const std::vector<std::unique_ptr<rosbag::Bag>>& bags,
+                                                 const std::vector<std::string>& inputs,
+                                                 std::vector<std::string>* warnings) {
+  std::vector<Replayer::Checkpoint> checkpoints;
+  for (std::size_t b = 0; b < bags.size(); ++b) {
+    rosbag::View own(*bags[b], rosbag::TopicQuery(inputs));
+    const std::string path = options.output_dir + "/map_after_bag" + std::to_string(b + 1) + "_" +
+                             std::filesystem::path(options.bags[b]).stem().string() + ".txt";
+    if (own.size() == 0) {
+      warnings->push_back(options.bags[b] + " holds no input message: no map saved after it");
+      continue;
+    }
+    checkpoints.push_back({own.getEndTime(), path});
+  }
+  std::stable_sort(checkpoints.begin(), checkpoints.end(),
+                   [](const Replayer::Checkpoint& a, const Replayer::Checkpoint& b) { return a.after < b.after; });
+  return checkpoints;
+}
 
 // The largest angle between an orientation saved with the map at `path` and
 // the same keyframe in `solution`, the first solve after loading it; -1 when
@@ -613,6 +667,8 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
     result->frontend_chain_bridged = f->Stats().chain_bridged;
     result->loop_candidates = f->Stats().loop_candidates_tried;
     result->loop_closure_edges = f->Stats().loop_closure_edges;
+    result->map_links = f->Stats().map_links;
+    result->map_link_s = f->Stats().map_link_s;
     result->frontend_bytes = f->Stats().keyframe_bytes;
     result->compacted_keyframes = f->Stats().compacted_keyframes;
     result->compact_bytes = f->Stats().compact_bytes;
@@ -736,6 +792,10 @@ std::string ReplayResult::Summary() const {
         << " edges from the rotation-only model\n";
     out << "loop closures: " << loop_closure_edges << " edges from " << loop_candidates
         << " verified candidates; retrieval: " << retrieval << "\n";
+    if (map_links > 0) {
+      out << "  of them between added maps and the map held: " << map_links << " (matched in " << map_link_s
+          << " s)\n";
+    }
     out << "front-end memory: " << frontend_bytes / 1048576.0 << " MiB of features and retrieval data for "
         << keyframe_images << " keyframes";
     if (compacted_keyframes > 0) {
@@ -793,6 +853,7 @@ std::string ReplayResult::Summary() const {
     }
   }
   for (const std::string& added : maps_added) out << added << "\n";
+  for (const std::string& saved : maps_saved_after_bags) out << "after a bag: " << saved << "\n";
   if (!map_saved.empty()) {
     out << "map saved in " << std::setprecision(1) << 1e3 * map_save_s << " ms (the graph held "
         << 1e3 * map_save_graph_lock_s << " ms, the front end " << 1e3 * map_save_frontend_lock_s
@@ -871,8 +932,10 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
   }
   Replayer replayer(config, &pipeline, &out, &result);
   if (!config.load_graph.empty()) replayer.FollowLoadedMap(loaded_map);
+  if (options.save_after_each_bag) replayer.SaveAt(BagCheckpoints(options, bags, inputs, &result.warnings));
   replayer.Run(view, &topics, options.progress);
   out.close();
+  if (!replayer.Error().empty()) return fail(replayer.Error());
   std::size_t unscored = 0;
   for (const std::string& name : replayer.NotKeyframes()) unscored += ground_truth.erase(name);
   if (unscored > 0) {

@@ -26,6 +26,12 @@ struct ReplayOptions {
   std::string relative_poses_topic = "relative_poses";
   std::string ground_truth_topic = "/ground_truth/orientations";
   bool progress = true;             // progress bar on stderr
+  // After the last input message of each bag: a solve, then the map saved
+  // (KeyframePipeline::SaveMap) to output_dir/map_after_bag<N>_<bag stem>.txt
+  // with its .rig and .keyframes beside it, as a node that ends its session
+  // there would have saved it: one replay of a day's bags leaves the map of
+  // every session, each loadable with load_graph.
+  bool save_after_each_bag = false;
 };
 
 struct ReplayResult {
@@ -57,6 +63,10 @@ struct ReplayResult {
   std::map<std::string, std::uint64_t> frontend_failures;  // two-view failure reason -> count
   std::string retrieval;  // how loop-closure candidates were found
   std::uint64_t loop_candidates = 0, loop_closure_edges = 0;
+  // Of those, between added maps and the map held (add_maps), and the time
+  // matching them took.
+  std::uint64_t map_links = 0;
+  double map_link_s = 0.0;
   // Front-end wall time per keyframe (ms) in arrival order: features,
   // retrieval, pair verification, and all of ProcessKeyframe.
   struct KeyframeCost {
@@ -77,6 +87,7 @@ struct ReplayResult {
   // described them; empty when not asked for.
   std::string map_loaded, map_saved;
   std::vector<std::string> maps_added;  // what AddMap said of each of add_maps
+  std::vector<std::string> maps_saved_after_bags;  // save_after_each_bag: what SaveMap said, bag by bag
   double map_load_s = 0.0, map_save_s = 0.0;  // wall time of LoadMap and SaveMap
   double map_save_graph_lock_s = 0.0, map_save_frontend_lock_s = 0.0;  // of SaveMap: MapSaveTiming
   // The keyframes of the loaded map: the largest angle between where the map

@@ -2,7 +2,8 @@
 //
 //   rosrun rotation_averaging rotation_averaging_replay --bag A.bag [--bag B.bag ...]
 //       [--config config.yaml] [--gt ground_truth.csv|bag] --output-dir DIR
-//       [--relative-pose-topic T] [--relative-poses-topic T] [--gt-topic T] [--no-progress]
+//       [--relative-pose-topic T] [--relative-poses-topic T] [--gt-topic T]
+//       [--save-after-each-bag] [--no-progress]
 //
 // Exit status: 0 on success, 1 when the replay failed (message on stderr), 2
 // on a usage error.
@@ -19,10 +20,12 @@ int Usage(const char* why) {
   std::cerr << "usage: rotation_averaging_replay --bag A.bag [--bag B.bag ...] [--config config.yaml]\n"
                "           [--gt ground_truth.csv|ground_truth.bag] --output-dir DIR\n"
                "           [--relative-pose-topic relative_pose] [--relative-poses-topic relative_poses]\n"
-               "           [--gt-topic /ground_truth/orientations] [--no-progress]\n"
+               "           [--gt-topic /ground_truth/orientations] [--save-after-each-bag] [--no-progress]\n"
                "Replays the bags (merged in time order) through the node's pipeline as fast as the CPU allows\n"
                "and writes DIR/orientations.csv, DIR/graph.txt, DIR/replay.bag and, with --gt, DIR/scores.txt\n"
-               "and DIR/errors.png. The config is the node's parameter file (config/rotation_averaging.yaml).\n";
+               "and DIR/errors.png. The config is the node's parameter file (config/rotation_averaging.yaml).\n"
+               "--save-after-each-bag: after each bag's last message, the map is solved and saved to\n"
+               "DIR/map_after_bag<N>_<bag name>.txt (+ .rig, .keyframes), loadable with load_graph.\n";
   return 2;
 }
 
@@ -52,6 +55,8 @@ int main(int argc, char** argv) {
       options.relative_poses_topic = v;
     } else if (a == "--gt-topic" && value(&v)) {
       options.ground_truth_topic = v;
+    } else if (a == "--save-after-each-bag") {
+      options.save_after_each_bag = true;
     } else if (a == "--no-progress") {
       options.progress = false;
     } else if (a == "--help" || a == "-h") {
