@@ -618,25 +618,16 @@ std::vector<Replayer::Checkpoint> BagCheckpoints(const ReplayOptions& options,
   return checkpoints;
 }
 
-// The largest angle between an orientation saved with the map at `path` and
-// the same keyframe in `solution`, the first solve after loading it; -1 when
-// the map holds no orientations.
-bool MapLoadShift(const std::string& path, const OnlineSolution& solution, double* shift_deg, std::string* error) {
-  ViewGraph graph;
-  std::map<ViewId, Eigen::Matrix3d> saved;
-  const ReadReport report = ReadRotavgGraph(path, &graph, &saved);
-  if (!report.ok()) {
-    *error = report.error;
-    return false;
-  }
-  *shift_deg = saved.empty() ? -1.0 : 0.0;
-  for (const auto& [id, r] : saved) {
-    KeyframeKey key;
-    if (!OnlineAverager::ParseKeyframeName(graph.FindView(id)->name, &key)) continue;
+// The largest angle between an orientation saved with the map and the same
+// keyframe in `solution`, the first solve after loading it; -1 when the map
+// holds no orientations.
+double MapLoadShift(const std::map<KeyframeKey, Eigen::Matrix3d>& saved, const OnlineSolution& solution) {
+  double shift_deg = saved.empty() ? -1.0 : 0.0;
+  for (const auto& [key, r] : saved) {
     const auto it = solution.orientations.find(key);
-    if (it != solution.orientations.end()) *shift_deg = std::max(*shift_deg, RadToDeg(AngularDistanceRad(r, it->second)));
+    if (it != solution.orientations.end()) shift_deg = std::max(shift_deg, RadToDeg(AngularDistanceRad(r, it->second)));
   }
-  return true;
+  return shift_deg;
 }
 
 // What the pipeline did, for the summary.
@@ -890,11 +881,10 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
   // replay, whose purpose is to test exactly that, stops.
   if (!config.load_graph.empty()) {
     const auto load_start = std::chrono::steady_clock::now();
-    if (!pipeline.LoadMap(config.load_graph, &error, &result.map_loaded)) return fail("load_graph: " + error);
+    std::map<KeyframeKey, Eigen::Matrix3d> saved;
+    if (!pipeline.LoadMap(config.load_graph, &error, &result.map_loaded, &saved)) return fail("load_graph: " + error);
     result.map_load_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - load_start).count();
-    if (!MapLoadShift(config.load_graph, *averager.Solution(), &result.map_load_shift_deg, &error)) {
-      return fail("load_graph: " + error);
-    }
+    result.map_load_shift_deg = MapLoadShift(saved, *averager.Solution());
   }
   // The keyframes followed to the merge are the loaded map's: an added map
   // joining it is placed in its frame (the larger of the two keeps its own).

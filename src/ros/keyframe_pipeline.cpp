@@ -615,22 +615,9 @@ MapSaveTiming KeyframePipeline::LastSaveTiming() const {
   return last_save_timing_;
 }
 
-bool KeyframePipeline::CheckMap(const std::string& graph_path, std::size_t* views, bool* have_rig,
+bool KeyframePipeline::CheckMap(const std::string& graph_path, SavedKeyframeGraph* graph, bool* have_rig,
                                 std::string* error) const {
-  ViewGraph check;
-  const ReadReport report = ReadRotavgGraph(graph_path, &check);
-  if (!report.ok()) {
-    if (error) *error = report.error;
-    return false;
-  }
-  for (const View& v : check.Views()) {
-    KeyframeKey key;
-    if (!OnlineAverager::ParseKeyframeName(v.name, &key)) {
-      if (error) *error = graph_path + ": view '" + v.name + "' is not named <frame_id>@<stamp_ns>";
-      return false;
-    }
-  }
-  *views = check.NumViews();
+  if (!ReadSavedKeyframeGraph(graph_path, graph, error)) return false;
   // The rig's captures: without them a saved capture would stay one
   // orientation of the rig frame, and the cameras' keyframes in it unknown.
   std::error_code ec;
@@ -639,14 +626,14 @@ bool KeyframePipeline::CheckMap(const std::string& graph_path, std::size_t* view
   return !*have_rig || staged.Load(RigPath(graph_path), error);
 }
 
-bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error, std::string* note) {
-  // The graph and the rig file are read once to check them before the
-  // database replaces the front end's keyframes: a refused map leaves
-  // everything as it was.
-  std::size_t views = 0;
+bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error, std::string* note,
+                               std::map<KeyframeKey, Eigen::Matrix3d>* saved_orientations) {
+  // The graph is read and the rig file checked before the database replaces
+  // the front end's keyframes: a refused map leaves everything as it was.
+  SavedKeyframeGraph graph;
   bool have_rig = false;
-  if (!CheckMap(graph_path, &views, &have_rig, error)) return false;
-  std::string loaded = "view graph of " + std::to_string(views) + " views loaded from " + graph_path;
+  if (!CheckMap(graph_path, &graph, &have_rig, error)) return false;
+  std::string loaded = "view graph of " + std::to_string(graph.graph.NumViews()) + " views loaded from " + graph_path;
   const std::string rig = RigPath(graph_path);
   std::error_code ec;
   const std::string database = KeyframeDatabasePath(graph_path);
@@ -665,11 +652,15 @@ bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error
     }
   }
   std::string graph_note;
-  if (!averager_->LoadGraph(graph_path, &graph_note)) {
+  if (!averager_->LoadGraph(graph, &graph_note)) {
     if (error) *error = graph_note;
     return false;
   }
   if (!graph_note.empty()) loaded += " (" + graph_note + ")";
+  if (saved_orientations) {
+    saved_orientations->clear();
+    for (const auto& [id, r] : graph.orientations) saved_orientations->emplace(graph.keys.at(id), r);
+  }
   if (have_rig) {
     if (!rig_.Load(rig, error)) return false;
     loaded += ", " + std::to_string(rig_.NumCaptures()) + " rig captures from " + rig;
@@ -679,12 +670,11 @@ bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error
 }
 
 bool KeyframePipeline::AddMap(const std::string& graph_path, std::string* error, std::string* note) {
-  // The files are checked before anything is added (the graph and the rig
-  // file read once for it; the database is checked as it is added): a
-  // refused map leaves what is held as it was.
-  std::size_t views = 0;
+  // The files are checked before anything is added (the database as it is
+  // added): a refused map leaves what is held as it was.
+  SavedKeyframeGraph graph;
   bool have_rig = false;
-  if (!CheckMap(graph_path, &views, &have_rig, error)) return false;
+  if (!CheckMap(graph_path, &graph, &have_rig, error)) return false;
   const std::string rig = RigPath(graph_path);
   std::error_code ec;
   std::string added_note = "map " + graph_path + " added:";
@@ -709,7 +699,7 @@ bool KeyframePipeline::AddMap(const std::string& graph_path, std::string* error,
   }
   OnlineAverager::AddedGraph added;
   std::string graph_note;
-  if (!averager_->AddGraph(graph_path, &added, &graph_note)) {
+  if (!averager_->AddGraph(graph, &added, &graph_note)) {
     if (error) *error = graph_note;
     return false;
   }

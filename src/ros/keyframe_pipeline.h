@@ -165,7 +165,10 @@ class KeyframePipeline {
   // pipeline has an image front end, so that new keyframes relate to the old
   // ones by loop closures. A file that is refused leaves, with the reason in
   // `error`, what is held as it was.
-  bool LoadMap(const std::string& graph_path, std::string* error, std::string* note = nullptr);
+  // `saved_orientations` (if given): the orientations saved with the graph,
+  // by keyframe (where the map had them when it was saved).
+  bool LoadMap(const std::string& graph_path, std::string* error, std::string* note = nullptr,
+               std::map<KeyframeKey, Eigen::Matrix3d>* saved_orientations = nullptr);
   // Adds a map saved by SaveMap (another session's, another robot's) to the
   // one held: its graph (OnlineAverager::AddGraph: keyframes already held
   // are shared history, its others keep its frame until a loop closure
@@ -242,9 +245,9 @@ class KeyframePipeline {
   KeyframeFrontendStats FrontendStats() const;
 
  private:
-  // Reads the graph of a saved map and its rig file, if any, to check them
-  // (views named as keyframes, a rig file that loads) before they are used.
-  bool CheckMap(const std::string& graph_path, std::size_t* views, bool* have_rig, std::string* error) const;
+  // Reads the graph of a saved map and checks its rig file, if any (views
+  // named as keyframes, a rig file that loads), before any part is used.
+  bool CheckMap(const std::string& graph_path, SavedKeyframeGraph* graph, bool* have_rig, std::string* error) const;
   bool Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
                 const sensor_msgs::CameraInfo& info, bool rectified, PendingKeyframe* out, std::string* error);
   bool Reject(std::uint64_t* counter, const std::string& why, std::string* error);

@@ -666,18 +666,9 @@ bool OnlineAverager::SaveGraph(const std::string& path, std::string* error) cons
   return WriteRotavgGraph(path, graph, error, &orientations);
 }
 
-namespace {
-
-// A graph file the averager saved: its graph, the orientations saved with
-// it, and the keyframe each view names.
-struct SavedKeyframeGraph {
-  ViewGraph graph;
-  std::map<ViewId, Eigen::Matrix3d> orientations;
-  std::map<ViewId, KeyframeKey> keys;
-  std::vector<std::string> warnings;
-};
-
 bool ReadSavedKeyframeGraph(const std::string& path, SavedKeyframeGraph* saved, std::string* error) {
+  *saved = SavedKeyframeGraph();
+  saved->path = path;
   const ReadReport report = ReadRotavgGraph(path, &saved->graph, &saved->orientations);
   if (!report.ok()) {
     if (error) *error = report.error;
@@ -699,75 +690,51 @@ bool ReadSavedKeyframeGraph(const std::string& path, SavedKeyframeGraph* saved, 
   return true;
 }
 
-}  // namespace
-
 bool OnlineAverager::LoadGraph(const std::string& path, std::string* error) {
   SavedKeyframeGraph saved;
-  if (!ReadSavedKeyframeGraph(path, &saved, error)) return false;
-  std::map<KeyframeKey, ViewId> ids;
-  std::vector<KeyframeKey> keys;
-  ViewGraph renumbered;
-  std::map<ViewId, ViewId> old_to_new;
-  for (const auto& [old_id, key] : saved.keys) {
-    const ViewId id = keys.size();
-    ids[key] = id;
-    keys.push_back(key);
-    old_to_new[old_id] = id;
-    renumbered.AddView(id, KeyframeName(key));
-  }
-  for (RelativeRotation e : saved.graph.Edges()) {
-    e.view1 = old_to_new.at(e.view1);
-    e.view2 = old_to_new.at(e.view2);
-    renumbered.AddEdge(e, nullptr, DuplicatePolicy::kKeepBoth);
-  }
-  // The first solve starts from the orientations saved with the graph: its
-  // gauge views keep them, so the keyframes stay in the frames published
-  // before the save instead of moving to a new gauge.
-  ViewOrientations start;
-  for (const auto& [id, r] : saved.orientations) start.emplace(old_to_new.at(id), r);
-  {
-    std::lock_guard<std::mutex> solve_lock(solve_mutex_);
-    {
-      std::lock_guard<std::mutex> lock(graph_mutex_);
-      graph_ = std::move(renumbered);
-      ids_ = std::move(ids);
-      keys_ = std::move(keys);
-      warm_start_ = std::move(start);
-      ++generation_;
-    }
-    {
-      std::lock_guard<std::mutex> lock(queue_mutex_);
-      queue_.clear();
-    }
-    ClearLocalState();
-    SolveLocked(true);
-  }
-  if (!saved.warnings.empty() && error) *error = saved.warnings.front();
-  return true;
+  return ReadSavedKeyframeGraph(path, &saved, error) && LoadGraph(saved, error);
+}
+
+bool OnlineAverager::LoadGraph(const SavedKeyframeGraph& saved, std::string* error) {
+  return TakeGraph(saved, /*replace=*/true, nullptr, error);
 }
 
 bool OnlineAverager::AddGraph(const std::string& path, AddedGraph* added, std::string* error) {
   SavedKeyframeGraph saved;
-  if (!ReadSavedKeyframeGraph(path, &saved, error)) return false;
+  return ReadSavedKeyframeGraph(path, &saved, error) && AddGraph(saved, added, error);
+}
+
+bool OnlineAverager::AddGraph(const SavedKeyframeGraph& saved, AddedGraph* added, std::string* error) {
+  return TakeGraph(saved, /*replace=*/false, added, error);
+}
+
+bool OnlineAverager::TakeGraph(const SavedKeyframeGraph& saved, bool replace, AddedGraph* added,
+                               std::string* error) {
   const ViewGraph& loaded = saved.graph;
-  const std::map<ViewId, KeyframeKey>& key_of = saved.keys;
-  const std::map<ViewId, Eigen::Matrix3d>& saved_orientations = saved.orientations;
   AddedGraph result;
   {
     std::lock_guard<std::mutex> solve_lock(solve_mutex_);
     {
       std::lock_guard<std::mutex> lock(graph_mutex_);
-      if (graph_.NumViews() + loaded.NumViews() > options_.max_views ||
-          graph_.NumEdges() + loaded.NumEdges() > options_.max_edges) {
-        if (error) *error = path + ": the map would exceed max_views or max_edges";
+      const std::size_t views_held = replace ? 0 : graph_.NumViews(), edges_held = replace ? 0 : graph_.NumEdges();
+      if (views_held + loaded.NumViews() > options_.max_views || edges_held + loaded.NumEdges() > options_.max_edges) {
+        if (error) *error = saved.path + ": the map would exceed max_views or max_edges";
         return false;
+      }
+      if (replace) {
+        graph_.Clear();
+        ids_.clear();
+        keys_.clear();
+        warm_start_.clear();
+        std::lock_guard<std::mutex> queue_lock(queue_mutex_);
+        queue_.clear();
       }
       // A keyframe already held is the same keyframe: maps saved from one
       // history (a session that loaded the other's map) share it, and the
       // edges among such keyframes, which are held already.
       std::map<ViewId, ViewId> id_of;
       std::set<ViewId> held;
-      for (const auto& [old_id, key] : key_of) {
+      for (const auto& [old_id, key] : saved.keys) {
         const auto it = ids_.find(key);
         if (it != ids_.end()) {
           id_of[old_id] = it->second;
@@ -791,13 +758,13 @@ bool OnlineAverager::AddGraph(const std::string& path, AddedGraph* added, std::s
         e.view2 = id_of.at(e.view2);
         if (graph_.AddEdge(e, nullptr, DuplicatePolicy::kKeepBoth) != AddEdgeResult::kRejected) ++result.edges;
       }
-      // The added keyframes start where their map had them, in the frame of
-      // the keyframes held if the maps share some (one rotation fitted on
-      // those), else in their map's own frame: a component of their own
-      // until a loop closure joins it to another, keeping the tf frames it
-      // was published in.
+      // The keyframes start where their map had them (its gauge views keep
+      // them, so they stay in the frames published before the save), in the
+      // frame of the keyframes held if the maps share some (one rotation
+      // fitted on those), else in their map's own frame: a component of
+      // their own until a loop closure joins it to another.
       std::vector<Eigen::Matrix3d> mine, theirs;
-      for (const auto& [old_id, r] : saved_orientations) {
+      for (const auto& [old_id, r] : saved.orientations) {
         if (!held.count(old_id)) continue;
         const auto it = warm_start_.find(id_of.at(old_id));
         if (it == warm_start_.end()) continue;
@@ -805,8 +772,8 @@ bool OnlineAverager::AddGraph(const std::string& path, AddedGraph* added, std::s
         theirs.push_back(r);
       }
       const Eigen::Matrix3d g = mine.empty() ? Eigen::Matrix3d::Identity() : AlignRotations(mine, theirs);
-      for (const auto& [old_id, r] : saved_orientations) {
-        if (!held.count(old_id)) warm_start_[id_of.at(old_id)] = r * g.transpose();
+      for (const auto& [old_id, r] : saved.orientations) {
+        if (!held.count(old_id)) warm_start_[id_of.at(old_id)] = mine.empty() ? r : Eigen::Matrix3d(r * g.transpose());
       }
       ++generation_;
     }

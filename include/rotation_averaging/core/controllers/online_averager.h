@@ -122,6 +122,17 @@ struct OnlineSolution {
   RotationAveragingSummary summary;
 };
 
+// A graph file of OnlineAverager::SaveGraph, read and checked: every view
+// named "<frame_id>@<stamp_ns>", no keyframe twice.
+struct SavedKeyframeGraph {
+  std::string path;                                // where it was read from (for messages)
+  ViewGraph graph;
+  std::map<ViewId, Eigen::Matrix3d> orientations;  // saved with it (graph file version 2)
+  std::map<ViewId, KeyframeKey> keys;              // the keyframe each view names
+  std::vector<std::string> warnings;
+};
+bool ReadSavedKeyframeGraph(const std::string& path, SavedKeyframeGraph* saved, std::string* error);
+
 class OnlineAverager {
  public:
   explicit OnlineAverager(const OnlineAveragerOptions& options);
@@ -169,7 +180,13 @@ class OnlineAverager {
   // copied under the graph lock only (a solve waits for that much, not for
   // the file).
   void SnapshotGraph(ViewGraph* graph, std::map<ViewId, Eigen::Matrix3d>* orientations) const;
-  bool LoadGraph(const std::string& path, std::string* error);  // replaces the graph, then solves
+  // Replaces the graph (and drops the measurements queued) with a saved
+  // one, then solves; its first solve starts from the orientations saved
+  // with it, so its keyframes keep the frames they were published in. A
+  // refused file leaves the graph as it was; `error` gets the file's first
+  // warning on success, if it had any.
+  bool LoadGraph(const std::string& path, std::string* error);
+  bool LoadGraph(const SavedKeyframeGraph& saved, std::string* error);
   // Adds a saved graph (another session's or robot's map) to the one held,
   // then solves. Its keyframes already held are the same keyframes, and the
   // edges among them are not added again. Its other keyframes start where it
@@ -181,10 +198,13 @@ class OnlineAverager {
     std::size_t edges = 0, edges_held = 0;  // added; among keyframes already held, left out
   };
   bool AddGraph(const std::string& path, AddedGraph* added, std::string* error);
+  bool AddGraph(const SavedKeyframeGraph& saved, AddedGraph* added, std::string* error);
   static std::string KeyframeName(const KeyframeKey& key);
   static bool ParseKeyframeName(const std::string& name, KeyframeKey* key);
 
  private:
+  // LoadGraph (replace) and AddGraph: the one way a saved graph comes in.
+  bool TakeGraph(const SavedKeyframeGraph& saved, bool replace, AddedGraph* added, std::string* error);
   void WorkerLoop();
   std::size_t DrainQueue();  // applies queued measurements to the graph; needs graph_mutex_
   bool SolveLocked(bool force_full);  // needs solve_mutex_
