@@ -209,7 +209,7 @@ void DefaultConstructibleCopyable(py::class_<Options>& c) {
 
 template <typename Options, typename Enum>
 void EnumProperty(py::class_<Options>& c, const char* name, Enum Options::*field, const char* (*to_name)(Enum),
-                  bool (*parse)(const std::string&, Enum*), const char* choices) {
+                  bool (*parse)(const std::string&, Enum*), const std::string& choices) {
   c.def_property(
       name, [field, to_name](const Options& o) { return std::string(to_name(o.*field)); },
       [field, parse, name, choices](Options& o, const std::string& text) {
@@ -217,12 +217,6 @@ void EnumProperty(py::class_<Options>& c, const char* name, Enum Options::*field
           throw py::value_error("unknown " + std::string(name) + " '" + text + "' (" + choices + ")");
         }
       });
-}
-
-std::string LossChoices() {
-  std::string s;
-  for (ra::LossType t : ra::AllLossTypes()) s += (s.empty() ? "" : ", ") + std::string(ra::LossTypeName(t));
-  return s;
 }
 
 py::dict ComponentToDict(const ra::ComponentSummary& c) {
@@ -537,14 +531,14 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
                                                    "enumerations as strings.");
   DefaultConstructibleCopyable(options);
   EnumProperty(options, "solver", &ra::RotationAveragingOptions::solver, &ra::SolverTypeName, &ra::ParseSolverType,
-               "irls, ceres, l1_irls");
-  static const std::string loss_choices = LossChoices();
+               ra::SolverTypeChoices());
   EnumProperty(options, "loss", &ra::RotationAveragingOptions::loss, &ra::LossTypeName, &ra::ParseLossType,
-               loss_choices.c_str());
+               ra::LossTypeChoices());
   EnumProperty(options, "weighting", &ra::RotationAveragingOptions::weighting, &ra::EdgeWeightingName,
-               &ra::ParseEdgeWeighting, "none, inliers, trace, frobenius, covariance");
+               &ra::ParseEdgeWeighting, ra::EdgeWeightingChoices());
   EnumProperty(options, "covariance_normalization", &ra::RotationAveragingOptions::covariance_normalization,
-               &ra::CovarianceNormalizationName, &ra::ParseCovarianceNormalization, "std, paper");
+               &ra::CovarianceNormalizationName, &ra::ParseCovarianceNormalization,
+               ra::CovarianceNormalizationChoices());
   // The sub-structs' fields (robust_start, linear, l1_irls) are fields of
   // SolveOptions in Python: one flat set of names, as make_options takes them.
   options.def_property(
@@ -554,11 +548,12 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
       },
       [](ra::RotationAveragingOptions& o, const std::string& text) {
         if (!ra::ParseSpanningTreeWeight(text, &o.robust_start.spanning_tree_weight)) {
-          throw py::value_error("unknown spanning_tree_weight '" + text + "' (auto, uniform, inliers, information)");
+          throw py::value_error("unknown spanning_tree_weight '" + text + "' (" + ra::SpanningTreeWeightChoices() + ")");
         }
       });
   EnumProperty(options, "self_calibration", &ra::RotationAveragingOptions::self_calibration,
-               &ra::CovarianceSelfCalibrationName, &ra::ParseCovarianceSelfCalibration, "loss_scale, floor");
+               &ra::CovarianceSelfCalibrationName, &ra::ParseCovarianceSelfCalibration,
+               ra::CovarianceSelfCalibrationChoices());
 #define ROTAVG_FIELD(name) options.def_readwrite(#name, &ra::RotationAveragingOptions::name)
 #define ROTAVG_NESTED_FIELD(group, name)                                                                  \
   options.def_property(                                                                                   \
@@ -669,7 +664,8 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
       m, "RelativePoseOptions", "Every option of the two-view estimation (relative_pose.h); enumerations as strings.");
   DefaultConstructibleCopyable(pose_options);
   EnumProperty(pose_options, "covariance_model", &ra::RelativePoseOptions::covariance_model,
-               &ra::RotationCovarianceModelName, &ra::ParseRotationCovarianceModel, "marginal, conditional");
+               &ra::RotationCovarianceModelName, &ra::ParseRotationCovarianceModel,
+               ra::RotationCovarianceModelChoices());
 #define ROTAVG_FIELD(name) pose_options.def_readwrite(#name, &ra::RelativePoseOptions::name)
   ROTAVG_FIELD(ransac_threshold_px);
   ROTAVG_FIELD(adaptive_threshold_sigmas);

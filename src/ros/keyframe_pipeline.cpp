@@ -59,7 +59,7 @@ class ParameterReader {
   // An enumeration by name: `parse` turns the text into the value.
   template <typename E>
   void ReadChoice(const std::string& name, E* field, const char* (*to_name)(E), bool (*parse)(const std::string&, E*),
-                  const char* choices) {
+                  const std::string& choices) {
     std::string text = to_name(*field);
     Read(name, &text);
     if (!parse(text, field)) Problem(name + " '" + text + "' is not one of " + choices);
@@ -185,11 +185,9 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   RotationAveragingOptions& o = a.averaging;
   r.Read("solve_period_s", &a.solve_period_s, {"solve_period"});
   r.Read("solve_early_on_loop_closure", &a.solve_early_on_loop_closure);
-  r.ReadChoice("loss", &o.loss, &LossTypeName, &ParseLossType,
-               "magsac, squared, huber, soft_l1, l0.5, cauchy, geman_mcclure, tukey");
-  r.ReadChoice("weighting", &o.weighting, &EdgeWeightingName, &ParseEdgeWeighting,
-               "covariance, none, inliers, trace, frobenius");
-  r.ReadChoice("solver", &o.solver, &SolverTypeName, &ParseSolverType, "irls, ceres, l1_irls");
+  r.ReadChoice("loss", &o.loss, &LossTypeName, &ParseLossType, LossTypeChoices());
+  r.ReadChoice("weighting", &o.weighting, &EdgeWeightingName, &ParseEdgeWeighting, EdgeWeightingChoices());
+  r.ReadChoice("solver", &o.solver, &SolverTypeName, &ParseSolverType, SolverTypeChoices());
   r.Read("loss_scale", &o.loss_scale, {"sigma_max"});
   r.Read("max_iterations", &o.max_iterations);
   r.Read("local_solve_min_views", &a.local_solve_min_views, {"local_solve_min_keyframes"});
@@ -204,7 +202,7 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("image_type", &c.image_type);
   KeyframeFrontendOptions& f = c.frontend;
   r.Read("downsample", &f.features.downsample, {"image_downsample"});
-  r.ReadChoice("features", &f.features.type, &FeatureTypeName, &ParseFeatureType, "sift, orb");
+  r.ReadChoice("features", &f.features.type, &FeatureTypeName, &ParseFeatureType, FeatureTypeChoices());
   r.Read("max_features", &f.features.max_features);
   r.Read("rig_stamp_tolerance_s", &f.rig_stamp_tolerance_s, {"rig_stamp_tolerance"});
   c.rig.stamp_tolerance_s = f.rig_stamp_tolerance_s;

@@ -79,23 +79,23 @@ inline bool ParseAveragingOptions(const Args& args, ra::RotationAveragingOptions
   };
   // The caller's options hold the defaults: a flag not given keeps it.
   if (!ra::ParseSolverType(args.Get("--solver", ra::SolverTypeName(options->solver)), &options->solver)) {
-    return fail("unknown --solver");
+    return fail("unknown --solver (" + ra::SolverTypeChoices() + ")");
   }
   if (!ra::ParseLossType(args.Get("--loss", ra::LossTypeName(options->loss)), &options->loss)) {
-    return fail("unknown --loss");
+    return fail("unknown --loss (" + ra::LossTypeChoices() + ")");
   }
   if (!ra::ParseEdgeWeighting(args.Get("--weighting", ra::EdgeWeightingName(options->weighting)), &options->weighting)) {
-    return fail("unknown --weighting");
+    return fail("unknown --weighting (" + ra::EdgeWeightingChoices() + ")");
   }
   if (!ra::ParseCovarianceNormalization(
           args.Get("--normalization", ra::CovarianceNormalizationName(options->covariance_normalization)),
           &options->covariance_normalization)) {
-    return fail("unknown --normalization (std or paper)");
+    return fail("unknown --normalization (" + ra::CovarianceNormalizationChoices() + ")");
   }
   if (!ra::ParseCovarianceSelfCalibration(
           args.Get("--self-calibration", ra::CovarianceSelfCalibrationName(options->self_calibration)),
           &options->self_calibration)) {
-    return fail("unknown --self-calibration (loss_scale or floor)");
+    return fail("unknown --self-calibration (" + ra::CovarianceSelfCalibrationChoices() + ")");
   }
   if (args.Has("--sigma-max")) {
     options->loss_scale = std::atof(args.Get("--sigma-max").c_str());

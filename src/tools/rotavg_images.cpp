@@ -57,7 +57,7 @@ int Images(int argc, char** argv) {
   }
   if (!args.Has("--images") || !args.Has("--intrinsics")) return Fail("images needs --images DIR and --intrinsics CAMERA-FILE");
   ra::ImagePipelineOptions pipeline;
-  if (!ra::ParseFeatureType(args.Get("--features", "sift"), &pipeline.features.type)) return Fail("unknown --features");
+  if (!ra::ParseFeatureType(args.Get("--features", "sift"), &pipeline.features.type)) return Fail("unknown --features (" + ra::FeatureTypeChoices() + ")");
   pipeline.features.downsample = std::atof(args.Get("--downsample", "1").c_str());
   if (!(pipeline.features.downsample > 0.0 && pipeline.features.downsample <= 1.0)) {
     return Fail("--downsample must be in (0, 1] (0.25 = a quarter of the width)");
@@ -68,7 +68,7 @@ int Images(int argc, char** argv) {
     return Fail(error.empty() ? "--pairs must be exhaustive, sequential:N or list:FILE" : error);
   }
   if (!ra::ParseRotationCovarianceModel(args.Get("--covariance", "marginal"), &pipeline.relative_pose.covariance_model)) {
-    return Fail("--covariance must be marginal or conditional");
+    return Fail("unknown --covariance (" + ra::RotationCovarianceModelChoices() + ")");
   }
   // Photographs of real scenes: errors shared by regions of an image
   // (repeated structure) are the rule (results/README.md, "What the far-off

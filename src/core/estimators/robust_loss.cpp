@@ -112,6 +112,12 @@ const char* LossTypeName(LossType type) {
   return "?";
 }
 
+std::string LossTypeChoices() {
+  std::string names;
+  for (LossType t : AllLossTypes()) names += (names.empty() ? "" : ", ") + std::string(LossTypeName(t));
+  return names;
+}
+
 bool ParseLossType(const std::string& text, LossType* type) {
   for (LossType t : AllLossTypes()) {
     if (text == LossTypeName(t)) {

@@ -28,6 +28,13 @@ bool ParseByName(const std::string& text, const Enum (&all)[N], const char* (*na
   return false;
 }
 
+template <typename Enum, std::size_t N>
+std::string JoinNames(const Enum (&all)[N], const char* (*name)(Enum)) {
+  std::string names;
+  for (Enum e : all) names += (names.empty() ? "" : ", ") + std::string(name(e));
+  return names;
+}
+
 constexpr EdgeWeighting kAllWeightings[] = {EdgeWeighting::kNone, EdgeWeighting::kInliers, EdgeWeighting::kTrace,
                                             EdgeWeighting::kFrobenius, EdgeWeighting::kCovariance};
 constexpr SpanningTreeWeight kAllTreeWeights[] = {SpanningTreeWeight::kAuto, SpanningTreeWeight::kUniform,
@@ -172,6 +179,14 @@ bool ParseCovarianceSelfCalibration(const std::string& text, CovarianceSelfCalib
 const std::vector<EdgeWeighting>& AllEdgeWeightings() {
   static const std::vector<EdgeWeighting> kAll(std::begin(kAllWeightings), std::end(kAllWeightings));
   return kAll;
+}
+
+std::string EdgeWeightingChoices() { return JoinNames(kAllWeightings, &EdgeWeightingName); }
+std::string SolverTypeChoices() { return JoinNames(kAllSolvers, &SolverTypeName); }
+std::string CovarianceNormalizationChoices() { return JoinNames(kAllNormalizations, &CovarianceNormalizationName); }
+std::string SpanningTreeWeightChoices() { return JoinNames(kAllTreeWeights, &SpanningTreeWeightName); }
+std::string CovarianceSelfCalibrationChoices() {
+  return JoinNames(kAllSelfCalibrations, &CovarianceSelfCalibrationName);
 }
 
 double DefaultLossScale(const RotationAveragingOptions& options) {

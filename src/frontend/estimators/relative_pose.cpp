@@ -243,6 +243,11 @@ const char* RotationCovarianceModelName(RotationCovarianceModel model) {
   return model == RotationCovarianceModel::kConditional ? "conditional" : "marginal";
 }
 
+std::string RotationCovarianceModelChoices() {
+  return std::string(RotationCovarianceModelName(RotationCovarianceModel::kMarginal)) + ", " +
+         RotationCovarianceModelName(RotationCovarianceModel::kConditional);
+}
+
 const char* TwoViewModelName(TwoViewModel model) {
   return model == TwoViewModel::kRotation ? "rotation" : "essential";
 }

@@ -22,6 +22,10 @@ bool ParseFeatureType(const std::string& text, FeatureType* type) {
   return true;
 }
 
+std::string FeatureTypeChoices() {
+  return std::string(FeatureTypeName(FeatureType::kSift)) + ", " + FeatureTypeName(FeatureType::kOrb);
+}
+
 Eigen::Matrix3d ScaleIntrinsics(const Eigen::Matrix3d& k, double s) {
   // Pixel (u, v) at full resolution maps to ((u + 0.5) s - 0.5, (v + 0.5) s - 0.5).
   Eigen::Matrix3d scaled = k;

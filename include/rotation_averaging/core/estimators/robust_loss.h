@@ -132,6 +132,7 @@ enum class LossType { kSquared, kHuber, kSoftL1, kLHalf, kCauchy, kGemanMcClure,
 const std::vector<LossType>& AllLossTypes();
 const char* LossTypeName(LossType type);  // "squared", "huber", "soft_l1", "l0.5", ...
 bool ParseLossType(const std::string& text, LossType* type);
+std::string LossTypeChoices();  // "squared, huber, ...": every name of AllLossTypes, for messages
 std::unique_ptr<RobustLoss> CreateLoss(LossType type, double scale);
 
 }  // namespace rotation_averaging

@@ -86,6 +86,12 @@ bool ParseSpanningTreeWeight(const std::string& text, SpanningTreeWeight* w);
 const char* CovarianceSelfCalibrationName(CovarianceSelfCalibration c);  // "loss_scale", "floor"
 bool ParseCovarianceSelfCalibration(const std::string& text, CovarianceSelfCalibration* c);
 const std::vector<EdgeWeighting>& AllEdgeWeightings();
+// Every name the parsers above take, "a, b, c", for messages that list them.
+std::string EdgeWeightingChoices();
+std::string SolverTypeChoices();
+std::string CovarianceNormalizationChoices();
+std::string SpanningTreeWeightChoices();
+std::string CovarianceSelfCalibrationChoices();
 
 // How a solve starts: the spanning tree, the L1 fit and graduated
 // non-convexity, and when they run (the robust start).

@@ -49,6 +49,7 @@ enum class RotationCovarianceModel {
 };
 const char* RotationCovarianceModelName(RotationCovarianceModel model);
 bool ParseRotationCovarianceModel(const std::string& text, RotationCovarianceModel* model);
+std::string RotationCovarianceModelChoices();  // "marginal, conditional", for messages
 
 enum class TwoViewFailure {
   kNone,

@@ -15,6 +15,7 @@ namespace rotation_averaging {
 enum class FeatureType { kSift, kOrb };
 const char* FeatureTypeName(FeatureType type);
 bool ParseFeatureType(const std::string& text, FeatureType* type);
+std::string FeatureTypeChoices();  // "sift, orb", for messages
 
 struct FeatureOptions {
   FeatureType type = FeatureType::kSift;
