@@ -682,7 +682,8 @@ bool KeyframePipeline::AddMap(const std::string& graph_path, std::string* error,
   // graph and rig captures, which they refer to.
   std::vector<KeyframeRelativeRotation> links;
   std::size_t already_held = 0;
-  if (frontend_ && frontend_->UsesVocabulary() && std::filesystem::exists(database, ec)) {
+  const bool with_database = frontend_ && frontend_->UsesVocabulary() && std::filesystem::exists(database, ec);
+  if (with_database) {
     std::lock_guard<std::mutex> lock(frontend_mutex_);
     const std::size_t before = frontend_->NumKeyframes();
     if (!frontend_->AddDatabase(database, &already_held, error, &links)) return false;
@@ -710,7 +711,7 @@ bool KeyframePipeline::AddMap(const std::string& graph_path, std::string* error,
     if (!rig_.Add(rig, error)) return false;
     added_note += ", " + std::to_string(rig_.NumCaptures() - before) + " rig captures";
   }
-  if (frontend_ && frontend_->UsesVocabulary() && std::filesystem::exists(database, ec)) {
+  if (with_database) {
     std::size_t linked = 0;
     for (const KeyframeRelativeRotation& e : links) {
       std::string why;
