@@ -15,10 +15,13 @@
 // model, as a camera driver's image_raw does. The --start-* and --light-*
 // options and --noise-seed make another session in the same room (same
 // --seed): starting elsewhere on the loop, later, under other lighting.
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <iostream>
+#include <functional>
 #include <string>
+#include <vector>
 
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "ros/demo_bag.h"
@@ -44,52 +47,59 @@ int main(int argc, char** argv) {
   bool compressed = false;
   ra::CameraIntrinsics lens;
   std::string error;
+  // The numeric options: what each takes, and where its value goes.
+  struct Numeric {
+    const char* name;
+    const char* takes;
+    std::function<bool(double)> valid;
+    std::function<void(double)> set;
+  };
+  const std::vector<Numeric> numeric = {
+      {"--captures", "a number >= 4", [](double v) { return v >= 4; },
+       [&](double v) { options.num_captures = static_cast<int>(v); }},
+      {"--laps", "a number >= 1", [](double v) { return v >= 1; }, [&](double v) { options.laps = static_cast<int>(v); }},
+      {"--cameras", "1 to 4", [](double v) { return v >= 1 && v <= 4; },
+       [&](double v) { options.num_cameras = static_cast<int>(v); }},
+      {"--width", "a number >= 64", [](double v) { return v >= 64; },
+       [&](double v) { options.WithWidth(static_cast<int>(v)); }},  // same field of view, 4:3
+      {"--height", "a number >= 48", [](double v) { return v >= 48; },
+       [&](double v) { options.height = static_cast<int>(v); }},
+      {"--noise", "a number >= 0", [](double v) { return v >= 0; }, [&](double v) { options.noise_grey = v; }},
+      {"--period", "a number > 0", [](double v) { return v > 0; }, [&](double v) { options.capture_period_s = v; }},
+      {"--seed", "a number >= 0", [](double v) { return v >= 0; },
+       [&](double v) { options.seed = static_cast<std::uint64_t>(v); }},
+      {"--start-angle", "a number", [](double) { return true; }, [&](double v) { options.start_angle_deg = v; }},
+      {"--start-time", "a number >= 0", [](double v) { return v >= 0; }, [&](double v) { options.start_time_s = v; }},
+      {"--light-gain", "a number > 0", [](double v) { return v > 0; }, [&](double v) { options.light_gain = v; }},
+      {"--light-gradient", "a number in [0, 2)", [](double v) { return v >= 0 && v < 2; },
+       [&](double v) { options.light_gradient = v; }},
+      {"--noise-seed", "a number >= 0", [](double v) { return v >= 0; },
+       [&](double v) { options.noise_seed = static_cast<std::uint64_t>(v); }},
+  };
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
     const bool has_value = k + 1 < argc;
-    auto number = [&](double* out) {
-      if (!has_value) return false;
-      char* end = nullptr;
-      *out = std::strtod(argv[++k], &end);
-      return end && *end == '\0' && std::isfinite(*out);
-    };
-    double v = 0.0;
-    if (a == "--output" && has_value) {
+    if ((a == "--output" || a == "--gt-csv" || a == "--distortion") && !has_value) {
+      return Usage(a + " needs a value");
+    } else if (a == "--output") {
       output = argv[++k];
-    } else if (a == "--gt-csv" && has_value) {
+    } else if (a == "--gt-csv") {
       gt_csv = argv[++k];
-    } else if (a == "--distortion" && has_value) {
+    } else if (a == "--distortion") {
       if (!ra::ParseDistortionSpec(argv[++k], &lens, &error)) return Usage("--distortion: " + error);
     } else if (a == "--compressed") {
       compressed = true;
-    } else if (a == "--captures" && number(&v) && v >= 4) {
-      options.num_captures = static_cast<int>(v);
-    } else if (a == "--laps" && number(&v) && v >= 1) {
-      options.laps = static_cast<int>(v);
-    } else if (a == "--cameras" && number(&v) && v >= 1 && v <= 4) {
-      options.num_cameras = static_cast<int>(v);
-    } else if (a == "--width" && number(&v) && v >= 64) {
-      options.WithWidth(static_cast<int>(v));  // same field of view, 4:3
-    } else if (a == "--height" && number(&v) && v >= 48) {
-      options.height = static_cast<int>(v);
-    } else if (a == "--noise" && number(&v) && v >= 0) {
-      options.noise_grey = v;
-    } else if (a == "--period" && number(&v) && v > 0) {
-      options.capture_period_s = v;
-    } else if (a == "--seed" && number(&v) && v >= 0) {
-      options.seed = static_cast<std::uint64_t>(v);
-    } else if (a == "--start-angle" && number(&v)) {
-      options.start_angle_deg = v;
-    } else if (a == "--start-time" && number(&v) && v >= 0) {
-      options.start_time_s = v;
-    } else if (a == "--light-gain" && number(&v) && v > 0) {
-      options.light_gain = v;
-    } else if (a == "--light-gradient" && number(&v) && v >= 0 && v < 2) {
-      options.light_gradient = v;
-    } else if (a == "--noise-seed" && number(&v) && v >= 0) {
-      options.noise_seed = static_cast<std::uint64_t>(v);
     } else {
-      return Usage("bad or incomplete option " + a);
+      const auto option = std::find_if(numeric.begin(), numeric.end(), [&](const Numeric& n) { return a == n.name; });
+      if (option == numeric.end()) return Usage("unknown option " + a);
+      if (!has_value) return Usage(a + " needs a value: " + option->takes);
+      const std::string text = argv[++k];
+      char* end = nullptr;
+      const double v = std::strtod(text.c_str(), &end);
+      if (text.empty() || !end || *end != '\0' || !std::isfinite(v) || !option->valid(v)) {
+        return Usage(a + " takes " + option->takes + ", not '" + text + "'");
+      }
+      option->set(v);
     }
   }
   if (output.empty()) return Usage("give --output");
