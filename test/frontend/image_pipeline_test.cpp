@@ -17,6 +17,7 @@
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "core/util/random_draws.h"
+#include "frontend/scene/focal_scene.h"
 
 namespace rotation_averaging {
 namespace {
@@ -79,56 +80,6 @@ TEST(PairSelection, ParsesModes) {
   fs::remove(list);
 }
 
-// Eight cameras along a path looking at a cloud of points (65 deg field of
-// view, 0.3 px noise, 10% wrong matches); every pair estimated with the
-// given focal length. Returns the matches and poses of the pairs.
-struct FocalScene {
-  std::vector<std::vector<Eigen::Vector2d>> points1, points2;
-  std::vector<RelativePoseResult> poses;
-  std::vector<FocalPair> Pairs() const {
-    std::vector<FocalPair> out;
-    for (std::size_t p = 0; p < poses.size(); ++p) out.push_back({&points1[p], &points2[p], &poses[p]});
-    return out;
-  }
-};
-
-FocalScene MakeFocalScene(const Eigen::Matrix3d& k_true, const Eigen::Matrix3d& k_given) {
-  std::mt19937 rng(5);
-  std::uniform_real_distribution<double> xy(-4.0, 4.0), z(6.0, 12.0), unit(0.0, 1.0);
-  std::normal_distribution<double> noise(0.0, 0.3);
-  std::vector<Eigen::Vector3d> cloud(600);
-  for (Eigen::Vector3d& x : cloud) x = DrawVector3(rng, xy, xy, z);
-  std::vector<Eigen::Matrix3d> rotations;
-  std::vector<Eigen::Vector3d> centres;
-  for (int c = 0; c < 8; ++c) {
-    rotations.push_back(ExpSO3(Eigen::Vector3d(0.03 * std::sin(c), -0.06 * (c - 3.5), 0.02 * c)));
-    centres.emplace_back(0.5 * (c - 3.5), 0.3 * std::cos(c), 0.2 * c);
-  }
-  auto project = [&](int c, const Eigen::Vector3d& x, Eigen::Vector2d* pixel) {
-    const Eigen::Vector3d u = k_true * (rotations[c] * (x - centres[c]));
-    *pixel = u.hnormalized();
-    return u.z() > 0.0 && pixel->x() >= 0 && pixel->x() < 640 && pixel->y() >= 0 && pixel->y() < 480;
-  };
-  FocalScene scene;
-  RelativePoseOptions options;
-  for (int a = 0; a < 8; ++a) {
-    for (int b = a + 1; b < 8; ++b) {
-      std::vector<Eigen::Vector2d> p1, p2;
-      for (const Eigen::Vector3d& x : cloud) {
-        Eigen::Vector2d u1, u2;
-        if (!project(a, x, &u1) || !project(b, x, &u2)) continue;
-        p1.push_back(u1 + DrawVector2(rng, noise));
-        p2.push_back(unit(rng) < 0.1 ? Eigen::Vector2d(Eigen::Vector2d(640.0, 480.0).cwiseProduct(DrawVector2(rng, unit)))
-                                     : Eigen::Vector2d(u2 + DrawVector2(rng, noise)));
-      }
-      scene.poses.push_back(EstimateRelativePoseWithCovariance(p1, p2, k_given, k_given, options));
-      scene.points1.push_back(std::move(p1));
-      scene.points2.push_back(std::move(p2));
-    }
-  }
-  return scene;
-}
-
 // The focal length of the pairs' intrinsics is estimated from their matches:
 // 2% off is found and corrected, exact intrinsics are left as they are.
 TEST(ImagePipeline, FocalLengthIsEstimatedFromThePairs) {
@@ -145,7 +96,11 @@ TEST(ImagePipeline, FocalLengthIsEstimatedFromThePairs) {
     ASSERT_TRUE(focal.estimated) << given;
     EXPECT_GE(focal.pairs, 20);
     EXPECT_NEAR(focal.scale * given, 1.0, 0.003) << "given x" << given << ": estimated x" << focal.scale;
-    EXPECT_LT(focal.standard_deviation, 0.002);
+    // The matches alone pin it down; the principal point, trusted only to
+    // principal_point_sigma, adds most of the deviation.
+    EXPECT_LT(focal.matches_deviation, 0.002);
+    EXPECT_GT(focal.principal_point_deviation, 0.0);
+    EXPECT_LT(focal.standard_deviation, 0.008);
     EXPECT_EQ(ShouldApplyFocalScale(focal, options), given != 1.0) << given;
   }
   // Too few pairs: no estimate.
@@ -153,6 +108,59 @@ TEST(ImagePipeline, FocalLengthIsEstimatedFromThePairs) {
   std::vector<FocalPair> two = scene.Pairs();
   two.resize(2);
   EXPECT_FALSE(EstimateFocalScale(two, k, options).estimated);
+}
+
+// Around an object, two views hardly determine the focal length: a
+// principal point 0.5% of the width off moves the estimate by several
+// percent, while the matches alone look certain of it. Such an estimate
+// must not be applied to intrinsics whose focal length is right; with the
+// principal point trusted (principal_point_sigma 0) it would be.
+TEST(ImagePipeline, ARingOfCamerasDoesNotMoveAGoodFocalLengthWithAPrincipalPointOff) {
+  Eigen::Matrix3d k;
+  k << 500, 0, 320, 0, 500, 240, 0, 0, 1;
+  Eigen::Matrix3d k_given = k;
+  k_given(0, 2) += 3.2;
+  k_given(1, 2) += 3.2;
+  FocalCalibrationOptions options, trusted;
+  options.enabled = trusted.enabled = true;
+  trusted.principal_point_sigma = 0.0;
+  int wrongly_applied_if_trusted = 0;
+  for (unsigned seed = 1; seed <= 2; ++seed) {
+    FocalSceneOptions ring;
+    ring.geometry = FocalSceneGeometry::kRing;
+    ring.seed = seed;
+    ring.noise_px = 0.5;
+    const FocalScene scene = MakeFocalScene(k, k_given, ring);
+    const FocalCalibration focal = EstimateFocalScale(scene.Pairs(), k_given, options);
+    EXPECT_FALSE(ShouldApplyFocalScale(focal, options)) << focal.Report();
+    if (focal.estimated) EXPECT_LT(std::abs(focal.scale - 1.0), 3.0 * focal.standard_deviation) << focal.Report();
+    wrongly_applied_if_trusted += ShouldApplyFocalScale(EstimateFocalScale(scene.Pairs(), k_given, trusted), trusted);
+  }
+  EXPECT_GE(wrongly_applied_if_trusted, 1);
+}
+
+// With the principal point right, the ring's estimate is within three of
+// its deviations of the truth, and a right focal length is kept. (A focal
+// length 3% short is not corrected there: the ring cannot tell it from a
+// principal point 1% off.)
+TEST(ImagePipeline, ARingOfCamerasWithTheRightPrincipalPointStaysWithinItsDeviation) {
+  Eigen::Matrix3d k;
+  k << 500, 0, 320, 0, 500, 240, 0, 0, 1;
+  FocalCalibrationOptions options;
+  options.enabled = true;
+  for (const double given : {1.0, 0.97}) {
+    Eigen::Matrix3d k_given = k;
+    k_given(0, 0) *= given;
+    k_given(1, 1) *= given;
+    FocalSceneOptions ring;
+    ring.geometry = FocalSceneGeometry::kRing;
+    ring.seed = 1;
+    ring.noise_px = 0.5;
+    const FocalCalibration focal = EstimateFocalScale(MakeFocalScene(k, k_given, ring).Pairs(), k_given, options);
+    ASSERT_TRUE(focal.estimated) << focal.Report();
+    EXPECT_LT(std::abs(focal.scale * given - 1.0), 3.0 * focal.standard_deviation * given) << focal.Report();
+    if (given == 1.0) EXPECT_FALSE(ShouldApplyFocalScale(focal, options)) << focal.Report();
+  }
 }
 
 // The focal profile is evaluated on a thread pool: one thread gives the

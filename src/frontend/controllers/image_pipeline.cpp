@@ -170,10 +170,11 @@ FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const E
   // of all its matches in units of its noise. Selecting the inliers anew
   // matters: those the pose kept in the given focal length favour it.
   std::vector<double> per_pair(used.size());
-  // The profile over the pairs not in `left_out` (a group of the jackknife
+  // The profile, for intrinsics `base` (k, or k with its principal point
+  // moved), over the pairs not in `left_out` (a group of the jackknife
   // below; -1: none).
-  auto cost = [&](double a, int left_out) {
-    Eigen::Matrix3d ka = k;
+  auto cost = [&](const Eigen::Matrix3d& base, double a, int left_out) {
+    Eigen::Matrix3d ka = base;
     ka(0, 0) *= a;
     ka(1, 1) *= a;
     const Eigen::Matrix3d ka_inv = ka.inverse();
@@ -210,11 +211,11 @@ FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const E
   // the best cell's neighbours. NaN when it lies on the edge of the range.
   const double range = std::clamp(options.search_range, 0.01, 0.5), step = 0.02;
   const int cells = static_cast<int>(std::ceil(range / step));
-  auto minimise = [&](int left_out) {
+  auto minimise = [&](const Eigen::Matrix3d& base, int left_out) {
     int best = -cells;
     double best_cost = std::numeric_limits<double>::infinity();
     for (int c = -cells; c <= cells; ++c) {
-      const double value = cost(1.0 + c * step, left_out);
+      const double value = cost(base, 1.0 + c * step, left_out);
       if (value < best_cost) {
         best_cost = value;
         best = c;
@@ -224,38 +225,45 @@ FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const E
     double lo = 1.0 + (best - 1) * step, hi = 1.0 + (best + 1) * step;
     const double ratio = 0.5 * (std::sqrt(5.0) - 1.0);
     double x1 = hi - ratio * (hi - lo), x2 = lo + ratio * (hi - lo);
-    double f1 = cost(x1, left_out), f2 = cost(x2, left_out);
+    double f1 = cost(base, x1, left_out), f2 = cost(base, x2, left_out);
     while (hi - lo > 1e-4) {
       if (f1 < f2) {
         hi = x2;
         x2 = x1;
         f2 = f1;
         x1 = hi - ratio * (hi - lo);
-        f1 = cost(x1, left_out);
+        f1 = cost(base, x1, left_out);
       } else {
         lo = x1;
         x1 = x2;
         f1 = f2;
         x2 = lo + ratio * (hi - lo);
-        f2 = cost(x2, left_out);
+        f2 = cost(base, x2, left_out);
       }
     }
     return 0.5 * (lo + hi);
   };
-  out.scale = minimise(-1);
+  out.scale = minimise(k, -1);
   if (!std::isfinite(out.scale)) {
     out.scale = 1.0;
+    out.unobservable = true;
     return out;
   }
   // Standard deviation: the larger of the chi-square profile's curvature
   // (pixel noise alone) and a delete-a-group jackknife over the pairs, which
   // also sees how much the pairs disagree on it.
-  const double h = 1e-3, centre = cost(out.scale, -1);
-  const double curvature = (cost(out.scale + h, -1) - 2.0 * centre + cost(out.scale - h, -1)) / (h * h);
-  double deviation = curvature > 0.0 ? std::sqrt(2.0 / curvature) : std::numeric_limits<double>::infinity();
+  // The profile is not smooth at the finest scales (the inliers are
+  // selected again at every a): where the smallest step gives no positive
+  // curvature, wider steps measure it.
+  const double centre = cost(k, out.scale, -1);
+  double deviation = std::numeric_limits<double>::infinity();
+  for (double h = 1e-3; h < 0.02 && !std::isfinite(deviation); h *= 4.0) {
+    const double curvature = (cost(k, out.scale + h, -1) - 2.0 * centre + cost(k, out.scale - h, -1)) / (h * h);
+    if (curvature > 0.0) deviation = std::sqrt(2.0 / curvature);
+  }
   if (out.pairs >= 2 * kFocalJackknifeGroups) {
     std::vector<double> partial;
-    for (int g = 0; g < kFocalJackknifeGroups; ++g) partial.push_back(minimise(g));
+    for (int g = 0; g < kFocalJackknifeGroups; ++g) partial.push_back(minimise(k, g));
     double mean = 0.0;
     for (double x : partial) mean += x / kFocalJackknifeGroups;
     double spread = 0.0;
@@ -263,8 +271,27 @@ FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const E
     const double jackknife = std::sqrt((kFocalJackknifeGroups - 1.0) / kFocalJackknifeGroups * spread);
     deviation = std::isfinite(jackknife) ? std::max(deviation, jackknife) : std::numeric_limits<double>::infinity();
   }
-  out.standard_deviation = deviation;
+  out.matches_deviation = deviation;
+  // The principal point moved by its standard deviation along x, then y,
+  // both ways: half the change of the estimate is its part of the
+  // deviation (FocalCalibrationOptions::principal_point_sigma). An estimate
+  // that leaves the search range when it is moved has no useful deviation.
+  const double shift = std::max(0.0, options.principal_point_sigma) * 2.0 * k(0, 2);
+  double principal_point = 0.0;
+  if (shift > 0.0) {
+    for (int axis = 0; axis < 2; ++axis) {
+      Eigen::Matrix3d plus = k, minus = k;
+      plus(axis, 2) += shift;
+      minus(axis, 2) -= shift;
+      const double change = 0.5 * (minimise(plus, -1) - minimise(minus, -1));
+      principal_point = std::isfinite(change) ? std::hypot(principal_point, change)
+                                              : std::numeric_limits<double>::infinity();
+    }
+  }
+  out.principal_point_deviation = principal_point;
+  out.standard_deviation = std::hypot(deviation, principal_point);
   out.estimated = std::isfinite(out.standard_deviation);
+  out.unobservable = !out.estimated;
   return out;
 }
 
@@ -278,9 +305,12 @@ std::string FocalCalibration::Report() const {
   std::ostringstream out;
   out << std::setprecision(4);
   if (!estimated) {
-    out << "focal length: not estimated (" << pairs << " pairs with enough inliers)";
+    out << "focal length: not estimated (" << pairs << " pairs with enough inliers"
+        << (unobservable ? "; the pairs do not determine it within the search range" : "") << ")";
   } else {
-    out << "focal length: estimated x" << scale << " (+- " << standard_deviation << ", " << pairs << " pairs), "
+    out << "focal length: estimated x" << scale << " (+- " << standard_deviation << ": " << matches_deviation
+        << " from the matches of " << pairs << " pairs, " << principal_point_deviation
+        << " from the principal point), "
         << (applied ? "applied: pairs estimated again" : "kept as given (too small or too uncertain a correction)");
   }
   return out.str();

@@ -38,12 +38,26 @@ struct PairSelection {
 struct FocalCalibrationOptions {
   bool enabled = false;  // the library and the node trust K; `rotavg images` turns it on
   // Applied only when the estimate is further from 1 than this and than 3
-  // of its standard deviations. The estimate has a bias the pixel noise
-  // does not explain: on scenes whose intrinsics are exact it lands a few
-  // tenths of a percent from 1 (results/frontend.md, "What moves the
-  // two-view rotations"), so a smaller correction would as likely add an
+  // of its standard deviations. On scenes whose intrinsics are exact it
+  // lands a few tenths of a percent from 1 (results/frontend.md, "Focal
+  // self-calibration"), so a smaller correction would as likely add an
   // error as remove one.
   double min_correction = 0.005;
+  // Standard deviation of the error of K's principal point, as a fraction of
+  // the image width (taken as 2 cx). The focal length two views give
+  // depends on where the principal point is; near the critical
+  // configuration of focal self-calibration (optical axes meeting at a point
+  // equally far from the cameras: a ring or an arc around an object) it
+  // depends on little else: a principal point 1% of the width off moves the
+  // estimate by percents while the matches alone still look certain of it
+  // (results/frontend.md, "Focal self-calibration"). The
+  // estimate is repeated with the principal point moved by this much along
+  // x and y, and the change is part of its standard deviation: at 3
+  // standard deviations a correction is applied only when it holds against
+  // principal point errors up to 2.1% of the width, the largest distance of
+  // a given camera's calibrated principal point from its image centre (the
+  // same table).
+  double principal_point_sigma = 0.007;
   double search_range = 0.15;  // scales in [1 - range, 1 + range]
   int min_inliers = 50;        // pairs (essential-matrix model) with fewer are not used
   int min_pairs = 3;
@@ -61,10 +75,17 @@ struct ImagePipelineOptions {
 struct FocalCalibration {
   bool estimated = false;          // enough pairs to estimate it
   double scale = 1.0;              // estimated true / given focal length
-  // Of scale: the larger of the profile's curvature (pixel noise alone) and a
-  // jackknife over four groups of pairs (how much the pairs disagree).
+  // Of scale. From the matches: the larger of the profile's curvature (pixel
+  // noise alone) and a jackknife over four groups of pairs (how much the
+  // pairs disagree). From the principal point: how far the estimate moves
+  // when it is moved by FocalCalibrationOptions::principal_point_sigma.
+  // standard_deviation combines both.
   double standard_deviation = 0.0;
+  double matches_deviation = 0.0, principal_point_deviation = 0.0;
   int pairs = 0;                   // pairs used
+  // Enough pairs, but the estimate or its deviation left the search range:
+  // the pairs do not determine the focal length.
+  bool unobservable = false;
   bool applied = false;            // the pairs were estimated again with the corrected focal length
   std::string Report() const;
 };
