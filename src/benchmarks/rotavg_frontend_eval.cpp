@@ -27,6 +27,7 @@
 #include <opencv2/imgproc.hpp>
 #include "rotation_averaging/core/estimators/rotation_averaging.h"
 #include "frontend/eval/error_plot.h"
+#include "frontend/scene/focal_scene.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
@@ -138,7 +139,8 @@ bool PairError(const ra::NamedOrientations& gt, const std::string& name1, const 
 }
 
 // What moves the two-view rotations: the pairs of one scene and scale,
-// matched once, re-estimated under variants of the defaults. Each row: the
+// matched once, re-estimated under variants of `rotavg images`' defaults
+// (the relative-pose options of the pipeline above). Each row: the
 // median rotation error and NEES of the pairs against the ground truth, and
 // the median error of rotation averaging (defaults) on them.
 struct Variant {
@@ -150,7 +152,8 @@ struct Variant {
 
 std::string VariantRows(const std::string& scene, const std::string& scale_text,
                         const std::vector<ra::ImageFeatures>& features, const std::vector<std::string>& names,
-                        const Eigen::Matrix3d& k, const ra::NamedOrientations& gt) {
+                        const Eigen::Matrix3d& k, const ra::NamedOrientations& gt,
+                        const ra::RelativePoseOptions& defaults) {
   struct Matched {
     int i, j;
     std::vector<Eigen::Vector2d> p1, p2;
@@ -167,13 +170,13 @@ std::string VariantRows(const std::string& scene, const std::string& scale_text,
     }
   }
   std::vector<Variant> variants(6);
-  variants[0] = {"defaults (robust estimation repeated at 3 sigma of the pair's noise)", ra::RelativePoseOptions(), 1.0};
-  variants[1] = {"fixed 3 px threshold (adaptive_threshold_sigmas 0)", ra::RelativePoseOptions(), 1.0};
+  variants[0] = {"defaults (robust estimation repeated at 3 sigma of the pair's noise)", defaults, 1.0};
+  variants[1] = {"fixed 3 px threshold (adaptive_threshold_sigmas 0)", defaults, 1.0};
   variants[1].options.adaptive_threshold_sigmas = 0.0;
-  variants[2] = {"defaults, focal length 1% short", ra::RelativePoseOptions(), 0.99};
-  variants[3] = {"defaults, focal length 1% long", ra::RelativePoseOptions(), 1.01};
-  variants[4] = {"defaults, focal length 1% short, self-calibrated", ra::RelativePoseOptions(), 0.99, true};
-  variants[5] = {"defaults, focal length 1% long, self-calibrated", ra::RelativePoseOptions(), 1.01, true};
+  variants[2] = {"defaults, focal length 1% short", defaults, 0.99};
+  variants[3] = {"defaults, focal length 1% long", defaults, 1.01};
+  variants[4] = {"defaults, focal length 1% short, self-calibrated", defaults, 0.99, true};
+  variants[5] = {"defaults, focal length 1% long, self-calibrated", defaults, 1.01, true};
   std::ostringstream rows;
   for (const Variant& v : variants) {
     Eigen::Matrix3d kv = k;
@@ -289,7 +292,7 @@ std::vector<Scene> Scenes(const std::string& data_dir, bool quick) {
 
 // The rows of each table of the report, filled scene by scene.
 struct Tables {
-  std::ostringstream calibration, floor, accuracy, variants, focal, speed;
+  std::ostringstream calibration, floor, accuracy, variants, focal, principal_points, speed;
   std::ostringstream long_table;  // every method, every scene (loss_table.md)
 };
 
@@ -525,10 +528,23 @@ void EvaluateScene(const Scene& scene, const std::vector<std::string>& images, c
   ra::ImagePipelineResult front = ra::BuildViewGraphFromFeatures(features, names, feature_k, options);
   front.features_s = features_s;
   std::cerr << " done (" << front.features_s + front.matching_s + front.relative_pose_s << " s)\n";
-  tables->focal << "| " << scene.name << " | " << scale_text << " | " << front.focal.pairs << " | "
-                << (front.focal.estimated ? Fixed(front.focal.scale, 4) + " +- " + Fixed(front.focal.standard_deviation, 4)
-                                          : std::string("not estimated"))
-                << " | " << (front.focal.applied ? "yes" : "no") << " | " << Fixed(front.focal_s, 2) << " |\n";
+  const ra::FocalCalibration& focal = front.focal;
+  tables->focal << "| " << scene.name << " | " << scale_text << " | " << focal.pairs << " | "
+                << (focal.estimated ? Fixed(focal.scale, 4) + " +- " + Fixed(focal.standard_deviation, 4)
+                                    : std::string("not estimated"))
+                << " | " << (focal.estimated ? Fixed(focal.matches_deviation, 4) : std::string("-")) << " | "
+                << (focal.estimated ? Fixed(focal.principal_point_deviation, 4) : std::string("-")) << " | "
+                << (focal.estimated ? Fixed((focal.scale - 1.0) / focal.standard_deviation, 1) : std::string("-"))
+                << " | " << (focal.applied ? "yes" : "no") << " | " << Fixed(front.focal_s, 2) << " |\n";
+  // lund_door's principal point is COLMAP's, fixed at the centre: not a calibration.
+  if (scale_text == args.scales.front() && scene.name != "lund_door") {
+    // Where the calibration puts the principal point, against the image
+    // centre: how far a nominal (centred) principal point would be off.
+    const double cx = 0.5 * (full_width - 1), cy = 0.5 * (full_height - 1);
+    tables->principal_points << "| " << scene.name << " | " << full_width << " x " << full_height << " | "
+                             << Fixed(100.0 * (intrinsics.k(0, 2) - cx) / full_width, 2) << " | "
+                             << Fixed(100.0 * (intrinsics.k(1, 2) - cy) / full_width, 2) << " |\n";
+  }
 
   // The covariance floor the default averaging estimates on these pairs.
   double floor_rad = 0.0;
@@ -552,7 +568,8 @@ void EvaluateScene(const Scene& scene, const std::vector<std::string>& images, c
   ViewTermColumns(graphs[0], gt, bundle_adjusted, floor_rad, tables);
   AccuracySection(scene, scale_text, gt, methods, results, args, thresholds, tables);
   CdfPlot(scene, scale_text, gt, methods, results, args, tables);
-  if (scene.exact_intrinsics) tables->variants << VariantRows(scene.name, scale_text, features, names, feature_k, gt);
+  if (scene.exact_intrinsics) tables->variants << VariantRows(scene.name, scale_text, features, names, feature_k, gt,
+                                                          options.relative_pose);
 
   double mean_features = 0;
   for (int f : front.features_per_image) mean_features += f;
@@ -568,6 +585,75 @@ void EvaluateScene(const Scene& scene, const std::vector<std::string>& images, c
 // The node's keyframe front end: castle-P19 as a two-camera rig (even images
 // on one camera, odd on the other, one capture per pair), 640x480, at 4000
 // features per keyframe. Empty if the scene is absent.
+// The EuRoC cameras' principal points against their image centres (752 x
+// 480), rows of the principal point table.
+std::string EurocPrincipalPointRows(const std::string& data_dir) {
+  std::ostringstream rows;
+  for (const char* camera : {"cam0", "cam1"}) {
+    const std::string yaml = data_dir + "/euroc_v1_01_micro/mav0/" + camera + "/sensor.yaml";
+    ra::CameraIntrinsics intrinsics;
+    std::string error;
+    if (!fs::exists(yaml) || !ra::ReadCameraIntrinsics(yaml, &intrinsics, &error)) continue;
+    rows << "| EuRoC " << camera << " | 752 x 480 | " << Fixed(100.0 * (intrinsics.k(0, 2) - 375.5) / 752.0, 2)
+         << " | " << Fixed(100.0 * (intrinsics.k(1, 2) - 239.5) / 752.0, 2) << " |\n";
+  }
+  return rows.str();
+}
+
+// The focal-length estimator on synthetic scenes (frontend/scene/
+// focal_scene.h): a path (general motion) and a ring around an object (near
+// the critical configuration), the focal length given right or 3% short,
+// the principal point right or off; each over `seeds` scenes, with the
+// principal point trusted (principal_point_sigma 0: the matches alone) and
+// with the default.
+std::string SyntheticFocalRows(int seeds) {
+  Eigen::Matrix3d k;
+  k << 500, 0, 320, 0, 500, 240, 0, 0, 1;
+  std::ostringstream rows;
+  for (const ra::FocalSceneGeometry geometry : {ra::FocalSceneGeometry::kPath, ra::FocalSceneGeometry::kRing}) {
+    for (const double offset : {0.0, 0.005, 0.01}) {  // of the width (640 px), along x and y
+      for (const double given : {1.0, 0.97}) {
+        Eigen::Matrix3d k_given = k;
+        k_given(0, 0) *= given;
+        k_given(1, 1) *= given;
+        k_given(0, 2) += offset * 640.0;
+        k_given(1, 2) += offset * 640.0;
+        std::vector<ra::FocalScene> scenes;
+        for (int seed = 1; seed <= seeds; ++seed) {
+          ra::FocalSceneOptions scene_options;
+          scene_options.geometry = geometry;
+          scene_options.seed = static_cast<unsigned>(seed);
+          scene_options.noise_px = 0.5;
+          scenes.push_back(ra::MakeFocalScene(k, k_given, scene_options));
+        }
+        rows << "| " << (geometry == ra::FocalSceneGeometry::kPath ? "path" : "ring") << " | "
+             << Fixed(100.0 * offset, 1) << " | " << Fixed(1.0 / given, 4);
+        for (const double sigma : {0.0, ra::FocalCalibrationOptions().principal_point_sigma}) {
+          ra::FocalCalibrationOptions options;
+          options.enabled = true;
+          options.principal_point_sigma = sigma;
+          std::ostringstream estimates;
+          int applied = 0, estimated = 0;
+          double worst = 0.0;
+          for (const ra::FocalScene& scene : scenes) {
+            const ra::FocalCalibration f = ra::EstimateFocalScale(scene.Pairs(), k_given, options);
+            estimates << (estimates.tellp() > 0 ? ", " : "")
+                      << (f.estimated ? Fixed(f.scale, 3) + " +- " + Fixed(f.standard_deviation, 3) : "none");
+            if (!f.estimated) continue;
+            ++estimated;
+            worst = std::max(worst, std::abs(f.scale - 1.0 / given) / f.standard_deviation);
+            applied += ra::ShouldApplyFocalScale(f, options);
+          }
+          rows << " | " << estimates.str() << " | " << (estimated > 0 ? Fixed(worst, 1) : std::string("-")) << " | "
+               << applied << " of " << seeds;
+        }
+        rows << " |\n";
+      }
+    }
+  }
+  return rows.str();
+}
+
 std::string KeyframeRateRows(const std::string& data_dir) {
   const std::string dir = data_dir + "/strecha/castle-P19";
   ra::CameraIntrinsics intrinsics;
@@ -631,6 +717,9 @@ int main(int argc, char** argv) {
     }
   }
   const std::string rate = KeyframeRateRows(args.data_dir);
+  std::cerr << "focal length on synthetic scenes ..." << std::flush;
+  const std::string synthetic_focal = SyntheticFocalRows(args.quick ? 1 : 3);
+  std::cerr << " done\n";
 
   const std::time_t now = std::time(nullptr);
   std::ostringstream date;
@@ -645,6 +734,9 @@ int main(int argc, char** argv) {
                                                    {"accuracy", tables.accuracy.str()},
                                                    {"variants", tables.variants.str()},
                                                    {"focal", tables.focal.str()},
+                                                   {"principal_points", tables.principal_points.str() +
+                                                                            EurocPrincipalPointRows(args.data_dir)},
+                                                   {"synthetic_focal", synthetic_focal},
                                                    {"speed", tables.speed.str()},
                                                    {"keyframe_rate", rate.empty() ? "" : ra::FillTemplate(
                                                         "frontend_keyframe_rate.md", {{"rows", rate}})}}));
