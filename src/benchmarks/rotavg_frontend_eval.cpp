@@ -582,9 +582,6 @@ void EvaluateScene(const Scene& scene, const std::vector<std::string>& images, c
                 << Fixed(1e3 * front.relative_pose_s / std::max<std::size_t>(1, front.pairs.size()), 1) << " |\n";
 }
 
-// The node's keyframe front end: castle-P19 as a two-camera rig (even images
-// on one camera, odd on the other, one capture per pair), 640x480, at 4000
-// features per keyframe. Empty if the scene is absent.
 // The EuRoC cameras' principal points against their image centres (752 x
 // 480), rows of the principal point table.
 std::string EurocPrincipalPointRows(const std::string& data_dir) {
@@ -654,6 +651,9 @@ std::string SyntheticFocalRows(int seeds) {
   return rows.str();
 }
 
+// The node's keyframe front end: castle-P19 as a two-camera rig (even images
+// on one camera, odd on the other, one capture per pair), 640x480, at 4000
+// features per keyframe. Empty if the scene is absent.
 std::string KeyframeRateRows(const std::string& data_dir) {
   const std::string dir = data_dir + "/strecha/castle-P19";
   ra::CameraIntrinsics intrinsics;

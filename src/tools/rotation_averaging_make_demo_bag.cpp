@@ -57,7 +57,8 @@ int main(int argc, char** argv) {
   const std::vector<Numeric> numeric = {
       {"--captures", "a number >= 4", [](double v) { return v >= 4; },
        [&](double v) { options.num_captures = static_cast<int>(v); }},
-      {"--laps", "a number >= 1", [](double v) { return v >= 1; }, [&](double v) { options.laps = static_cast<int>(v); }},
+      {"--laps", "a number >= 1", [](double v) { return v >= 1; },
+       [&](double v) { options.laps = static_cast<int>(v); }},
       {"--cameras", "1 to 4", [](double v) { return v >= 1 && v <= 4; },
        [&](double v) { options.num_cameras = static_cast<int>(v); }},
       {"--width", "a number >= 64", [](double v) { return v >= 64; },

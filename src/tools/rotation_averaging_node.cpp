@@ -326,10 +326,12 @@ class RotationAveragingNode {
     std::string averaging_error, error;
     const bool valid =
         OptionCheck()
-            .Require(ParseLossType(config.loss, &o.loss), "loss '" + config.loss + "' is not one of " + LossTypeChoices())
+            .Require(ParseLossType(config.loss, &o.loss),
+                     "loss '" + config.loss + "' is not one of " + LossTypeChoices())
             .Require(ParseEdgeWeighting(config.weighting, &o.weighting),
                      "weighting '" + config.weighting + "' is not one of " + EdgeWeightingChoices())
-            .Require(ParseSolverType(config.solver, &o.solver), "solver '" + config.solver + "' is not one of " + SolverTypeChoices())
+            .Require(ParseSolverType(config.solver, &o.solver),
+                     "solver '" + config.solver + "' is not one of " + SolverTypeChoices())
             .NotNan("solve_period_s", config.solve_period_s)
             .Require(o.Validate(&averaging_error), averaging_error)
             .Ok(&error);

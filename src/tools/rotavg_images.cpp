@@ -57,7 +57,9 @@ int Images(int argc, char** argv) {
   }
   if (!args.Has("--images") || !args.Has("--intrinsics")) return Fail("images needs --images DIR and --intrinsics CAMERA-FILE");
   ra::ImagePipelineOptions pipeline;
-  if (!ra::ParseFeatureType(args.Get("--features", "sift"), &pipeline.features.type)) return Fail("unknown --features (" + ra::FeatureTypeChoices() + ")");
+  if (!ra::ParseFeatureType(args.Get("--features", "sift"), &pipeline.features.type)) {
+    return Fail("unknown --features (" + ra::FeatureTypeChoices() + ")");
+  }
   pipeline.features.downsample = std::atof(args.Get("--downsample", "1").c_str());
   if (!(pipeline.features.downsample > 0.0 && pipeline.features.downsample <= 1.0)) {
     return Fail("--downsample must be in (0, 1] (0.25 = a quarter of the width)");
