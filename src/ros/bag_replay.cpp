@@ -563,6 +563,14 @@ class Replayer {
       cost.total_ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - frontend_start).count();
       result_.frontend_cost.push_back(cost);
     }
+    // The focal-length estimates that fell due, before anything is published:
+    // the output bag then holds the same checks on every replay (the node
+    // runs them beside its front end instead).
+    pipeline_.WaitForFocalChecks();
+    for (auto& [line, disagrees] : pipeline_.TakeFocalNotices()) {
+      if (disagrees) Warn("camera_info check: " + line);
+      if (result_.focal_notices.size() < 50) result_.focal_notices.push_back(std::move(line));
+    }
     for (const std::string& w : warnings) Warn(w);
     if (loop_closure && config_.averager.solve_early_on_loop_closure) Solve(time);
   }
@@ -668,6 +676,7 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
   }
   result->absorbed_by_rig = pipeline_stats.absorbed_by_rig;
   for (const auto& [camera, rig] : pipeline.Rig().RigCameras()) result->rig_cameras.push_back(camera + " in " + rig.first);
+  for (const auto& [camera, check] : pipeline.FocalChecks()) result->focal_checks.push_back(check.Report());
 }
 
 // The front end's cost per keyframe: a CSV, and a plot of its means over 20
@@ -808,6 +817,7 @@ std::string ReplayResult::Summary() const {
   }
   if (damaged_messages > 0) out << "damaged messages dropped: " << damaged_messages << "\n";
   for (const std::string& camera : camera_models) out << "camera " << camera << "\n";
+  for (const std::string& check : focal_checks) out << "camera_info check, last estimate: " << check << "\n";
   if (!rig_cameras.empty()) {
     out << "rig cameras (one orientation per capture): ";
     for (std::size_t k = 0; k < rig_cameras.size(); ++k) out << (k ? ", " : "") << rig_cameras[k];

@@ -50,6 +50,10 @@ struct ReplayResult {
   // How each camera's keypoints were undistorted (or that they were not),
   // once per camera and whenever its camera_info changed.
   std::vector<std::string> camera_models;
+  // The focal-length check (focal_calibration: warn): its log lines as the
+  // estimates came (a camera's first, and each change of verdict), and each
+  // camera's last estimate (CameraFocalCheck::Report).
+  std::vector<std::string> focal_notices, focal_checks;
   std::size_t absorbed_by_rig = 0;
   std::map<std::string, std::size_t> edges_by_source;
   std::size_t keyframe_images = 0, rejected_images = 0, rejected_messages = 0;

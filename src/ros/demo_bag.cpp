@@ -85,10 +85,13 @@ void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::T
 }
 
 bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compressed, NamedOrientations* ground_truth,
-                      std::string* error, bool progress, const CameraIntrinsics& lens) {
+                      std::string* error, bool progress, const CameraIntrinsics& lens, double info_focal_scale) {
   const RigSceneOptions& options = scene.Options();
   CameraIntrinsics camera = lens;
   camera.k = scene.Intrinsics();
+  CameraIntrinsics info = camera;  // what camera_info says: the focal lengths may be off
+  info.k(0, 0) *= info_focal_scale;
+  info.k(1, 1) *= info_focal_scale;
   rosbag::Bag bag;
   try {
     bag.open(path, rosbag::bagmode::Write);
@@ -116,7 +119,7 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
     for (std::size_t c = 0; c < scene.Cameras().size(); ++c) {
       const std::string& frame = scene.Cameras()[c].frame_id;
       const cv::Mat image = DistortImage(scene.Render(capture, static_cast<int>(c)), camera);
-      WriteKeyframeImage(&bag, frame, stamp, image, camera, compressed);
+      WriteKeyframeImage(&bag, frame, stamp, image, info, compressed);
       const KeyframeKey key{frame, ToNanoseconds(stamp)};
       const Eigen::Matrix3d world_to_camera = scene.WorldToCamera(capture, static_cast<int>(c));
       truth.keyframes.push_back(ToMsg(key, world_to_camera, 0));

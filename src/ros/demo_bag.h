@@ -32,8 +32,11 @@ void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::T
 // by keyframe name (<frame_id>@<stamp_ns>). With a `lens` distortion (its K
 // is ignored: the scene's), every image is what that lens would have seen
 // (DistortImage) and camera_info carries the model: a raw camera stream.
+// camera_info's focal lengths are the scene's times `info_focal_scale`: a
+// calibration that is a little off.
 bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compressed, NamedOrientations* ground_truth,
-                      std::string* error, bool progress = false, const CameraIntrinsics& lens = CameraIntrinsics());
+                      std::string* error, bool progress = false, const CameraIntrinsics& lens = CameraIntrinsics(),
+                      double info_focal_scale = 1.0);
 
 // The cameras of a EuRoC-layout dataset (frontend/io/euroc_dataset.h) as
 // their driver publishes them: /<cam>/image_raw (mono8, or PNG on

@@ -159,6 +159,8 @@ bool PipelineConfig::Validate(std::string* error) const {
                "image_type '" + image_type + "' is not one of auto, raw, rectified")
       .Require(keyframe_selection == "motion" || keyframe_selection == "all",
                "keyframe_selection '" + keyframe_selection + "' is not one of motion, all")
+      .Require(focal_calibration == "warn" || focal_calibration == "off",
+               "focal_calibration '" + focal_calibration + "' is not one of warn, off")
       .Require(selection.Validate(&selection_error), selection_error)
       .AtLeast("max_image_queue", static_cast<double>(max_image_queue), 1)
       .Above("marker_spacing_m", marker_spacing_m, 0.0)
@@ -211,6 +213,7 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("keyframe_min_motion_deg", &c.selection.min_motion_deg);
   r.Read("keyframe_min_tracked_fraction", &c.selection.min_tracked_fraction);
   r.Read("keyframe_max_interval_s", &c.selection.max_interval_s);
+  r.Read("focal_calibration", &c.focal_calibration);
   r.Read("use_rig_extrinsics", &c.rig.enabled);
   r.Read("rig_frame", &c.rig.rig_frame);
   r.Read("covisibility_window", &f.covisibility_window);
@@ -266,7 +269,26 @@ KeyframePipeline::KeyframePipeline(const PipelineConfig& config)
       averager_(std::make_unique<OnlineAverager>(config.averager)),
       rig_(config.rig),
       selector_(config.selection) {
-  if (!config_.image_topics.empty()) frontend_ = std::make_unique<KeyframeFrontend>(config_.frontend);
+  config_.frontend.focal_monitor.enabled = config_.focal_calibration == "warn";
+  config_.frontend.focal_monitor.focal.num_threads = config_.frontend.num_threads;
+  if (!config_.image_topics.empty()) {
+    frontend_ = std::make_unique<KeyframeFrontend>(config_.frontend);
+    if (config_.frontend.focal_monitor.enabled) {
+      focal_checker_ = std::make_unique<FocalChecker>(config_.frontend.focal_monitor.focal);
+    }
+  }
+}
+
+std::map<std::string, CameraFocalCheck> KeyframePipeline::FocalChecks() const {
+  return focal_checker_ ? focal_checker_->Checks() : std::map<std::string, CameraFocalCheck>();
+}
+
+std::vector<std::pair<std::string, bool>> KeyframePipeline::TakeFocalNotices() {
+  return focal_checker_ ? focal_checker_->TakeNotices() : std::vector<std::pair<std::string, bool>>();
+}
+
+void KeyframePipeline::WaitForFocalChecks() {
+  if (focal_checker_) focal_checker_->Wait();
 }
 
 KeyframePipeline::~KeyframePipeline() = default;
@@ -543,6 +565,7 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
     std::lock_guard<std::mutex> lock(frontend_mutex_);
     edges = frontend_->AddKeyframe(keyframe.key, keyframe.image, keyframe.camera);
     frontend_stats = frontend_->Stats();
+    if (focal_checker_) focal_checker_->Submit(frontend_->TakeFocalJobs());
   }
   for (const KeyframeRelativeRotation& e : edges) {
     std::string error;
@@ -745,6 +768,18 @@ Orientations KeyframePipeline::OrientationsMsg(const OnlineSolution& solution, c
     auto cov = solution.covariance.find(key);
     msg.keyframes.push_back(ToMsg(key, r, c == solution.component.end() ? 0 : c->second,
                                   cov == solution.covariance.end() ? nullptr : &cov->second));
+  }
+  for (const auto& [camera, check] : FocalChecks()) {
+    FocalCheck m;
+    m.frame_id = camera;
+    m.pairs_seen = static_cast<std::uint32_t>(check.pairs_seen);
+    m.pairs_used = static_cast<std::uint32_t>(check.calibration.pairs);
+    m.estimated = check.calibration.estimated;
+    m.given_focal_px = check.given_focal_px;
+    m.scale = check.calibration.scale;
+    m.scale_stddev = check.calibration.standard_deviation;
+    m.disagrees = check.disagrees;
+    msg.focal_checks.push_back(m);
   }
   return msg;
 }

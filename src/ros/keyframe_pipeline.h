@@ -71,6 +71,11 @@ struct PipelineConfig {
   // (frontend/controllers/keyframe_selector.h; a raw 20-30 Hz stream);
   // "all", every image (a stack that already publishes keyframes).
   std::string keyframe_selection = "motion";
+  // The check of each camera's focal length against its verified image
+  // pairs (frontend/controllers/focal_monitor.h): "warn" estimates it as the
+  // pairs accumulate, reports it (diagnostics, ~orientations' focal_checks)
+  // and warns when camera_info's focal length disagrees; "off" does not.
+  std::string focal_calibration = "warn";
   KeyframeSelectionOptions selection;  // keyframe_min_motion_deg, ...; its rig tolerance is rig_stamp_tolerance_s
   KeyframeFrontendOptions frontend;    // frontend.vocabulary: loaded from `vocabulary`
   // File of `rotavg vocabulary`; "default": DefaultVocabularyPath(); "" or
@@ -239,6 +244,15 @@ class KeyframePipeline {
   std::vector<geometry_msgs::TransformStamped> LatestTransforms(const OnlineSolution& cameras, const ros::Time& now);
   void ForgetLatestStamps();  // after a reset
 
+  // The latest focal-length check of each camera (focal_calibration), by
+  // camera; estimates run on a thread of their own.
+  std::map<std::string, CameraFocalCheck> FocalChecks() const;
+  // Log lines of the checks since the last call (FocalChecker::TakeNotices),
+  // each with whether the camera's focal length disagrees.
+  std::vector<std::pair<std::string, bool>> TakeFocalNotices();
+  // Waits for the estimates that are due (the replay, before its summary).
+  void WaitForFocalChecks();
+
   PipelineStats Stats() const;
   // The front end's counters as of its latest keyframe; safe to call while
   // another thread runs ProcessKeyframe.
@@ -258,6 +272,7 @@ class KeyframePipeline {
   PipelineConfig config_;
   std::unique_ptr<OnlineAverager> averager_;
   std::unique_ptr<KeyframeFrontend> frontend_;
+  std::unique_ptr<FocalChecker> focal_checker_;  // with a front end and focal_calibration: warn
   // Held while the front end adds a keyframe, and while its database is
   // saved or loaded (the node saves from a timer thread).
   std::mutex frontend_mutex_;

@@ -35,7 +35,8 @@ int Usage(const std::string& why) {
   std::cerr << "usage: rotation_averaging_make_demo_bag --output demo.bag [--captures 60] [--cameras 2] [--laps 1]\n"
                "           [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]\n"
                "           [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]\n"
-               "           [--start-angle 0] [--start-time 0] [--light-gain 1] [--light-gradient 0] [--noise-seed 0]\n";
+               "           [--start-angle 0] [--start-time 0] [--light-gain 1] [--light-gradient 0] [--noise-seed 0]\n"
+               "           [--info-focal-scale 1]\n";
   return 2;
 }
 
@@ -46,6 +47,7 @@ int main(int argc, char** argv) {
   std::string output, gt_csv;
   bool compressed = false;
   ra::CameraIntrinsics lens;
+  double info_focal_scale = 1.0;  // camera_info's focal lengths: the scene's times this
   std::string error;
   // The numeric options: what each takes, and where its value goes.
   struct Numeric {
@@ -76,6 +78,8 @@ int main(int argc, char** argv) {
        [&](double v) { options.light_gradient = v; }},
       {"--noise-seed", "a number >= 0", [](double v) { return v >= 0; },
        [&](double v) { options.noise_seed = static_cast<std::uint64_t>(v); }},
+      {"--info-focal-scale", "a number in [0.5, 2]", [](double v) { return v >= 0.5 && v <= 2; },
+       [&](double v) { info_focal_scale = v; }},
   };
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
@@ -107,7 +111,8 @@ int main(int argc, char** argv) {
 
   const ra::RigScene scene(options);
   ra::NamedOrientations truth_csv;
-  if (!ra::WriteRigSceneBag(scene, output, compressed, &truth_csv, &error, /*progress=*/true, lens)) {
+  if (!ra::WriteRigSceneBag(scene, output, compressed, &truth_csv, &error, /*progress=*/true, lens,
+                            info_focal_scale)) {
     std::cerr << "rotation_averaging_make_demo_bag: " << error << "\n";
     return 1;
   }

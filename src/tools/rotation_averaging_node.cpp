@@ -308,10 +308,24 @@ class RotationAveragingNode {
       std::vector<std::string> warnings;
       pipeline_->ProcessKeyframe(next.keyframe, nullptr, &warnings);
       for (const std::string& w : warnings) ROS_WARN_THROTTLE(5.0, "%s", w.c_str());
+      LogFocalNotices();
       const ros::WallTime end = ros::WallTime::now();
       std::lock_guard<std::mutex> lock(mutex_);
       latency_.Add((end - next.received).toSec());
       frontend_time_.Add((end - start).toSec());
+    }
+  }
+
+  // The focal-length check's verdicts (focal_calibration: warn), as they
+  // change: a camera_info whose focal length the images contradict is
+  // a warning, since every rotation of that camera is off by a part of it.
+  void LogFocalNotices() {
+    for (const auto& [line, disagrees] : pipeline_->TakeFocalNotices()) {
+      if (disagrees) {
+        ROS_WARN("camera_info check: %s", line.c_str());
+      } else {
+        ROS_INFO("camera_info check: %s", line.c_str());
+      }
     }
   }
 
@@ -468,6 +482,12 @@ class RotationAveragingNode {
       std::lock_guard<std::mutex> lock(image_mutex_);
       image_queue = image_queue_.size();
     }
+    LogFocalNotices();
+    const std::map<std::string, CameraFocalCheck> focal = pipeline_->FocalChecks();
+    std::string focal_disagrees;
+    for (const auto& [camera, check] : focal) {
+      if (check.disagrees) focal_disagrees += (focal_disagrees.empty() ? "" : ", ") + camera;
+    }
     const double period = averager_->SolvePeriod();
     if (s.failed_solves > 0 && s.solves == s.failed_solves) {
       status.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "every solve failed");
@@ -475,6 +495,9 @@ class RotationAveragingNode {
       status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "solve time exceeds the solve period");
     } else if (s.dropped_queue_full + s.dropped_cap > 0) {
       status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "input dropped (queue full or caps reached)");
+    } else if (!focal_disagrees.empty()) {
+      status.summary(diagnostic_msgs::DiagnosticStatus::WARN,
+                     "camera_info's focal length disagrees with the images of " + focal_disagrees);
     } else if (dropped_images > 0) {
       status.summary(diagnostic_msgs::DiagnosticStatus::WARN,
                      "keyframe images dropped: they come faster than the front end processes them");
@@ -519,6 +542,14 @@ class RotationAveragingNode {
       status.add("loop-closure edges", f.loop_closure_edges);
       status.add("of them, between added maps and the map held", f.map_links);
       status.add("failed two-view pairs", f.failed_pairs);
+      // Each camera's focal-length check: its line, and the figures alone.
+      for (const auto& [camera, check] : focal) {
+        status.add("focal length check of " + camera, check.Report());
+        if (!check.calibration.estimated) continue;
+        status.add("focal length scale of " + camera + " (estimated / camera_info)", check.calibration.scale);
+        status.add("focal length scale of " + camera + ", standard deviation", check.calibration.standard_deviation);
+      }
+      status.add("front-end memory of the focal-length check (MiB)", f.focal_bytes / 1048576.0);
     }
     status.add("dropped (queue full)", s.dropped_queue_full);
     status.add("dropped (caps)", s.dropped_cap);

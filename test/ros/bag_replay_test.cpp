@@ -143,6 +143,60 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
   EXPECT_EQ(ReadAll(first.graph_file), ReadAll(second.graph_file));
 }
 
+// A camera_info whose focal length is 3% short: the replay's check of each
+// camera's focal length finds it out (the sideways camera; the forward one,
+// moving along its optical axis, cannot tell), warns, and the output bag's
+// Orientations carry the check.
+TEST_F(BagReplay, ACameraInfoWithAWrongFocalLengthIsFoundOut) {
+  RigSceneOptions scene_options;
+  scene_options.num_captures = 24;
+  scene_options.WithWidth(480);
+  const RigScene scene(scene_options);
+  const std::string bag = TempDir() + "/short_focal.bag";
+  NamedOrientations truth;
+  std::string error;
+  ASSERT_TRUE(WriteRigSceneBag(scene, bag, /*compressed=*/false, &truth, &error, /*progress=*/false,
+                               CameraIntrinsics(), /*info_focal_scale=*/0.97))
+      << error;
+  const std::string config = TempDir() + "/short_focal.yaml";
+  WriteText(config,
+            "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
+            "keyframe_selection: all\nmax_features: 1500\nmax_loop_candidates: 0\nsolve_period: 5.0\n");
+  ReplayOptions o = Options(bag, "short_focal");
+  o.config_path = config;
+  const ReplayResult result = ReplayBags(o);
+  ASSERT_TRUE(result.ok) << result.error;
+  std::string checks;
+  for (const std::string& c : result.focal_checks) checks += c + "\n";
+  bool left_disagrees = false;
+  for (const std::string& c : result.focal_checks) {
+    if (c.rfind("cam_left:", 0) == 0) left_disagrees = c.find("disagrees") != std::string::npos;
+  }
+  EXPECT_TRUE(left_disagrees) << checks;
+  bool warned = false;
+  for (const std::string& w : result.warnings) warned |= w.find("camera_info check: cam_left") != std::string::npos;
+  EXPECT_TRUE(warned);
+  EXPECT_NE(result.Summary().find("camera_info check"), std::string::npos);
+  // The last Orientations message says so too, with the estimate.
+  rosbag::Bag out(result.output_bag, rosbag::bagmode::Read);
+  rosbag::View orientations(out, rosbag::TopicQuery("/rotation_averaging/orientations"));
+  Orientations::ConstPtr last;
+  for (const rosbag::MessageInstance& m : orientations) last = m.instantiate<Orientations>();
+  ASSERT_TRUE(last);
+  bool found = false;
+  for (const FocalCheck& c : last->focal_checks) {
+    if (c.frame_id != "cam_left") continue;
+    found = true;
+    EXPECT_TRUE(c.estimated);
+    EXPECT_TRUE(c.disagrees);
+    EXPECT_NEAR(c.scale * 0.97, 1.0, 0.01);
+    EXPECT_GT(c.scale_stddev, 0.0);
+    EXPECT_GE(c.pairs_seen, 20u);
+    EXPECT_NEAR(c.given_focal_px, 0.97 * scene.Intrinsics()(0, 0), 1e-6);
+  }
+  EXPECT_TRUE(found) << checks;
+}
+
 // The node's configuration for sessions of the rendered rig: its two
 // cameras' streams, every image a keyframe, and a vocabulary trained on
 // another room's textures (saved in `dir`).

@@ -74,7 +74,7 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
                     {"posterior_covariance_max_views", "7"}, {"jackknife_grid", "3"}, {"loss", "cauchy"},
                     {"marker_spacing_m", "2"}, {"keyframe_selection", "all"}, {"keyframe_min_motion_deg", "7"},
                     {"keyframe_min_tracked_fraction", "0.3"}, {"keyframe_max_interval_s", "2"},
-                    {"rig_stamp_tolerance_s", "0.01"}, {"image_type", "rectified"}},
+                    {"rig_stamp_tolerance_s", "0.01"}, {"image_type", "rectified"}, {"focal_calibration", "off"}},
                    &c, &warnings, &error))
       << error;
   EXPECT_TRUE(warnings.empty());
@@ -93,6 +93,7 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
   EXPECT_EQ(c.selection.rig_stamp_tolerance_s, 0.01);
   EXPECT_EQ(c.frontend.rig_stamp_tolerance_s, 0.01);
   EXPECT_EQ(c.image_type, "rectified");
+  EXPECT_EQ(c.focal_calibration, "off");
 }
 
 TEST(PipelineConfig, FormerNamesAreReadWithADeprecationWarning) {
@@ -126,6 +127,7 @@ TEST(PipelineConfig, ValuesOutOfRangeAndUnknownChoicesAreRefusedByName) {
       {{{"tf_mode", "some"}}, "tf_mode 'some' is not one of"},
       {{{"marker_spacing_m", "0"}}, "marker_spacing_m must be above 0"},
       {{{"keyframe_selection", "every"}}, "keyframe_selection 'every' is not one of motion, all"},
+      {{{"focal_calibration", "on"}}, "focal_calibration 'on' is not one of warn, off"},
       {{{"keyframe_min_tracked_fraction", "2"}}, "keyframe_min_tracked_fraction must be in [0, 1]"},
       {{{"keyframe_max_interval_s", "-1"}}, "keyframe_max_interval_s must be at least 0"},
       {{{"image_type", "rect"}}, "image_type 'rect' is not one of auto, raw, rectified"},

@@ -58,7 +58,8 @@ bool KeyframeFrontendOptions::Validate(std::string* error) const {
       .Ok(error);
 }
 
-KeyframeFrontend::KeyframeFrontend(const KeyframeFrontendOptions& options) : options_(options) {
+KeyframeFrontend::KeyframeFrontend(const KeyframeFrontendOptions& options)
+    : options_(options), focal_monitor_(options.focal_monitor) {
   // A SIFT vocabulary describes SIFT descriptors only.
   if (options_.vocabulary && (options_.features.type != FeatureType::kSift || options_.vocabulary->Dimension() != 128)) {
     options_.vocabulary.reset();
@@ -170,6 +171,11 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
       out.inlier_features.emplace_back(swap ? j : i, swap ? i : j);
     }
     out.edge.source = tasks[t].source;
+    const FocalMonitorOptions& focal = options_.focal_monitor;
+    if (focal.enabled && first.key.frame_id == second.key.frame_id && first.k == second.k &&
+        pose.model == TwoViewModel::kEssential && static_cast<int>(pose.inliers.size()) >= focal.focal.min_inliers) {
+      out.focal_sample = MakeFocalSample(pa, pb, pose, focal.max_matches_per_pair);
+    }
   });
   stats_.pairs_s += Seconds(start);
   return outcomes;
@@ -182,6 +188,12 @@ void KeyframeFrontend::CountInliers(const PairTask& task, const PairOutcome& out
     if (older_full && older.inlier_hits[i] < std::numeric_limits<std::uint16_t>::max()) ++older.inlier_hits[i];
     if (newer->inlier_hits[j] < std::numeric_limits<std::uint16_t>::max()) ++newer->inlier_hits[j];
   }
+}
+
+void KeyframeFrontend::MonitorFocal(const PairOutcome& outcome, const Keyframe& newer, double given_focal_px) {
+  if (!outcome.focal_sample) return;
+  focal_monitor_.Add(newer.key.frame_id, newer.k, given_focal_px, outcome.focal_sample);
+  stats_.focal_bytes = focal_monitor_.HeldBytes();
 }
 
 void KeyframeFrontend::Count(const PairOutcome& outcome) {
@@ -378,6 +390,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     const KeyframeRelativeRotation& e = outcomes[t].edge;
     edges.push_back(e);
     CountInliers(tasks[t], outcomes[t], kf.get());
+    MonitorFocal(outcomes[t], *kf, camera.k(0, 0));
     if (tasks[t].source == EdgeSource::kRig) {
       ++stats_.rig_edges;
       continue;
@@ -392,7 +405,10 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   // Loop closures: enough inliers, and consistent with each other.
   std::vector<std::size_t> accepted;
   for (const KeyframeRelativeRotation& e : AcceptLoops(candidates, verified_loops, &accepted)) edges.push_back(e);
-  for (std::size_t c : accepted) CountInliers(candidates[c], verified_loops[c], kf.get());
+  for (std::size_t c : accepted) {
+    CountInliers(candidates[c], verified_loops[c], kf.get());
+    MonitorFocal(verified_loops[c], *kf, camera.k(0, 0));
+  }
   if (inverted_index_) inverted_index_->Add(static_cast<int>(keyframes_.size()), kf->bow);
   stats_.keyframe_bytes += KeyframeBytes(*kf);
   keyframes_.push_back(std::move(kf));

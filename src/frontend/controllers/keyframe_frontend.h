@@ -35,6 +35,7 @@
 #include "rotation_averaging/frontend/features/features.h"
 #include "rotation_averaging/frontend/features/vocabulary.h"
 #include "rotation_averaging/frontend/geometry/camera_model.h"
+#include "frontend/controllers/focal_monitor.h"
 #include "frontend/io/keyframe_database.h"
 
 namespace rotation_averaging {
@@ -103,6 +104,10 @@ struct KeyframeFrontendOptions {
   // jackknife only adds sampling noise to their weights
   // (docs/decisions.md, "Cell jackknife"). 0: the pixel model for loops too.
   int loop_jackknife_grid = 4;
+  // The check of each camera's focal length against its verified pairs
+  // (frontend/controllers/focal_monitor.h). Off here; the node turns it on
+  // (focal_calibration: warn). Its memory: KeyframeFrontendStats::focal_bytes.
+  FocalMonitorOptions focal_monitor;
 
   // True if every field (features, relative_pose included) is within its
   // range; otherwise false, with `error` naming the first field that is not.
@@ -137,6 +142,7 @@ struct KeyframeFrontendStats {
   // nearest-neighbour indices of the recent window), and of that, by the
   // compact keyframes.
   std::size_t keyframe_bytes = 0, compact_bytes = 0;
+  std::size_t focal_bytes = 0;  // the pairs the focal-length check holds
 };
 
 class KeyframeFrontend {
@@ -201,6 +207,9 @@ class KeyframeFrontend {
   bool UsesVocabulary() const { return options_.vocabulary != nullptr; }
   // "vocabulary of N words (inverted index)" or "voting over every keyframe (no vocabulary)".
   std::string RetrievalName() const;
+  // The focal-length estimates that fell due since the last call
+  // (FocalMonitor), for a FocalChecker to run.
+  std::vector<FocalJob> TakeFocalJobs() { return focal_monitor_.TakeDue(); }
 
  private:
   struct Keyframe;
@@ -236,7 +245,12 @@ class KeyframeFrontend {
     bool rotation_model = false;
     std::string failure;
     std::vector<std::pair<int, int>> inlier_features;  // (older's feature, newer's feature)
+    // A pair of two keyframes of one camera with the essential-matrix model,
+    // for the focal-length check (options_.focal_monitor).
+    std::shared_ptr<const FocalSample> focal_sample;
   };
+  // Gives the focal-length check the pair of a used outcome.
+  void MonitorFocal(const PairOutcome& outcome, const Keyframe& newer, double given_focal_px);
   // Counts the inliers of a pair whose edge is used on both keyframes' features.
   void CountInliers(const PairTask& task, const PairOutcome& outcome, Keyframe* newer);
   // Verifies every task against `newer` (on the thread pool); the outcomes
@@ -267,6 +281,7 @@ class KeyframeFrontend {
   std::unique_ptr<InvertedIndex> inverted_index_;  // with a vocabulary
   // (keyframe, stamp of the capture that pushed it out of its window)
   std::vector<std::pair<int, std::int64_t>> due_compaction_;
+  FocalMonitor focal_monitor_;
 };
 
 }  // namespace rotation_averaging

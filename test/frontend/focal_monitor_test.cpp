@@ -1,0 +1,198 @@
+#include "frontend/controllers/focal_monitor.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <memory>
+#include <set>
+
+#include "frontend/controllers/keyframe_frontend.h"
+#include "frontend/scene/focal_scene.h"
+#include "frontend/scene/rig_scene.h"
+
+namespace rotation_averaging {
+namespace {
+
+Eigen::Matrix3d FocalTimes(const Eigen::Matrix3d& k, double scale) {
+  Eigen::Matrix3d out = k;
+  out(0, 0) *= scale;
+  out(1, 1) *= scale;
+  return out;
+}
+
+Eigen::Matrix3d SceneK() {
+  Eigen::Matrix3d k;
+  k << 500, 0, 320, 0, 500, 240, 0, 0, 1;
+  return k;
+}
+
+// A pair's sample keeps at most the asked number of matches, and the pose's
+// inliers still point at the same correspondences.
+TEST(FocalMonitor, ASampleKeepsItsInliersWhenItDropsMatches) {
+  std::vector<Eigen::Vector2d> p1, p2;
+  RelativePoseResult pose;
+  for (int i = 0; i < 1000; ++i) {
+    p1.emplace_back(i, 0.5 * i);
+    p2.emplace_back(-i, 2.0 * i);
+    if (i % 3 != 0) pose.inliers.push_back(i);
+  }
+  const auto sample = MakeFocalSample(p1, p2, pose, 200);
+  ASSERT_EQ(sample->points1.size(), 200u);
+  ASSERT_EQ(sample->points2.size(), 200u);
+  // Every fifth match is kept, and of those the inliers (2 of 3) stay inliers.
+  EXPECT_NEAR(static_cast<double>(sample->pose.inliers.size()), 200.0 * 2 / 3, 2.0);
+  for (int m : sample->pose.inliers) {
+    ASSERT_GE(m, 0);
+    ASSERT_LT(m, 200);
+    const int original = static_cast<int>(sample->points1[m].x());
+    EXPECT_NE(original % 3, 0) << "an outlier became an inlier";
+    EXPECT_EQ(sample->points2[m].x(), -original);
+  }
+  // Fewer matches than asked for: all kept, inliers as they were.
+  const auto all = MakeFocalSample(p1, p2, pose, 5000);
+  EXPECT_EQ(all->points1.size(), 1000u);
+  EXPECT_EQ(all->pose.inliers, pose.inliers);
+}
+
+// Estimates fall due at first_estimate_pairs, then each time the count has
+// grown by `growth`; a camera whose intrinsics change starts again; the
+// pairs held stay within max_pairs.
+TEST(FocalMonitor, EstimatesFallDueAsACameraGrowsAndStartAgainWithNewIntrinsics) {
+  FocalMonitorOptions options;
+  options.enabled = true;
+  options.first_estimate_pairs = 3;
+  options.growth = 2.0;
+  options.max_pairs = 5;
+  FocalMonitor monitor(options);
+  const auto sample = std::make_shared<FocalSample>();
+  const Eigen::Matrix3d k = SceneK();
+  std::vector<std::uint64_t> due_at;
+  for (int n = 1; n <= 13; ++n) {
+    monitor.Add("cam0", k, 500.0, sample);
+    EXPECT_LE(monitor.HeldPairs("cam0"), 5u);
+    for (const FocalJob& job : monitor.TakeDue()) {
+      EXPECT_EQ(job.camera, "cam0");
+      EXPECT_EQ(job.samples.size(), monitor.HeldPairs("cam0"));
+      due_at.push_back(job.pairs_seen);
+    }
+  }
+  EXPECT_EQ(due_at, (std::vector<std::uint64_t>{3, 6, 12}));
+  // Another camera counts on its own; new intrinsics for cam0 restart it.
+  monitor.Add("cam1", k, 500.0, sample);
+  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, sample);
+  EXPECT_EQ(monitor.HeldPairs("cam0"), 1u);
+  EXPECT_EQ(monitor.HeldPairs("cam1"), 1u);
+  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, sample);
+  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, sample);
+  const std::vector<FocalJob> due = monitor.TakeDue();
+  ASSERT_EQ(due.size(), 1u);
+  EXPECT_EQ(due[0].pairs_seen, 3u);
+  EXPECT_DOUBLE_EQ(due[0].given_focal_px, 550.0);
+  // Off: nothing is held.
+  FocalMonitor off{FocalMonitorOptions()};
+  for (int n = 0; n < 5; ++n) off.Add("cam0", k, 500.0, sample);
+  EXPECT_EQ(off.HeldPairs("cam0"), 0u);
+  EXPECT_TRUE(off.TakeDue().empty());
+}
+
+// The scene's pairs as a job, with the pairs' matches thinned as the front
+// end thins them.
+FocalJob SceneJob(const FocalScene& scene, const Eigen::Matrix3d& k_given) {
+  FocalJob job;
+  job.camera = "cam0";
+  job.k = k_given;
+  job.given_focal_px = k_given(0, 0);
+  for (std::size_t p = 0; p < scene.poses.size(); ++p) {
+    if (!scene.poses[p].success) continue;
+    job.samples.push_back(MakeFocalSample(scene.points1[p], scene.points2[p], scene.poses[p],
+                                          FocalMonitorOptions().max_matches_per_pair));
+  }
+  job.pairs_seen = job.samples.size();
+  return job;
+}
+
+// On a path (general motion) a focal length given 3% short disagrees with
+// the pairs, which put it within 1% of the truth; the true one agrees.
+TEST(FocalMonitor, AFocalLengthThreePercentOffDisagreesAndTheTrueOneAgrees) {
+  const Eigen::Matrix3d k = SceneK();
+  const FocalCalibrationOptions options = FocalMonitorOptions().focal;
+  for (const double given : {0.97, 1.0}) {
+    const Eigen::Matrix3d k_given = FocalTimes(k, given);
+    const FocalScene scene = MakeFocalScene(k, k_given);
+    const CameraFocalCheck check = RunFocalJob(SceneJob(scene, k_given), options);
+    ASSERT_TRUE(check.calibration.estimated) << check.Report();
+    EXPECT_NEAR(check.calibration.scale * given, 1.0, 0.01) << check.Report();
+    EXPECT_EQ(check.disagrees, given != 1.0) << check.Report();
+    EXPECT_NE(check.Report().find(given != 1.0 ? "disagrees" : "agrees"), std::string::npos) << check.Report();
+  }
+}
+
+// The checker runs jobs on its own thread: after Wait the check is there,
+// its first estimate and a change of verdict are notices, once.
+TEST(FocalMonitor, TheCheckerReportsEachCameraAndItsChangesOfVerdictOnce) {
+  const Eigen::Matrix3d k = SceneK();
+  const Eigen::Matrix3d short_k = FocalTimes(k, 0.97);
+  const FocalJob wrong = SceneJob(MakeFocalScene(k, short_k), short_k);
+  FocalChecker checker(FocalMonitorOptions().focal);
+  checker.Submit({wrong});
+  checker.Wait();
+  std::map<std::string, CameraFocalCheck> checks = checker.Checks();
+  ASSERT_EQ(checks.count("cam0"), 1u);
+  EXPECT_TRUE(checks["cam0"].disagrees);
+  std::vector<std::pair<std::string, bool>> notices = checker.TakeNotices();
+  ASSERT_EQ(notices.size(), 1u);
+  EXPECT_TRUE(notices[0].second);
+  // The same verdict again: no notice.
+  checker.Submit({wrong});
+  checker.Wait();
+  EXPECT_TRUE(checker.TakeNotices().empty());
+  // Corrected intrinsics: it agrees now, and says so.
+  checker.Submit({SceneJob(MakeFocalScene(k, k), k)});
+  checker.Wait();
+  notices = checker.TakeNotices();
+  ASSERT_EQ(notices.size(), 1u);
+  EXPECT_FALSE(notices[0].second) << notices[0].first;
+  EXPECT_FALSE(checker.Checks()["cam0"].disagrees);
+}
+
+// The front end gives the check each camera's own verified pairs: a camera
+// of the rendered rig looking sideways, whose focal length is given 3%
+// short, is found out within 1% by its 20th pair, and its pairs alone are
+// used (none with the other camera, whose intrinsics are right).
+TEST(FocalMonitor, TheFrontEndFindsACameraWhoseFocalLengthIsOff) {
+  RigSceneOptions o;
+  o.num_cameras = 2;
+  o.num_captures = 24;
+  o.WithWidth(480);
+  const RigScene scene(o);
+  KeyframeFrontendOptions options;
+  options.features.max_features = 1500;
+  options.max_loop_candidates = 0;
+  options.focal_monitor.enabled = true;
+  KeyframeFrontend frontend(options);
+  const Eigen::Matrix3d short_k = FocalTimes(scene.Intrinsics(), 0.97);
+  std::vector<FocalJob> jobs;
+  for (int c = 0; c < o.num_captures; ++c) {
+    for (int cam = 0; cam < 2; ++cam) {
+      const KeyframeKey key{scene.Cameras()[cam].frame_id, (c + 1) * 1'000'000'000LL};
+      frontend.AddKeyframe(key, scene.Render(c, cam), cam == 1 ? short_k : scene.Intrinsics());
+      for (FocalJob& job : frontend.TakeFocalJobs()) jobs.push_back(std::move(job));
+    }
+  }
+  EXPECT_GT(frontend.Stats().focal_bytes, 0u);
+  std::set<std::string> cameras;
+  for (const FocalJob& job : jobs) cameras.insert(job.camera);
+  ASSERT_EQ(cameras.count(scene.Cameras()[1].frame_id), 1u) << "no estimate of the camera given a wrong focal length";
+  for (const FocalJob& job : jobs) {
+    const bool off = job.camera == scene.Cameras()[1].frame_id;
+    EXPECT_TRUE(job.k.isApprox(off ? short_k : scene.Intrinsics())) << job.camera;
+    if (!off) continue;
+    const CameraFocalCheck check = RunFocalJob(job, options.focal_monitor.focal);
+    ASSERT_TRUE(check.calibration.estimated) << check.Report();
+    EXPECT_NEAR(check.calibration.scale * 0.97, 1.0, 0.01) << check.Report();
+    EXPECT_TRUE(check.disagrees) << check.Report();
+  }
+}
+
+}  // namespace
+}  // namespace rotation_averaging
