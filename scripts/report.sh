@@ -16,6 +16,7 @@
 #   long_run.md        the keyframe front end over 800 keyframes and three laps
 #   camera_models.md   lens distortion: EuRoC's real stereo camera, scenes warped through known lenses
 #   keyframe_selection.md  keyframe selection on a rendered 20 Hz stream
+#   focal_check.md     the node's check of camera_info's focal length against the images
 #   restart.md         the demo replayed as a node restarted mid-run: the map saved and loaded
 #   map.md             the saved map at 800 and 10,000 keyframes: size on disk, load and save times
 #   sessions.md        two 400-capture sessions (other start, other lighting) merged, against one 800-capture run
@@ -75,9 +76,10 @@ step "bag replay"
 bash scripts/benchmark_replay.sh > /dev/null
 step "long image runs"
 bash scripts/benchmark_long_run.sh > /dev/null
-step "camera models (lens distortion) and keyframe selection on raw streams"
+step "camera models (lens distortion), keyframe selection and the focal-length check on raw streams"
 bash scripts/benchmark_camera_models.sh > /dev/null
 bash scripts/benchmark_keyframe_selection.sh > /dev/null
+bash scripts/benchmark_focal_check.sh > /dev/null
 step "restarts: the map saved and loaded"
 bash scripts/benchmark_restart.sh > /dev/null
 bash scripts/benchmark_map.sh > /dev/null

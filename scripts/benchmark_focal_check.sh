@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Regenerates results/focal_check.md: the node's check of each camera's focal
+# length against its own verified pairs (focal_calibration: warn), replayed
+# through rotation_averaging_replay.
+#  * The demo renderer (two cameras, 60 captures) with camera_info's focal
+#    lengths right, 3% short and 3% long (make_demo_bag --info-focal-scale):
+#    every estimate as it came, the last one, and the averaging's error.
+#  * The same bag with the check off: what it costs the replay, which waits
+#    for each estimate (the node runs them beside its front end).
+#  * Strecha scenes, whose K is exact, played as one camera's keyframes at a
+#    quarter of full width: the check must agree with them.
+#   bash scripts/benchmark_focal_check.sh        (about five minutes)
+source "$(dirname "$0")/common.sh"
+bash scripts/setup.sh > /dev/null
+OUT=build/benchmark_focal_check
+mkdir -p "$OUT"
+
+replay() {  # name, bag, config lines... (scored against the bag's ground truth)
+  local name=$1 bag=$2
+  shift 2
+  printf '%s\n' "$@" > "$OUT/$name.yaml"
+  "$BIN/rotation_averaging_replay" --bag "$bag" --config "$OUT/$name.yaml" --gt "$bag" --output-dir "$OUT/$name" \
+    --no-progress > "$OUT/$name.txt" 2>&1
+}
+
+DEMO=$(grep -v '^#' config/demo.yaml | grep .)
+for scale in 0.97 1 1.03; do
+  "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_$scale.bag" --info-focal-scale "$scale" > /dev/null 2>&1
+  replay "demo_${scale}_warn" "$OUT/demo_$scale.bag" "$DEMO"
+  replay "demo_${scale}_off" "$OUT/demo_$scale.bag" "$DEMO" "focal_calibration: off"
+done
+
+SCENES=()
+for s in fountain-P11 herzjesu-P8 entry-P10 castle-P19 herzjesu-P25 castle-P30; do
+  [ -d "$DATA/strecha/$s" ] && SCENES+=("$s")
+done
+for s in "${SCENES[@]}"; do
+  C="$DATA/strecha/$s"
+  "$BIN/rotation_averaging_images_to_bag" --images "$C/images" --intrinsics "$C/images/K.txt" --gt "$C" \
+    --downsample 0.25 --output "$OUT/$s.bag" > /dev/null 2>&1
+  replay "$s" "$OUT/$s.bag" 'image_topics: ["/camera/image_raw"]' "keyframe_selection: all" "max_features: 4000"
+done
+
+python3 scripts/focal_check_report.py "$OUT" "${SCENES[@]}" > results/focal_check.md
+echo "wrote results/focal_check.md"
