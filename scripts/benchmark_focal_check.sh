@@ -6,7 +6,8 @@
 #    lengths right, 3% short and 3% long (make_demo_bag --info-focal-scale):
 #    every estimate as it came, the last one, and the averaging's error.
 #  * The same bag with the check off: what it costs the replay, which waits
-#    for each estimate (the node runs them beside its front end).
+#    for each estimate (the node runs them beside its front end); and with
+#    focal_calibration: apply.
 #  * Strecha scenes, whose K is exact, played as one camera's keyframes at a
 #    quarter of full width: the check must agree with them.
 #   bash scripts/benchmark_focal_check.sh        (about five minutes)
@@ -28,6 +29,7 @@ for scale in 0.97 1 1.03; do
   "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_$scale.bag" --info-focal-scale "$scale" > /dev/null 2>&1
   replay "demo_${scale}_warn" "$OUT/demo_$scale.bag" "$DEMO"
   replay "demo_${scale}_off" "$OUT/demo_$scale.bag" "$DEMO" "focal_calibration: off"
+  replay "demo_${scale}_apply" "$OUT/demo_$scale.bag" "$DEMO" "focal_calibration: apply"
 done
 
 SCENES=()

@@ -489,6 +489,9 @@ class Replayer {
     if (loaded_ && !result_.map_merged) MeasureMerge(*solution);
     const OnlineSolution cameras = pipeline_.CameraSolution(*solution);
     out_.write("/rotation_averaging/orientations", when, pipeline_.OrientationsMsg(cameras, when));
+    if (pipeline_.HasFrontend() && config_.focal_calibration != "off") {
+      out_.write("/rotation_averaging/focal_checks", when, pipeline_.FocalCheckMsg(when));
+    }
     if (config_.tf_mode == "all_keyframes") {
       out_.write("/tf_static", when, pipeline_.KeyframeTransforms(cameras));
     } else if (config_.tf_mode == "latest_per_camera") {
@@ -677,6 +680,11 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
   result->absorbed_by_rig = pipeline_stats.absorbed_by_rig;
   for (const auto& [camera, rig] : pipeline.Rig().RigCameras()) result->rig_cameras.push_back(camera + " in " + rig.first);
   for (const auto& [camera, check] : pipeline.FocalChecks()) result->focal_checks.push_back(check.Report());
+  for (const auto& [camera, correction] : pipeline.FocalCorrections()) {
+    std::ostringstream line;
+    line << camera << ": camera_info's focal length x" << std::setprecision(5) << correction;
+    result->focal_corrections.push_back(line.str());
+  }
 }
 
 // The front end's cost per keyframe: a CSV, and a plot of its means over 20
@@ -818,6 +826,7 @@ std::string ReplayResult::Summary() const {
   if (damaged_messages > 0) out << "damaged messages dropped: " << damaged_messages << "\n";
   for (const std::string& camera : camera_models) out << "camera " << camera << "\n";
   for (const std::string& check : focal_checks) out << "camera_info check, last estimate: " << check << "\n";
+  for (const std::string& c : focal_corrections) out << "focal length corrected (focal_calibration: apply): " << c << "\n";
   if (!rig_cameras.empty()) {
     out << "rig cameras (one orientation per capture): ";
     for (std::size_t k = 0; k < rig_cameras.size(); ++k) out << (k ? ", " : "") << rig_cameras[k];

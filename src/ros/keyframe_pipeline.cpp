@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
+#include <iomanip>
 #include <limits>
 #include <map>
 #include <opencv2/imgcodecs.hpp>
@@ -159,8 +160,8 @@ bool PipelineConfig::Validate(std::string* error) const {
                "image_type '" + image_type + "' is not one of auto, raw, rectified")
       .Require(keyframe_selection == "motion" || keyframe_selection == "all",
                "keyframe_selection '" + keyframe_selection + "' is not one of motion, all")
-      .Require(focal_calibration == "warn" || focal_calibration == "off",
-               "focal_calibration '" + focal_calibration + "' is not one of warn, off")
+      .Require(focal_calibration == "warn" || focal_calibration == "apply" || focal_calibration == "off",
+               "focal_calibration '" + focal_calibration + "' is not one of warn, apply, off")
       .Require(selection.Validate(&selection_error), selection_error)
       .AtLeast("max_image_queue", static_cast<double>(max_image_queue), 1)
       .Above("marker_spacing_m", marker_spacing_m, 0.0)
@@ -269,7 +270,8 @@ KeyframePipeline::KeyframePipeline(const PipelineConfig& config)
       averager_(std::make_unique<OnlineAverager>(config.averager)),
       rig_(config.rig),
       selector_(config.selection) {
-  config_.frontend.focal_monitor.enabled = config_.focal_calibration == "warn";
+  config_.frontend.focal_monitor.enabled = config_.focal_calibration != "off";
+  config_.frontend.focal_monitor.hold_for_correction = config_.focal_calibration == "apply";
   config_.frontend.focal_monitor.focal.num_threads = config_.frontend.num_threads;
   if (!config_.image_topics.empty()) {
     frontend_ = std::make_unique<KeyframeFrontend>(config_.frontend);
@@ -284,7 +286,91 @@ std::map<std::string, CameraFocalCheck> KeyframePipeline::FocalChecks() const {
 }
 
 std::vector<std::pair<std::string, bool>> KeyframePipeline::TakeFocalNotices() {
-  return focal_checker_ ? focal_checker_->TakeNotices() : std::vector<std::pair<std::string, bool>>();
+  std::vector<std::pair<std::string, bool>> out;
+  if (focal_checker_) out = focal_checker_->TakeNotices();
+  std::lock_guard<std::mutex> lock(mutex_);
+  out.insert(out.end(), correction_notices_.begin(), correction_notices_.end());
+  correction_notices_.clear();
+  return out;
+}
+
+std::map<std::string, double> KeyframePipeline::FocalCorrections() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return focal_corrections_;
+}
+
+void KeyframePipeline::ApplyFocalCorrections(std::vector<std::string>* warnings) {
+  if (!focal_checker_ || config_.focal_calibration != "apply") return;
+  const std::map<std::string, CameraFocalCheck> checks = focal_checker_->Checks();
+  const std::map<std::string, std::pair<std::string, Eigen::Matrix3d>> rig_cameras = rig_.RigCameras();
+  for (const auto& [camera, check] : checks) {
+    if (!check.disagrees || corrections_refused_.count(camera)) continue;
+    const auto applied = applied_checks_.find(camera);
+    if (applied != applied_checks_.end() && applied->second == std::make_pair(check.given_focal_px, check.pairs_seen)) {
+      continue;  // this estimate is decided already
+    }
+    applied_checks_[camera] = {check.given_focal_px, check.pairs_seen};
+    // The cameras of a rig (extrinsics known) share one orientation per
+    // capture: correcting one while another stays as wrong makes their edges
+    // disagree, which can cost more than an error they share (it did on the
+    // demo rig, whose forward camera cannot be checked). So a rig camera is
+    // corrected only when each other camera of its rig is checked as
+    // precisely as a correction needs (its deviation within
+    // min_correction) and agrees, or disagrees too.
+    const auto rig = rig_cameras.find(camera);
+    std::string unchecked;
+    if (rig != rig_cameras.end()) {
+      for (const auto& [other, other_rig] : rig_cameras) {
+        if (other == camera || other_rig.first != rig->second.first) continue;
+        const auto c = checks.find(other);
+        const bool settled = c != checks.end() && c->second.calibration.estimated &&
+                             (c->second.disagrees || c->second.calibration.standard_deviation <=
+                                                         config_.frontend.focal_monitor.focal.min_correction);
+        if (!settled) unchecked += (unchecked.empty() ? "" : ", ") + other;
+      }
+    }
+    if (!unchecked.empty()) {
+      std::ostringstream line;
+      line << camera << ": focal length not corrected: the other cameras of its rig (" << unchecked
+           << ") are not checked precisely enough, and correcting one camera of a rig alone makes its cameras "
+              "disagree; fix camera_info";
+      std::lock_guard<std::mutex> lock(mutex_);
+      correction_notices_.emplace_back(line.str(), true);
+      continue;
+    }
+    std::vector<KeyframeRelativeRotation> edges;
+    std::string why;
+    bool ok = false;
+    double correction = 1.0;
+    {
+      std::lock_guard<std::mutex> lock(frontend_mutex_);
+      ok = frontend_->ApplyFocalCorrection(camera, check.calibration.scale, &edges, &why);
+      correction = frontend_->FocalCorrection(camera);
+      if (ok) focal_checker_->Submit(frontend_->TakeFocalJobs());
+    }
+    std::ostringstream line;
+    line << std::fixed << std::setprecision(4) << camera << ": ";
+    if (!ok) {
+      corrections_refused_.insert(camera);
+      line << "focal length not corrected: " << why;
+    } else {
+      focal_checker_->ExpectFocal(camera, check.given_focal_px * check.calibration.scale);
+      std::size_t replaced = 0;
+      for (const KeyframeRelativeRotation& e : edges) {
+        std::string error;
+        if (AddMeasurement(e, &error)) {
+          ++replaced;
+        } else if (warnings) {
+          warnings->push_back("re-estimated edge dropped: " + error);
+        }
+      }
+      line << "focal length corrected by x" << check.calibration.scale << " (x" << correction
+           << " of camera_info's in all): " << replaced << " of its pairs estimated again";
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (ok) focal_corrections_[camera] = correction;
+    correction_notices_.emplace_back(line.str(), true);
+  }
 }
 
 void KeyframePipeline::WaitForFocalChecks() {
@@ -558,6 +644,7 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   if (loop_closure) *loop_closure = false;
   if (!frontend_) return 0;
   if (rig_.IsRigCamera(keyframe.key.frame_id)) frontend_->SetRigCalibrated(keyframe.key.frame_id);
+  ApplyFocalCorrections(warnings);
   std::size_t added = 0;
   std::vector<KeyframeRelativeRotation> edges;
   KeyframeFrontendStats frontend_stats;
@@ -757,6 +844,27 @@ KeyframeFrontendStats KeyframePipeline::FrontendStats() const {
   return frontend_stats_;
 }
 
+FocalCheckArray KeyframePipeline::FocalCheckMsg(const ros::Time& stamp) const {
+  FocalCheckArray msg;
+  msg.header.stamp = stamp;
+  const std::map<std::string, double> corrections = FocalCorrections();
+  for (const auto& [camera, check] : FocalChecks()) {
+    FocalCheck m;
+    m.frame_id = camera;
+    m.pairs_seen = static_cast<std::uint32_t>(check.pairs_seen);
+    m.pairs_used = static_cast<std::uint32_t>(check.calibration.pairs);
+    m.estimated = check.calibration.estimated;
+    m.given_focal_px = check.given_focal_px;
+    m.scale = check.calibration.scale;
+    m.scale_stddev = check.calibration.standard_deviation;
+    m.disagrees = check.disagrees;
+    const auto correction = corrections.find(camera);
+    m.applied_scale = correction == corrections.end() ? 1.0 : correction->second;
+    msg.cameras.push_back(m);
+  }
+  return msg;
+}
+
 Orientations KeyframePipeline::OrientationsMsg(const OnlineSolution& solution, const ros::Time& stamp) const {
   Orientations msg;
   msg.header.stamp = stamp;
@@ -768,18 +876,6 @@ Orientations KeyframePipeline::OrientationsMsg(const OnlineSolution& solution, c
     auto cov = solution.covariance.find(key);
     msg.keyframes.push_back(ToMsg(key, r, c == solution.component.end() ? 0 : c->second,
                                   cov == solution.covariance.end() ? nullptr : &cov->second));
-  }
-  for (const auto& [camera, check] : FocalChecks()) {
-    FocalCheck m;
-    m.frame_id = camera;
-    m.pairs_seen = static_cast<std::uint32_t>(check.pairs_seen);
-    m.pairs_used = static_cast<std::uint32_t>(check.calibration.pairs);
-    m.estimated = check.calibration.estimated;
-    m.given_focal_px = check.given_focal_px;
-    m.scale = check.calibration.scale;
-    m.scale_stddev = check.calibration.standard_deviation;
-    m.disagrees = check.disagrees;
-    msg.focal_checks.push_back(m);
   }
   return msg;
 }

@@ -21,9 +21,11 @@
 #include <memory>
 #include <mutex>
 #include <opencv2/core.hpp>
+#include <set>
 #include <string>
 #include <vector>
 
+#include "rotation_averaging/FocalCheckArray.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePose.h"
 #include "frontend/controllers/keyframe_frontend.h"
@@ -73,8 +75,11 @@ struct PipelineConfig {
   std::string keyframe_selection = "motion";
   // The check of each camera's focal length against its verified image
   // pairs (frontend/controllers/focal_monitor.h): "warn" estimates it as the
-  // pairs accumulate, reports it (diagnostics, ~orientations' focal_checks)
-  // and warns when camera_info's focal length disagrees; "off" does not.
+  // pairs accumulate, reports it (diagnostics, ~focal_checks)
+  // and warns when camera_info's focal length disagrees; "apply" also
+  // corrects it then (KeyframeFrontend::ApplyFocalCorrection: the camera's
+  // pairs estimated again, their edges replaced; a camera of a rig only when
+  // the rig's other cameras are checked too); "off" does neither.
   std::string focal_calibration = "warn";
   KeyframeSelectionOptions selection;  // keyframe_min_motion_deg, ...; its rig tolerance is rig_stamp_tolerance_s
   KeyframeFrontendOptions frontend;    // frontend.vocabulary: loaded from `vocabulary`
@@ -231,6 +236,8 @@ class KeyframePipeline {
 
   // Output messages for a solution expanded by CameraSolution.
   Orientations OrientationsMsg(const OnlineSolution& cameras, const ros::Time& stamp) const;
+  // Each camera's latest focal-length check (~focal_checks).
+  FocalCheckArray FocalCheckMsg(const ros::Time& stamp) const;
   // all_keyframes: one transform per keyframe, stamped with its capture time.
   tf2_msgs::TFMessage KeyframeTransforms(const OnlineSolution& cameras) const;
   // rviz: camera frusta by solved orientation (namespace "keyframes") and the
@@ -252,6 +259,10 @@ class KeyframePipeline {
   std::vector<std::pair<std::string, bool>> TakeFocalNotices();
   // Waits for the estimates that are due (the replay, before its summary).
   void WaitForFocalChecks();
+  // focal_calibration: apply. The product of the corrections applied to
+  // each camera's focal length, by camera (cameras never corrected are not
+  // listed).
+  std::map<std::string, double> FocalCorrections() const;
 
   PipelineStats Stats() const;
   // The front end's counters as of its latest keyframe; safe to call while
@@ -272,7 +283,15 @@ class KeyframePipeline {
   PipelineConfig config_;
   std::unique_ptr<OnlineAverager> averager_;
   std::unique_ptr<KeyframeFrontend> frontend_;
-  std::unique_ptr<FocalChecker> focal_checker_;  // with a front end and focal_calibration: warn
+  std::unique_ptr<FocalChecker> focal_checker_;  // with a front end and focal_calibration: warn or apply
+  // focal_calibration: apply. Corrects the cameras whose latest check
+  // disagrees; the re-estimated edges replace the old ones in the graph.
+  // Called by ProcessKeyframe before its keyframe, on the front end's thread.
+  void ApplyFocalCorrections(std::vector<std::string>* warnings);
+  std::map<std::string, std::pair<double, std::uint64_t>> applied_checks_;  // camera -> (given px, pairs) applied
+  std::set<std::string> corrections_refused_;
+  std::vector<std::pair<std::string, bool>> correction_notices_;  // under mutex_
+  std::map<std::string, double> focal_corrections_;  // under mutex_
   // Held while the front end adds a keyframe, and while its database is
   // saved or loaded (the node saves from a timer thread).
   std::mutex frontend_mutex_;

@@ -89,6 +89,9 @@ class RotationAveragingNode {
 
     SetUpImages(nh);
     orientations_pub_ = pnh.advertise<Orientations>("orientations", 1, /*latch=*/true);
+    if (!config.image_topics.empty() && config.focal_calibration != "off") {
+      focal_checks_pub_ = pnh.advertise<FocalCheckArray>("focal_checks", 1, /*latch=*/true);
+    }
     if (config.markers) markers_pub_ = pnh.advertise<visualization_msgs::MarkerArray>("markers", 1, /*latch=*/true);
     // Our own latched /tf_static publisher: the whole keyframe set is rebuilt
     // once per solve (tf2_ros::StaticTransformBroadcaster merges updates by
@@ -425,6 +428,7 @@ class RotationAveragingNode {
     WarnAboutCaps();
     const OnlineSolution cameras = pipeline_->CameraSolution(solution);  // once per solve
     orientations_pub_.publish(pipeline_->OrientationsMsg(cameras, now));
+    if (focal_checks_pub_) focal_checks_pub_.publish(pipeline_->FocalCheckMsg(now));
     if (markers_pub_ && markers_pub_.getNumSubscribers() > 0) {
       markers_pub_.publish(pipeline_->Markers(solution, cameras, now));
     }
@@ -549,6 +553,9 @@ class RotationAveragingNode {
         status.add("focal length scale of " + camera + " (estimated / camera_info)", check.calibration.scale);
         status.add("focal length scale of " + camera + ", standard deviation", check.calibration.standard_deviation);
       }
+      for (const auto& [camera, correction] : pipeline_->FocalCorrections()) {
+        status.add("focal length of " + camera + " corrected (x camera_info's)", correction);
+      }
       status.add("front-end memory of the focal-length check (MiB)", f.focal_bytes / 1048576.0);
     }
     status.add("dropped (queue full)", s.dropped_queue_full);
@@ -574,7 +581,7 @@ class RotationAveragingNode {
   RotationAveragingOptions current_averaging_;
   boost::recursive_mutex reconfigure_mutex_;
   std::unique_ptr<dynamic_reconfigure::Server<RotationAveragingConfig>> reconfigure_;
-  ros::Publisher orientations_pub_, markers_pub_;
+  ros::Publisher orientations_pub_, markers_pub_, focal_checks_pub_;
   ros::Subscriber single_sub_, array_sub_, tf_static_sub_;
   ros::ServiceServer solve_srv_, reset_srv_, save_srv_, load_srv_, add_map_srv_;
   tf2_ros::TransformBroadcaster broadcaster_;

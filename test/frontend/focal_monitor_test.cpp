@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <set>
@@ -9,6 +10,7 @@
 #include "frontend/controllers/keyframe_frontend.h"
 #include "frontend/scene/focal_scene.h"
 #include "frontend/scene/rig_scene.h"
+#include "rotation_averaging/core/geometry/so3.h"
 
 namespace rotation_averaging {
 namespace {
@@ -192,6 +194,79 @@ TEST(FocalMonitor, TheFrontEndFindsACameraWhoseFocalLengthIsOff) {
     EXPECT_NEAR(check.calibration.scale * 0.97, 1.0, 0.01) << check.Report();
     EXPECT_TRUE(check.disagrees) << check.Report();
   }
+}
+
+// focal_calibration: apply. The camera's pairs estimated again with the
+// corrected focal length measure its rotations several times better, and
+// its check then agrees with the corrected focal length.
+TEST(FocalMonitor, ACorrectedFocalLengthMakesTheCamerasPairsRight) {
+  RigSceneOptions o;
+  o.num_cameras = 2;
+  o.num_captures = 24;
+  o.WithWidth(480);
+  const RigScene scene(o);
+  KeyframeFrontendOptions options;
+  options.features.max_features = 1500;
+  options.max_loop_candidates = 0;
+  options.focal_monitor.enabled = true;
+  options.focal_monitor.hold_for_correction = true;
+  KeyframeFrontend frontend(options);
+  const Eigen::Matrix3d short_k = FocalTimes(scene.Intrinsics(), 0.97);
+  const std::string left = scene.Cameras()[1].frame_id;
+  std::map<std::pair<KeyframeKey, KeyframeKey>, Eigen::Matrix3d> truth;
+  std::vector<KeyframeRelativeRotation> before;
+  std::vector<FocalJob> jobs;
+  for (int c = 0; c < o.num_captures; ++c) {
+    for (int cam = 0; cam < 2; ++cam) {
+      const KeyframeKey key{scene.Cameras()[cam].frame_id, (c + 1) * 1'000'000'000LL};
+      for (const KeyframeRelativeRotation& e :
+           frontend.AddKeyframe(key, scene.Render(c, cam), cam == 1 ? short_k : scene.Intrinsics())) {
+        before.push_back(e);
+      }
+      for (FocalJob& job : frontend.TakeFocalJobs()) jobs.push_back(std::move(job));
+    }
+  }
+  // True R_12 = R_1 R_2^T of every keyframe pair of the left camera.
+  auto world_to_camera = [&](const KeyframeKey& key) {
+    const int capture = static_cast<int>(key.stamp_ns / 1'000'000'000LL) - 1;
+    return scene.WorldToCamera(capture, key.frame_id == left ? 1 : 0);
+  };
+  auto left_errors = [&](const std::vector<KeyframeRelativeRotation>& edges) {
+    std::vector<double> errors;
+    for (const KeyframeRelativeRotation& e : edges) {
+      if (e.keyframe1.frame_id != left || e.keyframe2.frame_id != left) continue;
+      const Eigen::Matrix3d r = world_to_camera(e.keyframe1) * world_to_camera(e.keyframe2).transpose();
+      errors.push_back(RadToDeg(AngularDistanceRad(r, e.rotation)));
+    }
+    std::sort(errors.begin(), errors.end());
+    return errors;
+  };
+  const FocalJob* last = nullptr;
+  for (const FocalJob& job : jobs) {
+    if (job.camera == left) last = &job;
+  }
+  ASSERT_NE(last, nullptr);
+  const CameraFocalCheck check = RunFocalJob(*last, options.focal_monitor.focal);
+  ASSERT_TRUE(check.disagrees) << check.Report();
+  std::vector<KeyframeRelativeRotation> after;
+  std::string why;
+  ASSERT_TRUE(frontend.ApplyFocalCorrection(left, check.calibration.scale, &after, &why)) << why;
+  EXPECT_DOUBLE_EQ(frontend.FocalCorrection(left), check.calibration.scale);
+  const std::vector<double> old_errors = left_errors(before), new_errors = left_errors(after);
+  ASSERT_GE(new_errors.size(), 20u);
+  EXPECT_GE(new_errors.size() + 2, old_errors.size());  // nearly every pair again
+  const double old_median = old_errors[old_errors.size() / 2], new_median = new_errors[new_errors.size() / 2];
+  RecordProperty("median_error_given_deg", std::to_string(old_median));
+  RecordProperty("median_error_corrected_deg", std::to_string(new_median));
+  EXPECT_LT(new_median, 0.5 * old_median) << "median error of the left camera's pairs: " << old_median << " deg with "
+                                          << "the given focal length, " << new_median << " deg corrected";
+  // The check starts again on the corrected focal length, with those pairs.
+  std::vector<FocalJob> again = frontend.TakeFocalJobs();
+  ASSERT_FALSE(again.empty());
+  const CameraFocalCheck rechecked = RunFocalJob(again.back(), options.focal_monitor.focal);
+  EXPECT_EQ(again.back().camera, left);
+  EXPECT_FALSE(rechecked.disagrees) << rechecked.Report();
+  EXPECT_NEAR(again.back().given_focal_px, short_k(0, 0) * check.calibration.scale, 1e-9);
 }
 
 }  // namespace

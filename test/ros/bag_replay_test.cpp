@@ -1,5 +1,6 @@
 // The replay tool's library: a rendered rig bag end to end, determinism, and
 // every kind of bad bag (no ROS master needed).
+#include "rotation_averaging/FocalCheckArray.h"
 #include "rotation_averaging/RelativePoseArray.h"
 #include "ros/bag_replay.h"
 
@@ -146,7 +147,7 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
 // A camera_info whose focal length is 3% short: the replay's check of each
 // camera's focal length finds it out (the sideways camera; the forward one,
 // moving along its optical axis, cannot tell), warns, and the output bag's
-// Orientations carry the check.
+// focal-check messages carry it.
 TEST_F(BagReplay, ACameraInfoWithAWrongFocalLengthIsFoundOut) {
   RigSceneOptions scene_options;
   scene_options.num_captures = 24;
@@ -177,14 +178,14 @@ TEST_F(BagReplay, ACameraInfoWithAWrongFocalLengthIsFoundOut) {
   for (const std::string& w : result.warnings) warned |= w.find("camera_info check: cam_left") != std::string::npos;
   EXPECT_TRUE(warned);
   EXPECT_NE(result.Summary().find("camera_info check"), std::string::npos);
-  // The last Orientations message says so too, with the estimate.
+  // The last focal-check message says so too, with the estimate.
   rosbag::Bag out(result.output_bag, rosbag::bagmode::Read);
-  rosbag::View orientations(out, rosbag::TopicQuery("/rotation_averaging/orientations"));
-  Orientations::ConstPtr last;
-  for (const rosbag::MessageInstance& m : orientations) last = m.instantiate<Orientations>();
+  rosbag::View checks_topic(out, rosbag::TopicQuery("/rotation_averaging/focal_checks"));
+  FocalCheckArray::ConstPtr last;
+  for (const rosbag::MessageInstance& m : checks_topic) last = m.instantiate<FocalCheckArray>();
   ASSERT_TRUE(last);
   bool found = false;
-  for (const FocalCheck& c : last->focal_checks) {
+  for (const FocalCheck& c : last->cameras) {
     if (c.frame_id != "cam_left") continue;
     found = true;
     EXPECT_TRUE(c.estimated);
@@ -193,6 +194,7 @@ TEST_F(BagReplay, ACameraInfoWithAWrongFocalLengthIsFoundOut) {
     EXPECT_GT(c.scale_stddev, 0.0);
     EXPECT_GE(c.pairs_seen, 20u);
     EXPECT_NEAR(c.given_focal_px, 0.97 * scene.Intrinsics()(0, 0), 1e-6);
+    EXPECT_EQ(c.applied_scale, 1.0);  // warn: reported, not corrected
   }
   EXPECT_TRUE(found) << checks;
 }

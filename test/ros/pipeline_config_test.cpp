@@ -127,7 +127,7 @@ TEST(PipelineConfig, ValuesOutOfRangeAndUnknownChoicesAreRefusedByName) {
       {{{"tf_mode", "some"}}, "tf_mode 'some' is not one of"},
       {{{"marker_spacing_m", "0"}}, "marker_spacing_m must be above 0"},
       {{{"keyframe_selection", "every"}}, "keyframe_selection 'every' is not one of motion, all"},
-      {{{"focal_calibration", "on"}}, "focal_calibration 'on' is not one of warn, off"},
+      {{{"focal_calibration", "on"}}, "focal_calibration 'on' is not one of warn, apply, off"},
       {{{"keyframe_min_tracked_fraction", "2"}}, "keyframe_min_tracked_fraction must be in [0, 1]"},
       {{{"keyframe_max_interval_s", "-1"}}, "keyframe_max_interval_s must be at least 0"},
       {{{"image_type", "rect"}}, "image_type 'rect' is not one of auto, raw, rectified"},

@@ -16,6 +16,7 @@ bool FocalMonitorOptions::Validate(std::string* error) const {
       .Above("focal_estimate_growth", growth, 1.0)
       .AtLeast("focal_max_pairs", max_pairs, first_estimate_pairs)
       .AtLeast("focal_max_matches_per_pair", max_matches_per_pair, focal.min_inliers)
+      .AtLeast("focal_max_correction_pairs", max_correction_pairs, 1)
       .Within("focal_principal_point_sigma", focal.principal_point_sigma, 0.0, 0.2)
       .Within("focal_min_correction", focal.min_correction, 0.0, 0.5)
       .Ok(error);
@@ -112,6 +113,11 @@ std::size_t FocalMonitor::HeldBytes() const {
   return bytes;
 }
 
+double FocalMonitor::GivenFocal(const std::string& camera) const {
+  const auto it = cameras_.find(camera);
+  return it == cameras_.end() ? 0.0 : it->second.given_focal_px;
+}
+
 std::vector<FocalJob> FocalMonitor::TakeDue() {
   std::vector<FocalJob> out;
   out.swap(due_);
@@ -171,6 +177,13 @@ void FocalChecker::Wait() {
   idle_.wait(lock, [this] { return queue_.empty() && !running_job_; });
 }
 
+void FocalChecker::ExpectFocal(const std::string& camera, double given_focal_px) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  expected_focal_px_[camera] = given_focal_px;
+  const auto it = checks_.find(camera);
+  if (it != checks_.end() && it->second.given_focal_px != given_focal_px) checks_.erase(it);
+}
+
 void FocalChecker::Run() {
   while (true) {
     FocalJob job;
@@ -185,6 +198,12 @@ void FocalChecker::Run() {
     CameraFocalCheck check = RunFocalJob(job, options_);
     {
       std::lock_guard<std::mutex> lock(mutex_);
+      const auto expected = expected_focal_px_.find(check.camera);
+      if (expected != expected_focal_px_.end() && expected->second != check.given_focal_px) {
+        running_job_ = false;  // estimated on a focal length no longer used
+        idle_.notify_all();
+        continue;
+      }
       const auto it = checks_.find(check.camera);
       const bool was_estimated = it != checks_.end() && it->second.calibration.estimated;
       const bool was_disagreeing = it != checks_.end() && it->second.disagrees;

@@ -53,6 +53,12 @@ struct FocalMonitorOptions {
   // grows with the matches, its precision hardly beyond a few hundred per
   // pair, at sub-pixel noise.
   int max_matches_per_pair = 200;
+  // focal_calibration: apply. To estimate a camera's pairs again with a
+  // corrected focal length, the front end holds every pair of it that gave
+  // an edge, with all its matches (tens of KiB each), up to this many per
+  // camera. A camera found out after that is reported, not corrected.
+  bool hold_for_correction = false;
+  int max_correction_pairs = 1000;
 
   // True if every field is within its range; otherwise false, with `error`
   // naming the first field that is not.
@@ -107,6 +113,7 @@ class FocalMonitor {
   std::vector<FocalJob> TakeDue();
   std::size_t HeldPairs(const std::string& camera) const;
   std::size_t HeldBytes() const;  // of every camera's pairs
+  double GivenFocal(const std::string& camera) const;  // 0 before its first pair
 
  private:
   struct Camera {
@@ -137,6 +144,10 @@ class FocalChecker {
   std::vector<std::pair<std::string, bool>> TakeNotices();
   // Waits until every job submitted so far has run (the replay, at its end).
   void Wait();
+  // The camera's focal length is now `given_focal_px` (a correction was
+  // applied): its check from the former one is dropped, and so are results
+  // of jobs still running on it.
+  void ExpectFocal(const std::string& camera, double given_focal_px);
 
  private:
   void Run();
@@ -146,6 +157,7 @@ class FocalChecker {
   std::deque<FocalJob> queue_;
   bool running_job_ = false, stopping_ = false;
   std::map<std::string, CameraFocalCheck> checks_;
+  std::map<std::string, double> expected_focal_px_;  // ExpectFocal
   std::vector<std::pair<std::string, bool>> notices_;
   std::thread worker_;
 };

@@ -152,6 +152,8 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
     }
     const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, first.k, second.k, relative_pose);
     PairOutcome& out = outcomes[t];
+    out.newer_first = swap;
+    out.jackknife_grid = relative_pose.jackknife_grid;
     if (!pose.success) {
       out.failure = TwoViewFailureName(pose.failure);
       return;
@@ -176,6 +178,10 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
         pose.model == TwoViewModel::kEssential && static_cast<int>(pose.inliers.size()) >= focal.focal.min_inliers) {
       out.focal_sample = MakeFocalSample(pa, pb, pose, focal.max_matches_per_pair);
     }
+    if (focal.hold_for_correction) {
+      out.points1 = std::make_shared<std::vector<Eigen::Vector2d>>(std::move(pa));
+      out.points2 = std::make_shared<std::vector<Eigen::Vector2d>>(std::move(pb));
+    }
   });
   stats_.pairs_s += Seconds(start);
   return outcomes;
@@ -193,7 +199,115 @@ void KeyframeFrontend::CountInliers(const PairTask& task, const PairOutcome& out
 void KeyframeFrontend::MonitorFocal(const PairOutcome& outcome, const Keyframe& newer, double given_focal_px) {
   if (!outcome.focal_sample) return;
   focal_monitor_.Add(newer.key.frame_id, newer.k, given_focal_px, outcome.focal_sample);
-  stats_.focal_bytes = focal_monitor_.HeldBytes();
+}
+
+void KeyframeFrontend::HoldPair(const PairTask& task, const PairOutcome& outcome, int newer_index, bool chain) {
+  if (!outcome.points1 || !outcome.points2) return;
+  HeldPair held;
+  held.first = outcome.newer_first ? newer_index : task.older;
+  held.second = outcome.newer_first ? task.older : newer_index;
+  held.source = task.source;
+  held.jackknife_grid = outcome.jackknife_grid;
+  held.chain = chain;
+  held.points1 = outcome.points1;
+  held.points2 = outcome.points2;
+  const std::string& older_camera = keyframes_[task.older]->key.frame_id;
+  const std::string& newer_camera = outcome.newer_first ? outcome.edge.keyframe1.frame_id : outcome.edge.keyframe2.frame_id;
+  std::set<std::string> cameras{older_camera, newer_camera};
+  for (const std::string& camera : cameras) {
+    if (held_overflow_.count(camera)) continue;
+    std::vector<HeldPair>& list = held_pairs_[camera];
+    if (static_cast<int>(list.size()) >= options_.focal_monitor.max_correction_pairs) {
+      // Past the cap the camera cannot be corrected: let its pairs go.
+      held_overflow_.insert(camera);
+      list.clear();
+      list.shrink_to_fit();
+      continue;
+    }
+    list.push_back(held);
+  }
+}
+
+double KeyframeFrontend::FocalCorrection(const std::string& camera) const {
+  const auto it = focal_correction_.find(camera);
+  return it == focal_correction_.end() ? 1.0 : it->second;
+}
+
+bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double scale,
+                                            std::vector<KeyframeRelativeRotation>* edges, std::string* why) {
+  edges->clear();
+  if (!(scale > 0.0) || !std::isfinite(scale)) {
+    if (why) *why = "the correction is not a positive number";
+    return false;
+  }
+  if (held_overflow_.count(camera)) {
+    if (why) {
+      *why = "its pairs outgrew focal_max_correction_pairs (" +
+             std::to_string(options_.focal_monitor.max_correction_pairs) +
+             ") before the check found it out, so they cannot be estimated again: fix camera_info";
+    }
+    return false;
+  }
+  focal_correction_[camera] = FocalCorrection(camera) * scale;
+  const auto chain = by_camera_.find(camera);
+  if (chain != by_camera_.end()) {
+    for (int i : chain->second) {
+      keyframes_[i]->k(0, 0) *= scale;
+      keyframes_[i]->k(1, 1) *= scale;
+    }
+  }
+  std::vector<HeldPair>& held = held_pairs_[camera];
+  std::vector<RelativePoseResult> poses(held.size());
+  ParallelFor(static_cast<int>(held.size()), ResolveThreadCount(options_.num_threads), [&](int h) {
+    const HeldPair& p = held[h];
+    RelativePoseOptions relative_pose = options_.relative_pose;
+    relative_pose.jackknife_grid = p.jackknife_grid;
+    poses[h] = EstimateRelativePoseWithCovariance(*p.points1, *p.points2, keyframes_[p.first]->k,
+                                                  keyframes_[p.second]->k, relative_pose);
+  });
+  const FocalMonitorOptions& focal = options_.focal_monitor;
+  const double given = focal_monitor_.GivenFocal(camera) * scale;
+  for (std::size_t h = 0; h < held.size(); ++h) {
+    const HeldPair& p = held[h];
+    const RelativePoseResult& pose = poses[h];
+    if (!pose.success) continue;  // the old edge stays
+    Keyframe& first = *keyframes_[p.first];
+    Keyframe& second = *keyframes_[p.second];
+    KeyframeRelativeRotation e;
+    e.keyframe1 = first.key;
+    e.keyframe2 = second.key;
+    e.rotation = pose.EdgeRotation();
+    e.has_covariance = true;
+    e.covariance = pose.covariance;
+    e.num_inliers = static_cast<int>(pose.inliers.size());
+    e.source = p.source;
+    edges->push_back(e);
+    if (p.chain) {
+      second.sequential_rotation = e.rotation;
+      second.sequential_covariance = e.covariance;
+    }
+    // The check starts again on the corrected focal length, with these pairs.
+    if (focal.enabled && first.key.frame_id == camera && second.key.frame_id == camera && first.k == second.k &&
+        pose.model == TwoViewModel::kEssential && static_cast<int>(pose.inliers.size()) >= focal.focal.min_inliers) {
+      focal_monitor_.Add(camera, first.k, given,
+                         MakeFocalSample(*p.points1, *p.points2, pose, focal.max_matches_per_pair));
+    }
+  }
+  stats_.focal_bytes = FocalBytes();
+  return true;
+}
+
+std::size_t KeyframeFrontend::FocalBytes() const {
+  std::set<const std::vector<Eigen::Vector2d>*> counted;  // a rig pair is held under both cameras
+  std::size_t bytes = focal_monitor_.HeldBytes();
+  for (const auto& [camera, list] : held_pairs_) {
+    for (const HeldPair& p : list) {
+      if (counted.insert(p.points1.get()).second) {
+        bytes += sizeof(HeldPair) + (p.points1->size() + p.points2->size()) * sizeof(Eigen::Vector2d);
+      }
+    }
+  }
+  return bytes;
 }
 
 void KeyframeFrontend::Count(const PairOutcome& outcome) {
@@ -270,8 +384,14 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
 }
 
 std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
-                                                                    const CameraIntrinsics& camera) {
+                                                                    const CameraIntrinsics& given) {
   std::vector<KeyframeRelativeRotation> edges;
+  // A focal length corrected by the check (ApplyFocalCorrection) replaces
+  // the given one before anything, undistortion included.
+  CameraIntrinsics camera = given;
+  const double correction = FocalCorrection(key.frame_id);
+  camera.k(0, 0) *= correction;
+  camera.k(1, 1) *= correction;
   // A second image under one key (a driver that repeats a stamp, a bag
   // played twice, a key of a loaded database) would be a second view under
   // the name of the first.
@@ -391,6 +511,8 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     edges.push_back(e);
     CountInliers(tasks[t], outcomes[t], kf.get());
     MonitorFocal(outcomes[t], *kf, camera.k(0, 0));
+    HoldPair(tasks[t], outcomes[t], static_cast<int>(keyframes_.size()),
+             tasks[t].source != EdgeSource::kRig && tasks[t].older == same.back());
     if (tasks[t].source == EdgeSource::kRig) {
       ++stats_.rig_edges;
       continue;
@@ -408,6 +530,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   for (std::size_t c : accepted) {
     CountInliers(candidates[c], verified_loops[c], kf.get());
     MonitorFocal(verified_loops[c], *kf, camera.k(0, 0));
+    HoldPair(candidates[c], verified_loops[c], static_cast<int>(keyframes_.size()), false);
   }
   if (inverted_index_) inverted_index_->Add(static_cast<int>(keyframes_.size()), kf->bow);
   stats_.keyframe_bytes += KeyframeBytes(*kf);
@@ -423,6 +546,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     due_compaction_.push_back({chain[chain.size() - 1 - recent], key.stamp_ns});
   }
   stats_.last_pairs_s = stats_.pairs_s - pairs_before;
+  if (options_.focal_monitor.enabled || options_.focal_monitor.hold_for_correction) stats_.focal_bytes = FocalBytes();
   return edges;
 }
 
@@ -656,6 +780,7 @@ bool KeyframeFrontend::TakeDatabase(const std::string& path, bool add, std::size
   if (!add) {
     keyframes_.clear();
     by_camera_.clear();
+    held_pairs_.clear();  // their keyframes are gone
     loaded_chains_.clear();
     keys_.clear();
     due_compaction_.clear();

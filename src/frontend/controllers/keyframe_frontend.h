@@ -210,6 +210,20 @@ class KeyframeFrontend {
   // The focal-length estimates that fell due since the last call
   // (FocalMonitor), for a FocalChecker to run.
   std::vector<FocalJob> TakeFocalJobs() { return focal_monitor_.TakeDue(); }
+  // focal_calibration: apply. Multiplies the focal length of `camera` by
+  // `scale`: for its keyframes from now on (their camera's K corrected before
+  // anything), for those held (later pairs with them), and for the pairs of
+  // it held (FocalMonitorOptions::hold_for_correction), which are estimated
+  // again from their matches; their edges are returned, to replace the old
+  // ones. Keypoints of a distorted camera were undistorted with the former
+  // K, which the correction does not redo: for a lens's distortion a focal
+  // length a few percent off moves them by a few percent of that
+  // distortion. False, with `why`, and nothing changed, when the camera's
+  // pairs outgrew max_correction_pairs.
+  bool ApplyFocalCorrection(const std::string& camera, double scale, std::vector<KeyframeRelativeRotation>* edges,
+                            std::string* why);
+  // The product of the corrections applied to `camera` (1: none).
+  double FocalCorrection(const std::string& camera) const;
 
  private:
   struct Keyframe;
@@ -248,7 +262,21 @@ class KeyframeFrontend {
     // A pair of two keyframes of one camera with the essential-matrix model,
     // for the focal-length check (options_.focal_monitor).
     std::shared_ptr<const FocalSample> focal_sample;
+    // Every match, for focal_calibration: apply (hold_for_correction).
+    std::shared_ptr<std::vector<Eigen::Vector2d>> points1, points2;
+    bool newer_first = false;  // the edge's first keyframe is the new one
+    int jackknife_grid = 0;    // that the pair was estimated with
   };
+  // A pair that gave an edge, held for focal_calibration: apply.
+  struct HeldPair {
+    int first = 0, second = 0;  // indices into keyframes_, in the edge's order
+    EdgeSource source = EdgeSource::kSequential;
+    int jackknife_grid = 0;
+    bool chain = false;  // the sequential edge of `second` from its previous keyframe
+    std::shared_ptr<std::vector<Eigen::Vector2d>> points1, points2;
+  };
+  void HoldPair(const PairTask& task, const PairOutcome& outcome, int newer_index, bool chain);
+  std::size_t FocalBytes() const;  // what the focal-length check and correction hold
   // Gives the focal-length check the pair of a used outcome.
   void MonitorFocal(const PairOutcome& outcome, const Keyframe& newer, double given_focal_px);
   // Counts the inliers of a pair whose edge is used on both keyframes' features.
@@ -282,6 +310,9 @@ class KeyframeFrontend {
   // (keyframe, stamp of the capture that pushed it out of its window)
   std::vector<std::pair<int, std::int64_t>> due_compaction_;
   FocalMonitor focal_monitor_;
+  std::map<std::string, std::vector<HeldPair>> held_pairs_;  // by camera (a rig pair under both)
+  std::set<std::string> held_overflow_;  // cameras whose pairs outgrew max_correction_pairs
+  std::map<std::string, double> focal_correction_;  // ApplyFocalCorrection
 };
 
 }  // namespace rotation_averaging
