@@ -157,30 +157,55 @@ TEST(FocalMonitor, TheCheckerReportsEachCameraAndItsChangesOfVerdictOnce) {
   EXPECT_FALSE(checker.Checks()["cam0"].disagrees);
 }
 
+// The rendered rig (two cameras, 24 captures) through a front end whose
+// sideways camera is given a focal length 3% short.
+struct ShortFocalRun {
+  RigSceneOptions scene_options;
+  std::unique_ptr<RigScene> scene;
+  KeyframeFrontendOptions options;
+  std::unique_ptr<KeyframeFrontend> frontend;
+  Eigen::Matrix3d short_k;
+  std::vector<KeyframeRelativeRotation> edges;
+  std::vector<FocalJob> jobs;
+};
+
+std::unique_ptr<ShortFocalRun> RunShortFocal(bool hold_for_correction) {
+  auto run = std::make_unique<ShortFocalRun>();
+  run->scene_options.num_cameras = 2;
+  run->scene_options.num_captures = 24;
+  run->scene_options.WithWidth(480);
+  run->scene = std::make_unique<RigScene>(run->scene_options);
+  run->options.features.max_features = 1500;
+  run->options.max_loop_candidates = 0;
+  run->options.focal_monitor.enabled = true;
+  run->options.focal_monitor.hold_for_correction = hold_for_correction;
+  run->frontend = std::make_unique<KeyframeFrontend>(run->options);
+  const RigScene& scene = *run->scene;
+  run->short_k = FocalTimes(scene.Intrinsics(), 0.97);
+  for (int c = 0; c < run->scene_options.num_captures; ++c) {
+    for (int cam = 0; cam < 2; ++cam) {
+      const KeyframeKey key{scene.Cameras()[cam].frame_id, (c + 1) * 1'000'000'000LL};
+      for (const KeyframeRelativeRotation& e :
+           run->frontend->AddKeyframe(key, scene.Render(c, cam), cam == 1 ? run->short_k : scene.Intrinsics())) {
+        run->edges.push_back(e);
+      }
+      for (FocalJob& job : run->frontend->TakeFocalJobs()) run->jobs.push_back(std::move(job));
+    }
+  }
+  return run;
+}
+
 // The front end gives the check each camera's own verified pairs: a camera
 // of the rendered rig looking sideways, whose focal length is given 3%
 // short, is found out within 1% by its 20th pair, and its pairs alone are
 // used (none with the other camera, whose intrinsics are right).
 TEST(FocalMonitor, TheFrontEndFindsACameraWhoseFocalLengthIsOff) {
-  RigSceneOptions o;
-  o.num_cameras = 2;
-  o.num_captures = 24;
-  o.WithWidth(480);
-  const RigScene scene(o);
-  KeyframeFrontendOptions options;
-  options.features.max_features = 1500;
-  options.max_loop_candidates = 0;
-  options.focal_monitor.enabled = true;
-  KeyframeFrontend frontend(options);
-  const Eigen::Matrix3d short_k = FocalTimes(scene.Intrinsics(), 0.97);
-  std::vector<FocalJob> jobs;
-  for (int c = 0; c < o.num_captures; ++c) {
-    for (int cam = 0; cam < 2; ++cam) {
-      const KeyframeKey key{scene.Cameras()[cam].frame_id, (c + 1) * 1'000'000'000LL};
-      frontend.AddKeyframe(key, scene.Render(c, cam), cam == 1 ? short_k : scene.Intrinsics());
-      for (FocalJob& job : frontend.TakeFocalJobs()) jobs.push_back(std::move(job));
-    }
-  }
+  const std::unique_ptr<ShortFocalRun> run = RunShortFocal(false);
+  const RigScene& scene = *run->scene;
+  const KeyframeFrontend& frontend = *run->frontend;
+  const KeyframeFrontendOptions& options = run->options;
+  const Eigen::Matrix3d& short_k = run->short_k;
+  const std::vector<FocalJob>& jobs = run->jobs;
   EXPECT_GT(frontend.Stats().focal_bytes, 0u);
   std::set<std::string> cameras;
   for (const FocalJob& job : jobs) cameras.insert(job.camera);
@@ -200,32 +225,14 @@ TEST(FocalMonitor, TheFrontEndFindsACameraWhoseFocalLengthIsOff) {
 // corrected focal length measure its rotations several times better, and
 // its check then agrees with the corrected focal length.
 TEST(FocalMonitor, ACorrectedFocalLengthMakesTheCamerasPairsRight) {
-  RigSceneOptions o;
-  o.num_cameras = 2;
-  o.num_captures = 24;
-  o.WithWidth(480);
-  const RigScene scene(o);
-  KeyframeFrontendOptions options;
-  options.features.max_features = 1500;
-  options.max_loop_candidates = 0;
-  options.focal_monitor.enabled = true;
-  options.focal_monitor.hold_for_correction = true;
-  KeyframeFrontend frontend(options);
-  const Eigen::Matrix3d short_k = FocalTimes(scene.Intrinsics(), 0.97);
+  const std::unique_ptr<ShortFocalRun> run = RunShortFocal(true);
+  const RigScene& scene = *run->scene;
+  KeyframeFrontend& frontend = *run->frontend;
+  const KeyframeFrontendOptions& options = run->options;
+  const Eigen::Matrix3d& short_k = run->short_k;
   const std::string left = scene.Cameras()[1].frame_id;
-  std::map<std::pair<KeyframeKey, KeyframeKey>, Eigen::Matrix3d> truth;
-  std::vector<KeyframeRelativeRotation> before;
-  std::vector<FocalJob> jobs;
-  for (int c = 0; c < o.num_captures; ++c) {
-    for (int cam = 0; cam < 2; ++cam) {
-      const KeyframeKey key{scene.Cameras()[cam].frame_id, (c + 1) * 1'000'000'000LL};
-      for (const KeyframeRelativeRotation& e :
-           frontend.AddKeyframe(key, scene.Render(c, cam), cam == 1 ? short_k : scene.Intrinsics())) {
-        before.push_back(e);
-      }
-      for (FocalJob& job : frontend.TakeFocalJobs()) jobs.push_back(std::move(job));
-    }
-  }
+  const std::vector<KeyframeRelativeRotation>& before = run->edges;
+  const std::vector<FocalJob>& jobs = run->jobs;
   // True R_12 = R_1 R_2^T of every keyframe pair of the left camera.
   auto world_to_camera = [&](const KeyframeKey& key) {
     const int capture = static_cast<int>(key.stamp_ns / 1'000'000'000LL) - 1;
