@@ -490,7 +490,7 @@ class Replayer {
     const OnlineSolution cameras = pipeline_.CameraSolution(*solution);
     out_.write("/rotation_averaging/orientations", when, pipeline_.OrientationsMsg(cameras, when));
     if (pipeline_.HasFrontend() && config_.focal_calibration != "off") {
-      out_.write("/rotation_averaging/focal_checks", when, pipeline_.FocalCheckMsg(when));
+      out_.write("/rotation_averaging/camera_info_checks", when, pipeline_.CameraInfoCheckMsg(when));
     }
     if (config_.tf_mode == "all_keyframes") {
       out_.write("/tf_static", when, pipeline_.KeyframeTransforms(cameras));

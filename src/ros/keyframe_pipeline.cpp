@@ -329,6 +329,16 @@ void KeyframePipeline::ApplyFocalCorrections(std::vector<std::string>* warnings)
         if (!settled) unchecked += (unchecked.empty() ? "" : ", ") + other;
       }
     }
+    if (check.distortion_unmodelled) {
+      // A lens the model leaves out bends the focal estimate too: correcting
+      // it would fit the focal length to the distortion.
+      std::lock_guard<std::mutex> lock(mutex_);
+      correction_notices_.emplace_back(camera + ": focal length not corrected: its images are distorted and "
+                                                "camera_info has no distortion model, which the estimate cannot "
+                                                "tell from a focal length error; give the model first",
+                                       true);
+      continue;
+    }
     if (!unchecked.empty()) {
       std::ostringstream line;
       line << camera << ": focal length not corrected: the other cameras of its rig (" << unchecked
@@ -844,12 +854,12 @@ KeyframeFrontendStats KeyframePipeline::FrontendStats() const {
   return frontend_stats_;
 }
 
-FocalCheckArray KeyframePipeline::FocalCheckMsg(const ros::Time& stamp) const {
-  FocalCheckArray msg;
+CameraInfoCheckArray KeyframePipeline::CameraInfoCheckMsg(const ros::Time& stamp) const {
+  CameraInfoCheckArray msg;
   msg.header.stamp = stamp;
   const std::map<std::string, double> corrections = FocalCorrections();
   for (const auto& [camera, check] : FocalChecks()) {
-    FocalCheck m;
+    CameraInfoCheck m;
     m.frame_id = camera;
     m.pairs_seen = static_cast<std::uint32_t>(check.pairs_seen);
     m.pairs_used = static_cast<std::uint32_t>(check.calibration.pairs);
@@ -860,6 +870,11 @@ FocalCheckArray KeyframePipeline::FocalCheckMsg(const ros::Time& stamp) const {
     m.disagrees = check.disagrees;
     const auto correction = corrections.find(camera);
     m.applied_scale = correction == corrections.end() ? 1.0 : correction->second;
+    m.distortion_checked = check.distortion_checked && check.distortion.estimated;
+    m.distortion_lambda = check.distortion.lambda;
+    m.distortion_lambda_stddev = check.distortion.standard_deviation;
+    m.distortion_corner_px = check.distortion.corner_shift_px;
+    m.distortion_unmodelled = check.distortion_unmodelled;
     msg.cameras.push_back(m);
   }
   return msg;

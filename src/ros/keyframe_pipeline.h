@@ -25,7 +25,7 @@
 #include <string>
 #include <vector>
 
-#include "rotation_averaging/FocalCheckArray.h"
+#include "rotation_averaging/CameraInfoCheckArray.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePose.h"
 #include "frontend/controllers/keyframe_frontend.h"
@@ -75,8 +75,9 @@ struct PipelineConfig {
   std::string keyframe_selection = "motion";
   // The check of each camera's focal length against its verified image
   // pairs (frontend/controllers/focal_monitor.h): "warn" estimates it as the
-  // pairs accumulate, reports it (diagnostics, ~focal_checks)
-  // and warns when camera_info's focal length disagrees; "apply" also
+  // pairs accumulate, reports it (diagnostics, ~camera_info_checks)
+  // and warns when camera_info's focal length disagrees (or when it has no
+  // distortion model and the images are distorted); "apply" also
   // corrects it then (KeyframeFrontend::ApplyFocalCorrection: the camera's
   // pairs estimated again, their edges replaced; a camera of a rig only when
   // the rig's other cameras are checked too); "off" does neither.
@@ -236,8 +237,8 @@ class KeyframePipeline {
 
   // Output messages for a solution expanded by CameraSolution.
   Orientations OrientationsMsg(const OnlineSolution& cameras, const ros::Time& stamp) const;
-  // Each camera's latest focal-length check (~focal_checks).
-  FocalCheckArray FocalCheckMsg(const ros::Time& stamp) const;
+  // Each camera's latest focal-length check (~camera_info_checks).
+  CameraInfoCheckArray CameraInfoCheckMsg(const ros::Time& stamp) const;
   // all_keyframes: one transform per keyframe, stamped with its capture time.
   tf2_msgs::TFMessage KeyframeTransforms(const OnlineSolution& cameras) const;
   // rviz: camera frusta by solved orientation (namespace "keyframes") and the

@@ -90,7 +90,7 @@ class RotationAveragingNode {
     SetUpImages(nh);
     orientations_pub_ = pnh.advertise<Orientations>("orientations", 1, /*latch=*/true);
     if (!config.image_topics.empty() && config.focal_calibration != "off") {
-      focal_checks_pub_ = pnh.advertise<FocalCheckArray>("focal_checks", 1, /*latch=*/true);
+      camera_info_checks_pub_ = pnh.advertise<CameraInfoCheckArray>("camera_info_checks", 1, /*latch=*/true);
     }
     if (config.markers) markers_pub_ = pnh.advertise<visualization_msgs::MarkerArray>("markers", 1, /*latch=*/true);
     // Our own latched /tf_static publisher: the whole keyframe set is rebuilt
@@ -428,7 +428,7 @@ class RotationAveragingNode {
     WarnAboutCaps();
     const OnlineSolution cameras = pipeline_->CameraSolution(solution);  // once per solve
     orientations_pub_.publish(pipeline_->OrientationsMsg(cameras, now));
-    if (focal_checks_pub_) focal_checks_pub_.publish(pipeline_->FocalCheckMsg(now));
+    if (camera_info_checks_pub_) camera_info_checks_pub_.publish(pipeline_->CameraInfoCheckMsg(now));
     if (markers_pub_ && markers_pub_.getNumSubscribers() > 0) {
       markers_pub_.publish(pipeline_->Markers(solution, cameras, now));
     }
@@ -488,9 +488,10 @@ class RotationAveragingNode {
     }
     LogFocalNotices();
     const std::map<std::string, CameraFocalCheck> focal = pipeline_->FocalChecks();
-    std::string focal_disagrees;
+    std::string focal_disagrees, undescribed_lens;
     for (const auto& [camera, check] : focal) {
       if (check.disagrees) focal_disagrees += (focal_disagrees.empty() ? "" : ", ") + camera;
+      if (check.distortion_unmodelled) undescribed_lens += (undescribed_lens.empty() ? "" : ", ") + camera;
     }
     const double period = averager_->SolvePeriod();
     if (s.failed_solves > 0 && s.solves == s.failed_solves) {
@@ -499,6 +500,9 @@ class RotationAveragingNode {
       status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "solve time exceeds the solve period");
     } else if (s.dropped_queue_full + s.dropped_cap > 0) {
       status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "input dropped (queue full or caps reached)");
+    } else if (!undescribed_lens.empty()) {
+      status.summary(diagnostic_msgs::DiagnosticStatus::WARN,
+                     "images are distorted but camera_info has no distortion model: " + undescribed_lens);
     } else if (!focal_disagrees.empty()) {
       status.summary(diagnostic_msgs::DiagnosticStatus::WARN,
                      "camera_info's focal length disagrees with the images of " + focal_disagrees);
@@ -581,7 +585,7 @@ class RotationAveragingNode {
   RotationAveragingOptions current_averaging_;
   boost::recursive_mutex reconfigure_mutex_;
   std::unique_ptr<dynamic_reconfigure::Server<RotationAveragingConfig>> reconfigure_;
-  ros::Publisher orientations_pub_, markers_pub_, focal_checks_pub_;
+  ros::Publisher orientations_pub_, markers_pub_, camera_info_checks_pub_;
   ros::Subscriber single_sub_, array_sub_, tf_static_sub_;
   ros::ServiceServer solve_srv_, reset_srv_, save_srv_, load_srv_, add_map_srv_;
   tf2_ros::TransformBroadcaster broadcaster_;

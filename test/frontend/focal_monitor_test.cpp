@@ -70,7 +70,7 @@ TEST(FocalMonitor, EstimatesFallDueAsACameraGrowsAndStartAgainWithNewIntrinsics)
   const Eigen::Matrix3d k = SceneK();
   std::vector<std::uint64_t> due_at;
   for (int n = 1; n <= 13; ++n) {
-    monitor.Add("cam0", k, 500.0, sample);
+    monitor.Add("cam0", k, 500.0, false, sample);
     EXPECT_LE(monitor.HeldPairs("cam0"), 5u);
     for (const FocalJob& job : monitor.TakeDue()) {
       EXPECT_EQ(job.camera, "cam0");
@@ -80,19 +80,19 @@ TEST(FocalMonitor, EstimatesFallDueAsACameraGrowsAndStartAgainWithNewIntrinsics)
   }
   EXPECT_EQ(due_at, (std::vector<std::uint64_t>{3, 6, 12}));
   // Another camera counts on its own; new intrinsics for cam0 restart it.
-  monitor.Add("cam1", k, 500.0, sample);
-  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, sample);
+  monitor.Add("cam1", k, 500.0, false, sample);
+  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, false, sample);
   EXPECT_EQ(monitor.HeldPairs("cam0"), 1u);
   EXPECT_EQ(monitor.HeldPairs("cam1"), 1u);
-  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, sample);
-  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, sample);
+  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, false, sample);
+  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, false, sample);
   const std::vector<FocalJob> due = monitor.TakeDue();
   ASSERT_EQ(due.size(), 1u);
   EXPECT_EQ(due[0].pairs_seen, 3u);
   EXPECT_DOUBLE_EQ(due[0].given_focal_px, 550.0);
   // Off: nothing is held.
   FocalMonitor off{FocalMonitorOptions()};
-  for (int n = 0; n < 5; ++n) off.Add("cam0", k, 500.0, sample);
+  for (int n = 0; n < 5; ++n) off.Add("cam0", k, 500.0, false, sample);
   EXPECT_EQ(off.HeldPairs("cam0"), 0u);
   EXPECT_TRUE(off.TakeDue().empty());
 }
@@ -126,6 +126,32 @@ TEST(FocalMonitor, AFocalLengthThreePercentOffDisagreesAndTheTrueOneAgrees) {
     EXPECT_NEAR(check.calibration.scale * given, 1.0, 0.01) << check.Report();
     EXPECT_EQ(check.disagrees, given != 1.0) << check.Report();
     EXPECT_NE(check.Report().find(given != 1.0 ? "disagrees" : "agrees"), std::string::npos) << check.Report();
+  }
+}
+
+// Raw pixels of a lens with radial distortion, taken for an undistorted
+// camera's: the pairs show the distortion, about the lens's k1, beyond the
+// noise; the same scene through an ideal lens shows none. The focal job of
+// a camera without a distortion model carries that check.
+TEST(FocalMonitor, ADistortionTheIntrinsicsDoNotDescribeIsSeen) {
+  const Eigen::Matrix3d k = SceneK();
+  const RadialDistortionOptions options;
+  for (const double k1 : {-0.15, 0.0}) {
+    FocalSceneOptions lens;
+    lens.lens_k1 = k1;
+    const FocalScene scene = MakeFocalScene(k, k, lens);
+    const RadialDistortion seen = EstimateRadialDistortion(scene.Pairs(), k, options);
+    ASSERT_TRUE(seen.estimated) << k1;
+    EXPECT_NEAR(seen.lambda, k1, 0.05) << seen.lambda << " +- " << seen.standard_deviation;
+    EXPECT_EQ(DistortionIsUnmodelled(seen, options), k1 != 0.0)
+        << seen.lambda << " +- " << seen.standard_deviation << ", " << seen.corner_shift_px << " px";
+    FocalJob job = SceneJob(scene, k);
+    job.check_distortion = true;
+    const CameraFocalCheck check = RunFocalJob(job, FocalMonitorOptions().focal);
+    EXPECT_TRUE(check.distortion_checked);
+    EXPECT_EQ(check.distortion_unmodelled, k1 != 0.0) << check.Report();
+    EXPECT_EQ(check.Flagged(), check.disagrees || k1 != 0.0);
+    EXPECT_EQ(check.Report().find("has no distortion model") != std::string::npos, k1 != 0.0) << check.Report();
   }
 }
 

@@ -1,6 +1,6 @@
 // The replay tool's library: a rendered rig bag end to end, determinism, and
 // every kind of bad bag (no ROS master needed).
-#include "rotation_averaging/FocalCheckArray.h"
+#include "rotation_averaging/CameraInfoCheckArray.h"
 #include "rotation_averaging/RelativePoseArray.h"
 #include "ros/bag_replay.h"
 
@@ -180,12 +180,12 @@ TEST_F(BagReplay, ACameraInfoWithAWrongFocalLengthIsFoundOut) {
   EXPECT_NE(result.Summary().find("camera_info check"), std::string::npos);
   // The last focal-check message says so too, with the estimate.
   rosbag::Bag out(result.output_bag, rosbag::bagmode::Read);
-  rosbag::View checks_topic(out, rosbag::TopicQuery("/rotation_averaging/focal_checks"));
-  FocalCheckArray::ConstPtr last;
-  for (const rosbag::MessageInstance& m : checks_topic) last = m.instantiate<FocalCheckArray>();
+  rosbag::View checks_topic(out, rosbag::TopicQuery("/rotation_averaging/camera_info_checks"));
+  CameraInfoCheckArray::ConstPtr last;
+  for (const rosbag::MessageInstance& m : checks_topic) last = m.instantiate<CameraInfoCheckArray>();
   ASSERT_TRUE(last);
   bool found = false;
-  for (const FocalCheck& c : last->cameras) {
+  for (const CameraInfoCheck& c : last->cameras) {
     if (c.frame_id != "cam_left") continue;
     found = true;
     EXPECT_TRUE(c.estimated);
@@ -197,6 +197,49 @@ TEST_F(BagReplay, ACameraInfoWithAWrongFocalLengthIsFoundOut) {
     EXPECT_EQ(c.applied_scale, 1.0);  // warn: reported, not corrected
   }
   EXPECT_TRUE(found) << checks;
+}
+
+// Raw images of a distorting lens whose camera_info is read as if they were
+// rectified (image_type: rectified: no distortion model): the check sees
+// the distortion and says so, naming what to give (in the forward camera's
+// pairs; the sideways camera's may leave it undetermined).
+TEST_F(BagReplay, DistortedImagesWithoutADistortionModelAreFoundOut) {
+  RigSceneOptions scene_options;
+  scene_options.num_captures = 24;
+  scene_options.WithWidth(480);
+  const RigScene scene(scene_options);
+  CameraIntrinsics lens;
+  std::string error;
+  ASSERT_TRUE(ParseDistortionSpec("plumb_bob:-0.28,0.07,0.0002,0.00002", &lens, &error)) << error;
+  const std::string bag = TempDir() + "/distorted.bag";
+  NamedOrientations truth;
+  ASSERT_TRUE(WriteRigSceneBag(scene, bag, /*compressed=*/false, &truth, &error, /*progress=*/false, lens)) << error;
+  const std::string config = TempDir() + "/distorted.yaml";
+  WriteText(config,
+            "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
+            "image_type: rectified\nkeyframe_selection: all\nmax_features: 1500\nmax_loop_candidates: 0\n"
+            "solve_period: 5.0\n");
+  ReplayOptions o = Options(bag, "distorted");
+  o.config_path = config;
+  const ReplayResult result = ReplayBags(o);
+  ASSERT_TRUE(result.ok) << result.error;
+  bool warned = false;
+  for (const std::string& w : result.warnings) warned |= w.find("has no distortion model") != std::string::npos;
+  EXPECT_TRUE(warned);
+  rosbag::Bag out(result.output_bag, rosbag::bagmode::Read);
+  rosbag::View checks_topic(out, rosbag::TopicQuery("/rotation_averaging/camera_info_checks"));
+  CameraInfoCheckArray::ConstPtr last;
+  for (const rosbag::MessageInstance& m : checks_topic) last = m.instantiate<CameraInfoCheckArray>();
+  ASSERT_TRUE(last);
+  int unmodelled = 0;
+  for (const CameraInfoCheck& c : last->cameras) {
+    if (!c.distortion_unmodelled) continue;
+    EXPECT_TRUE(c.distortion_checked) << c.frame_id;
+    ++unmodelled;
+    EXPECT_LT(c.distortion_lambda, -0.1) << c.frame_id;  // barrel, as the lens's k1 = -0.28
+    EXPECT_GT(c.distortion_corner_px, 10.0) << c.frame_id;
+  }
+  EXPECT_GE(unmodelled, 1);
 }
 
 // The node's configuration for sessions of the rendered rig: its two

@@ -28,14 +28,21 @@ std::string CameraFocalCheck::Report() const {
   if (!calibration.estimated) {
     out << "focal length not determined yet (" << pairs_seen << " verified pairs"
         << (calibration.unobservable ? "; the motion so far does not determine it" : "") << ")";
-    return out.str();
+  } else {
+    out << std::fixed << std::setprecision(4) << "focal length x" << calibration.scale << " +- "
+        << calibration.standard_deviation << " (matches " << calibration.matches_deviation << ", principal point "
+        << calibration.principal_point_deviation << ")" << std::setprecision(1) << " of the given "
+        << given_focal_px << " px (" << calibration.pairs << " of " << pairs_seen << " verified pairs): "
+        << (disagrees ? "disagrees with the given intrinsics, check the calibration" : "agrees");
   }
-  out << std::fixed << std::setprecision(4) << "focal length x" << calibration.scale << " +- "
-      << calibration.standard_deviation << " (matches " << calibration.matches_deviation << ", principal point "
-      << calibration.principal_point_deviation << ")" << std::setprecision(1) << " of the given " << given_focal_px
-      << " px ("
-      << calibration.pairs << " of " << pairs_seen << " verified pairs): "
-      << (disagrees ? "disagrees with the given intrinsics, check the calibration" : "agrees");
+  if (distortion_checked && distortion.estimated) {
+    out << std::fixed << std::setprecision(3) << "; radial distortion seen (division model) " << distortion.lambda
+        << " +- " << distortion.standard_deviation << ", " << std::setprecision(1) << distortion.corner_shift_px
+        << " px at the corners: "
+        << (distortion_unmodelled ? "the images are distorted but camera_info has no distortion model: give its "
+                                    "distortion_model and D, or rectified images"
+                                  : "none beyond the noise");
+  }
   return out.str();
 }
 
@@ -77,17 +84,27 @@ CameraFocalCheck RunFocalJob(const FocalJob& job, const FocalCalibrationOptions&
   check.pairs_seen = job.pairs_seen;
   check.calibration = EstimateFocalScale(pairs, job.k, options);
   check.disagrees = ShouldApplyFocalScale(check.calibration, options);
+  if (job.check_distortion) {
+    RadialDistortionOptions distortion;
+    distortion.min_inliers = options.min_inliers;
+    distortion.min_pairs = options.min_pairs;
+    distortion.num_threads = options.num_threads;
+    check.distortion_checked = true;
+    check.distortion = EstimateRadialDistortion(pairs, job.k, distortion);
+    check.distortion_unmodelled = DistortionIsUnmodelled(check.distortion, distortion);
+  }
   return check;
 }
 
 void FocalMonitor::Add(const std::string& camera, const Eigen::Matrix3d& k, double given_focal_px,
-                       std::shared_ptr<const FocalSample> sample) {
+                       bool has_distortion_model, std::shared_ptr<const FocalSample> sample) {
   if (!options_.enabled || !sample) return;
   Camera& c = cameras_[camera];
-  if (c.seen == 0 || !(c.k == k)) {
+  if (c.seen == 0 || !(c.k == k) || c.has_distortion_model != has_distortion_model) {
     c = Camera();
     c.k = k;
     c.given_focal_px = given_focal_px;
+    c.has_distortion_model = has_distortion_model;
     c.next_estimate = static_cast<std::uint64_t>(std::max(1, options_.first_estimate_pairs));
   }
   ++c.seen;
@@ -99,7 +116,7 @@ void FocalMonitor::Add(const std::string& camera, const Eigen::Matrix3d& k, doub
   }
   if (c.seen < c.next_estimate) return;
   c.next_estimate = std::max(c.seen + 1, static_cast<std::uint64_t>(std::ceil(c.seen * options_.growth)));
-  due_.push_back({camera, c.k, c.given_focal_px, c.seen, c.held});
+  due_.push_back({camera, !c.has_distortion_model, c.k, c.given_focal_px, c.seen, c.held});
 }
 
 std::size_t FocalMonitor::HeldBytes() const {
@@ -116,6 +133,11 @@ std::size_t FocalMonitor::HeldBytes() const {
 double FocalMonitor::GivenFocal(const std::string& camera) const {
   const auto it = cameras_.find(camera);
   return it == cameras_.end() ? 0.0 : it->second.given_focal_px;
+}
+
+bool FocalMonitor::HasDistortionModel(const std::string& camera) const {
+  const auto it = cameras_.find(camera);
+  return it != cameras_.end() && it->second.has_distortion_model;
 }
 
 std::vector<FocalJob> FocalMonitor::TakeDue() {
@@ -206,9 +228,9 @@ void FocalChecker::Run() {
       }
       const auto it = checks_.find(check.camera);
       const bool was_estimated = it != checks_.end() && it->second.calibration.estimated;
-      const bool was_disagreeing = it != checks_.end() && it->second.disagrees;
-      if ((check.calibration.estimated && !was_estimated) || check.disagrees != was_disagreeing) {
-        notices_.emplace_back(check.Report(), check.disagrees);
+      const bool was_flagged = it != checks_.end() && it->second.Flagged();
+      if ((check.calibration.estimated && !was_estimated) || check.Flagged() != was_flagged) {
+        notices_.emplace_back(check.Report(), check.Flagged());
       }
       checks_[check.camera] = check;
       running_job_ = false;

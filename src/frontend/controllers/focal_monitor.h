@@ -3,7 +3,9 @@
 // front end verifies: the offline estimator (EstimateFocalScale, with its
 // principal-point part of the deviation) run on a camera's own verified
 // essential-matrix pairs (sequential and loop-closure pairs of one camera;
-// rig pairs mix two cameras' intrinsics) as they accumulate.
+// rig pairs mix two cameras' intrinsics) as they accumulate; for a camera
+// whose intrinsics have no distortion model, also a radial distortion they
+// do not describe (EstimateRadialDistortion).
 //
 // FocalMonitor collects the pairs and says when an estimate is due: when a
 // camera's count of pairs reaches first_estimate_pairs, then each time it
@@ -82,6 +84,9 @@ std::shared_ptr<const FocalSample> MakeFocalSample(const std::vector<Eigen::Vect
 // held when it was due.
 struct FocalJob {
   std::string camera;
+  // The camera's intrinsics have no lens distortion: the pairs are also
+  // checked for a radial distortion they do not describe.
+  bool check_distortion = false;
   Eigen::Matrix3d k = Eigen::Matrix3d::Identity();  // of the features' images
   double given_focal_px = 0.0;                      // fx of the camera's own K (full resolution)
   std::uint64_t pairs_seen = 0;                     // verified pairs of the camera so far
@@ -95,6 +100,14 @@ struct CameraFocalCheck {
   std::uint64_t pairs_seen = 0;
   FocalCalibration calibration;  // scale: estimated / given focal length
   bool disagrees = false;        // see FocalMonitorOptions::focal
+  // A camera without a distortion model (FocalJob::check_distortion): the
+  // radial distortion its pairs show, and whether it is beyond what the
+  // pixels' noise explains (DistortionIsUnmodelled): raw images whose
+  // camera_info gives no distortion model, or rectified images that are not.
+  bool distortion_checked = false;
+  RadialDistortion distortion;
+  bool distortion_unmodelled = false;
+  bool Flagged() const { return disagrees || distortion_unmodelled; }
   // "cam0: focal length x1.031 +- 0.004 of camera_info's 458.7 px (62 of
   // 80 pairs): disagrees, check the calibration".
   std::string Report() const;
@@ -106,19 +119,22 @@ class FocalMonitor {
  public:
   explicit FocalMonitor(const FocalMonitorOptions& options) : options_(options) {}
   // A verified pair of `camera` whose features' images have the pinhole
-  // matrix k. A camera whose k changes (a new camera_info) starts again.
-  void Add(const std::string& camera, const Eigen::Matrix3d& k, double given_focal_px,
+  // matrix k (and a lens distortion model or none). A camera whose k
+  // changes (a new camera_info) starts again.
+  void Add(const std::string& camera, const Eigen::Matrix3d& k, double given_focal_px, bool has_distortion_model,
            std::shared_ptr<const FocalSample> sample);
   // The estimates that fell due since the last call, in the order they did.
   std::vector<FocalJob> TakeDue();
   std::size_t HeldPairs(const std::string& camera) const;
   std::size_t HeldBytes() const;  // of every camera's pairs
   double GivenFocal(const std::string& camera) const;  // 0 before its first pair
+  bool HasDistortionModel(const std::string& camera) const;
 
  private:
   struct Camera {
     Eigen::Matrix3d k = Eigen::Matrix3d::Identity();
     double given_focal_px = 0.0;
+    bool has_distortion_model = false;
     std::uint64_t seen = 0, next_estimate = 0;
     std::vector<std::shared_ptr<const FocalSample>> held;
   };
@@ -140,7 +156,7 @@ class FocalChecker {
   std::map<std::string, CameraFocalCheck> Checks() const;
   // For the log, since the last call: one line per camera whose focal
   // length was determined for the first time or whose verdict changed (it
-  // came to disagree, or to agree again), with its disagrees flag.
+  // came to be flagged, or no longer is), with its Flagged().
   std::vector<std::pair<std::string, bool>> TakeNotices();
   // Waits until every job submitted so far has run (the replay, at its end).
   void Wait();

@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <functional>
 #include <iomanip>
 #include <limits>
 #include <opencv2/imgcodecs.hpp>
@@ -143,105 +144,157 @@ constexpr double kFocalInlierSigmas = 3.0;
 constexpr double kFocalMinThresholdPx = 0.5;
 // Groups of pairs (by index modulo) the jackknife leaves out in turn.
 constexpr int kFocalJackknifeGroups = 4;
+
+// A pair of a profile: its matches, its noise and threshold.
+struct ProfilePair {
+  const FocalPair* pair;
+  double sigma, threshold;
+};
+
+// The successful essential-matrix pairs with at least min_inliers inliers.
+std::vector<ProfilePair> ProfilePairs(const std::vector<FocalPair>& pairs, int min_inliers) {
+  std::vector<ProfilePair> used;
+  for (const FocalPair& p : pairs) {
+    if (!p.pose || !p.points1 || !p.points2 || !p.pose->success || p.pose->model != TwoViewModel::kEssential ||
+        !(p.pose->sigma_px > 0.0) || static_cast<int>(p.pose->inliers.size()) < min_inliers) {
+      continue;
+    }
+    used.push_back({&p, p.pose->sigma_px, std::max(kFocalInlierSigmas * p.pose->sigma_px, kFocalMinThresholdPx)});
+  }
+  return used;
+}
+
+// Where the keypoints are taken to be: moved by `warp` (null: as given).
+using PointWarp = std::function<Eigen::Vector2d(const Eigen::Vector2d&)>;
+
+// The profile's cost with intrinsics k, over the pairs not in `left_out` (a
+// group of the jackknife; -1: none). Every pair's pose is refined from its
+// estimate on the matches within its threshold, which are selected again
+// at the refined pose (twice), and scored by the truncated squared Sampson
+// error of all its matches in units of its noise. Selecting the inliers
+// anew matters: those the pose kept with the given intrinsics favour them.
+double ProfileCost(const std::vector<ProfilePair>& used, const Eigen::Matrix3d& k, const PointWarp* warp,
+                   int left_out, int min_inliers, int threads) {
+  std::vector<double> per_pair(used.size(), 0.0);
+  const Eigen::Matrix3d k_inv = k.inverse();
+  ParallelFor(static_cast<int>(used.size()), threads, [&](int u) {
+    if (u % kFocalJackknifeGroups == left_out) return;
+    const FocalPair& p = *used[u].pair;
+    std::vector<Eigen::Vector2d> warped1, warped2;
+    if (warp) {
+      for (const Eigen::Vector2d& x : *p.points1) warped1.push_back((*warp)(x));
+      for (const Eigen::Vector2d& x : *p.points2) warped2.push_back((*warp)(x));
+    }
+    const std::vector<Eigen::Vector2d>& all1 = warp ? warped1 : *p.points1;
+    const std::vector<Eigen::Vector2d>& all2 = warp ? warped2 : *p.points2;
+    Eigen::Matrix3d rotation = p.pose->rotation;
+    Eigen::Vector3d translation = p.pose->translation;
+    std::vector<int> inliers = p.pose->inliers;
+    const double threshold = used[u].threshold;
+    double truncated = 0.0;
+    for (int round = 0; round < 3; ++round) {
+      if (static_cast<int>(inliers.size()) < min_inliers / 2) break;
+      RefinePoseOnInliers(all1, all2, inliers, k, k, &rotation, &translation);
+      const Eigen::Matrix3d f = k_inv.transpose() * Hat(translation) * rotation * k_inv;
+      inliers.clear();
+      truncated = 0.0;
+      for (std::size_t m = 0; m < all1.size() && m < all2.size(); ++m) {
+        const double r = SampsonError<double>(f, all1[m].homogeneous(), all2[m].homogeneous());
+        if (std::abs(r) < threshold) inliers.push_back(static_cast<int>(m));
+        truncated += std::min(r * r, threshold * threshold);
+      }
+    }
+    per_pair[u] = truncated / (used[u].sigma * used[u].sigma);
+  });
+  double sum = 0.0;
+  for (double c : per_pair) sum += c;
+  return sum;
+}
+
+// The minimum of a profile over [centre - range, centre + range]: a coarse
+// scan in steps of `step`, then golden-section search in the best cell's
+// neighbours. NaN when it lies on the edge of the range.
+double MinimiseProfile(const std::function<double(double)>& cost, double centre, double range, double step) {
+  const int cells = static_cast<int>(std::ceil(range / step));
+  int best = -cells;
+  double best_cost = std::numeric_limits<double>::infinity();
+  for (int c = -cells; c <= cells; ++c) {
+    const double value = cost(centre + c * step);
+    if (value < best_cost) {
+      best_cost = value;
+      best = c;
+    }
+  }
+  if (!std::isfinite(best_cost) || best == -cells || best == cells) return std::numeric_limits<double>::quiet_NaN();
+  double lo = centre + (best - 1) * step, hi = centre + (best + 1) * step;
+  const double ratio = 0.5 * (std::sqrt(5.0) - 1.0);
+  double x1 = hi - ratio * (hi - lo), x2 = lo + ratio * (hi - lo);
+  double f1 = cost(x1), f2 = cost(x2);
+  while (hi - lo > 1e-4) {
+    if (f1 < f2) {
+      hi = x2;
+      x2 = x1;
+      f2 = f1;
+      x1 = hi - ratio * (hi - lo);
+      f1 = cost(x1);
+    } else {
+      lo = x1;
+      x1 = x2;
+      f1 = f2;
+      x2 = lo + ratio * (hi - lo);
+      f2 = cost(x2);
+    }
+  }
+  return 0.5 * (lo + hi);
+}
+
+// Standard deviation of a profile's minimum x: the larger of the chi-square
+// profile's curvature (pixel noise alone) and a delete-a-group jackknife
+// over the pairs, which also sees how much the pairs disagree on it.
+// cost(x, g): the profile without group g (-1: all pairs); minimise(g): its
+// minimum. The profile is not smooth at the finest scales (the inliers are
+// selected again at every x): where the smallest step gives no positive
+// curvature, wider steps (up to max_step) measure it.
+double ProfileDeviation(const std::function<double(double, int)>& cost, const std::function<double(int)>& minimise,
+                        double x, int pairs, double first_step, double max_step) {
+  const double centre = cost(x, -1);
+  double deviation = std::numeric_limits<double>::infinity();
+  for (double h = first_step; h < max_step && !std::isfinite(deviation); h *= 4.0) {
+    const double curvature = (cost(x + h, -1) - 2.0 * centre + cost(x - h, -1)) / (h * h);
+    if (curvature > 0.0) deviation = std::sqrt(2.0 / curvature);
+  }
+  if (pairs >= 2 * kFocalJackknifeGroups) {
+    std::vector<double> partial;
+    for (int g = 0; g < kFocalJackknifeGroups; ++g) partial.push_back(minimise(g));
+    double mean = 0.0;
+    for (double p : partial) mean += p / kFocalJackknifeGroups;
+    double spread = 0.0;
+    for (double p : partial) spread += (p - mean) * (p - mean);
+    const double jackknife = std::sqrt((kFocalJackknifeGroups - 1.0) / kFocalJackknifeGroups * spread);
+    deviation = std::isfinite(jackknife) ? std::max(deviation, jackknife) : std::numeric_limits<double>::infinity();
+  }
+  return deviation;
+}
 }  // namespace
 
 FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const Eigen::Matrix3d& k,
                                     const FocalCalibrationOptions& options) {
   FocalCalibration out;
-  // Each pair's matches, the inliers of its pose, its noise and threshold.
-  struct Used {
-    const FocalPair* pair;
-    double sigma, threshold;
-  };
-  std::vector<Used> used;
-  for (const FocalPair& p : pairs) {
-    if (!p.pose || !p.points1 || !p.points2 || !p.pose->success || p.pose->model != TwoViewModel::kEssential ||
-        !(p.pose->sigma_px > 0.0) || static_cast<int>(p.pose->inliers.size()) < options.min_inliers) {
-      continue;
-    }
-    used.push_back({&p, p.pose->sigma_px, std::max(kFocalInlierSigmas * p.pose->sigma_px, kFocalMinThresholdPx)});
-  }
+  const std::vector<ProfilePair> used = ProfilePairs(pairs, options.min_inliers);
   out.pairs = static_cast<int>(used.size());
   if (out.pairs < std::max(1, options.min_pairs)) return out;
   const int threads = ResolveThreadCount(options.num_threads);
-  // The profile: at each a, every pair's pose is refined from its estimate
-  // on the matches within its threshold, which are selected again at the
-  // refined pose (twice), and scored by the truncated squared Sampson error
-  // of all its matches in units of its noise. Selecting the inliers anew
-  // matters: those the pose kept in the given focal length favour it.
-  std::vector<double> per_pair(used.size());
-  // The profile, for intrinsics `base` (k, or k with its principal point
-  // moved), over the pairs not in `left_out` (a group of the jackknife
-  // below; -1: none).
+  // The profile over the scale a of the focal length, for intrinsics `base`
+  // (k, or k with its principal point moved).
   auto cost = [&](const Eigen::Matrix3d& base, double a, int left_out) {
     Eigen::Matrix3d ka = base;
     ka(0, 0) *= a;
     ka(1, 1) *= a;
-    const Eigen::Matrix3d ka_inv = ka.inverse();
-    ParallelFor(static_cast<int>(used.size()), threads, [&](int u) {
-      per_pair[u] = 0.0;
-      if (u % kFocalJackknifeGroups == left_out) return;
-      const FocalPair& p = *used[u].pair;
-      const std::vector<Eigen::Vector2d>& all1 = *p.points1;
-      const std::vector<Eigen::Vector2d>& all2 = *p.points2;
-      Eigen::Matrix3d rotation = p.pose->rotation;
-      Eigen::Vector3d translation = p.pose->translation;
-      std::vector<int> inliers = p.pose->inliers;
-      const double threshold = used[u].threshold;
-      double truncated = 0.0;
-      for (int round = 0; round < 3; ++round) {
-        if (static_cast<int>(inliers.size()) < options.min_inliers / 2) break;
-        RefinePoseOnInliers(all1, all2, inliers, ka, ka, &rotation, &translation);
-        const Eigen::Matrix3d f = ka_inv.transpose() * Hat(translation) * rotation * ka_inv;
-        inliers.clear();
-        truncated = 0.0;
-        for (std::size_t m = 0; m < all1.size() && m < all2.size(); ++m) {
-          const double r = SampsonError<double>(f, all1[m].homogeneous(), all2[m].homogeneous());
-          if (std::abs(r) < threshold) inliers.push_back(static_cast<int>(m));
-          truncated += std::min(r * r, threshold * threshold);
-        }
-      }
-      per_pair[u] = truncated / (used[u].sigma * used[u].sigma);
-    });
-    double sum = 0.0;
-    for (double c : per_pair) sum += c;
-    return sum;
+    return ProfileCost(used, ka, nullptr, left_out, options.min_inliers, threads);
   };
-  // The minimum of the profile: a coarse scan, then golden-section search in
-  // the best cell's neighbours. NaN when it lies on the edge of the range.
   const double range = std::clamp(options.search_range, 0.01, 0.5), step = 0.02;
-  const int cells = static_cast<int>(std::ceil(range / step));
   auto minimise = [&](const Eigen::Matrix3d& base, int left_out) {
-    int best = -cells;
-    double best_cost = std::numeric_limits<double>::infinity();
-    for (int c = -cells; c <= cells; ++c) {
-      const double value = cost(base, 1.0 + c * step, left_out);
-      if (value < best_cost) {
-        best_cost = value;
-        best = c;
-      }
-    }
-    if (!std::isfinite(best_cost) || best == -cells || best == cells) return std::numeric_limits<double>::quiet_NaN();
-    double lo = 1.0 + (best - 1) * step, hi = 1.0 + (best + 1) * step;
-    const double ratio = 0.5 * (std::sqrt(5.0) - 1.0);
-    double x1 = hi - ratio * (hi - lo), x2 = lo + ratio * (hi - lo);
-    double f1 = cost(base, x1, left_out), f2 = cost(base, x2, left_out);
-    while (hi - lo > 1e-4) {
-      if (f1 < f2) {
-        hi = x2;
-        x2 = x1;
-        f2 = f1;
-        x1 = hi - ratio * (hi - lo);
-        f1 = cost(base, x1, left_out);
-      } else {
-        lo = x1;
-        x1 = x2;
-        f1 = f2;
-        x2 = lo + ratio * (hi - lo);
-        f2 = cost(base, x2, left_out);
-      }
-    }
-    return 0.5 * (lo + hi);
+    return MinimiseProfile([&](double a) { return cost(base, a, left_out); }, 1.0, range, step);
   };
   out.scale = minimise(k, -1);
   if (!std::isfinite(out.scale)) {
@@ -249,29 +302,8 @@ FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const E
     out.unobservable = true;
     return out;
   }
-  // Standard deviation: the larger of the chi-square profile's curvature
-  // (pixel noise alone) and a delete-a-group jackknife over the pairs, which
-  // also sees how much the pairs disagree on it.
-  // The profile is not smooth at the finest scales (the inliers are
-  // selected again at every a): where the smallest step gives no positive
-  // curvature, wider steps measure it.
-  const double centre = cost(k, out.scale, -1);
-  double deviation = std::numeric_limits<double>::infinity();
-  for (double h = 1e-3; h < 0.02 && !std::isfinite(deviation); h *= 4.0) {
-    const double curvature = (cost(k, out.scale + h, -1) - 2.0 * centre + cost(k, out.scale - h, -1)) / (h * h);
-    if (curvature > 0.0) deviation = std::sqrt(2.0 / curvature);
-  }
-  if (out.pairs >= 2 * kFocalJackknifeGroups) {
-    std::vector<double> partial;
-    for (int g = 0; g < kFocalJackknifeGroups; ++g) partial.push_back(minimise(k, g));
-    double mean = 0.0;
-    for (double x : partial) mean += x / kFocalJackknifeGroups;
-    double spread = 0.0;
-    for (double x : partial) spread += (x - mean) * (x - mean);
-    const double jackknife = std::sqrt((kFocalJackknifeGroups - 1.0) / kFocalJackknifeGroups * spread);
-    deviation = std::isfinite(jackknife) ? std::max(deviation, jackknife) : std::numeric_limits<double>::infinity();
-  }
-  out.matches_deviation = deviation;
+  out.matches_deviation = ProfileDeviation([&](double a, int g) { return cost(k, a, g); },
+                                           [&](int g) { return minimise(k, g); }, out.scale, out.pairs, 1e-3, 0.02);
   // The principal point moved by its standard deviation along x, then y,
   // both ways: half the change of the estimate is its part of the
   // deviation (FocalCalibrationOptions::principal_point_sigma). An estimate
@@ -289,10 +321,56 @@ FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const E
     }
   }
   out.principal_point_deviation = principal_point;
-  out.standard_deviation = std::hypot(deviation, principal_point);
+  out.standard_deviation = std::hypot(out.matches_deviation, principal_point);
   out.estimated = std::isfinite(out.standard_deviation);
   out.unobservable = !out.estimated;
   return out;
+}
+
+RadialDistortion EstimateRadialDistortion(const std::vector<FocalPair>& pairs, const Eigen::Matrix3d& k,
+                                         const RadialDistortionOptions& options) {
+  RadialDistortion out;
+  std::vector<FocalPair> with_parallax;
+  for (const FocalPair& p : pairs) {
+    if (p.pose && p.pose->median_parallax_deg >= options.min_parallax_deg) with_parallax.push_back(p);
+  }
+  const std::vector<ProfilePair> used = ProfilePairs(with_parallax, options.min_inliers);
+  out.pairs = static_cast<int>(used.size());
+  if (out.pairs < std::max(1, options.min_pairs)) return out;
+  const int threads = ResolveThreadCount(options.num_threads);
+  const Eigen::Matrix3d k_inv = k.inverse();
+  auto cost = [&](double lambda, int left_out) {
+    const PointWarp warp = [&](const Eigen::Vector2d& p) {
+      const Eigen::Vector2d x = (k_inv * p.homogeneous()).hnormalized();
+      // Past the model's turning point (a fisheye's corners at the range's
+      // end) the points are held where the division still holds.
+      const double denominator = std::max(1.0 + lambda * x.squaredNorm(), 0.2);
+      return (k * (x / denominator).homogeneous()).hnormalized().eval();
+    };
+    return ProfileCost(used, k, &warp, left_out, options.min_inliers, threads);
+  };
+  const double range = std::clamp(options.search_range, 0.05, 1.0), step = 0.04;
+  auto minimise = [&](int left_out) {
+    return MinimiseProfile([&](double lambda) { return cost(lambda, left_out); }, 0.0, range, step);
+  };
+  out.lambda = minimise(-1);
+  if (!std::isfinite(out.lambda)) {
+    out.lambda = 0.0;
+    out.unobservable = true;
+    return out;
+  }
+  out.standard_deviation = ProfileDeviation(cost, minimise, out.lambda, out.pairs, 2e-3, 0.05);
+  const Eigen::Vector2d corner = (k_inv * Eigen::Vector3d(0.0, 0.0, 1.0)).hnormalized();
+  const double r2 = corner.squaredNorm();
+  out.corner_shift_px = std::abs(out.lambda * r2 / (1.0 + out.lambda * r2)) * corner.norm() * k(0, 0);
+  out.estimated = std::isfinite(out.standard_deviation);
+  out.unobservable = !out.estimated;
+  return out;
+}
+
+bool DistortionIsUnmodelled(const RadialDistortion& distortion, const RadialDistortionOptions& options) {
+  return distortion.estimated && distortion.corner_shift_px > options.min_corner_shift_px &&
+         std::abs(distortion.lambda) > 3.0 * distortion.standard_deviation;
 }
 
 bool ShouldApplyFocalScale(const FocalCalibration& calibration, const FocalCalibrationOptions& options) {

@@ -196,9 +196,9 @@ void KeyframeFrontend::CountInliers(const PairTask& task, const PairOutcome& out
   }
 }
 
-void KeyframeFrontend::MonitorFocal(const PairOutcome& outcome, const Keyframe& newer, double given_focal_px) {
+void KeyframeFrontend::MonitorFocal(const PairOutcome& outcome, const Keyframe& newer, const CameraIntrinsics& camera) {
   if (!outcome.focal_sample) return;
-  focal_monitor_.Add(newer.key.frame_id, newer.k, given_focal_px, outcome.focal_sample);
+  focal_monitor_.Add(newer.key.frame_id, newer.k, camera.k(0, 0), camera.HasDistortion(), outcome.focal_sample);
 }
 
 void KeyframeFrontend::HoldPair(const PairTask& task, const PairOutcome& outcome, int newer_index, bool chain) {
@@ -289,7 +289,7 @@ bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double sc
     // The check starts again on the corrected focal length, with these pairs.
     if (focal.enabled && first.key.frame_id == camera && second.key.frame_id == camera && first.k == second.k &&
         pose.model == TwoViewModel::kEssential && static_cast<int>(pose.inliers.size()) >= focal.focal.min_inliers) {
-      focal_monitor_.Add(camera, first.k, given,
+      focal_monitor_.Add(camera, first.k, given, focal_monitor_.HasDistortionModel(camera),
                          MakeFocalSample(*p.points1, *p.points2, pose, focal.max_matches_per_pair));
     }
   }
@@ -510,7 +510,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     const KeyframeRelativeRotation& e = outcomes[t].edge;
     edges.push_back(e);
     CountInliers(tasks[t], outcomes[t], kf.get());
-    MonitorFocal(outcomes[t], *kf, camera.k(0, 0));
+    MonitorFocal(outcomes[t], *kf, camera);
     HoldPair(tasks[t], outcomes[t], static_cast<int>(keyframes_.size()),
              tasks[t].source != EdgeSource::kRig && tasks[t].older == same.back());
     if (tasks[t].source == EdgeSource::kRig) {
@@ -529,7 +529,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   for (const KeyframeRelativeRotation& e : AcceptLoops(candidates, verified_loops, &accepted)) edges.push_back(e);
   for (std::size_t c : accepted) {
     CountInliers(candidates[c], verified_loops[c], kf.get());
-    MonitorFocal(verified_loops[c], *kf, camera.k(0, 0));
+    MonitorFocal(verified_loops[c], *kf, camera);
     HoldPair(candidates[c], verified_loops[c], static_cast<int>(keyframes_.size()), false);
   }
   if (inverted_index_) inverted_index_->Add(static_cast<int>(keyframes_.size()), kf->bow);

@@ -278,7 +278,7 @@ class KeyframeFrontend {
   void HoldPair(const PairTask& task, const PairOutcome& outcome, int newer_index, bool chain);
   std::size_t FocalBytes() const;  // what the focal-length check and correction hold
   // Gives the focal-length check the pair of a used outcome.
-  void MonitorFocal(const PairOutcome& outcome, const Keyframe& newer, double given_focal_px);
+  void MonitorFocal(const PairOutcome& outcome, const Keyframe& newer, const CameraIntrinsics& camera);
   // Counts the inliers of a pair whose edge is used on both keyframes' features.
   void CountInliers(const PairTask& task, const PairOutcome& outcome, Keyframe* newer);
   // Verifies every task against `newer` (on the thread pool); the outcomes

@@ -61,9 +61,15 @@ FocalScene MakeFocalScene(const Eigen::Matrix3d& k_true, const Eigen::Matrix3d& 
   }
   const int n = static_cast<int>(centres.size());
   auto project = [&](int c, const Eigen::Vector3d& x, Eigen::Vector2d* pixel) {
-    const Eigen::Vector3d u = k_true * (rotations[c] * (x - centres[c]));
-    *pixel = u.hnormalized();
-    return u.z() > 0.0 && pixel->x() >= 0 && pixel->x() < 640 && pixel->y() >= 0 && pixel->y() < 480;
+    const Eigen::Vector3d camera = rotations[c] * (x - centres[c]);
+    if (options.lens_k1 == 0.0) {
+      *pixel = (k_true * camera).hnormalized();
+    } else {
+      const Eigen::Vector2d normalised = camera.hnormalized();
+      const Eigen::Vector2d distorted = normalised * (1.0 + options.lens_k1 * normalised.squaredNorm());
+      *pixel = (k_true * distorted.homogeneous()).hnormalized();
+    }
+    return camera.z() > 0.0 && pixel->x() >= 0 && pixel->x() < 640 && pixel->y() >= 0 && pixel->y() < 480;
   };
   FocalScene scene;
   const RelativePoseOptions pose_options;

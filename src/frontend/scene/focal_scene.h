@@ -1,6 +1,6 @@
 #pragma once
 // Synthetic pairs of views for the focal-length estimator
-// (EstimateFocalScale): a cloud of points seen by cameras of a known
+// (EstimateFocalScale) and the radial distortion check (EstimateRadialDistortion): a cloud of points seen by cameras of a known
 // pinhole matrix, matched with pixel noise and wrong matches, every pair's
 // pose estimated with the intrinsics the user would give. Used by its tests
 // and by rotavg_frontend_eval's focal-calibration table.
@@ -28,6 +28,10 @@ struct FocalSceneOptions {
   double ring_jitter = 0.3;
   double noise_px = 0.3;
   double wrong_match_fraction = 0.1;
+  // Radial distortion of the lens (k1 of x (1 + k1 |x|^2), x in the
+  // normalised coordinates of k_true): the pixels are where that lens puts
+  // them, and the poses are estimated without knowing it.
+  double lens_k1 = 0.0;
   unsigned seed = 5;
 };
 

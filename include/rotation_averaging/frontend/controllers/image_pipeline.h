@@ -167,6 +167,39 @@ FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const E
                                     const FocalCalibrationOptions& options);
 bool ShouldApplyFocalScale(const FocalCalibration& calibration, const FocalCalibrationOptions& options);
 
+// A radial lens distortion that the intrinsics do not describe, seen in the
+// pairs: the coefficient lambda of the one-parameter division model
+// (x_undistorted = x / (1 + lambda |x|^2), x in normalised coordinates K^-1 p)
+// that minimises the Sampson errors of every pair's matches, each pair's pose
+// re-refined at each lambda (EstimateFocalScale's profile). lambda is about
+// the k1 of a plumb_bob model (-0.28 for EuRoC's lenses).
+struct RadialDistortionOptions {
+  double search_range = 0.6;  // lambda in [-range, range]
+  // Unmodelled when lambda moves a keypoint in an image corner by more than
+  // this (a few times the keypoints' noise) and is 3 standard deviations
+  // from 0.
+  double min_corner_shift_px = 2.0;
+  // Pairs whose median parallax is smaller are not used: with hardly any
+  // translation the pose explains a distortion as well as the lack of one
+  // (EuRoC's vehicle standing still, results/focal_check.md).
+  double min_parallax_deg = 1.0;
+  int min_inliers = 50;
+  int min_pairs = 3;
+  int num_threads = 0;  // 0: the machine's cores; the result does not depend on it
+};
+
+struct RadialDistortion {
+  bool estimated = false;
+  double lambda = 0.0, standard_deviation = 0.0;  // the matches' curvature and jackknife, as the focal scale's
+  double corner_shift_px = 0.0;  // how far lambda moves a keypoint in a corner of the image (width 2 cx)
+  int pairs = 0;
+  bool unobservable = false;  // enough pairs, but lambda left the search range
+};
+
+RadialDistortion EstimateRadialDistortion(const std::vector<FocalPair>& pairs, const Eigen::Matrix3d& k,
+                                         const RadialDistortionOptions& options);
+bool DistortionIsUnmodelled(const RadialDistortion& distortion, const RadialDistortionOptions& options);
+
 // The edge of one successful pair (i, j).
 RelativeRotation EdgeFromPair(const PairReport& pair);
 
