@@ -144,28 +144,45 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
   EXPECT_EQ(ReadAll(first.graph_file), ReadAll(second.graph_file));
 }
 
+// The rendered rig for the camera_info checks: 24 captures, 480 px wide.
+RigSceneOptions CheckScene() {
+  RigSceneOptions options;
+  options.num_captures = 24;
+  options.WithWidth(480);
+  return options;
+}
+
+// `scene` through `lens` as a bag whose camera_info has the focal lengths
+// times info_focal_scale, replayed with every image a keyframe, no loop
+// closures, and `extra` configuration lines.
+ReplayResult ReplayCheckScene(const RigScene& scene, const std::string& name, const CameraIntrinsics& lens,
+                              double info_focal_scale, const std::string& extra) {
+  const std::string dir = TempDir();
+  const std::string bag = dir + "/" + name + ".bag", config = dir + "/" + name + ".yaml";
+  NamedOrientations truth;
+  ReplayResult failed;
+  if (!WriteRigSceneBag(scene, bag, /*compressed=*/false, &truth, &failed.error, /*progress=*/false, lens,
+                        info_focal_scale)) {
+    return failed;
+  }
+  std::ofstream(config) << "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
+                           "keyframe_selection: all\nmax_features: 1500\nmax_loop_candidates: 0\nsolve_period: 5.0\n"
+                        << extra;
+  ReplayOptions o;
+  o.bags = {bag};
+  o.config_path = config;
+  o.output_dir = dir + "/" + name;
+  o.progress = false;
+  return ReplayBags(o);
+}
+
 // A camera_info whose focal length is 3% short: the replay's check of each
 // camera's focal length finds it out (the sideways camera; the forward one,
 // moving along its optical axis, cannot tell), warns, and the output bag's
 // focal-check messages carry it.
 TEST_F(BagReplay, ACameraInfoWithAWrongFocalLengthIsFoundOut) {
-  RigSceneOptions scene_options;
-  scene_options.num_captures = 24;
-  scene_options.WithWidth(480);
-  const RigScene scene(scene_options);
-  const std::string bag = TempDir() + "/short_focal.bag";
-  NamedOrientations truth;
-  std::string error;
-  ASSERT_TRUE(WriteRigSceneBag(scene, bag, /*compressed=*/false, &truth, &error, /*progress=*/false,
-                               CameraIntrinsics(), /*info_focal_scale=*/0.97))
-      << error;
-  const std::string config = TempDir() + "/short_focal.yaml";
-  WriteText(config,
-            "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
-            "keyframe_selection: all\nmax_features: 1500\nmax_loop_candidates: 0\nsolve_period: 5.0\n");
-  ReplayOptions o = Options(bag, "short_focal");
-  o.config_path = config;
-  const ReplayResult result = ReplayBags(o);
+  const RigScene scene(CheckScene());
+  const ReplayResult result = ReplayCheckScene(scene, "short_focal", CameraIntrinsics(), 0.97, "");
   ASSERT_TRUE(result.ok) << result.error;
   std::string checks;
   for (const std::string& c : result.focal_checks) checks += c + "\n";
@@ -204,24 +221,11 @@ TEST_F(BagReplay, ACameraInfoWithAWrongFocalLengthIsFoundOut) {
 // the distortion and says so, naming what to give (in the forward camera's
 // pairs; the sideways camera's may leave it undetermined).
 TEST_F(BagReplay, DistortedImagesWithoutADistortionModelAreFoundOut) {
-  RigSceneOptions scene_options;
-  scene_options.num_captures = 24;
-  scene_options.WithWidth(480);
-  const RigScene scene(scene_options);
+  const RigScene scene(CheckScene());
   CameraIntrinsics lens;
   std::string error;
   ASSERT_TRUE(ParseDistortionSpec("plumb_bob:-0.28,0.07,0.0002,0.00002", &lens, &error)) << error;
-  const std::string bag = TempDir() + "/distorted.bag";
-  NamedOrientations truth;
-  ASSERT_TRUE(WriteRigSceneBag(scene, bag, /*compressed=*/false, &truth, &error, /*progress=*/false, lens)) << error;
-  const std::string config = TempDir() + "/distorted.yaml";
-  WriteText(config,
-            "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
-            "image_type: rectified\nkeyframe_selection: all\nmax_features: 1500\nmax_loop_candidates: 0\n"
-            "solve_period: 5.0\n");
-  ReplayOptions o = Options(bag, "distorted");
-  o.config_path = config;
-  const ReplayResult result = ReplayBags(o);
+  const ReplayResult result = ReplayCheckScene(scene, "distorted", lens, 1.0, "image_type: rectified\n");
   ASSERT_TRUE(result.ok) << result.error;
   bool warned = false;
   for (const std::string& w : result.warnings) warned |= w.find("has no distortion model") != std::string::npos;
