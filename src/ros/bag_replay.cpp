@@ -724,8 +724,8 @@ bool WriteFrontendCost(const std::string& output_dir, ReplayResult* result, std:
   return true;
 }
 
-// Scores against the ground truth: scores.txt, and errors.png with each
-// camera's error per keyframe over capture time.
+// Scores against the ground truth: scores.txt, ground_truth.csv (the keyframes' ground truth
+// under their names), and errors.png with each camera's error per keyframe over capture time.
 bool ScoreAgainstGroundTruth(const NamedOrientations& named, const NamedOrientations& ground_truth,
                              const OnlineSolution& solution, const std::string& output_dir, ReplayResult* result,
                              std::string* error) {
@@ -738,6 +738,8 @@ bool ScoreAgainstGroundTruth(const NamedOrientations& named, const NamedOrientat
     *error = "cannot write " + result->scores_file;
     return false;
   }
+  result->ground_truth_csv = output_dir + "/ground_truth.csv";
+  if (!WriteOrientationsCsv(result->ground_truth_csv, ground_truth, error)) return false;
   std::map<std::string, ErrorSeries> series;
   std::int64_t first_stamp = std::numeric_limits<std::int64_t>::max();
   for (const auto& [key, r] : solution.orientations) first_stamp = std::min(first_stamp, key.stamp_ns);
@@ -871,6 +873,7 @@ std::string ReplayResult::Summary() const {
   }
   out << "outputs:\n  " << orientations_csv << "\n  " << graph_file << "\n  " << output_bag;
   if (!scores_file.empty()) out << "\n  " << scores_file;
+  if (!ground_truth_csv.empty()) out << "\n  " << ground_truth_csv;
   if (!plot_png.empty()) out << "\n  " << plot_png;
   if (!frontend_cost_csv.empty()) out << "\n  " << frontend_cost_csv;
   if (!frontend_cost_png.empty()) out << "\n  " << frontend_cost_png;

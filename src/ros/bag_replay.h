@@ -87,6 +87,10 @@ struct ReplayResult {
   bool have_scores = false;
   EvaluationResult scores;
   std::string orientations_csv, graph_file, output_bag, scores_file, plot_png;
+  // The ground truth of the keyframes scored, under their keyframe names
+  // (those of orientations.csv and graph.txt): what `rotavg solve graph.txt
+  // --gt` and `rotavg eval --gt` score a re-solve of the graph against.
+  std::string ground_truth_csv;
   // The map the replay started from (load_graph) and the one it saved at
   // the end (save_on_shutdown), as KeyframePipeline::LoadMap and SaveMap
   // described them; empty when not asked for.

@@ -129,6 +129,17 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
   for (const std::string& f : {first.orientations_csv, first.graph_file, first.output_bag, first.plot_png}) {
     EXPECT_FALSE(ReadAll(f).empty()) << f;
   }
+  // The ground truth written beside them scores the orientations as the
+  // replay did: it is the keyframes' own, under their names.
+  {
+    NamedOrientations estimate, written_truth;
+    ASSERT_TRUE(ReadOrientationsCsv(first.orientations_csv, &estimate).ok());
+    ASSERT_TRUE(ReadOrientationsCsv(first.ground_truth_csv, &written_truth).ok());
+    EXPECT_EQ(written_truth.size(), 32u);
+    const EvaluationResult rescored = EvaluateOrientations(estimate, written_truth);
+    EXPECT_EQ(rescored.views_common, 32u);
+    EXPECT_NEAR(rescored.median_error_deg, first.scores.median_error_deg, 1e-9);
+  }
   // The output bag holds an Orientations message per solve.
   {
     rosbag::Bag out(first.output_bag, rosbag::bagmode::Read);
