@@ -291,6 +291,9 @@ class KeyframePipeline {
   void ApplyFocalCorrections(std::vector<std::string>* warnings);
   std::map<std::string, std::pair<double, std::uint64_t>> applied_checks_;  // camera -> (given px, pairs) applied
   std::set<std::string> corrections_refused_;
+  // The reason a camera's correction was last held back: each new estimate
+  // that is held back for the same reason says nothing new.
+  std::map<std::string, std::string> held_back_;
   std::vector<std::pair<std::string, bool>> correction_notices_;  // under mutex_
   std::map<std::string, double> focal_corrections_;  // under mutex_
   // Held while the front end adds a keyframe, and while its database is

@@ -228,8 +228,10 @@ void FocalChecker::Run() {
       }
       const auto it = checks_.find(check.camera);
       const bool was_estimated = it != checks_.end() && it->second.calibration.estimated;
-      const bool was_flagged = it != checks_.end() && it->second.Flagged();
-      if ((check.calibration.estimated && !was_estimated) || check.Flagged() != was_flagged) {
+      const bool was_disagreeing = it != checks_.end() && it->second.disagrees;
+      const bool was_unmodelled = it != checks_.end() && it->second.distortion_unmodelled;
+      if ((check.calibration.estimated && !was_estimated) || check.disagrees != was_disagreeing ||
+          check.distortion_unmodelled != was_unmodelled) {
         notices_.emplace_back(check.Report(), check.Flagged());
       }
       checks_[check.camera] = check;

@@ -155,8 +155,9 @@ class FocalChecker {
   // The latest estimate of each camera, by camera.
   std::map<std::string, CameraFocalCheck> Checks() const;
   // For the log, since the last call: one line per camera whose focal
-  // length was determined for the first time or whose verdict changed (it
-  // came to be flagged, or no longer is), with its Flagged().
+  // length was determined for the first time or whose verdict changed (its
+  // focal length came to disagree or no longer does; a distortion came to be
+  // seen or no longer is), with its Flagged().
   std::vector<std::pair<std::string, bool>> TakeNotices();
   // Waits until every job submitted so far has run (the replay, at its end).
   void Wait();
