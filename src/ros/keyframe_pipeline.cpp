@@ -299,6 +299,14 @@ std::map<std::string, double> KeyframePipeline::FocalCorrections() const {
   return focal_corrections_;
 }
 
+void KeyframePipeline::HoldBackCorrection(const std::string& camera, const std::string& reason) {
+  std::string& said = held_back_[camera];
+  if (said == reason) return;
+  said = reason;
+  std::lock_guard<std::mutex> lock(mutex_);
+  correction_notices_.emplace_back(camera + ": focal length not corrected: " + reason, true);
+}
+
 void KeyframePipeline::ApplyFocalCorrections(std::vector<std::string>* warnings) {
   if (!focal_checker_ || config_.focal_calibration != "apply") return;
   const std::map<std::string, CameraFocalCheck> checks = focal_checker_->Checks();
@@ -329,24 +337,17 @@ void KeyframePipeline::ApplyFocalCorrections(std::vector<std::string>* warnings)
         if (!settled) unchecked += (unchecked.empty() ? "" : ", ") + other;
       }
     }
-    const auto hold_back = [&](const std::string& reason) {
-      std::string& said = held_back_[camera];
-      if (said == reason) return;
-      said = reason;
-      std::lock_guard<std::mutex> lock(mutex_);
-      correction_notices_.emplace_back(camera + ": focal length not corrected: " + reason, true);
-    };
     if (check.distortion_unmodelled) {
       // A lens the model leaves out bends the focal estimate too: correcting
       // it would fit the focal length to the distortion.
-      hold_back("its images are distorted and camera_info has no distortion model, which the estimate cannot "
-                "tell from a focal length error; give the model first");
+      HoldBackCorrection(camera, "its images are distorted and camera_info has no distortion model, which the "
+                                 "estimate cannot tell from a focal length error; give the model first");
       continue;
     }
     if (!unchecked.empty()) {
-      hold_back("the other cameras of its rig (" + unchecked +
-                ") are not checked precisely enough, and correcting one camera of a rig alone makes its cameras "
-                "disagree; fix camera_info");
+      HoldBackCorrection(camera, "the other cameras of its rig (" + unchecked +
+                                     ") are not checked precisely enough, and correcting one camera of a rig alone "
+                                     "makes its cameras disagree; fix camera_info");
       continue;
     }
     held_back_.erase(camera);

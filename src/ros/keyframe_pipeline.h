@@ -289,6 +289,9 @@ class KeyframePipeline {
   // disagrees; the re-estimated edges replace the old ones in the graph.
   // Called by ProcessKeyframe before its keyframe, on the front end's thread.
   void ApplyFocalCorrections(std::vector<std::string>* warnings);
+  // A notice that the camera's correction is held back, unless the last one
+  // gave the same reason.
+  void HoldBackCorrection(const std::string& camera, const std::string& reason);
   std::map<std::string, std::pair<double, std::uint64_t>> applied_checks_;  // camera -> (given px, pairs) applied
   std::set<std::string> corrections_refused_;
   // The reason a camera's correction was last held back: each new estimate
