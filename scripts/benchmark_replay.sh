@@ -21,15 +21,27 @@ DEMO=build/demo/demo_60.bag
 # of the retrieval against an exhaustive two-view search of the same images
 # (same resolution and two-view settings), with the vocabulary (defaults)
 # and with voting over every keyframe's full features (vocabulary: none).
+scene_bag() {  # name images intrinsics ground-truth: $OUT/name.bag and its configuration
+  "$BIN/rotation_averaging_images_to_bag" --images "$2" --intrinsics "$3" --gt "$4" \
+    --downsample 0.25 --output "$OUT/$1.bag" > /dev/null 2>&1
+  printf 'image_topics: ["/camera/image_raw"]\nkeyframe_selection: all\nfeatures: sift\nmax_features: 4000\n' > "$OUT/$1.yaml"
+}
+replay_scene() {  # name mode config: $OUT/name_mode.txt and $OUT/name_mode/
+  "$BIN/rotation_averaging_replay" --bag "$OUT/$1.bag" --config "$3" --gt "$OUT/$1.bag" \
+    --output-dir "$OUT/$1_$2" --no-progress > "$OUT/$1_$2.txt"
+}
+solve_afresh() {  # name: the node's final graph solved from its spanning tree, as the
+  # offline solve starts; the replay's own solves start from the last one.
+  "$BIN/rotavg" solve "$OUT/$1_vocabulary/graph.txt" --format rotavg --output "$OUT/$1_afresh.csv" \
+    --gt "$OUT/$1_vocabulary/ground_truth.csv" > "$OUT/$1_afresh.txt"
+}
 SCENES=()
 for s in castle-P19 entry-P10 fountain-P11; do
   [ -d "$DATA/strecha/$s" ] && SCENES+=("$s")
 done
 for s in "${SCENES[@]}"; do
   C="$DATA/strecha/$s"
-  "$BIN/rotation_averaging_images_to_bag" --images "$C/images" --intrinsics "$C/images/K.txt" --gt "$C" \
-    --downsample 0.25 --output "$OUT/$s.bag" > /dev/null 2>&1
-  printf 'image_topics: ["/camera/image_raw"]\nkeyframe_selection: all\nfeatures: sift\nmax_features: 4000\n' > "$OUT/$s.yaml"
+  scene_bag "$s" "$C/images" "$C/images/K.txt" "$C"
   { cat "$OUT/$s.yaml"; echo "vocabulary: none"; } > "$OUT/${s}_voting.yaml"
   { cat "$OUT/$s.yaml"; echo "compact_features: 2000"; } > "$OUT/${s}_compact2000.yaml"
   { cat "$OUT/$s.yaml"; echo "loop_jackknife_grid: 0"; } > "$OUT/${s}_pixel.yaml"
@@ -41,15 +53,11 @@ for s in "${SCENES[@]}"; do
   for mode in vocabulary voting compact2000 pixel pixel60; do
     config="$OUT/$s.yaml"
     [ "$mode" != vocabulary ] && config="$OUT/${s}_$mode.yaml"
-    "$BIN/rotation_averaging_replay" --bag "$OUT/$s.bag" --config "$config" --gt "$OUT/$s.bag" \
-      --output-dir "$OUT/${s}_$mode" --no-progress > "$OUT/${s}_$mode.txt"
+    replay_scene "$s" "$mode" "$config"
     "$BIN/rotavg_loop_recall" --exhaustive "$OUT/${s}_exhaustive_graph.txt" --keyframes "$OUT/${s}_$mode/graph.txt" \
       --gt "$C" > "$OUT/${s}_${mode}_recall.txt"
   done
-  # The node's final graph solved afresh, from its spanning tree, as the
-  # offline solve starts; the replay's own solves start from the last one.
-  "$BIN/rotavg" solve "$OUT/${s}_vocabulary/graph.txt" --format rotavg --output "$OUT/${s}_afresh.csv" \
-    --gt "$OUT/${s}_vocabulary/ground_truth.csv" > "$OUT/${s}_afresh.txt"
+  solve_afresh "$s"
 done
 
 # lund_door (12 photographs, COLMAP's model as ground truth) as a bag too,
@@ -58,16 +66,11 @@ LUND=$DATA/lund_door
 OFFLINE=("${SCENES[@]}")
 if [ -d "$LUND" ]; then
   OFFLINE+=(lund_door)
-  "$BIN/rotation_averaging_images_to_bag" --images "$LUND/images" --intrinsics "$LUND/colmap_ground_truth/cameras.txt" \
-    --gt "$LUND/colmap_ground_truth/images.txt" --downsample 0.25 --output "$OUT/lund_door.bag" > /dev/null 2>&1
-  printf 'image_topics: ["/camera/image_raw"]\nkeyframe_selection: all\nfeatures: sift\nmax_features: 4000\n' \
-    > "$OUT/lund_door.yaml"
-  "$BIN/rotation_averaging_replay" --bag "$OUT/lund_door.bag" --config "$OUT/lund_door.yaml" --gt "$OUT/lund_door.bag" \
-    --output-dir "$OUT/lund_door_vocabulary" --no-progress > "$OUT/lund_door_vocabulary.txt"
+  scene_bag lund_door "$LUND/images" "$LUND/colmap_ground_truth/cameras.txt" "$LUND/colmap_ground_truth/images.txt"
+  replay_scene lund_door vocabulary "$OUT/lund_door.yaml"
   "$BIN/rotavg" images --images "$LUND/images" --intrinsics "$LUND/colmap_ground_truth/cameras.txt" --downsample 0.25 \
     --pairs exhaustive --no-bundle-adjustment --gt "$LUND/colmap_ground_truth/images.txt" > "$OUT/lund_door_exhaustive.txt"
-  "$BIN/rotavg" solve "$OUT/lund_door_vocabulary/graph.txt" --format rotavg --output "$OUT/lund_door_afresh.csv" \
-    --gt "$OUT/lund_door_vocabulary/ground_truth.csv" > "$OUT/lund_door_afresh.txt"
+  solve_afresh lund_door
 fi
 
 value() {  # file, sed pattern whose first group is the value
