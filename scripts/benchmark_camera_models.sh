@@ -58,16 +58,14 @@ for s in "${SCENES[@]}"; do
     flags=()
     [ "$lens" = plumb_bob ] && flags=(--distortion "$PLUMB_BOB")
     [ "$lens" = equidistant ] && flags=(--distortion "$FISHEYE")
-    "$BIN/rotation_averaging_images_to_bag" --images "$C/images" --intrinsics "$C/images/K.txt" --gt "$C" \
-      --downsample 0.25 "${flags[@]}" --output "$OUT/${s}_$lens.bag" > /dev/null 2>&1
+    strecha_bag "$C" "$OUT/${s}_$lens.bag" "${flags[@]}"
     replay "${s}_${lens}_model" "$OUT/${s}_$lens.bag" "$STRECHA" "keyframe_selection: all" "max_features: 4000"
     if [ "$lens" != none ]; then
       replay "${s}_${lens}_ignored" "$OUT/${s}_$lens.bag" "$STRECHA" "keyframe_selection: all" \
         "max_features: 4000" "image_type: rectified"
       # Through the lens and back (warped, then rectified): what the
       # resampling and the lens's compression of the periphery lose.
-      "$BIN/rotation_averaging_images_to_bag" --images "$C/images" --intrinsics "$C/images/K.txt" --gt "$C" \
-        --downsample 0.25 "${flags[@]}" --rectify --output "$OUT/${s}_${lens}_rectified.bag" > /dev/null 2>&1
+      strecha_bag "$C" "$OUT/${s}_${lens}_rectified.bag" "${flags[@]}" --rectify
       replay "${s}_${lens}_rectified" "$OUT/${s}_${lens}_rectified.bag" "$STRECHA" "keyframe_selection: all" \
         "max_features: 4000"
     fi

@@ -56,8 +56,7 @@ for s in fountain-P11 herzjesu-P8 entry-P10 castle-P19 herzjesu-P25 castle-P30; 
 done
 for s in "${SCENES[@]}"; do
   C="$DATA/strecha/$s"
-  "$BIN/rotation_averaging_images_to_bag" --images "$C/images" --intrinsics "$C/images/K.txt" --gt "$C" \
-    --downsample 0.25 --output "$OUT/$s.bag" > /dev/null 2>&1
+  strecha_bag "$C" "$OUT/$s.bag"
   replay "$s" "$OUT/$s.bag" 'image_topics: ["/camera/image_raw"]' "keyframe_selection: all" "max_features: 4000"
 done
 

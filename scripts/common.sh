@@ -15,3 +15,13 @@ DATA=${ROTAVG_DATA_DIR:-../shared/data}
 value() {
   sed -n "s/$2/\1/p" "$1" | head -1
 }
+# A Strecha scene (its folder: images/, images/K.txt and the ground-truth
+# cameras) as a bag of one camera's keyframes at a quarter of full width, as
+# the benchmarks play it through the node: scene folder, output bag, more
+# images_to_bag flags (a lens: --distortion SPEC, --rectify).
+strecha_bag() {
+  local scene=$1 bag=$2
+  shift 2
+  "$BIN/rotation_averaging_images_to_bag" --images "$scene/images" --intrinsics "$scene/images/K.txt" --gt "$scene" \
+    --downsample 0.25 "$@" --output "$bag" > /dev/null 2>&1
+}

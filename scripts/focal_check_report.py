@@ -42,7 +42,7 @@ def checks(text, prefix):
 
 
 DISTORTION = re.compile(r"(\S+): .*radial distortion seen \(division model\) ([-\d.]+) \+- ([\d.]+), ([\d.]+) px at the "
-                        r"corners: (.*)$")
+                        r"corners(?: \(the pairs' cost ([-\d.]+) \+- ([\d.]+) below the focal length's alone\))?: (.*)$")
 
 
 def distortion(text, prefix):
@@ -52,8 +52,13 @@ def distortion(text, prefix):
         if line.startswith(prefix):
             m = DISTORTION.search(line[len(prefix):])
             if m:
-                found[m.group(1)] = (float(m.group(2)), float(m.group(3)), float(m.group(4)),
-                                     "unmodelled: warned" if "no distortion model" in m.group(5) else "none beyond the noise")
+                verdict = m.group(7)
+                verdict = ("unmodelled: warned" if "no distortion model" in verdict else
+                           "explained as well by the focal length alone" if "focal length's scale alone"
+                           in verdict else "none beyond the noise")
+                if m.group(5):
+                    verdict = "cost %s ± %s below the focal length alone's; %s" % (m.group(5), m.group(6), verdict)
+                found[m.group(1)] = (float(m.group(2)), float(m.group(3)), float(m.group(4)), verdict)
     return found
 
 
@@ -112,8 +117,9 @@ def main():
     print("\nThe averaging's error is that of the focal length given: with `warn` the check reports, it does not correct "
           "(a 3% error costs the demo's orientations over 20 times their error with the right focal length). "
           "The distortion check runs at the focal length camera_info gives: where that is wrong, the pairs are "
-          "bent, and a radial distortion takes up part of it, so an ideal lens can be flagged as distorted beside "
-          "the focal warning (*lens distortion seen*).\n")
+          "bent, and a radial distortion takes up part of it (*lens distortion seen*). So it is compared, on the "
+          "same pairs, with the estimated focal length and no distortion, and flagged only when it lowers the "
+          "pairs' cost by more than 3 standard deviations of that advantage.\n")
 
     print("## focal_calibration: apply on the demo rig\n")
     print("The same bags with `focal_calibration: apply`. The rig's cameras share one orientation per capture "

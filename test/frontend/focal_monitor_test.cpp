@@ -155,6 +155,43 @@ TEST(FocalMonitor, ADistortionTheIntrinsicsDoNotDescribeIsSeen) {
   }
 }
 
+// A focal length a few percent off bends the pairs as a distortion would:
+// at the given focal length the pairs of an ideal lens show a "distortion"
+// beyond their noise. The focal scale alone explains them as well, so the
+// distortion is not flagged; a real distortion (10 px at the corners) under
+// the same wrong focal length is, because no focal length explains it.
+TEST(FocalMonitor, AWrongFocalLengthIsNotTakenForADistortion) {
+  const Eigen::Matrix3d k = SceneK();
+  const RadialDistortionOptions options;
+  for (const double k1 : {0.0, -0.05}) {
+    for (const double given : {0.97, 1.03}) {
+      FocalSceneOptions lens;
+      lens.lens_k1 = k1;
+      const Eigen::Matrix3d k_given = FocalTimes(k, given);
+      const FocalScene scene = MakeFocalScene(k, k_given, lens);
+      FocalJob job = SceneJob(scene, k_given);
+      job.check_distortion = true;
+      const CameraFocalCheck check = RunFocalJob(job, FocalMonitorOptions().focal);
+      const RadialDistortion& seen = check.distortion;
+      ASSERT_TRUE(seen.estimated) << check.Report();
+      const std::string costs = "; cost " + std::to_string(seen.cost) + ", focal only " +
+                                std::to_string(seen.focal_only_cost) + " +- " + std::to_string(seen.advantage_deviation);
+      RecordProperty("lens_k1_" + testing::PrintToString(k1) + "_focal_x" + testing::PrintToString(given),
+                     check.Report() + costs);
+      EXPECT_EQ(check.distortion_unmodelled, k1 != 0.0) << check.Report() << costs;
+      if (k1 == 0.0) {
+        // Without the focal scale to compare with, the old verdict: the
+        // ideal lens looks distorted at the wrong focal length.
+        ASSERT_TRUE(check.calibration.estimated) << check.Report();
+        EXPECT_GT(std::abs(seen.lambda), 3.0 * seen.standard_deviation) << check.Report();
+        EXPECT_TRUE(seen.FocalExplainsAsWell()) << check.Report() << costs;
+      } else if (check.calibration.estimated) {
+        EXPECT_FALSE(seen.FocalExplainsAsWell()) << check.Report() << costs;
+      }
+    }
+  }
+}
+
 // The checker runs jobs on its own thread: after Wait the check is there,
 // its first estimate and a change of verdict are notices, once.
 TEST(FocalMonitor, TheCheckerReportsEachCameraAndItsChangesOfVerdictOnce) {

@@ -38,10 +38,17 @@ std::string CameraFocalCheck::Report() const {
   if (distortion_checked && distortion.estimated) {
     out << std::fixed << std::setprecision(3) << "; radial distortion seen (division model) " << distortion.lambda
         << " +- " << distortion.standard_deviation << ", " << std::setprecision(1) << distortion.corner_shift_px
-        << " px at the corners: "
+        << " px at the corners";
+    if (std::isfinite(distortion.advantage_deviation)) {
+      out << " (the pairs' cost " << distortion.focal_only_cost - distortion.cost << " +- "
+          << distortion.advantage_deviation << " below the focal length's alone)";
+    }
+    out << ": "
         << (distortion_unmodelled ? "the images are distorted but camera_info has no distortion model: give its "
                                     "distortion_model and D, or rectified images"
-                                  : "none beyond the noise");
+            : distortion_explained_by_focal
+                ? "the focal length's scale alone explains the pairs as well: no distortion beyond the focal error"
+                : "none beyond the noise");
   }
   return out.str();
 }
@@ -90,8 +97,10 @@ CameraFocalCheck RunFocalJob(const FocalJob& job, const FocalCalibrationOptions&
     distortion.min_pairs = options.min_pairs;
     distortion.num_threads = options.num_threads;
     check.distortion_checked = true;
-    check.distortion = EstimateRadialDistortion(pairs, job.k, distortion);
+    check.distortion = EstimateRadialDistortion(pairs, job.k, distortion, &check.calibration);
     check.distortion_unmodelled = DistortionIsUnmodelled(check.distortion, distortion);
+    check.distortion_explained_by_focal =
+        DistortionBeyondNoise(check.distortion, distortion) && check.distortion.FocalExplainsAsWell();
   }
   return check;
 }

@@ -107,6 +107,9 @@ struct CameraFocalCheck {
   bool distortion_checked = false;
   RadialDistortion distortion;
   bool distortion_unmodelled = false;
+  // Beyond the noise, but explained as well by the focal length alone
+  // (RadialDistortion::FocalExplainsAsWell): not flagged.
+  bool distortion_explained_by_focal = false;
   bool Flagged() const { return disagrees || distortion_unmodelled; }
   // "cam0: focal length x1.031 +- 0.004 of camera_info's 458.7 px (62 of
   // 80 pairs): disagrees, check the calibration".

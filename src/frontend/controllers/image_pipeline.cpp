@@ -173,8 +173,9 @@ using PointWarp = std::function<Eigen::Vector2d(const Eigen::Vector2d&)>;
 // at the refined pose (twice), and scored by the truncated squared Sampson
 // error of all its matches in units of its noise. Selecting the inliers
 // anew matters: those the pose kept with the given intrinsics favour them.
+// `pair_costs` (optional) gets each pair's part (0 for those left out).
 double ProfileCost(const std::vector<ProfilePair>& used, const Eigen::Matrix3d& k, const PointWarp* warp,
-                   int left_out, int min_inliers, int threads) {
+                   int left_out, int min_inliers, int threads, std::vector<double>* pair_costs = nullptr) {
   std::vector<double> per_pair(used.size(), 0.0);
   const Eigen::Matrix3d k_inv = k.inverse();
   ParallelFor(static_cast<int>(used.size()), threads, [&](int u) {
@@ -208,7 +209,21 @@ double ProfileCost(const std::vector<ProfilePair>& used, const Eigen::Matrix3d& 
   });
   double sum = 0.0;
   for (double c : per_pair) sum += c;
+  if (pair_costs) *pair_costs = std::move(per_pair);
   return sum;
+}
+
+// Keypoints of the pinhole camera k undistorted by the one-parameter
+// division model.
+PointWarp DivisionWarp(const Eigen::Matrix3d& k, double lambda) {
+  const Eigen::Matrix3d k_inv = k.inverse();
+  return [k, k_inv, lambda](const Eigen::Vector2d& p) {
+    const Eigen::Vector2d x = (k_inv * p.homogeneous()).hnormalized();
+    // Past the model's turning point (a fisheye's corners at the range's
+    // end) the points are held where the division still holds.
+    const double denominator = std::max(1.0 + lambda * x.squaredNorm(), 0.2);
+    return (k * (x / denominator).homogeneous()).hnormalized().eval();
+  };
 }
 
 // The minimum of a profile over [centre - range, centre + range]: a coarse
@@ -328,7 +343,7 @@ FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const E
 }
 
 RadialDistortion EstimateRadialDistortion(const std::vector<FocalPair>& pairs, const Eigen::Matrix3d& k,
-                                         const RadialDistortionOptions& options) {
+                                         const RadialDistortionOptions& options, const FocalCalibration* focal) {
   RadialDistortion out;
   std::vector<FocalPair> with_parallax;
   for (const FocalPair& p : pairs) {
@@ -340,13 +355,7 @@ RadialDistortion EstimateRadialDistortion(const std::vector<FocalPair>& pairs, c
   const int threads = ResolveThreadCount(options.num_threads);
   const Eigen::Matrix3d k_inv = k.inverse();
   auto cost = [&](double lambda, int left_out) {
-    const PointWarp warp = [&](const Eigen::Vector2d& p) {
-      const Eigen::Vector2d x = (k_inv * p.homogeneous()).hnormalized();
-      // Past the model's turning point (a fisheye's corners at the range's
-      // end) the points are held where the division still holds.
-      const double denominator = std::max(1.0 + lambda * x.squaredNorm(), 0.2);
-      return (k * (x / denominator).homogeneous()).hnormalized().eval();
-    };
+    const PointWarp warp = DivisionWarp(k, lambda);
     return ProfileCost(used, k, &warp, left_out, options.min_inliers, threads);
   };
   const double range = std::clamp(options.search_range, 0.05, 1.0), step = 0.04;
@@ -365,12 +374,40 @@ RadialDistortion EstimateRadialDistortion(const std::vector<FocalPair>& pairs, c
   out.corner_shift_px = std::abs(out.lambda * r2 / (1.0 + out.lambda * r2)) * corner.norm() * k(0, 0);
   out.estimated = std::isfinite(out.standard_deviation);
   out.unobservable = !out.estimated;
+  if (out.estimated && focal != nullptr && focal->estimated) {
+    // The focal scale as estimated (from every pair, these among them), not
+    // minimised again over these pairs: that would cost a second profile.
+    Eigen::Matrix3d ka = k;
+    ka(0, 0) *= focal->scale;
+    ka(1, 1) *= focal->scale;
+    std::vector<double> with_distortion, with_focal;
+    const PointWarp warp = DivisionWarp(k, out.lambda);
+    out.cost = ProfileCost(used, k, &warp, -1, options.min_inliers, threads, &with_distortion);
+    out.focal_only_scale = focal->scale;
+    out.focal_only_cost = ProfileCost(used, ka, nullptr, -1, options.min_inliers, threads, &with_focal);
+    // Paired over the pairs: how consistently each pair prefers the
+    // distortion. The profile is not smooth (inliers are selected again at
+    // every value), so a sum a few units lower is not yet a better
+    // explanation; a distortion that is there lowers every pair's cost.
+    const double n = static_cast<double>(used.size());
+    double mean = 0.0, spread = 0.0;
+    for (std::size_t p = 0; p < used.size(); ++p) mean += (with_focal[p] - with_distortion[p]) / n;
+    for (std::size_t p = 0; p < used.size(); ++p) {
+      const double d = with_focal[p] - with_distortion[p] - mean;
+      spread += d * d;
+    }
+    out.advantage_deviation = n > 1.0 ? std::sqrt(n * spread / (n - 1.0)) : std::numeric_limits<double>::infinity();
+  }
   return out;
 }
 
-bool DistortionIsUnmodelled(const RadialDistortion& distortion, const RadialDistortionOptions& options) {
+bool DistortionBeyondNoise(const RadialDistortion& distortion, const RadialDistortionOptions& options) {
   return distortion.estimated && distortion.corner_shift_px > options.min_corner_shift_px &&
          std::abs(distortion.lambda) > 3.0 * distortion.standard_deviation;
+}
+
+bool DistortionIsUnmodelled(const RadialDistortion& distortion, const RadialDistortionOptions& options) {
+  return DistortionBeyondNoise(distortion, options) && !distortion.FocalExplainsAsWell();
 }
 
 bool ShouldApplyFocalScale(const FocalCalibration& calibration, const FocalCalibrationOptions& options) {

@@ -4,6 +4,7 @@
 #ifndef ROTATION_AVERAGING_FRONTEND_CONTROLLERS_IMAGE_PIPELINE_H_
 #define ROTATION_AVERAGING_FRONTEND_CONTROLLERS_IMAGE_PIPELINE_H_
 
+#include <limits>
 #include <map>
 #include <string>
 #include <utility>
@@ -194,10 +195,40 @@ struct RadialDistortion {
   double corner_shift_px = 0.0;  // how far lambda moves a keypoint in a corner of the image (width 2 cx)
   int pairs = 0;
   bool unobservable = false;  // enough pairs, but lambda left the search range
+  // The other one-parameter explanation of pairs that bend: a wrong focal
+  // length. A focal length a few percent off bends the pairs much as a
+  // distortion does, and the distortion profile, which runs at the given
+  // focal length, takes part of that for a distortion. With a focal scale
+  // estimated from the same camera's pairs, both explanations are scored
+  // on the pairs the distortion check uses (the profile cost: truncated
+  // squared Sampson errors in units of each pair's noise): `cost` at lambda
+  // and the given focal length, `focal_only_cost` at that scale and no
+  // distortion. Both fit one parameter. `advantage_deviation` is the
+  // standard deviation of the distortion's advantage, focal_only_cost -
+  // cost, from how much it varies between the pairs. NaN when not compared
+  // (no focal scale estimated).
+  double cost = std::numeric_limits<double>::quiet_NaN();
+  double focal_only_cost = std::numeric_limits<double>::quiet_NaN();
+  double focal_only_scale = std::numeric_limits<double>::quiet_NaN();
+  double advantage_deviation = std::numeric_limits<double>::quiet_NaN();
+  // The distortion explains the pairs better than the focal scale alone by
+  // less than 3 standard deviations of its advantage: either explanation
+  // will do, and a focal length that disagrees is the simpler one (it is
+  // reported on its own).
+  bool FocalExplainsAsWell() const { return focal_only_cost - cost <= 3.0 * advantage_deviation; }
 };
 
+// `focal` (optional): the focal scale estimated from the same pairs
+// (EstimateFocalScale); when estimated, the distortion is compared with it
+// (RadialDistortion::focal_only_cost).
 RadialDistortion EstimateRadialDistortion(const std::vector<FocalPair>& pairs, const Eigen::Matrix3d& k,
-                                         const RadialDistortionOptions& options);
+                                         const RadialDistortionOptions& options,
+                                         const FocalCalibration* focal = nullptr);
+// lambda beyond the noise: 3 standard deviations from 0, moving a corner by
+// more than min_corner_shift_px.
+bool DistortionBeyondNoise(const RadialDistortion& distortion, const RadialDistortionOptions& options);
+// Beyond the noise and not explained as well by the focal scale alone
+// (RadialDistortion::FocalExplainsAsWell).
 bool DistortionIsUnmodelled(const RadialDistortion& distortion, const RadialDistortionOptions& options);
 
 // The edge of one successful pair (i, j).
