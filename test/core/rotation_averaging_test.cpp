@@ -357,6 +357,53 @@ TEST(RotationAveraging, WarmStartKeepsTheFrameAndConvergesAtOnce) {
   for (const auto& [id, r] : solution) EXPECT_LT(AngularDistanceRad(r * g, warm.at(id)), 1e-5);
 }
 
+// A warm start that holds one view in another basin, 60 deg off: every edge
+// of it is an outlier to the MAGSAC loss, which leaves it there (no L1
+// start or GNC here to pull it back). With a new view to place, the solve
+// also starts from the spanning tree alone, which reaches the right basin
+// at a lower cost, and keeps that, in the warm start's gauge; with
+// compare_tree_start off the view stays where it was.
+TEST(RotationAveraging, AWarmStartInAnotherBasinGivesWayToTheSpanningTree) {
+  SyntheticGraphOptions go;
+  go.num_views = 40;
+  go.outlier_ratio = 0.0;
+  const SyntheticGraph sg = MakeSyntheticGraph(go);
+  RotationAveragingOptions o;
+  o.robust_start.l1_initialization = false;
+  o.robust_start.gnc_initial_scale_factor = 1.0;
+  ViewOrientations solved;
+  RotationAveragingSummary summary;
+  ASSERT_TRUE(SolveRotationAveraging(sg.graph, o, &solved, &summary));
+  ASSERT_EQ(summary.components.size(), 1u);
+  const ViewId gauge = summary.components[0].gauge_view;
+  // In another frame, one view (not the gauge) turned away, one left out.
+  const Eigen::Matrix3d g = ExpSO3(Eigen::Vector3d(0.3, 0.2, 0.1));
+  ViewOrientations warm;
+  for (const auto& [id, r] : solved) warm[id] = r * g;
+  std::vector<ViewId> others;
+  for (const auto& [id, r] : solved)
+    if (id != gauge) others.push_back(id);
+  const ViewId turned = others[others.size() / 2], fresh = others[others.size() / 3];
+  warm[turned] = ExpSO3(Eigen::Vector3d(0.0, DegToRad(60.0), 0.0)) * warm[turned];
+  warm.erase(fresh);
+  for (const bool compare : {true, false}) {
+    RotationAveragingOptions with = o;
+    with.robust_start.compare_tree_start = compare;
+    ViewOrientations result = warm;
+    ASSERT_TRUE(SolveRotationAveraging(sg.graph, with, &result, &summary));
+    const double turned_error = RadToDeg(AngularDistanceRad(result.at(turned), solved.at(turned) * g));
+    const bool kept_tree = summary.components[0].status.find("spanning tree alone") != std::string::npos;
+    EXPECT_EQ(kept_tree, compare) << summary.components[0].status;
+    if (compare) {
+      EXPECT_LT(turned_error, 0.01) << summary.components[0].status;
+      // Every view as the cold solve has it, in the warm start's frame.
+      for (const auto& [id, r] : solved) EXPECT_LT(RadToDeg(AngularDistanceRad(result.at(id), r * g)), 0.01) << id;
+    } else {
+      EXPECT_GT(turned_error, 30.0) << summary.components[0].status;
+    }
+  }
+}
+
 TEST(RotationAveraging, ComponentsAreSolvedSeparatelyAndIsolatedViewsLeftOut) {
   SyntheticGraphOptions go;
   go.num_views = 30;

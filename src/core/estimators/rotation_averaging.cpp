@@ -50,6 +50,11 @@ constexpr CovarianceSelfCalibration kAllSelfCalibrations[] = {CovarianceSelfCali
 // has settled.
 constexpr int kCovarianceFloorRounds = 5;
 constexpr double kCovarianceFloorSettled = 0.05;
+// Relative cost decrease for a start from the spanning tree to replace a
+// warm-started solution: far above what two solves converging into one
+// basin differ by (function_tolerance 1e-8 per iteration), so a warm
+// solution is replaced only by another basin's.
+constexpr double kTreeStartMinImprovement = 1e-6;
 
 bool IsRedescending(LossType type) {
   return type == LossType::kMagsac || type == LossType::kTukey || type == LossType::kGemanMcClure;
@@ -294,6 +299,53 @@ bool AllWarm(const ComponentProblem& problem, double min_fraction) {
          (warm > 0 && static_cast<double>(warm) >= min_fraction * static_cast<double>(problem.has_initial.size()));
 }
 
+bool AnyWarm(const ComponentProblem& problem) {
+  for (bool h : problem.has_initial) {
+    if (h) return true;
+  }
+  return false;
+}
+
+// A warm start with new views (the online averager's last solution, new
+// keyframes placed from it) keeps the old views in the basin of an earlier,
+// smaller graph: the edges that arrived since can favour another, which a
+// start from the spanning tree alone, as a first solve has, reaches. That
+// start is refined under the final loss too, in the warm solution's gauge,
+// and the lower cost kept. `solve` runs the final loss from
+// problem->rotations.
+template <typename Solve>
+void CompareTreeStart(const Solve& solve, const RobustLoss& loss, ComponentProblem* problem, ComponentSummary* cs) {
+  const std::vector<Eigen::Matrix3d> ended = problem->rotations;
+  const double ended_cost = cs->final_cost;
+  const std::string ended_status = cs->status;
+  const bool ended_converged = cs->converged;
+  const double initial_cost = cs->initial_cost;
+  const int gauge = problem->gauge;
+  const std::vector<bool> has_initial = problem->has_initial;
+  problem->has_initial.assign(has_initial.size(), false);
+  InitializeBySpanningTree(problem);
+  problem->has_initial = has_initial;
+  // One rotation of the whole tree (the relative rotations, and so the
+  // cost, do not change) puts the gauge view where the warm solution holds it.
+  const Eigen::Matrix3d to_gauge = problem->rotations[problem->gauge].transpose() * ended[gauge];
+  for (Eigen::Matrix3d& r : problem->rotations) r = r * to_gauge;
+  problem->gauge = gauge;
+  solve(loss);
+  cs->initial_cost = initial_cost;
+  // Lower beyond what two solves of one basin differ by.
+  if (cs->final_cost < ended_cost * (1.0 - kTreeStartMinImprovement)) {
+    std::ostringstream note;
+    note << std::setprecision(6) << "; the warm start ended at " << ended_cost
+         << ", a start from the spanning tree alone lower, at " << cs->final_cost << ": kept";
+    cs->status += note.str();
+    return;
+  }
+  problem->rotations = ended;
+  cs->final_cost = ended_cost;
+  cs->status = ended_status;
+  cs->converged = ended_converged;
+}
+
 // Initialises one component problem (spanning tree from its warm views) and
 // solves it with the options' robust start, loss and auto-scaling; writes
 // its per-edge results into summary->edges (by graph_index) and, when asked,
@@ -447,6 +499,9 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
       note << std::setprecision(6) << "; the robust solve ended above its start (" << ended_cost << " > "
            << cs.initial_cost << " under the final loss): the start refined under it gives " << cs.final_cost;
       cs.status += note.str();
+    }
+    if (options.robust_start.compare_tree_start && !all_warm && AnyWarm(problem) && problem.fixed.empty()) {
+      CompareTreeStart(solve, *component_loss, &problem, &cs);
     }
   }
 

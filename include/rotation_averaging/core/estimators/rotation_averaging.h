@@ -122,6 +122,14 @@ struct RobustStartOptions {
   // edges arrived stay wrong, and the error spreads (results/online.md, the
   // warm_start_min_fraction row: thousands of keyframes more than 5 deg off).
   double warm_start_min_fraction = 1.0;
+  // A warm start with new views (not all warm, as above) is also solved
+  // from the spanning tree alone, as a first solve starts, refined under the
+  // final loss in the warm solution's gauge, and the lower cost is kept: the
+  // old views' basin, chosen on a smaller graph, can be the wrong one for
+  // the edges that came since. It costs one more solve under the final loss
+  // per warm-started component (full solves; local solves hold their
+  // boundary and never compare). Off: the warm start's solution is kept.
+  bool compare_tree_start = true;
   int l1_init_max_iterations = 20;       // IRLS iterations of the L1 start
   double l1_init_smoothing_rad = 0.01;   // Soft L1 scale: quadratic below ~0.6 deg
   double l1_init_function_tolerance = 1e-4;  // a start needs no more
