@@ -161,8 +161,9 @@ row() {  # name, summary file
     echo "way, replayed with the defaults, against \`rotavg images --pairs exhaustive"
     echo "--downsample 0.25 --no-bundle-adjustment\` on the same images (every pair tried, the averaging"
     echo "alone). \"afresh\": the node's final graph solved by \`rotavg solve\` from its spanning tree, as the"
-    echo "offline solve starts (the replay's solves start from the solution before), scored against the"
-    echo "replay's \`ground_truth.csv\`. Median errors in degrees; ratio: the node's over the offline one."
+    echo "offline solve starts (the replay's solves start from the solution before, and from the spanning"
+    echo "tree alone when new keyframes came, keeping the lower cost), scored against the replay's"
+    echo "\`ground_truth.csv\`. Median errors in degrees; ratio: the node's over the offline one."
     echo
     echo "| scene | keyframes | node: edges | node: median | node's graph afresh: median | offline: edges | offline: median | ratio |"
     echo "|---|---|---|---|---|---|---|---|"
