@@ -566,6 +566,7 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
   ROTAVG_FIELD(paper_covariance_scale);
   ROTAVG_FIELD(warm_start);
   ROTAVG_NESTED_FIELD(robust_start, warm_start_min_fraction);
+  ROTAVG_NESTED_FIELD(robust_start, compare_tree_start);
   ROTAVG_NESTED_FIELD(robust_start, l1_initialization);
   ROTAVG_NESTED_FIELD(robust_start, l1_initialization_min_disagreement);
   ROTAVG_NESTED_FIELD(robust_start, l1_init_max_iterations);

@@ -129,6 +129,7 @@ struct RobustStartOptions {
   // the edges that came since. It costs one more solve under the final loss
   // per warm-started component (full solves; local solves hold their
   // boundary and never compare). Off: the warm start's solution is kept.
+  // What it costs a full re-solve of a large graph: results/online.md.
   bool compare_tree_start = true;
   int l1_init_max_iterations = 20;       // IRLS iterations of the L1 start
   double l1_init_smoothing_rad = 0.01;   // Soft L1 scale: quadratic below ~0.6 deg
