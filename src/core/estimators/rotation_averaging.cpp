@@ -291,19 +291,17 @@ void SolveComponentCeres(const RotationAveragingOptions& options, const RobustLo
 
 namespace {
 
-// Whether the warm start covers enough of the component (see warm_start_min_fraction).
-bool AllWarm(const ComponentProblem& problem, double min_fraction) {
+std::size_t WarmViews(const ComponentProblem& problem) {
   std::size_t warm = 0;
   for (bool h : problem.has_initial) warm += h;
-  return warm == problem.has_initial.size() ||
-         (warm > 0 && static_cast<double>(warm) >= min_fraction * static_cast<double>(problem.has_initial.size()));
+  return warm;
 }
 
-bool AnyWarm(const ComponentProblem& problem) {
-  for (bool h : problem.has_initial) {
-    if (h) return true;
-  }
-  return false;
+// Whether `warm` views of the problem's cover enough of the component (see
+// warm_start_min_fraction).
+bool AllWarm(const ComponentProblem& problem, std::size_t warm, double min_fraction) {
+  return warm == problem.has_initial.size() ||
+         (warm > 0 && static_cast<double>(warm) >= min_fraction * static_cast<double>(problem.has_initial.size()));
 }
 
 // A warm start with new views (the online averager's last solution, new
@@ -356,7 +354,8 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
   ComponentSummary cs;
   cs.num_views = problem.view_ids.size();
   cs.num_edges = problem.edges.size();
-  const bool all_warm = AllWarm(problem, options.robust_start.warm_start_min_fraction);
+  const std::size_t warm_views = WarmViews(problem);
+  const bool all_warm = AllWarm(problem, warm_views, options.robust_start.warm_start_min_fraction);
   InitializeBySpanningTree(&problem);
   cs.gauge_view = problem.view_ids[problem.gauge];
   const std::vector<Eigen::Matrix3d> initial_rotations = problem.rotations;
@@ -500,7 +499,7 @@ ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWei
            << cs.initial_cost << " under the final loss): the start refined under it gives " << cs.final_cost;
       cs.status += note.str();
     }
-    if (options.robust_start.compare_tree_start && !all_warm && AnyWarm(problem) && problem.fixed.empty()) {
+    if (options.robust_start.compare_tree_start && !all_warm && warm_views > 0 && problem.fixed.empty()) {
       CompareTreeStart(solve, *component_loss, &problem, &cs);
     }
   }

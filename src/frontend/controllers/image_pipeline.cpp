@@ -269,10 +269,12 @@ double MinimiseProfile(const std::function<double(double)>& cost, double centre,
 // cost(x, g): the profile without group g (-1: all pairs); minimise(g): its
 // minimum. The profile is not smooth at the finest scales (the inliers are
 // selected again at every x): where the smallest step gives no positive
-// curvature, wider steps (up to max_step) measure it.
+// curvature, wider steps (up to max_step) measure it. `centre`: cost(x, -1)
+// when the caller has it already (NaN: computed here).
 double ProfileDeviation(const std::function<double(double, int)>& cost, const std::function<double(int)>& minimise,
-                        double x, int pairs, double first_step, double max_step) {
-  const double centre = cost(x, -1);
+                        double x, int pairs, double first_step, double max_step,
+                        double centre = std::numeric_limits<double>::quiet_NaN()) {
+  if (std::isnan(centre)) centre = cost(x, -1);
   double deviation = std::numeric_limits<double>::infinity();
   for (double h = first_step; h < max_step && !std::isfinite(deviation); h *= 4.0) {
     const double curvature = (cost(x + h, -1) - 2.0 * centre + cost(x - h, -1)) / (h * h);
@@ -368,21 +370,29 @@ RadialDistortion EstimateRadialDistortion(const std::vector<FocalPair>& pairs, c
     out.unobservable = true;
     return out;
   }
-  out.standard_deviation = ProfileDeviation(cost, minimise, out.lambda, out.pairs, 2e-3, 0.05);
+  // With a focal scale to compare with, each pair's cost at lambda is needed
+  // too: taken from the evaluation the deviation starts from.
+  const bool compare = focal != nullptr && focal->estimated;
+  std::vector<double> with_distortion;
+  double at_lambda = std::numeric_limits<double>::quiet_NaN();
+  if (compare) {
+    const PointWarp warp = DivisionWarp(k, out.lambda);
+    at_lambda = ProfileCost(used, k, &warp, -1, options.min_inliers, threads, &with_distortion);
+  }
+  out.standard_deviation = ProfileDeviation(cost, minimise, out.lambda, out.pairs, 2e-3, 0.05, at_lambda);
   const Eigen::Vector2d corner = (k_inv * Eigen::Vector3d(0.0, 0.0, 1.0)).hnormalized();
   const double r2 = corner.squaredNorm();
   out.corner_shift_px = std::abs(out.lambda * r2 / (1.0 + out.lambda * r2)) * corner.norm() * k(0, 0);
   out.estimated = std::isfinite(out.standard_deviation);
   out.unobservable = !out.estimated;
-  if (out.estimated && focal != nullptr && focal->estimated) {
+  if (out.estimated && compare) {
     // The focal scale as estimated (from every pair, these among them), not
     // minimised again over these pairs: that would cost a second profile.
     Eigen::Matrix3d ka = k;
     ka(0, 0) *= focal->scale;
     ka(1, 1) *= focal->scale;
-    std::vector<double> with_distortion, with_focal;
-    const PointWarp warp = DivisionWarp(k, out.lambda);
-    out.cost = ProfileCost(used, k, &warp, -1, options.min_inliers, threads, &with_distortion);
+    std::vector<double> with_focal;
+    out.cost = at_lambda;
     out.focal_only_scale = focal->scale;
     out.focal_only_cost = ProfileCost(used, ka, nullptr, -1, options.min_inliers, threads, &with_focal);
     // Paired over the pairs: how consistently each pair prefers the
