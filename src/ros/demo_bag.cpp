@@ -9,11 +9,14 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
 #include <tuple>
 #include <opencv2/imgcodecs.hpp>
 
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/core/geometry/so3.h"
+#include "rotation_averaging/core/io/orientation_io.h"
 #include "ros/msg_conversion.h"
 
 namespace rotation_averaging {
@@ -85,13 +88,18 @@ void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::T
 }
 
 bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compressed, NamedOrientations* ground_truth,
-                      std::string* error, bool progress, const CameraIntrinsics& lens, double info_focal_scale) {
+                      std::string* error, const RigSceneBagOptions& bag_options) {
   const RigSceneOptions& options = scene.Options();
-  CameraIntrinsics camera = lens;
+  const bool progress = bag_options.progress;
+  CameraIntrinsics camera = bag_options.lens;
   camera.k = scene.Intrinsics();
   CameraIntrinsics info = camera;  // what camera_info says: the focal lengths may be off
-  info.k(0, 0) *= info_focal_scale;
-  info.k(1, 1) *= info_focal_scale;
+  if (bag_options.rectify) {
+    info.distortion = DistortionModel::kNone;
+    info.coefficients.clear();
+  }
+  info.k(0, 0) *= bag_options.info_focal_scale;
+  info.k(1, 1) *= bag_options.info_focal_scale;
   rosbag::Bag bag;
   try {
     bag.open(path, rosbag::bagmode::Write);
@@ -118,7 +126,8 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
     const ros::Time stamp = t0 + ros::Duration(scene.CaptureTime(capture));
     for (std::size_t c = 0; c < scene.Cameras().size(); ++c) {
       const std::string& frame = scene.Cameras()[c].frame_id;
-      const cv::Mat image = DistortImage(scene.Render(capture, static_cast<int>(c)), camera);
+      cv::Mat image = DistortImage(scene.Render(capture, static_cast<int>(c)), camera);
+      if (bag_options.rectify) image = UndistortImage(image, camera);
       WriteKeyframeImage(&bag, frame, stamp, image, info, compressed);
       const KeyframeKey key{frame, ToNanoseconds(stamp)};
       const Eigen::Matrix3d world_to_camera = scene.WorldToCamera(capture, static_cast<int>(c));
@@ -138,6 +147,41 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
   }
   if (ground_truth) *ground_truth = std::move(truth_csv);
   return true;
+}
+
+bool WriteRigSceneImages(const RigScene& scene, const std::string& dir, std::string* error, bool progress) {
+  const auto fail = [error](const std::string& message) {
+    if (error) *error = message;
+    return false;
+  };
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) return fail("cannot create " + dir + ": " + ec.message());
+  const ros::Time t0(1000.0);  // the bag's stamps, so that the names are the bag's keyframes'
+  NamedOrientations truth;
+  const int captures = scene.Options().num_captures;
+  for (int capture = 0; capture < captures; ++capture) {
+    const ros::Time stamp = t0 + ros::Duration(scene.CaptureTime(capture));
+    for (std::size_t c = 0; c < scene.Cameras().size(); ++c) {
+      const KeyframeKey key{scene.Cameras()[c].frame_id, ToNanoseconds(stamp)};
+      const std::string name = OnlineAverager::KeyframeName(key) + ".png";
+      if (!cv::imwrite(dir + "/" + name, scene.Render(capture, static_cast<int>(c)))) {
+        return fail("cannot write " + dir + "/" + name);
+      }
+      truth[name] = scene.WorldToCamera(capture, static_cast<int>(c));
+    }
+    if (progress) std::fprintf(stderr, "\rrendered capture %d/%d", capture + 1, captures);
+  }
+  if (progress) std::fprintf(stderr, "\n");
+  std::ofstream k_file(dir + "/K.txt");
+  const Eigen::Matrix3d k = scene.Intrinsics();
+  char line[256];
+  for (int r = 0; r < 3; ++r) {
+    std::snprintf(line, sizeof(line), "%.17g %.17g %.17g\n", k(r, 0), k(r, 1), k(r, 2));
+    k_file << line;
+  }
+  if (!k_file.good()) return fail("cannot write " + dir + "/K.txt");
+  return WriteOrientationsCsv(dir + "/ground_truth.csv", truth, error);
 }
 
 std::size_t WriteEurocBag(const std::vector<EurocCamera>& cameras, const std::string& path, bool compressed,

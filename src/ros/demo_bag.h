@@ -28,15 +28,32 @@ namespace rotation_averaging {
 void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
                         const CameraIntrinsics& camera, bool compressed);
 
+// How WriteRigSceneBag writes the camera streams.
+struct RigSceneBagOptions {
+  bool progress = false;  // a line on stderr per capture
+  // With a distortion (its K is ignored: the scene's), every image is what
+  // that lens would have seen (DistortImage) and camera_info carries the
+  // model: a raw camera stream.
+  CameraIntrinsics lens;
+  // The lens's images undistorted again (UndistortImage, as image_proc's
+  // image_rect), camera_info without distortion: the same content through
+  // both resamplings, for comparing the model with rectification.
+  bool rectify = false;
+  // camera_info's focal lengths are the scene's times this: a calibration
+  // that is a little off.
+  double info_focal_scale = 1.0;
+};
+
+// The same images as a folder for `rotavg images`: <dir>/<keyframe
+// name>.png (mono8, <frame_id>@<stamp_ns> as in the bag), <dir>/K.txt (the
+// scene's K) and <dir>/ground_truth.csv (world-to-camera orientations keyed
+// by the image files' names). Ideal pinhole images only: no lens.
+bool WriteRigSceneImages(const RigScene& scene, const std::string& dir, std::string* error, bool progress = false);
+
 // `ground_truth` (optional) receives the world-to-camera orientations keyed
-// by keyframe name (<frame_id>@<stamp_ns>). With a `lens` distortion (its K
-// is ignored: the scene's), every image is what that lens would have seen
-// (DistortImage) and camera_info carries the model: a raw camera stream.
-// camera_info's focal lengths are the scene's times `info_focal_scale`: a
-// calibration that is a little off.
+// by keyframe name (<frame_id>@<stamp_ns>).
 bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compressed, NamedOrientations* ground_truth,
-                      std::string* error, bool progress = false, const CameraIntrinsics& lens = CameraIntrinsics(),
-                      double info_focal_scale = 1.0);
+                      std::string* error, const RigSceneBagOptions& options = RigSceneBagOptions());
 
 // The cameras of a EuRoC-layout dataset (frontend/io/euroc_dataset.h) as
 // their driver publishes them: /<cam>/image_raw (mono8, or PNG on

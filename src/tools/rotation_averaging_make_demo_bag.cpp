@@ -5,6 +5,7 @@
 //       [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]
 //       [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]
 //       [--start-angle 0] [--start-time 0] [--light-gain 1] [--light-gradient 0] [--noise-seed 0]
+//       [--info-focal-scale 1] [--rectify] [--images-dir DIR]
 //
 // The bag holds, per camera, <cam>/image_raw (mono8, or <cam>/image_raw/compressed
 // PNG with --compressed) and <cam>/camera_info; the rig extrinsics on
@@ -12,7 +13,13 @@
 // rotation_averaging/Orientations message on /ground_truth/orientations.
 // With --distortion (e.g. plumb_bob:-0.28,0.07,0,0 or equidistant:0.1,0,0,0)
 // the images are what that lens would have seen and camera_info carries the
-// model, as a camera driver's image_raw does. The --start-* and --light-*
+// model, as a camera driver's image_raw does; with --rectify as well, the
+// lens's images undistorted again and camera_info without distortion, as
+// image_proc's image_rect (the same content through both resamplings).
+// --info-focal-scale writes camera_info's focal lengths that many times the
+// scene's. --images-dir also writes the same images as a folder for `rotavg
+// images` (<keyframe name>.png, K.txt, ground_truth.csv keyed by file name;
+// ideal pinhole images only). The --start-* and --light-*
 // options and --noise-seed make another session in the same room (same
 // --seed): starting elsewhere on the loop, later, under other lighting.
 #include <algorithm>
@@ -36,7 +43,7 @@ int Usage(const std::string& why) {
                "           [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]\n"
                "           [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]\n"
                "           [--start-angle 0] [--start-time 0] [--light-gain 1] [--light-gradient 0] [--noise-seed 0]\n"
-               "           [--info-focal-scale 1]\n";
+               "           [--info-focal-scale 1] [--rectify] [--images-dir DIR]\n";
   return 2;
 }
 
@@ -44,10 +51,10 @@ int Usage(const std::string& why) {
 
 int main(int argc, char** argv) {
   ra::RigSceneOptions options;
-  std::string output, gt_csv;
+  std::string output, gt_csv, images_dir;
   bool compressed = false;
-  ra::CameraIntrinsics lens;
-  double info_focal_scale = 1.0;  // camera_info's focal lengths: the scene's times this
+  ra::RigSceneBagOptions bag_options;
+  bag_options.progress = true;
   std::string error;
   // The numeric options: what each takes, and where its value goes.
   struct Numeric {
@@ -79,21 +86,25 @@ int main(int argc, char** argv) {
       {"--noise-seed", "a number >= 0", [](double v) { return v >= 0; },
        [&](double v) { options.noise_seed = static_cast<std::uint64_t>(v); }},
       {"--info-focal-scale", "a number in [0.5, 2]", [](double v) { return v >= 0.5 && v <= 2; },
-       [&](double v) { info_focal_scale = v; }},
+       [&](double v) { bag_options.info_focal_scale = v; }},
   };
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
     const bool has_value = k + 1 < argc;
-    if ((a == "--output" || a == "--gt-csv" || a == "--distortion") && !has_value) {
+    if ((a == "--output" || a == "--gt-csv" || a == "--distortion" || a == "--images-dir") && !has_value) {
       return Usage(a + " needs a value");
     } else if (a == "--output") {
       output = argv[++k];
     } else if (a == "--gt-csv") {
       gt_csv = argv[++k];
+    } else if (a == "--images-dir") {
+      images_dir = argv[++k];
     } else if (a == "--distortion") {
-      if (!ra::ParseDistortionSpec(argv[++k], &lens, &error)) return Usage("--distortion: " + error);
+      if (!ra::ParseDistortionSpec(argv[++k], &bag_options.lens, &error)) return Usage("--distortion: " + error);
     } else if (a == "--compressed") {
       compressed = true;
+    } else if (a == "--rectify") {
+      bag_options.rectify = true;
     } else {
       const auto option = std::find_if(numeric.begin(), numeric.end(), [&](const Numeric& n) { return a == n.name; });
       if (option == numeric.end()) return Usage("unknown option " + a);
@@ -108,11 +119,15 @@ int main(int argc, char** argv) {
     }
   }
   if (output.empty()) return Usage("give --output");
+  if (bag_options.rectify && !bag_options.lens.HasDistortion()) return Usage("--rectify needs a --distortion");
+  if (!images_dir.empty() && (bag_options.lens.HasDistortion() || bag_options.info_focal_scale != 1.0)) {
+    return Usage("--images-dir writes ideal pinhole images with the scene's K: not with --distortion or "
+                 "--info-focal-scale");
+  }
 
   const ra::RigScene scene(options);
   ra::NamedOrientations truth_csv;
-  if (!ra::WriteRigSceneBag(scene, output, compressed, &truth_csv, &error, /*progress=*/true, lens,
-                            info_focal_scale)) {
+  if (!ra::WriteRigSceneBag(scene, output, compressed, &truth_csv, &error, bag_options)) {
     std::cerr << "rotation_averaging_make_demo_bag: " << error << "\n";
     return 1;
   }
@@ -120,9 +135,14 @@ int main(int argc, char** argv) {
     std::cerr << "rotation_averaging_make_demo_bag: " << error << "\n";
     return 1;
   }
+  if (!images_dir.empty() && !ra::WriteRigSceneImages(scene, images_dir, &error)) {
+    std::cerr << "rotation_averaging_make_demo_bag: " << error << "\n";
+    return 1;
+  }
   std::cout << "wrote " << output << ": " << options.num_captures << " captures x " << scene.Cameras().size()
             << " cameras at " << options.width << "x" << options.height << ", " << options.capture_period_s
             << " s apart (" << scene.CaptureTime(options.num_captures - 1) << " s of bag time), ground truth on "
-            << "/ground_truth/orientations" << (gt_csv.empty() ? "" : " and in " + gt_csv) << std::endl;
+            << "/ground_truth/orientations" << (gt_csv.empty() ? "" : " and in " + gt_csv)
+            << (images_dir.empty() ? "" : "; the images also in " + images_dir) << std::endl;
   return 0;
 }

@@ -172,8 +172,10 @@ ReplayResult ReplayCheckScene(const RigScene& scene, const std::string& name, co
   const std::string bag = dir + "/" + name + ".bag", config = dir + "/" + name + ".yaml";
   NamedOrientations truth;
   ReplayResult failed;
-  if (!WriteRigSceneBag(scene, bag, /*compressed=*/false, &truth, &failed.error, /*progress=*/false, lens,
-                        info_focal_scale)) {
+  RigSceneBagOptions bag_options;
+  bag_options.lens = lens;
+  bag_options.info_focal_scale = info_focal_scale;
+  if (!WriteRigSceneBag(scene, bag, /*compressed=*/false, &truth, &failed.error, bag_options)) {
     return failed;
   }
   std::ofstream(config) << "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"

@@ -1,0 +1,137 @@
+// The rendered rig's writers: the image folder for `rotavg images` holds the
+// bag's keyframes under their names, and a lens's images rectified again are
+// written as a rectified camera's.
+#include "ros/demo_bag.h"
+
+#include <gtest/gtest.h>
+#include <rosbag/bag.h>
+#include <rosbag/view.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <map>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <set>
+
+#include "rotation_averaging/core/geometry/so3.h"
+#include "rotation_averaging/core/io/orientation_io.h"
+#include "ros/msg_conversion.h"
+
+namespace rotation_averaging {
+namespace {
+
+std::string TempDir() {
+  static const std::string dir = [] {
+    char pattern[] = "/tmp/rotavg_demo_bag_test_XXXXXX";
+    return std::string(mkdtemp(pattern));
+  }();
+  return dir;
+}
+
+RigSceneOptions SmallScene() {
+  RigSceneOptions options;
+  options.num_captures = 4;
+  options.WithWidth(320);
+  return options;
+}
+
+// Every image of the bag by keyframe name (<frame>@<stamp_ns>), and each
+// camera's camera_info.
+void ReadBag(const std::string& path, std::map<std::string, cv::Mat>* images,
+             std::map<std::string, sensor_msgs::CameraInfo>* infos) {
+  rosbag::Bag bag(path, rosbag::bagmode::Read);
+  for (const rosbag::MessageInstance& m : rosbag::View(bag)) {
+    if (const auto image = m.instantiate<sensor_msgs::Image>()) {
+      const KeyframeKey key{image->header.frame_id, ToNanoseconds(image->header.stamp)};
+      cv::Mat grey(static_cast<int>(image->height), static_cast<int>(image->width), CV_8UC1,
+                   const_cast<std::uint8_t*>(image->data.data()), image->step);
+      (*images)[OnlineAverager::KeyframeName(key)] = grey.clone();
+    } else if (const auto info = m.instantiate<sensor_msgs::CameraInfo>()) {
+      (*infos)[info->header.frame_id] = *info;
+    }
+  }
+}
+
+double MeanAbsoluteDifference(const cv::Mat& a, const cv::Mat& b, const cv::Rect& region) {
+  cv::Mat diff;
+  cv::absdiff(a(region), b(region), diff);
+  return cv::mean(diff)[0];
+}
+
+TEST(DemoBag, TheImageFolderHoldsTheBagsKeyframesUnderTheirNames) {
+  ros::Time::init();
+  const RigScene scene(SmallScene());
+  const std::string bag = TempDir() + "/scene.bag", dir = TempDir() + "/images";
+  NamedOrientations bag_truth;
+  std::string error;
+  ASSERT_TRUE(WriteRigSceneBag(scene, bag, /*compressed=*/false, &bag_truth, &error)) << error;
+  ASSERT_TRUE(WriteRigSceneImages(scene, dir, &error)) << error;
+
+  std::map<std::string, cv::Mat> images;
+  std::map<std::string, sensor_msgs::CameraInfo> infos;
+  ReadBag(bag, &images, &infos);
+  ASSERT_EQ(images.size(), 8u);
+  NamedOrientations folder_truth;
+  ASSERT_TRUE(ReadOrientationsCsv(dir + "/ground_truth.csv", &folder_truth).ok());
+  ASSERT_EQ(folder_truth.size(), images.size());
+  std::set<std::string> pngs;
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    if (entry.path().extension() == ".png") pngs.insert(entry.path().filename().string());
+  }
+  ASSERT_EQ(pngs.size(), images.size());
+  for (const auto& [name, image] : images) {
+    const std::string file = name + ".png";
+    ASSERT_TRUE(pngs.count(file)) << file;
+    const cv::Mat written = cv::imread(dir + "/" + file, cv::IMREAD_GRAYSCALE);
+    ASSERT_EQ(written.size(), image.size()) << file;
+    EXPECT_EQ(cv::norm(written, image, cv::NORM_INF), 0.0) << file << ": not the bag's image";
+    ASSERT_TRUE(folder_truth.count(file)) << file;
+    EXPECT_LT(AngularDistanceRad(folder_truth.at(file), bag_truth.at(name)), 1e-9) << file;
+  }
+  Eigen::Matrix3d k;
+  ASSERT_TRUE(ReadIntrinsics(dir + "/K.txt", &k, &error)) << error;
+  EXPECT_LT((k - scene.Intrinsics()).norm(), 1e-12);
+}
+
+TEST(DemoBag, ALensImagesRectifiedAgainAreARectifiedCamerasImages) {
+  ros::Time::init();
+  const RigScene scene(SmallScene());
+  RigSceneBagOptions lens_options;
+  std::string error;
+  ASSERT_TRUE(ParseDistortionSpec("plumb_bob:-0.28,0.07,0.0002,0.00002", &lens_options.lens, &error)) << error;
+  RigSceneBagOptions rectified_options = lens_options;
+  rectified_options.rectify = true;
+  const std::string raw_bag = TempDir() + "/lens.bag", rectified_bag = TempDir() + "/lens_rectified.bag";
+  ASSERT_TRUE(WriteRigSceneBag(scene, raw_bag, false, nullptr, &error, lens_options)) << error;
+  ASSERT_TRUE(WriteRigSceneBag(scene, rectified_bag, false, nullptr, &error, rectified_options)) << error;
+
+  std::map<std::string, cv::Mat> raw, rectified;
+  std::map<std::string, sensor_msgs::CameraInfo> raw_infos, rectified_infos;
+  ReadBag(raw_bag, &raw, &raw_infos);
+  ReadBag(rectified_bag, &rectified, &rectified_infos);
+  ASSERT_EQ(rectified.size(), 8u);
+  ASSERT_EQ(rectified_infos.size(), 2u);
+  for (const auto& [frame, info] : rectified_infos) {
+    EXPECT_EQ(raw_infos.at(frame).D[0], -0.28) << frame << ": the raw stream carries the lens";
+    for (double d : info.D) EXPECT_EQ(d, 0.0) << frame << ": a rectified camera_info has no distortion";
+    EXPECT_EQ(info.K, raw_infos.at(frame).K) << frame;
+  }
+  // Away from the centre, the lens moves the content by pixels; rectified
+  // again, it is back where the ideal camera sees it, up to the two
+  // resamplings' blur.
+  const cv::Rect ring(40, 30, 80, 60);  // between the centre and the top-left corner of 320x240
+  for (int c = 0; c < 2; ++c) {
+    const std::string name = OnlineAverager::KeyframeName({scene.Cameras()[c].frame_id, ToNanoseconds(ros::Time(1000.0))});
+    const cv::Mat ideal = scene.Render(0, c);
+    ASSERT_TRUE(rectified.count(name)) << name;
+    const double rectified_error = MeanAbsoluteDifference(rectified.at(name), ideal, ring);
+    const double raw_error = MeanAbsoluteDifference(raw.at(name), ideal, ring);
+    EXPECT_LT(rectified_error, 0.5 * raw_error) << name << ": rectified " << rectified_error << ", raw " << raw_error;
+  }
+}
+
+}  // namespace
+}  // namespace rotation_averaging
