@@ -19,7 +19,6 @@ CONFIG=$(grep -v '^#' config/demo.yaml)
 "$BIN/rotation_averaging_replay" --bag "$DEMO" --config config/demo.yaml --gt "$DEMO" --output-dir "$OUT/full" \
   --no-progress > "$OUT/full.txt"
 
-full_median=$(value "$OUT/full.txt" '^median error: \([0-9.]*\) deg')
 CUTS=(15 30 45)
 for n in "${CUTS[@]}"; do
   # Halfway between the n-th capture and the next, by the bag's clock.
@@ -44,43 +43,5 @@ PY
     --output-dir "$OUT/after_$n" --no-progress > "$OUT/after_$n.txt"
 done
 
-{
-  echo "# Restarts: the map saved and loaded"
-  echo
-  echo "Reproduce with: \`bash scripts/benchmark_restart.sh\`. Generated $(date -u '+%Y-%m-%d %H:%M') UTC on a $(nproc)-core machine."
-  echo "The demo bag (60 captures of the rendered two-camera rig, once round the room; config/demo.yaml) cut"
-  echo "after the capture of each row: the part before it replayed with \`save_on_shutdown\` (the map: graph,"
-  echo "\`.rig\`, \`.keyframes\`), the part after it with \`load_graph\` on that map, as a node killed there and"
-  echo "restarted would (\`rotation_averaging_replay\` runs the node's pipeline; docs/node.md, \"The map across"
-  echo "restarts and sessions\"). Components, keyframes and accuracy are those of the second replay, over every"
-  echo "keyframe of both parts; the uninterrupted replay of the whole bag is the reference. \"Moved at load\": the"
-  echo "largest angle between a saved keyframe's orientation in the map file and at the first solve after loading"
-  echo "(the frames published before the restart). \"Moved at the merge\": the largest move of a saved keyframe"
-  echo "from there to the first solve that joined a new keyframe to them, in degrees and in that keyframe's"
-  echo "posterior standard deviation along the move (relative to the gauge keyframe, which the solve holds where"
-  echo "it was published), and the rotation of their frame as a whole (the one rotation that best maps them from"
-  echo "before to after: a new gauge would turn it by degrees)."
-  echo
-  echo "| restart after capture | keyframes before / after the restart | keyframes in the final map | components | loop closures after the restart | median (deg) | median / uninterrupted | moved at load (deg) | moved at the merge (deg / std) | frame rotated at the merge (deg) | database per keyframe (KB) | save (ms) | load (ms) |"
-  echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|"
-  echo "| none (uninterrupted) | - | $(value "$OUT/full.txt" '^keyframes: \([0-9]*\) .*') |" \
-    "$(value "$OUT/full.txt" '^components: \([0-9]*\);.*') | $(value "$OUT/full.txt" '^loop closures: \([0-9]*\) edges.*') |" \
-    "$full_median | 1.00 | - | - | - | - | - | - |"
-  for n in "${CUTS[@]}"; do
-    a=$OUT/before_$n.txt b=$OUT/after_$n.txt
-    kf_before=$(value "$a" '^keyframes: \([0-9]*\) .*')
-    median=$(value "$b" '^median error: \([0-9.]*\) deg')
-    db_bytes=$(stat -c %s "$OUT/map_$n/graph.txt.keyframes")
-    echo "| $n | $kf_before / $(value "$b" '^keyframes: .* (\([0-9]*\) images through.*') |" \
-      "$(value "$b" '^keyframes: \([0-9]*\) .*') | $(value "$b" '^components: \([0-9]*\);.*') |" \
-      "$(value "$b" '^loop closures: \([0-9]*\) edges.*') | $median |" \
-      "$(awk -v a="$median" -v b="$full_median" 'BEGIN { printf "%.2f", a / b }') |" \
-      "$(value "$b" '^loaded keyframes at the first solve: moved at most \([0-9.]*\) deg.*') |" \
-      "$(value "$b" '^loaded keyframes when .*moved at most \([0-9.]*\) deg, .*') /" \
-      "$(value "$b" '^loaded keyframes when .* deg, \([0-9.]*\) posterior.*') |" \
-      "$(value "$b" '^loaded keyframes when .*rotated by \([0-9.]*\) deg$') |" \
-      "$(awk -v s="$db_bytes" -v k="$kf_before" 'BEGIN { printf "%.1f", s / 1024 / k }') |" \
-      "$(value "$a" '^map saved in \([0-9.]*\) ms.*') | $(value "$b" '^map loaded in \([0-9.]*\) ms.*') |"
-  done
-} > results/restart.md
+python3 scripts/restart_report.py "$OUT" "${CUTS[@]}" > results/restart.md
 cat results/restart.md

@@ -40,42 +40,5 @@ CONFIG=$(grep -v '^#' config/demo.yaml)
 "$BIN/rotation_averaging_replay" --bag "$OUT/one.bag" --config config/demo.yaml --gt "$OUT/one.csv" \
   --output-dir "$OUT/one" --no-progress > "$OUT/one.txt"
 
-row() {  # label, summary file
-  local f=$2
-  echo "| $1 | $(value "$f" '^keyframes: \([0-9]*\) .*') | $(value "$f" '^components: \([0-9]*\);.*') |" \
-    "$(value "$f" '^loop closures: \([0-9]*\) edges.*') | $(value "$f" '^median error: \([0-9.]*\) deg') |" \
-    "$(value "$f" '^AUC@2: \([0-9.]*\) %') | $(value "$f" '^bag time: .*wall time: \([0-9.]*\) s.*') |"
-}
-merged=$(value "$OUT/b.txt" '^median error: \([0-9.]*\) deg')
-one=$(value "$OUT/one.txt" '^median error: \([0-9.]*\) deg')
-kf_a=$(value "$OUT/a.txt" '^keyframes: \([0-9]*\) .*')
-{
-  echo "# Two sessions merged into one map"
-  echo
-  echo "Reproduce with: \`bash scripts/benchmark_sessions.sh\`. Generated $(date -u '+%Y-%m-%d %H:%M') UTC on a $(nproc)-core machine."
-  echo "The rendered room and two-camera rig of the demo (config/demo.yaml; 640×480, keyframes as the bags hold"
-  echo "them, one capture per second). Session A: 400 captures, two laps. Session B, the same room another day:"
-  echo "400 captures, two laps, starting a quarter of the loop further on, under other lighting (gain 0.8, 40%"
-  echo "brighter on one side of the room than on the other) and other image noise, replayed with \`load_graph\` on"
-  echo "the map A saved, and scored over both sessions' keyframes. The reference is one run of 800 captures, four"
-  echo "laps, at the same spacing."
-  echo
-  echo "| run | keyframes | components | loop closures | median (deg) | AUC@2 (%) | wall (s) |"
-  echo "|---|---|---|---|---|---|---|"
-  row "session A" "$OUT/a.txt"
-  row "session B, from A's map (A and B scored together)" "$OUT/b.txt"
-  row "session B alone" "$OUT/b_alone.txt"
-  row "A's map and B's alone added to it, then 4 captures (A and B scored together)" "$OUT/added.txt"
-  row "one run of 800 captures" "$OUT/one.txt"
-  echo
-  echo "Merged against one run: median $merged° against $one° ($(awk -v a="$merged" -v b="$one" 'BEGIN { printf "%.2f", a / b }')×)."
-  echo "A's saved map: $(awk -v s="$(stat -c %s "$OUT/map/graph.txt.keyframes")" -v k="$kf_a" 'BEGIN { printf "%.1f", s / 1024 / k }') KB of keyframe database per keyframe;"
-  echo "$(value "$OUT/b.txt" '^\(map loaded in .* ms\):.*')."
-  echo "When B's keyframes first joined A's, A's keyframes $(value "$OUT/b.txt" '^loaded keyframes when new keyframes joined them (solve [0-9]*): \(.*\)$')."
-  echo
-  echo "B's map alone added to A's (\`add_maps\`): $(value "$OUT/added.txt" '^ *of them between added maps and the map held: \(.*\)$')"
-  echo "loop closures between the two maps, found as it was added (each of B's keyframes retrieved and verified"
-  echo "against A's, on $(nproc) threads). At the first solve, A's keyframes $(value "$OUT/added.txt" '^loaded keyframes when new keyframes joined them (solve [0-9]*): \(.*\)$');"
-  echo "B's map, saved in a frame a quarter turn from A's, was placed in A's frame."
-} > results/sessions.md
+python3 scripts/sessions_report.py "$OUT" > results/sessions.md
 cat results/sessions.md

@@ -2,10 +2,11 @@
 
 usage: focal_check_report.py OUT SCENE...
 """
-import datetime
 import os
 import re
 import sys
+
+from report_common import reproduce_line
 
 CHECK = re.compile(r"(\S+): focal length x([\d.]+) \+- ([\d.]+) \(matches ([\d.]+), principal point ([\d.]+)\) "
                    r"of the given ([\d.]+) px \((\d+) of (\d+) verified pairs\): (\w+)")
@@ -74,10 +75,8 @@ def cell(c, truth=None):
 
 def main():
     out, scenes = sys.argv[1], sys.argv[2:]
-    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     print("# Focal-length check: camera_info against the images\n")
-    print("Reproduce with: `bash scripts/benchmark_focal_check.sh`. Generated %s on a %d-core machine." %
-          (now, os.cpu_count()))
+    print(reproduce_line("bash scripts/benchmark_focal_check.sh"))
     print("Every run is `rotation_averaging_replay` (the node's pipeline) with `focal_calibration: warn`, the "
           "default: each camera's focal length is estimated from its own verified essential-matrix pairs "
           "(at 20, 40, 80, ... pairs, from at most 60 of them with 200 matches each) and a camera_info whose "
