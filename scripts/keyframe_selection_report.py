@@ -1,0 +1,93 @@
+"""Writes results/keyframe_selection.md from the runs of scripts/benchmark_keyframe_selection.sh.
+
+usage: keyframe_selection_report.py OUT SETTINGS SEEDS
+  SETTINGS: "motion/tracked" thresholds of the stream rows, comma separated (e.g. "3/0.6,8/0.4");
+  the row of the defaults is marked. SEEDS: the noise seeds of the realisation rows, comma separated.
+"""
+import os
+import statistics
+import sys
+
+from report_common import reproduce_line, value
+
+DEFAULT_SETTING = "8/0.4"
+
+
+def row(label, text):
+    images = value(text, r"^keyframe selection \([a-z]+\): (\d+) images")
+    if not images:
+        images = value(text, r"^keyframes: .* \((\d+) images through", "-")
+    cells = [
+        label, images,
+        value(text, r"^keyframes: (\d+) ", "-"),
+        value(text, r"^solved variables: (\d+) ", "-"),
+        value(text, r" not keyframes; ([\d.]+) ms per image$", "-"),
+        value(text, r"wall time: ([\d.]+) s", "-"),
+        value(text, r"\(([\d.]+)x real time\)", "-") + "x",
+        value(text, r"^median error: ([\d.]+) deg", "-"),
+        value(text, r"^AUC@2: ([\d.]+) %", "-"),
+    ]
+    return "| " + " | ".join(cells) + " |"
+
+
+def read(out, name):
+    return open(os.path.join(out, name + ".txt")).read()
+
+
+def median_of(text):
+    return float(value(text, r"^median error: ([\d.]+) deg", "nan"))
+
+
+def main():
+    out, settings, seeds = sys.argv[1], sys.argv[2].split(","), sys.argv[3].split(",")
+    print("# Keyframe selection on a raw stream")
+    print()
+    print(reproduce_line("bash scripts/benchmark_keyframe_selection.sh"))
+    print("The demo renderer's rig (two cameras 90 deg apart, 640x480, one loop of the room in 60 s) as a")
+    print("camera driver publishes it, 20 captures per second (`rotation_averaging_make_demo_bag --captures 1200")
+    print("--period 0.05`), replayed with `keyframe_selection: motion` at the thresholds of each row")
+    print("(`keyframe_min_motion_deg` / `keyframe_min_tracked_fraction`; config/demo.yaml otherwise); the first")
+    print("row is the 1 Hz demo bag, whose every image is a keyframe (`keyframe_selection: all`). Accuracy over")
+    print("the keyframes (the ground truth of images that were not keyframes is not scored); speed-up = bag")
+    print("duration / wall time of the replay, which runs the node's pipeline as fast as the CPU allows.")
+    print()
+    print("| input | images | keyframes | rig captures solved | selection ms per image | wall (s) | speed-up "
+          "| median (deg) | AUC@2 |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    print(row("1 Hz demo bag, every image a keyframe", read(out, "demo_1hz")))
+    for setting in settings:
+        motion, tracked = setting.split("/")
+        label = "20 Hz stream, %s deg / %s" % (motion, tracked)
+        if setting == DEFAULT_SETTING:
+            label += " (defaults)"
+        print(row(label, read(out, "stream_%s_%s" % (motion, tracked))))
+    print()
+    print("## Over noise realisations")
+    print()
+    print("One bag's median is one draw of the renderer's pixel noise. The same scenes rendered again with")
+    print("other noise (`--noise-seed`; seed 1 is the bags above), the 20 Hz stream replayed with the default")
+    print("thresholds: the spread between seeds is the scale on which the two inputs can be compared.")
+    print()
+    print("| noise seed | 1 Hz demo: median (deg) | 20 Hz stream: keyframes | 20 Hz stream: median (deg) |")
+    print("|---|---|---|---|")
+    one_hz, stream = [], []
+    for seed in seeds:
+        a, b = read(out, "seed%s_1hz" % seed), read(out, "seed%s_stream" % seed)
+        one_hz.append(median_of(a))
+        stream.append(median_of(b))
+        print("| %s | %s | %s | %s |" % (seed, value(a, r"^median error: ([\d.]+) deg", "-"),
+                                         value(b, r"^keyframes: (\d+) ", "-"),
+                                         value(b, r"^median error: ([\d.]+) deg", "-")))
+    print("| mean (min - max) | %.4f (%.4f - %.4f) | | %.4f (%.4f - %.4f) |" %
+          (statistics.mean(one_hz), min(one_hz), max(one_hz), statistics.mean(stream), min(stream), max(stream)))
+    print()
+    print("## The 20 Hz stream with the defaults")
+    print()
+    print("```")
+    motion, tracked = DEFAULT_SETTING.split("/")
+    print(read(out, "stream_%s_%s" % (motion, tracked)).rstrip())
+    print("```")
+
+
+if __name__ == "__main__":
+    main()

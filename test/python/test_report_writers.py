@@ -1,0 +1,97 @@
+"""Tests of the results writers (scripts/*_report.py) on replay summaries written as
+rotation_averaging_replay prints them: each row holds the summary's figures, and a figure
+the summary lacks shows as such rather than as another's."""
+import os
+import subprocess
+import sys
+
+import pytest
+
+SCRIPTS = os.path.join(os.path.dirname(__file__), "..", "..", "scripts")
+sys.path.insert(0, SCRIPTS)
+import report_common  # noqa: E402
+
+
+def summary(keyframes, median, images=None, wall=20.0, loops=150, selection="all", extra=()):
+    """The lines of a replay summary the writers read."""
+    images = keyframes if images is None else images
+    lines = [
+        "messages: 180 of 180",
+        "bag time: 59.00 s; wall time: %.2f s (%.2fx real time); CPU time: 34.50 s; peak memory: 188.90 MiB"
+        % (wall, 59.0 / wall),
+        "keyframes: %d (%d images through the front end, 0 rejected); relative-pose messages rejected: 0"
+        % (keyframes, images),
+        "keyframe selection (%s): %d images, %d keyframes, %d not keyframes; 2.50 ms per image"
+        % (selection, images, keyframes, images - keyframes),
+        "loop closures: %d edges from 200 verified candidates; retrieval: vocabulary of 4096 words" % loops,
+        "solved variables: %d (keyframes, or rig captures); edges: 295 (loop_closure 179, sequential 116)"
+        % (keyframes // 2),
+        "components: 1; outlier edges: 43; solves: 90; final cost: 997.665937",
+        "median error: %.4f deg" % median,
+        "mean error: %.4f deg" % (median * 1.1),
+        "AUC@2: 99.18 %",
+    ]
+    lines += list(extra)
+    lines += ["outputs:", "  orientations.csv"]
+    return "\n".join(lines) + "\n"
+
+
+def run(script, *args):
+    result = subprocess.run([sys.executable, os.path.join(SCRIPTS, script)] + [str(a) for a in args],
+                            capture_output=True, text=True, check=True)
+    return result.stdout
+
+
+def table_row(text, first_cell):
+    rows = [line for line in text.splitlines() if line.startswith("| %s |" % first_cell)]
+    assert len(rows) == 1, (first_cell, text)
+    return [cell.strip() for cell in rows[0].strip("|").split("|")]
+
+
+def test_value_joins_every_match_and_falls_back_to_the_default():
+    text = "median error: 0.0137 deg\nother: 1\nmedian error: 0.0200 deg\n"
+    assert report_common.value(text, r"^median error: ([0-9.]*) deg") == "0.0137\n0.0200"
+    assert report_common.value(text, r"^mean error: ([0-9.]*) deg", "-") == "-"
+    assert report_common.reproduce_line("bash x.sh").startswith("Reproduce with: `bash x.sh`. Generated ")
+
+
+def test_restart_rows_hold_each_cut_against_the_uninterrupted_run(tmp_path):
+    (tmp_path / "full.txt").write_text(summary(120, 0.0137))
+    os.makedirs(tmp_path / "map_30")
+    (tmp_path / "map_30" / "graph.txt.keyframes").write_bytes(b"x" * (60 * 1024 * 100))  # 100 KB per keyframe
+    (tmp_path / "before_30.txt").write_text(summary(60, 0.0150, extra=[
+        "map saved in 22.5 ms (the graph held 0.0 ms, the front end 14.0 ms): view graph saved to g"]))
+    (tmp_path / "after_30.txt").write_text(summary(120, 0.0175, images=60, extra=[
+        "map loaded in 9.1 ms: view graph of 30 views loaded from g",
+        "loaded keyframes at the first solve: moved at most 0.0000 deg from where the map had them",
+        "loaded keyframes when new keyframes joined them (solve 1): moved at most 0.0008 deg, "
+        "0.071 posterior standard deviations; their frame as a whole rotated by 0.0001 deg"]))
+    text = run("restart_report.py", tmp_path, 30)
+    assert table_row(text, "none (uninterrupted)")[1:6] == ["-", "120", "1", "150", "0.0137"]
+    row = table_row(text, "30")
+    assert row[1] == "60 / 60"
+    assert row[5:7] == ["0.0175", "1.28"]  # 0.0175 / 0.0137
+    assert row[7:10] == ["0.0000", "0.0008 / 0.071", "0.0001"]
+    assert row[10:] == ["100.0", "22.5", "9.1"]
+
+
+def test_keyframe_selection_compares_the_stream_with_the_keyframe_bag_over_seeds(tmp_path):
+    (tmp_path / "demo_1hz.txt").write_text(summary(120, 0.0137))
+    (tmp_path / "stream_8_0.4.txt").write_text(summary(134, 0.0154, images=2400, selection="motion"))
+    for seed, (one_hz, stream) in {"1": (0.0137, 0.0154), "2": (0.0181, 0.0157)}.items():
+        (tmp_path / ("seed%s_1hz.txt" % seed)).write_text(summary(120, one_hz))
+        (tmp_path / ("seed%s_stream.txt" % seed)).write_text(summary(134, stream, images=2400, selection="motion"))
+    text = run("keyframe_selection_report.py", tmp_path, "8/0.4", "1,2")
+    row = table_row(text, "20 Hz stream, 8 deg / 0.4 (defaults)")
+    assert row[1:4] == ["2400", "134", "67"]
+    assert row[4] == "2.50" and row[7] == "0.0154"
+    assert table_row(text, "2") == ["2", "0.0181", "134", "0.0157"]
+    mean = table_row(text, "mean (min - max)")
+    assert mean[1] == "0.0159 (0.0137 - 0.0181)" and mean[3] == "0.0155 (0.0154 - 0.0157)"
+
+
+def test_a_missing_run_stops_the_writer_with_its_name(tmp_path):
+    (tmp_path / "full.txt").write_text(summary(120, 0.0137))
+    with pytest.raises(subprocess.CalledProcessError) as failure:
+        run("restart_report.py", tmp_path, 15)
+    assert "before_15.txt" in failure.value.stderr
