@@ -11,7 +11,8 @@
 #    a quarter of full width) warped through a plumb_bob and an equidistant
 #    (fisheye) lens, and the demo renderer through a plumb_bob lens: median
 #    error against ground truth on the original input, with the model,
-#    without it, and on the warped images rectified.
+#    without it, and on the warped images rectified (image_proc's
+#    image_rect of the same stream).
 #   bash scripts/benchmark_camera_models.sh        (about ten minutes)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
@@ -72,13 +73,17 @@ for s in "${SCENES[@]}"; do
   done
 done
 
-# The demo renderer (two cameras, 60 captures) through the plumb_bob lens.
+# The demo renderer (two cameras, 60 captures) through the plumb_bob lens,
+# and through it and back.
 "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_none.bag" > /dev/null
 "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_plumb_bob.bag" --distortion "$PLUMB_BOB" > /dev/null
+"$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_plumb_bob_rectified.bag" --distortion "$PLUMB_BOB" \
+  --rectify > /dev/null
 DEMO=$(grep -v '^#' config/demo.yaml | grep .)
 replay demo_none_model "$OUT/demo_none.bag" "$DEMO"
 replay demo_plumb_bob_model "$OUT/demo_plumb_bob.bag" "$DEMO"
 replay demo_plumb_bob_ignored "$OUT/demo_plumb_bob.bag" "$DEMO" "image_type: rectified"
+replay demo_plumb_bob_rectified "$OUT/demo_plumb_bob_rectified.bag" "$DEMO"
 
 python3 scripts/camera_models_report.py "$OUT" "$EUROC" "$PLUMB_BOB" "$FISHEYE" "${SCENES[@]}" \
   > results/camera_models.md

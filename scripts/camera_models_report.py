@@ -2,12 +2,13 @@
 
 usage: camera_models_report.py OUT EUROC_MAV0 PLUMB_BOB FISHEYE SCENE...
 """
-import datetime
 import os
 import re
 import sys
 
 import numpy as np
+
+from report_common import reproduce_line
 
 
 def quaternion_matrix(w, x, y, z):
@@ -58,8 +59,7 @@ def main():
         os.path.join(mav0, "cam0/sensor.yaml"))
     print("# Camera models: raw, distorted images")
     print()
-    print("Reproduce with: `bash scripts/benchmark_camera_models.sh`. Generated %s UTC on a %d-core machine." %
-          (datetime.datetime.utcnow().strftime("%Y-%m-%d %H:%M"), os.cpu_count()))
+    print(reproduce_line("bash scripts/benchmark_camera_models.sh"))
     print("Every run is `rotation_averaging_replay` (the node's pipeline) on a bag whose `camera_info` carries")
     print("the lens's model, as a camera driver's `image_raw` does. *with the model*: `image_type: auto` (the")
     print("default: keypoints undistorted by camera_info's K, distortion_model and D); *model ignored*: the same")
@@ -93,10 +93,12 @@ def main():
     print("corners of the plumb_bob images see rays outside the original image and are black. Median error of")
     print("the keyframes' orientations against ground truth (one robustly fitted rotation). *warped, then")
     print("rectified*: the lens's images undistorted again (`--distortion ... --rectify`), the same content")
-    print("through the same two resamplings, without a model to apply.")
+    print("through the same two resamplings, without a model to apply (image_proc's `image_rect` of the raw")
+    print("stream). The two ratios: the median with the model over the original input's, and over the warped,")
+    print("then rectified images'.")
     print()
-    print("| scene | lens | original input: median (deg) | with the model: median (deg) | ratio | model ignored: median (deg) | warped, then rectified: median (deg) |")
-    print("|---|---|---|---|---|---|---|")
+    print("| scene | lens | original input: median (deg) | with the model: median (deg) | ratio to original | model ignored: median (deg) | warped, then rectified: median (deg) | ratio to rectified |")
+    print("|---|---|---|---|---|---|---|---|")
     median = r"^median error: ([0-9.]+) deg"
     for scene in list(scenes) + ["demo"]:
         base = summary_value(os.path.join(out, scene + "_none_model.txt"), median)
@@ -109,7 +111,10 @@ def main():
             rectified_file = os.path.join(out, "%s_%s_rectified.txt" % (scene, lens))
             rectified = summary_value(rectified_file, median) if os.path.exists(rectified_file) else "-"
             ratio = "%.2f" % (float(with_model) / float(base)) if "-" not in (base, with_model) else "-"
-            print("| %s | %s | %s | %s | %s | %s | %s |" % (scene, lens, base, with_model, ratio, ignored, rectified))
+            to_rectified = ("%.2f" % (float(with_model) / float(rectified))
+                            if "-" not in (rectified, with_model) else "-")
+            print("| %s | %s | %s | %s | %s | %s | %s | %s |" %
+                  (scene, lens, base, with_model, ratio, ignored, rectified, to_rectified))
     print()
     print("## The replay's summary of the EuRoC run with the model")
     print()
