@@ -15,21 +15,7 @@ DEMO=build/demo/demo_60.bag
 "$BIN/rotation_averaging_replay" --bag "$DEMO" --config "$OUT/demo.yaml" --output-dir "$OUT/replay" \
   --no-progress > "$OUT/replay.txt"
 "$BIN/rotavg_map_benchmark" --map "$OUT/demo/graph.txt" --config config/demo.yaml --output-dir "$OUT/maps" \
-  --sizes 800,10000 --saves 5 > "$OUT/table.md"
-{
-  echo "# The saved map at the size of a robot's"
-  echo
-  echo "Reproduce with: \`bash scripts/benchmark_map.sh\`. Generated $(date -u '+%Y-%m-%d %H:%M') UTC on a $(nproc)-core machine."
-  echo "The keyframes of the demo's saved map ($(sed -n 's/^keyframes: \([0-9]*\) .*/\1/p' "$OUT/replay.txt" | head -1)"
-  echo "keyframes: 640×480 images, SIFT, config/demo.yaml) repeated under new stamps to each size, with a view graph"
-  echo "that chains them (\`rotavg_map_benchmark\`). Through the node's pipeline: the keyframe database on disk;"
-  echo "loading the database alone (read, checksum, every keyframe checked, inverted index built) and the whole map"
-  echo "(\`load_graph\`: graph, first solve, database); saving the map as autosave does (median of 5), and how long"
-  echo "the save held the graph (a solve waits that long) and the front end (a new keyframe waits that long); the"
-  echo "files are written after those copies, outside both. Files are read from the page cache (just written): a"
-  echo "cold start reads them from the disk first. Peak memory is the process's, cumulative over the rows."
-  echo
-  cat "$OUT/table.md"
-} > results/map.md
+  --sizes 800,10000 --saves 5 --loads 2 > "$OUT/table.md"
+python3 scripts/map_report.py "$OUT" > results/map.md
 rm -rf "$OUT/maps"
 cat results/map.md
