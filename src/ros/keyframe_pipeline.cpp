@@ -737,14 +737,13 @@ MapSaveTiming KeyframePipeline::LastSaveTiming() const {
 }
 
 bool KeyframePipeline::CheckMap(const std::string& graph_path, SavedKeyframeGraph* graph, bool* have_rig,
-                                std::string* error) const {
+                                RigModel::Saved* rig, std::string* error) const {
   if (!ReadSavedKeyframeGraph(graph_path, graph, error)) return false;
   // The rig's captures: without them a saved capture would stay one
   // orientation of the rig frame, and the cameras' keyframes in it unknown.
   std::error_code ec;
   *have_rig = std::filesystem::exists(RigPath(graph_path), ec);
-  RigModel staged(config_.rig);
-  return !*have_rig || staged.Load(RigPath(graph_path), error);
+  return !*have_rig || RigModel::ReadFile(RigPath(graph_path), rig, error);
 }
 
 bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error, std::string* note,
@@ -753,7 +752,8 @@ bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error
   // the front end's keyframes: a refused map leaves everything as it was.
   SavedKeyframeGraph graph;
   bool have_rig = false;
-  if (!CheckMap(graph_path, &graph, &have_rig, error)) return false;
+  RigModel::Saved saved_rig;
+  if (!CheckMap(graph_path, &graph, &have_rig, &saved_rig, error)) return false;
   std::string loaded = "view graph of " + std::to_string(graph.graph.NumViews()) + " views loaded from " + graph_path;
   const std::string rig = RigPath(graph_path);
   std::error_code ec;
@@ -783,7 +783,7 @@ bool KeyframePipeline::LoadMap(const std::string& graph_path, std::string* error
     for (const auto& [id, r] : graph.orientations) saved_orientations->emplace(graph.keys.at(id), r);
   }
   if (have_rig) {
-    if (!rig_.Load(rig, error)) return false;
+    rig_.Replace(std::move(saved_rig));
     loaded += ", " + std::to_string(rig_.NumCaptures()) + " rig captures from " + rig;
   }
   if (note) *note = loaded;
@@ -795,8 +795,8 @@ bool KeyframePipeline::AddMap(const std::string& graph_path, std::string* error,
   // added): a refused map leaves what is held as it was.
   SavedKeyframeGraph graph;
   bool have_rig = false;
-  if (!CheckMap(graph_path, &graph, &have_rig, error)) return false;
-  const std::string rig = RigPath(graph_path);
+  RigModel::Saved saved_rig;
+  if (!CheckMap(graph_path, &graph, &have_rig, &saved_rig, error)) return false;
   std::error_code ec;
   std::string added_note = "map " + graph_path + " added:";
   const std::string database = KeyframeDatabasePath(graph_path);
@@ -831,7 +831,7 @@ bool KeyframePipeline::AddMap(const std::string& graph_path, std::string* error,
   if (!graph_note.empty()) added_note += " (" + graph_note + ")";
   if (have_rig) {
     const std::size_t before = rig_.NumCaptures();
-    if (!rig_.Add(rig, error)) return false;
+    rig_.Merge(std::move(saved_rig));
     added_note += ", " + std::to_string(rig_.NumCaptures() - before) + " rig captures";
   }
   if (with_database) {

@@ -271,9 +271,11 @@ class KeyframePipeline {
   KeyframeFrontendStats FrontendStats() const;
 
  private:
-  // Reads the graph of a saved map and checks its rig file, if any (views
-  // named as keyframes, a rig file that loads), before any part is used.
-  bool CheckMap(const std::string& graph_path, SavedKeyframeGraph* graph, bool* have_rig, std::string* error) const;
+  // Reads the graph of a saved map and its rig file, if any (views named as
+  // keyframes, a rig file that reads), before any part is used: `rig` is
+  // what the rig file holds, applied once the rest has loaded.
+  bool CheckMap(const std::string& graph_path, SavedKeyframeGraph* graph, bool* have_rig, RigModel::Saved* rig,
+                std::string* error) const;
   bool Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
                 const sensor_msgs::CameraInfo& info, bool rectified, PendingKeyframe* out, std::string* error);
   bool Reject(std::uint64_t* counter, const std::string& why, std::string* error);

@@ -202,11 +202,21 @@ bool RigModel::Save(const std::string& path, std::string* error) const {
   }, error);
 }
 
-bool RigModel::Load(const std::string& path, std::string* error) { return Read(path, /*add=*/false, error); }
+bool RigModel::Load(const std::string& path, std::string* error) {
+  Saved saved;
+  if (!ReadFile(path, &saved, error)) return false;
+  Replace(std::move(saved));
+  return true;
+}
 
-bool RigModel::Add(const std::string& path, std::string* error) { return Read(path, /*add=*/true, error); }
+bool RigModel::Add(const std::string& path, std::string* error) {
+  Saved saved;
+  if (!ReadFile(path, &saved, error)) return false;
+  Merge(std::move(saved));
+  return true;
+}
 
-bool RigModel::Read(const std::string& path, bool add, std::string* error) {
+bool RigModel::ReadFile(const std::string& path, Saved* saved, std::string* error) {
   auto fail = [&](const std::string& why) {
     if (error) *error = why;
     return false;
@@ -267,18 +277,25 @@ bool RigModel::Read(const std::string& path, bool add, std::string* error) {
     }
   }
   if (!end.Ended()) return fail(path + ": no END record: the file is truncated (a save that was interrupted?)");
+  saved->cameras = std::move(cameras);
+  saved->capture_stamps = std::move(capture_stamps);
+  saved->members = std::move(members);
+  saved->variable_of = std::move(variable_of);
+  return true;
+}
+
+void RigModel::Replace(Saved saved) {
   std::lock_guard<std::mutex> lock(mutex_);
-  for (const auto& [frame, c] : cameras) {
-    if (add) cameras_.emplace(frame, c);  // a camera held keeps what it resolved
-    else cameras_[frame] = c;
-  }
-  if (!add) {
-    capture_stamps_ = std::move(capture_stamps);
-    members_ = std::move(members);
-    variable_of_ = std::move(variable_of);
-    return true;
-  }
-  for (const auto& [capture, keyframes] : members) {
+  for (const auto& [frame, c] : saved.cameras) cameras_[frame] = c;
+  capture_stamps_ = std::move(saved.capture_stamps);
+  members_ = std::move(saved.members);
+  variable_of_ = std::move(saved.variable_of);
+}
+
+void RigModel::Merge(Saved saved) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& [frame, c] : saved.cameras) cameras_.emplace(frame, c);  // a camera held keeps what it resolved
+  for (const auto& [capture, keyframes] : saved.members) {
     if (members_.count(capture)) continue;
     std::vector<KeyframeKey> kept;
     for (const KeyframeKey& k : keyframes) {
@@ -287,7 +304,6 @@ bool RigModel::Read(const std::string& path, bool add, std::string* error) {
     capture_stamps_[capture.frame_id].insert(capture.stamp_ns);
     members_.emplace(capture, std::move(kept));
   }
-  return true;
 }
 
 }  // namespace rotation_averaging

@@ -40,6 +40,21 @@ struct RigModelOptions {
 
 class RigModel {
  public:
+  // A resolved camera: in a rig (its rig frame and camera_from_rig), or
+  // solved on its own.
+  struct Camera {
+    bool in_rig = false;
+    std::string rig_frame;
+    Eigen::Matrix3d camera_from_rig = Eigen::Matrix3d::Identity();
+  };
+  // What a rig file holds (Save), read and checked by ReadFile.
+  struct Saved {
+    std::map<std::string, Camera> cameras;
+    std::map<std::string, std::set<std::int64_t>> capture_stamps;  // rig frame -> capture stamps
+    std::map<KeyframeKey, std::vector<KeyframeKey>> members;        // capture -> camera keyframes in it
+    std::map<KeyframeKey, KeyframeKey> variable_of;                 // camera keyframe -> capture
+  };
+
   explicit RigModel(const RigModelOptions& options);
 
   // A static transform: `child` is rotated by `child_in_parent` (rotation
@@ -69,28 +84,27 @@ class RigModel {
   // a saved graph's captures back into camera keyframes, and to map new
   // measurements to the same captures, before any static transform arrives.
   bool Save(const std::string& path, std::string* error) const;
-  // Replaces the captures, and the cameras the file names, with the file's;
-  // a malformed or corrupted file is refused with the reason and changes
-  // nothing.
+  // Reads a rig file; a malformed or corrupted file is refused with the
+  // reason.
+  static bool ReadFile(const std::string& path, Saved* saved, std::string* error);
+  // Replaces the captures, and the cameras the file names, with the file's.
+  void Replace(Saved saved);
+  // Adds the file's captures to those held (another session's or robot's
+  // map); a capture already held, and a camera already resolved, are kept
+  // as they are.
+  void Merge(Saved saved);
+  // ReadFile, then Replace or Merge; a refused file changes nothing.
   bool Load(const std::string& path, std::string* error);
-  // As Load, but adds the file's captures to those held (another session's
-  // or robot's map); a capture already held is kept as it is.
   bool Add(const std::string& path, std::string* error);
   std::size_t NumCaptures() const;
 
  private:
-  bool Read(const std::string& path, bool add, std::string* error);
   bool ResolveLocked(const std::string& camera_frame);
   KeyframeKey VariableLocked(const KeyframeKey& keyframe);
 
   RigModelOptions options_;
   mutable std::mutex mutex_;
   std::map<std::string, std::pair<std::string, Eigen::Matrix3d>> parent_of_;  // child -> (parent, child_in_parent)
-  struct Camera {
-    bool in_rig = false;
-    std::string rig_frame;
-    Eigen::Matrix3d camera_from_rig = Eigen::Matrix3d::Identity();
-  };
   std::map<std::string, Camera> cameras_;  // resolved cameras
   std::map<std::string, std::set<std::int64_t>> capture_stamps_;  // rig frame -> capture stamps
   std::map<KeyframeKey, std::vector<KeyframeKey>> members_;        // capture -> camera keyframes in it
