@@ -70,12 +70,14 @@ KeyframeFrontend::~KeyframeFrontend() = default;
 
 std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const std::vector<PairTask>& tasks,
                                                                          const Keyframe& newer) {
-  return VerifyPairs(tasks, std::vector<const Keyframe*>{&newer});
+  const auto start = Clock::now();
+  std::vector<PairOutcome> outcomes = VerifyPairs(tasks, std::vector<const Keyframe*>{&newer});
+  stats_.pairs_s += Seconds(start);
+  return outcomes;
 }
 
 std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const std::vector<PairTask>& tasks,
                                                                          const std::vector<const Keyframe*>& newers) {
-  const auto start = Clock::now();
   std::vector<PairOutcome> outcomes(tasks.size());
   // A compact keyframe is matched within the vocabulary's branches (no
   // index to build); without branch matching it gets a temporary index,
@@ -183,7 +185,6 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
       out.points2 = std::make_shared<std::vector<Eigen::Vector2d>>(std::move(pb));
     }
   });
-  stats_.pairs_s += Seconds(start);
   return outcomes;
 }
 
@@ -588,7 +589,6 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::LinkAddedKeyframes(int f
   // Retrieval per added keyframe, in order; verification of many added
   // keyframes' candidates at once, so that every thread has pairs to verify.
   const auto start = Clock::now();
-  const double pairs_before = stats_.pairs_s;
   constexpr int kKeyframesPerBatch = 64;
   for (int batch = first_added; batch < end; batch += kKeyframesPerBatch) {
     std::vector<PairTask> tasks;
@@ -625,7 +625,6 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::LinkAddedKeyframes(int f
       for (const KeyframeRelativeRotation& e : AcceptLoops(candidates, outcomes, &accepted)) links.push_back(e);
     }
   }
-  stats_.pairs_s = pairs_before;  // VerifyPairs counts there
   stats_.map_links += links.size();
   stats_.map_link_s += Seconds(start);
   return links;

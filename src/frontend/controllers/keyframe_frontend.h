@@ -282,10 +282,12 @@ class KeyframeFrontend {
   // Counts the inliers of a pair whose edge is used on both keyframes' features.
   void CountInliers(const PairTask& task, const PairOutcome& outcome, Keyframe* newer);
   // Verifies every task against `newer` (on the thread pool); the outcomes
-  // are in task order. Count adds an outcome whose result is used to the
-  // statistics (speculative ones are not counted when not needed).
+  // are in task order, their wall time is added to stats_.pairs_s. Count
+  // adds an outcome whose result is used to the statistics (speculative
+  // ones are not counted when not needed).
   std::vector<PairOutcome> VerifyPairs(const std::vector<PairTask>& tasks, const Keyframe& newer);
-  // The same for tasks of several new keyframes (PairTask::newer).
+  // The same for tasks of several new keyframes (PairTask::newer), timed by
+  // the caller (an added map's links count in stats_.map_link_s).
   std::vector<PairOutcome> VerifyPairs(const std::vector<PairTask>& tasks, const std::vector<const Keyframe*>& newers);
   // The loop closures of one new keyframe (`verified` of `candidates`) that
   // have enough inliers and agree with each other, with the candidates they
