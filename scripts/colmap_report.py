@@ -71,6 +71,21 @@ def hat(ab, ac, bc):
     return "~0" if v <= 0 else "%.4f" % math.sqrt(v)
 
 
+def scored_rows(out, scenes, leading, per_estimate, missing):
+    """A row per scene whose pairs were scored: the scene, `leading(reference file)`, then per reference
+    estimate `per_estimate(its file)`, or `missing` where there is none."""
+    for s in scenes:
+        w = os.path.join(out, s)
+        reference = os.path.join(w, "edges_vs_reference.txt")
+        if not os.path.exists(reference):
+            continue
+        cells = [s] + leading(reference)
+        for name in ESTIMATES:
+            path = os.path.join(w, name + ".txt")
+            cells += per_estimate(path) if os.path.exists(path) else missing
+        yield "| " + " | ".join(cells) + " |"
+
+
 def given_k(data, scene):
     values = open(os.path.join(data, "strecha", scene, "images", "K.txt")).read().split()
     return values[0], values[4]
@@ -173,20 +188,12 @@ median 2.37, 95% of pairs below 7.81). "Our bundle adjustment on COLMAP's matche
       "| against COLMAP's model: median error | NEES median | within 95% | against our bundle adjustment on "
       "COLMAP's matches: median error | NEES median | within 95% |")
     p("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for s in scenes:
-        w = os.path.join(out, s)
-        reference = os.path.join(w, "edges_vs_reference.txt")
-        if not os.path.exists(reference):
-            continue
-        row = "| %s | %s | %s" % (s, floored(reference, "edges scored"), floored(reference, "covariance floor"))
-        for name in ESTIMATES:
-            path = os.path.join(w, name + ".txt")
-            if os.path.exists(path):
-                row += " | %s | %s | %s %%" % (floored(path, "median edge error"), floored(path, "NEES median"),
-                                               floored(path, "NEES within the 95% quantile"))
-            else:
-                row += " | - | - | -"
-        p(row + " |")
+    for row in scored_rows(out, scenes,
+                           lambda r: [floored(r, "edges scored"), floored(r, "covariance floor")],
+                           lambda e: [floored(e, "median edge error"), floored(e, "NEES median"),
+                                      floored(e, "NEES within the 95% quantile") + " %"],
+                           ["-", "-", "-"]):
+        p(row)
     p()
     p("""The same errors split into views and pairs: the per-view offsets that best explain every pair's
 error against a reference (one rotation per view, fitted on the pairs' whitened errors with the
@@ -201,17 +208,11 @@ after the offsets is the same against any reference (the fit takes 3 (views - 1)
       "offset (deg): against the reference | against COLMAP's model | against our bundle adjustment on COLMAP's "
       "matches |")
     p("|---|---|---|---|---|---|")
-    for s in scenes:
-        w = os.path.join(out, s)
-        reference = os.path.join(w, "edges_vs_reference.txt")
-        if not os.path.exists(reference):
-            continue
-        row = "| %s | %s | %s" % (s, floored(reference, "NEES median after per-view offsets"),
-                                  floored(reference, "median edge error after per-view offsets"))
-        for name in ESTIMATES:
-            path = os.path.join(w, name + ".txt")
-            row += " | %s" % floored(path, "median per-view offset") if os.path.exists(path) else " | -"
-        p(row + " |")
+    for row in scored_rows(out, scenes,
+                           lambda r: [floored(r, "NEES median after per-view offsets"),
+                                      floored(r, "median edge error after per-view offsets")],
+                           lambda e: [floored(e, "median per-view offset")], ["-"]):
+        p(row)
     p()
     p("""The bundle adjustment `rotavg images` runs can see that shared error: it ties each view's points
 and centre to the other views', where each pair's summary has a translation and depths of its
@@ -224,21 +225,11 @@ prints it; added to both views of each pair, a pair's covariance is C + (s^2 + 2
       "| within 95% | against COLMAP's model | within 95% | against our bundle adjustment on COLMAP's matches "
       "| within 95% |")
     p("|---|---|---|---|---|---|---|---|")
-    for s in scenes:
-        w = os.path.join(out, s)
-        reference = os.path.join(w, "edges_vs_reference.txt")
-        if not os.path.exists(reference):
-            continue
-        term = re.findall(r"^covariances with the floor and the view term \(([0-9.]*) deg", open(reference).read(),
-                          re.M)
-        row = "| %s | %s" % (s, "\n".join(term))
-        for name in ESTIMATES:
-            path = os.path.join(w, name + ".txt")
-            if os.path.exists(path):
-                row += " | %s | %s %%" % (viewed(path, "NEES median"), viewed(path, "NEES within the 95% quantile"))
-            else:
-                row += " | - | -"
-        p(row + " |")
+    view_term = r"^covariances with the floor and the view term \(([0-9.]*) deg"
+    for row in scored_rows(out, scenes, lambda r: ["\n".join(re.findall(view_term, open(r).read(), re.M))],
+                           lambda e: [viewed(e, "NEES median"), viewed(e, "NEES within the 95% quantile") + " %"],
+                           ["-", "-"]):
+        p(row)
     p()
     p("Per view (deg), COLMAP / rotavg / the averaging alone / rotavg on COLMAP's matches:")
     for s in scenes:
