@@ -27,6 +27,12 @@ class Runs:
         return open(self.path(name)).read()
 
 
+def table_head(p, header):
+    """A table's header line and the line under it."""
+    p(header)
+    p("|" + "---|" * header.count(" | ") + "---|")
+
+
 def auc(text, threshold):
     return value(text, r"^AUC@%d: ([0-9.]*) %%" % threshold)
 
@@ -90,9 +96,8 @@ def main():
 loop-closure retrieval, MAGSAC + covariance averaging re-solved every second of bag time). Speed-up =
 bag duration / wall time; both bags hold one capture per second.""")
     p()
-    p("| bag | keyframes | bag time (s) | wall (s) | speed-up | CPU (s) | peak MiB | median (deg) | AUC@2 | AUC@5 "
+    table_head(p, "| bag | keyframes | bag time (s) | wall (s) | speed-up | CPU (s) | peak MiB | median (deg) | AUC@2 | AUC@5 "
       "| AUC@10 |")
-    p("|---|---|---|---|---|---|---|---|---|---|---|")
     p(bag_row("demo: rendered 2-camera rig, 640x480, 60 captures (config/demo.yaml)", runs.text("demo.txt")))
     if castle:
         p(bag_row("castle-P19 at 768x512 (one camera, 19 images)", runs.text("castle-P19_vocabulary.txt")))
@@ -130,9 +135,8 @@ tree alone when new keyframes came, keeping the lower cost), scored against the 
 uses and the offline run cannot (each image is a view of its own there; no afresh solve: the
 node's graph is of rig captures). Median errors in degrees; ratio: the node's over the offline one.""")
     p()
-    p("| scene | keyframes | node: edges | node: median | node's graph afresh: median | offline: edges "
+    table_head(p, "| scene | keyframes | node: edges | node: median | node's graph afresh: median | offline: edges "
       "| offline: median | ratio |")
-    p("|---|---|---|---|---|---|---|---|")
     for s in offline:
         p(offline_row(s, runs.text(s + "_vocabulary.txt"), runs.text(s + "_afresh.txt"),
                       runs.text(s + "_exhaustive.txt")))
@@ -149,9 +153,8 @@ over every keyframe's full features (`vocabulary: none`: no memory bound, cost g
 map). "inliers kept": median over the loops found of their inliers against the exhaustive search's
 for the same pair (a compact keyframe keeps part of its correspondences).""")
     p()
-    p("| scene | images | loop pairs verifiable | vocabulary: found | vocabulary: recall | inliers kept "
+    table_head(p, "| scene | images | loop pairs verifiable | vocabulary: found | vocabulary: recall | inliers kept "
       "| voting: found | voting: recall |")
-    p("|---|---|---|---|---|---|---|---|")
     for s in scenes:
         p(recall_row(s, runs, data))
     p()
@@ -165,8 +168,7 @@ for loop closures (`loop_jackknife_grid: 0`), and with it at `min_loop_inliers: 
 "loop NEES": median whitened squared error of the loop closures found against ground truth (3 when
 their covariances are calibrated); errors of the replay's final solution.""")
     p()
-    p("| scene | loop closures | found | loop recall | loop NEES | median (deg) | mean (deg) | AUC@2 (%) |")
-    p("|---|---|---|---|---|---|---|---|")
+    table_head(p, "| scene | loop closures | found | loop recall | loop NEES | median (deg) | mean (deg) | AUC@2 (%) |")
     for s in scenes:
         p(loop_row(s, "vocabulary", "defaults: jackknife, >= 40 inliers", runs))
         p(loop_row(s, "pixel", "pixel model, >= 40 inliers", runs))
@@ -180,8 +182,7 @@ deviations their covariances give, even with the jackknife (errors and NEES in t
 and the averaging is less accurate with them. Errors against ground truth of the replay's final
 solution.""")
     p()
-    p("| scene | compact features | KB per compact keyframe | loop recall | median (deg) | mean (deg) | AUC@2 (%) |")
-    p("|---|---|---|---|---|---|---|")
+    table_head(p, "| scene | compact features | KB per compact keyframe | loop recall | median (deg) | mean (deg) | AUC@2 (%) |")
     for s in scenes:
         p(compact_row(s, "vocabulary", "1000 (default)", runs))
         p(compact_row(s, "compact2000", "2000", runs))
