@@ -22,7 +22,7 @@
 #   sessions.md        two 400-capture sessions (other start, other lighting) merged, against one 800-capture run
 # results/README.md is the written summary of these files.
 #
-#   bash scripts/report.sh            about 70 minutes on 2 cores (the COLMAP comparison about 17 of them; 1,000,000 views alone: 3-4, beside the front end)
+#   bash scripts/report.sh            about 90 minutes on 2 cores (the COLMAP comparison about 17 of them; 1,000,000 views alone: 3-4, beside the front end)
 #   bash scripts/report.sh --quick    under 3 minutes; small sizes, written to build/report_quick/
 #                                     (CI runs it so the report code never rots)
 # Real data comes from ../shared/data (ROTAVG_DATA_DIR to override); parts that
