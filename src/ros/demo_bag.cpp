@@ -100,6 +100,19 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
   }
   info.k(0, 0) *= bag_options.info_focal_scale;
   info.k(1, 1) *= bag_options.info_focal_scale;
+  const std::string& images_dir = bag_options.images_dir;
+  if (!images_dir.empty()) {
+    if (camera.HasDistortion() || bag_options.info_focal_scale != 1.0) {
+      if (error) *error = "an image folder holds ideal pinhole images with the scene's K: no lens, no focal scale";
+      return false;
+    }
+    std::error_code ec;
+    std::filesystem::create_directories(images_dir, ec);
+    if (ec) {
+      if (error) *error = "cannot create " + images_dir + ": " + ec.message();
+      return false;
+    }
+  }
   rosbag::Bag bag;
   try {
     bag.open(path, rosbag::bagmode::Write);
@@ -131,6 +144,10 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
       WriteKeyframeImage(&bag, frame, stamp, image, info, compressed);
       const KeyframeKey key{frame, ToNanoseconds(stamp)};
       const Eigen::Matrix3d world_to_camera = scene.WorldToCamera(capture, static_cast<int>(c));
+      if (!images_dir.empty() && !cv::imwrite(images_dir + "/" + OnlineAverager::KeyframeName(key) + ".png", image)) {
+        if (error) *error = "cannot write " + images_dir + "/" + OnlineAverager::KeyframeName(key) + ".png";
+        return false;
+      }
       truth.keyframes.push_back(ToMsg(key, world_to_camera, 0));
       truth_csv[OnlineAverager::KeyframeName(key)] = world_to_camera;
     }
@@ -145,43 +162,25 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
     if (error) *error = "writing " + path + ": " + e.what();
     return false;
   }
+  if (!images_dir.empty()) {
+    // The folder's K and ground truth, keyed by the images' file names.
+    std::ofstream k_file(images_dir + "/K.txt");
+    const Eigen::Matrix3d& k = camera.k;
+    char line[256];
+    for (int r = 0; r < 3; ++r) {
+      std::snprintf(line, sizeof(line), "%.17g %.17g %.17g\n", k(r, 0), k(r, 1), k(r, 2));
+      k_file << line;
+    }
+    if (!k_file.good()) {
+      if (error) *error = "cannot write " + images_dir + "/K.txt";
+      return false;
+    }
+    NamedOrientations by_file;
+    for (const auto& [name, r] : truth_csv) by_file[name + ".png"] = r;
+    if (!WriteOrientationsCsv(images_dir + "/ground_truth.csv", by_file, error)) return false;
+  }
   if (ground_truth) *ground_truth = std::move(truth_csv);
   return true;
-}
-
-bool WriteRigSceneImages(const RigScene& scene, const std::string& dir, std::string* error, bool progress) {
-  const auto fail = [error](const std::string& message) {
-    if (error) *error = message;
-    return false;
-  };
-  std::error_code ec;
-  std::filesystem::create_directories(dir, ec);
-  if (ec) return fail("cannot create " + dir + ": " + ec.message());
-  const ros::Time t0(1000.0);  // the bag's stamps, so that the names are the bag's keyframes'
-  NamedOrientations truth;
-  const int captures = scene.Options().num_captures;
-  for (int capture = 0; capture < captures; ++capture) {
-    const ros::Time stamp = t0 + ros::Duration(scene.CaptureTime(capture));
-    for (std::size_t c = 0; c < scene.Cameras().size(); ++c) {
-      const KeyframeKey key{scene.Cameras()[c].frame_id, ToNanoseconds(stamp)};
-      const std::string name = OnlineAverager::KeyframeName(key) + ".png";
-      if (!cv::imwrite(dir + "/" + name, scene.Render(capture, static_cast<int>(c)))) {
-        return fail("cannot write " + dir + "/" + name);
-      }
-      truth[name] = scene.WorldToCamera(capture, static_cast<int>(c));
-    }
-    if (progress) std::fprintf(stderr, "\rrendered capture %d/%d", capture + 1, captures);
-  }
-  if (progress) std::fprintf(stderr, "\n");
-  std::ofstream k_file(dir + "/K.txt");
-  const Eigen::Matrix3d k = scene.Intrinsics();
-  char line[256];
-  for (int r = 0; r < 3; ++r) {
-    std::snprintf(line, sizeof(line), "%.17g %.17g %.17g\n", k(r, 0), k(r, 1), k(r, 2));
-    k_file << line;
-  }
-  if (!k_file.good()) return fail("cannot write " + dir + "/K.txt");
-  return WriteOrientationsCsv(dir + "/ground_truth.csv", truth, error);
 }
 
 std::size_t WriteEurocBag(const std::vector<EurocCamera>& cameras, const std::string& path, bool compressed,

@@ -42,13 +42,13 @@ struct RigSceneBagOptions {
   // camera_info's focal lengths are the scene's times this: a calibration
   // that is a little off.
   double info_focal_scale = 1.0;
+  // Not empty: the same images also as a folder for `rotavg images`:
+  // <dir>/<keyframe name>.png (mono8, <frame_id>@<stamp_ns> as in the bag),
+  // <dir>/K.txt (the scene's K) and <dir>/ground_truth.csv (world-to-camera
+  // orientations keyed by the image files' names). Ideal pinhole images
+  // only: refused with a lens or an info_focal_scale other than 1.
+  std::string images_dir;
 };
-
-// The same images as a folder for `rotavg images`: <dir>/<keyframe
-// name>.png (mono8, <frame_id>@<stamp_ns> as in the bag), <dir>/K.txt (the
-// scene's K) and <dir>/ground_truth.csv (world-to-camera orientations keyed
-// by the image files' names). Ideal pinhole images only: no lens.
-bool WriteRigSceneImages(const RigScene& scene, const std::string& dir, std::string* error, bool progress = false);
 
 // `ground_truth` (optional) receives the world-to-camera orientations keyed
 // by keyframe name (<frame_id>@<stamp_ns>).

@@ -51,7 +51,7 @@ int Usage(const std::string& why) {
 
 int main(int argc, char** argv) {
   ra::RigSceneOptions options;
-  std::string output, gt_csv, images_dir;
+  std::string output, gt_csv;
   bool compressed = false;
   ra::RigSceneBagOptions bag_options;
   bag_options.progress = true;
@@ -98,7 +98,7 @@ int main(int argc, char** argv) {
     } else if (a == "--gt-csv") {
       gt_csv = argv[++k];
     } else if (a == "--images-dir") {
-      images_dir = argv[++k];
+      bag_options.images_dir = argv[++k];
     } else if (a == "--distortion") {
       if (!ra::ParseDistortionSpec(argv[++k], &bag_options.lens, &error)) return Usage("--distortion: " + error);
     } else if (a == "--compressed") {
@@ -120,7 +120,7 @@ int main(int argc, char** argv) {
   }
   if (output.empty()) return Usage("give --output");
   if (bag_options.rectify && !bag_options.lens.HasDistortion()) return Usage("--rectify needs a --distortion");
-  if (!images_dir.empty() && (bag_options.lens.HasDistortion() || bag_options.info_focal_scale != 1.0)) {
+  if (!bag_options.images_dir.empty() && (bag_options.lens.HasDistortion() || bag_options.info_focal_scale != 1.0)) {
     return Usage("--images-dir writes ideal pinhole images with the scene's K: not with --distortion or "
                  "--info-focal-scale");
   }
@@ -135,14 +135,10 @@ int main(int argc, char** argv) {
     std::cerr << "rotation_averaging_make_demo_bag: " << error << "\n";
     return 1;
   }
-  if (!images_dir.empty() && !ra::WriteRigSceneImages(scene, images_dir, &error)) {
-    std::cerr << "rotation_averaging_make_demo_bag: " << error << "\n";
-    return 1;
-  }
   std::cout << "wrote " << output << ": " << options.num_captures << " captures x " << scene.Cameras().size()
             << " cameras at " << options.width << "x" << options.height << ", " << options.capture_period_s
             << " s apart (" << scene.CaptureTime(options.num_captures - 1) << " s of bag time), ground truth on "
             << "/ground_truth/orientations" << (gt_csv.empty() ? "" : " and in " + gt_csv)
-            << (images_dir.empty() ? "" : "; the images also in " + images_dir) << std::endl;
+            << (bag_options.images_dir.empty() ? "" : "; the images also in " + bag_options.images_dir) << std::endl;
   return 0;
 }

@@ -67,8 +67,9 @@ TEST(DemoBag, TheImageFolderHoldsTheBagsKeyframesUnderTheirNames) {
   const std::string bag = TempDir() + "/scene.bag", dir = TempDir() + "/images";
   NamedOrientations bag_truth;
   std::string error;
-  ASSERT_TRUE(WriteRigSceneBag(scene, bag, /*compressed=*/false, &bag_truth, &error)) << error;
-  ASSERT_TRUE(WriteRigSceneImages(scene, dir, &error)) << error;
+  RigSceneBagOptions bag_options;
+  bag_options.images_dir = dir;
+  ASSERT_TRUE(WriteRigSceneBag(scene, bag, /*compressed=*/false, &bag_truth, &error, bag_options)) << error;
 
   std::map<std::string, cv::Mat> images;
   std::map<std::string, sensor_msgs::CameraInfo> infos;
@@ -94,6 +95,11 @@ TEST(DemoBag, TheImageFolderHoldsTheBagsKeyframesUnderTheirNames) {
   Eigen::Matrix3d k;
   ASSERT_TRUE(ReadIntrinsics(dir + "/K.txt", &k, &error)) << error;
   EXPECT_LT((k - scene.Intrinsics()).norm(), 1e-12);
+
+  // The folder holds ideal pinhole images: not a lens's.
+  ASSERT_TRUE(ParseDistortionSpec("plumb_bob:-0.28,0.07,0,0", &bag_options.lens, &error)) << error;
+  EXPECT_FALSE(WriteRigSceneBag(scene, TempDir() + "/refused.bag", false, nullptr, &error, bag_options));
+  EXPECT_NE(error.find("ideal pinhole"), std::string::npos) << error;
 }
 
 TEST(DemoBag, ALensImagesRectifiedAgainAreARectifiedCamerasImages) {
