@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from report_common import reproduce_line
+from report_common import first, reproduce_line
 
 
 def quaternion_matrix(w, x, y, z):
@@ -49,8 +49,7 @@ def stereo_errors(orientations_csv, r10):
 
 
 def summary_value(path, pattern):
-    match = re.search(pattern, open(path).read(), re.M)
-    return match.group(1) if match else "-"
+    return first(open(path).read(), pattern, "-")
 
 
 def main():

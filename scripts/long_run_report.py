@@ -8,16 +8,10 @@ import os
 import re
 import sys
 
-from report_common import reproduce_line
+from report_common import first, reproduce_line
 
 RUNS = ("long", "laps", "demo", "demo_voting", "mid", "long_pixel60", "mid_pixel60")
 LAP_CAPTURES, FIRST_STAMP_S, LAPS = 60, 1000, 3  # the three-lap bag: 60 captures per lap, stamps from 1000 s
-
-
-def first(text, pattern):
-    """The first group of the first line matching `pattern` (empty if none)."""
-    match = re.search(pattern, text, re.M)
-    return match.group(1) if match else ""
 
 
 def row(label, text):

@@ -21,6 +21,12 @@ def values(text, pattern):
     return [m.group(1) for m in re.finditer(pattern, text, re.M)]
 
 
+def first(text, pattern, default=""):
+    """The first group of the first line of `text` matching `pattern` (multiline); `default` if none does."""
+    match = re.search(pattern, text, re.M)
+    return match.group(1) if match else default
+
+
 def value(text, pattern, default=""):
     """The first group of the lines matching `pattern`, one per line; `default` if none matches."""
     found = values(text, pattern)
