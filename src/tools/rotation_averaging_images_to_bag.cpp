@@ -107,97 +107,116 @@ int EurocToBag(const std::string& mav0, const std::string& output, bool compress
   return 0;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
+// The command line of the folder mode (and of --euroc).
+struct Args {
   std::string images_dir, intrinsics_path, output, gt_path, gt_csv, frame_id = "camera", distortion, euroc;
   double downsample = 1.0, rate = 1.0;
   bool compressed = false, rectify = false;
+};
+
+// Returns an empty string, or why the command line is refused.
+std::string ParseArgs(int argc, char** argv, Args* args) {
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
     const bool has_value = k + 1 < argc;
     if (a == "--images" && has_value) {
-      images_dir = argv[++k];
+      args->images_dir = argv[++k];
     } else if (a == "--intrinsics" && has_value) {
-      intrinsics_path = argv[++k];
+      args->intrinsics_path = argv[++k];
     } else if (a == "--output" && has_value) {
-      output = argv[++k];
+      args->output = argv[++k];
     } else if (a == "--gt" && has_value) {
-      gt_path = argv[++k];
+      args->gt_path = argv[++k];
     } else if (a == "--write-gt-csv" && has_value) {
-      gt_csv = argv[++k];
+      args->gt_csv = argv[++k];
     } else if (a == "--gt-csv") {
-      return Usage("--gt-csv is ambiguous: the ground truth to read is --gt, the CSV to write is --write-gt-csv");
+      return "--gt-csv is ambiguous: the ground truth to read is --gt, the CSV to write is --write-gt-csv";
     } else if (a == "--frame-id" && has_value) {
-      frame_id = argv[++k];
+      args->frame_id = argv[++k];
     } else if (a == "--downsample" && has_value) {
-      downsample = std::atof(argv[++k]);
+      args->downsample = std::atof(argv[++k]);
     } else if (a == "--rate" && has_value) {
-      rate = std::atof(argv[++k]);
+      args->rate = std::atof(argv[++k]);
     } else if (a == "--compressed") {
-      compressed = true;
+      args->compressed = true;
     } else if (a == "--euroc" && has_value) {
-      euroc = argv[++k];
+      args->euroc = argv[++k];
     } else if (a == "--rectify") {
-      rectify = true;
+      args->rectify = true;
     } else if (a == "--distortion" && has_value) {
-      distortion = argv[++k];
+      args->distortion = argv[++k];
     } else {
-      return Usage("bad or incomplete option " + a);
+      return "bad or incomplete option " + a;
     }
   }
-  if (!euroc.empty()) return EurocToBag(euroc, output, compressed, rectify);
-  if (images_dir.empty() || intrinsics_path.empty() || output.empty()) return Usage("give --images, --intrinsics and --output");
-  if (!(downsample > 0.0 && downsample <= 1.0)) return Usage("--downsample must be in (0, 1]");
-  if (!(rate > 0.0)) return Usage("--rate must be positive");
-  if (frame_id.empty()) return Usage("--frame-id must not be empty");
+  if (!args->euroc.empty()) return "";
+  if (args->images_dir.empty() || args->intrinsics_path.empty() || args->output.empty()) {
+    return "give --images, --intrinsics and --output";
+  }
+  if (!(args->downsample > 0.0 && args->downsample <= 1.0)) return "--downsample must be in (0, 1]";
+  if (!(args->rate > 0.0)) return "--rate must be positive";
+  if (args->frame_id.empty()) return "--frame-id must not be empty";
+  return "";
+}
 
-  if (!gt_csv.empty() && SameFile(gt_csv, output)) return Usage("--output and --write-gt-csv name the same file");
-  const std::vector<std::string> images = ra::ListImages(images_dir);
-  std::vector<std::pair<std::string, std::string>> inputs = {{"--intrinsics", intrinsics_path}};
-  if (!gt_path.empty()) inputs.emplace_back("--gt", gt_path);
+// Refuses an output that is one of the inputs (empty string: none is).
+std::string OverwrittenInput(const Args& args, const std::vector<std::string>& images) {
+  if (!args.gt_csv.empty() && SameFile(args.gt_csv, args.output)) return "--output and --write-gt-csv name the same file";
+  std::vector<std::pair<std::string, std::string>> inputs = {{"--intrinsics", args.intrinsics_path}};
+  if (!args.gt_path.empty()) inputs.emplace_back("--gt", args.gt_path);
   for (const std::string& image : images) inputs.emplace_back("an image of --images", image);
   for (const auto& [what, input] : inputs) {
-    for (const auto& [flag, out] : {std::make_pair("--output", output), std::make_pair("--write-gt-csv", gt_csv)}) {
+    for (const auto& [flag, out] :
+         {std::make_pair("--output", args.output), std::make_pair("--write-gt-csv", args.gt_csv)}) {
       if (!out.empty() && SameFile(out, input)) {
-        return Usage(std::string(flag) + " " + out + " is " + what + " (" + input + "): refusing to overwrite an input");
+        return std::string(flag) + " " + out + " is " + what + " (" + input + "): refusing to overwrite an input";
       }
     }
   }
+  return "";
+}
 
-  ra::CameraIntrinsics intrinsics;
-  std::string error;
-  if (!ra::ReadCameraIntrinsics(intrinsics_path, &intrinsics, &error)) {
-    std::cerr << "rotation_averaging_images_to_bag: " << error << "\n";
-    return 1;
+// One image as the bag carries it, with the camera its camera_info
+// describes: rectified (--rectify of a distorted camera), downsampled (the
+// distortion acts on normalised coordinates: resizing scales K only), then
+// through --distortion's lens (`lens`'s K is the downsampled image's), and
+// with --rectify back again.
+cv::Mat PrepareImage(cv::Mat grey, const Args& args, const ra::CameraIntrinsics& intrinsics, ra::CameraIntrinsics lens,
+                     ra::CameraIntrinsics* camera) {
+  *camera = intrinsics;
+  if (args.rectify && args.distortion.empty()) {
+    grey = ra::UndistortImage(grey, intrinsics);
+    *camera = ra::CameraIntrinsics();
+    camera->k = intrinsics.k;
   }
-  ra::CameraIntrinsics lens;  // the distortion --distortion adds
-  if (!distortion.empty()) {
-    if (intrinsics.HasDistortion()) {
-      return Usage("--distortion needs images of an ideal camera; " + intrinsics_path + " has a " +
-                   ra::DistortionModelName(intrinsics.distortion) + " distortion");
+  if (args.downsample < 1.0) {
+    cv::Mat small;
+    cv::resize(grey, small, cv::Size(), args.downsample, args.downsample, cv::INTER_AREA);
+    grey = small;
+    camera->k = ra::ScaleIntrinsics(camera->k, args.downsample);
+  }
+  if (!args.distortion.empty()) {
+    lens.k = camera->k;
+    grey = ra::DistortImage(grey, lens);
+    *camera = lens;
+    if (args.rectify) {  // through the lens and back: what the lens's resampling loses
+      grey = ra::UndistortImage(grey, lens);
+      camera->distortion = ra::DistortionModel::kNone;
+      camera->coefficients.clear();
     }
-    lens = intrinsics;
-    if (!ra::ParseDistortionSpec(distortion, &lens, &error)) return Usage("--distortion: " + error);
   }
-  if (images.empty()) {
-    std::cerr << "rotation_averaging_images_to_bag: no images in " << images_dir << "\n";
-    return 1;
-  }
-  ra::NamedOrientations truth_by_image;
-  if (!gt_path.empty()) {
-    const ra::ReadReport report = ra::ReadGroundTruth(gt_path, ra::GroundTruthFormat::kAuto, &truth_by_image);
-    if (!report.ok()) {
-      std::cerr << "rotation_averaging_images_to_bag: ground truth: " << report.error << "\n";
-      return 1;
-    }
-  }
+  return grey;
+}
 
+// Writes the folder's images as keyframes 1/rate apart, with the ground
+// truth of those that have one; returns the process's exit code.
+int WriteFolderBag(const Args& args, const std::vector<std::string>& images, const ra::CameraIntrinsics& intrinsics,
+                   const ra::CameraIntrinsics& lens, const ra::NamedOrientations& truth_by_image) {
   rosbag::Bag bag;
   try {
-    bag.open(output, rosbag::bagmode::Write);
+    bag.open(args.output, rosbag::bagmode::Write);
   } catch (const rosbag::BagException& e) {
-    std::cerr << "rotation_averaging_images_to_bag: cannot write " << output << ": " << e.what() << "\n";
+    std::cerr << "rotation_averaging_images_to_bag: cannot write " << args.output << ": " << e.what() << "\n";
     return 1;
   }
   const ros::Time t0(1000.0);
@@ -205,41 +224,20 @@ int main(int argc, char** argv) {
   truth.header.frame_id = "map";
   ra::NamedOrientations truth_csv;
   std::size_t written = 0, without_truth = 0;
-  for (std::size_t i = 0; i < images.size(); ++i) {
-    cv::Mat grey = cv::imread(images[i], cv::IMREAD_GRAYSCALE);
-    if (grey.empty()) {
-      std::cerr << "warning: cannot read " << images[i] << ", skipped\n";
+  for (const std::string& path : images) {
+    const cv::Mat read = cv::imread(path, cv::IMREAD_GRAYSCALE);
+    if (read.empty()) {
+      std::cerr << "warning: cannot read " << path << ", skipped\n";
       continue;
     }
-    ra::CameraIntrinsics camera = intrinsics;
-    if (rectify && distortion.empty()) {
-      grey = ra::UndistortImage(grey, intrinsics);
-      camera = ra::CameraIntrinsics();
-      camera.k = intrinsics.k;
-    }
-    if (downsample < 1.0) {
-      // The distortion acts on normalised coordinates: resizing scales K only.
-      cv::Mat small;
-      cv::resize(grey, small, cv::Size(), downsample, downsample, cv::INTER_AREA);
-      grey = small;
-      camera.k = ra::ScaleIntrinsics(camera.k, downsample);
-    }
-    if (!distortion.empty()) {
-      lens.k = camera.k;
-      grey = ra::DistortImage(grey, lens);
-      camera = lens;
-      if (rectify) {  // through the lens and back: what the lens's resampling loses
-        grey = ra::UndistortImage(grey, lens);
-        camera.distortion = ra::DistortionModel::kNone;
-        camera.coefficients.clear();
-      }
-    }
-    const ros::Time stamp = t0 + ros::Duration(written / rate);
-    ra::WriteKeyframeImage(&bag, frame_id, stamp, grey, camera, compressed);
+    ra::CameraIntrinsics camera;
+    const cv::Mat grey = PrepareImage(read, args, intrinsics, lens, &camera);
+    const ros::Time stamp = t0 + ros::Duration(written / args.rate);
+    ra::WriteKeyframeImage(&bag, args.frame_id, stamp, grey, camera, args.compressed);
     ++written;
-    auto gt = truth_by_image.find(BaseName(images[i]));
+    auto gt = truth_by_image.find(BaseName(path));
     if (gt != truth_by_image.end()) {
-      const ra::KeyframeKey key{frame_id, ra::ToNanoseconds(stamp)};
+      const ra::KeyframeKey key{args.frame_id, ra::ToNanoseconds(stamp)};
       truth.keyframes.push_back(ra::ToMsg(key, gt->second, 0));
       truth_csv[ra::OnlineAverager::KeyframeName(key)] = gt->second;
     } else if (!truth_by_image.empty()) {
@@ -249,18 +247,60 @@ int main(int argc, char** argv) {
   }
   std::fprintf(stderr, "\n");
   if (!truth.keyframes.empty()) {
-    const ros::Time end = t0 + ros::Duration((written > 0 ? written - 1 : 0) / rate);
+    const ros::Time end = t0 + ros::Duration((written > 0 ? written - 1 : 0) / args.rate);
     truth.header.stamp = end;
     bag.write("/ground_truth/orientations", end, truth);
   }
   bag.close();
-  if (!gt_csv.empty() && !ra::WriteOrientationsCsv(gt_csv, truth_csv, &error)) {
+  std::string error;
+  if (!args.gt_csv.empty() && !ra::WriteOrientationsCsv(args.gt_csv, truth_csv, &error)) {
     std::cerr << "rotation_averaging_images_to_bag: " << error << "\n";
     return 1;
   }
-  std::cout << "wrote " << output << ": " << written << " keyframes of " << frame_id << ", " << 1.0 / rate
+  std::cout << "wrote " << args.output << ": " << written << " keyframes of " << args.frame_id << ", " << 1.0 / args.rate
             << " s apart; ground truth for " << truth.keyframes.size() << " of them";
   if (without_truth) std::cout << " (" << without_truth << " images have none)";
   std::cout << std::endl;
   return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Args args;
+  const std::string refused = ParseArgs(argc, argv, &args);
+  if (!refused.empty()) return Usage(refused);
+  if (!args.euroc.empty()) return EurocToBag(args.euroc, args.output, args.compressed, args.rectify);
+  const std::vector<std::string> images = ra::ListImages(args.images_dir);
+  const std::string overwritten = OverwrittenInput(args, images);
+  if (!overwritten.empty()) return Usage(overwritten);
+
+  ra::CameraIntrinsics intrinsics;
+  std::string error;
+  if (!ra::ReadCameraIntrinsics(args.intrinsics_path, &intrinsics, &error)) {
+    std::cerr << "rotation_averaging_images_to_bag: " << error << "\n";
+    return 1;
+  }
+  ra::CameraIntrinsics lens;  // the distortion --distortion adds
+  if (!args.distortion.empty()) {
+    if (intrinsics.HasDistortion()) {
+      return Usage("--distortion needs images of an ideal camera; " + args.intrinsics_path + " has a " +
+                   ra::DistortionModelName(intrinsics.distortion) + " distortion");
+    }
+    lens = intrinsics;
+    if (!ra::ParseDistortionSpec(args.distortion, &lens, &error)) return Usage("--distortion: " + error);
+  }
+  if (images.empty()) {
+    std::cerr << "rotation_averaging_images_to_bag: no images in " << args.images_dir << "\n";
+    return 1;
+  }
+  ra::NamedOrientations truth_by_image;
+  if (!args.gt_path.empty()) {
+    const ra::ReadReport report = ra::ReadGroundTruth(args.gt_path, ra::GroundTruthFormat::kAuto, &truth_by_image);
+    if (!report.ok()) {
+      std::cerr << "rotation_averaging_images_to_bag: ground truth: " << report.error << "\n";
+      return 1;
+    }
+  }
+  return WriteFolderBag(args, images, intrinsics, lens, truth_by_image);
 }
