@@ -236,6 +236,121 @@ void BlockSparseSystem::AddBlockAt(int col, int p, const Eigen::Matrix3d& m) {
   }
 }
 
+bool BlockSparseSystem::TryMultigrid(Eigen::MatrixXd* x) {
+  // Large systems (SetUseMultigrid): conjugate gradients preconditioned
+  // with aggregation multigrid, set up for this matrix. The
+  // aggregates of the last full setup are kept while the solves they serve
+  // take at most two iterations more than the first one did; a solve that
+  // takes more, or a new tolerance (the next stage), rebuilds them.
+  // A system multigrid did not solve goes to the factorisation, and so do
+  // the next 2^(k-1) solves after k such failures in a row: where the
+  // hierarchy does not suit the matrix (nearly degenerate information, as in
+  // some real pose graphs), each attempt would cost the iterations it takes
+  // to give up.
+  if (!use_multigrid_ || !multigrid_back_off_.Try()) return false;
+  if (!multigrid_) multigrid_ = std::make_unique<AggregationAmg>();
+  for (int pass = 0; pass < 2; ++pass) {
+    const bool reuse = pass == 0 && !multigrid_rebuild_;
+    bool converged = false;
+    if (block_dim_ == 1 ? multigrid_->Setup(matrix_, reuse) : multigrid_->SetupBlocks(matrix_, reuse)) {
+      last_pcg_iterations_ = multigrid_->Solve(
+          rhs_, pcg_tolerance_, block_dim_ == 1 ? kMaxMultigridIterations : kMaxBlockMultigridIterations, x, &converged);
+    }
+    converged = converged && x->allFinite();
+    if (!reuse) {
+      multigrid_baseline_iterations_ = last_pcg_iterations_;
+      multigrid_rebuild_ = false;
+    } else if (!converged || last_pcg_iterations_ > multigrid_baseline_iterations_ + 2) {
+      multigrid_rebuild_ = true;
+    }
+    if (converged) {
+      ++num_multigrid_solves_;
+      multigrid_back_off_.Succeeded();
+      return true;
+    }
+    if (!reuse) break;  // a fresh hierarchy did not converge: factorise
+  }
+  multigrid_back_off_.Failed();
+  return false;
+}
+
+bool BlockSparseSystem::TryOldFactor(Eigen::MatrixXd* x) {
+  // Conjugate gradients preconditioned with the factor of an earlier
+  // matrix of the same pattern: IRLS weights change little
+  // from one iteration to the next, so a few cheap iterations replace a
+  // factorisation. Where the weights change too much between solves (the
+  // robust start's early iterations), every attempt fails and costs about
+  // half a factorisation (three or more iterations through the old factor):
+  // after k failures in a row, the next 2^(k-1) solves factorise directly
+  // (100,000-view scale graph, all by factorisation: 29 failed attempts,
+  // ~8 s of a 26 s solve; with the back-off 6 attempts and 18 s).
+  Factorization& f = *factorization_;
+  if (!f.has_factor || f.refactor_next || !reuse_factorization_ || !f.pcg_back_off.Try()) return false;
+  // All right-hand sides iterate together, each with its own step
+  // lengths: one triangular solve with k columns streams the factor once
+  // (100,000-row grid Laplacian: 3 columns 44 ms, one column 30 ms), so
+  // the Laplacian's three coordinates cost little more than one.
+  const Eigen::Index k = rhs_.cols();
+  Eigen::MatrixXd& xs = *x;
+  xs = f.ApplyInverse(rhs_);
+  Eigen::MatrixXd r = rhs_ - Multiply(xs);
+  const Eigen::ArrayXd initial = r.colwise().squaredNorm().transpose().array();
+  const Eigen::ArrayXd target = pcg_tolerance_ * pcg_tolerance_ * rhs_.colwise().squaredNorm().transpose().array();
+  Eigen::ArrayXd residual2 = initial;
+  auto all_converged = [&]() { return (residual2 <= target).all(); };
+  Eigen::MatrixXd z = f.ApplyInverse(r);
+  Eigen::MatrixXd p = z;
+  Eigen::ArrayXd rz = (r.array() * z.array()).colwise().sum().transpose();
+  int iterations = 0;
+  bool failed = false;
+  while (!all_converged() && !failed && iterations < kMaxPcgIterations) {
+    const Eigen::MatrixXd hp = Multiply(p);
+    ++iterations;
+    for (Eigen::Index c = 0; c < k; ++c) {
+      if (residual2(c) <= target(c)) continue;  // this column is done
+      const double alpha = rz(c) / p.col(c).dot(hp.col(c));
+      if (!std::isfinite(alpha) || !(alpha > 0.0)) {
+        failed = true;
+        break;
+      }
+      xs.col(c) += alpha * p.col(c);
+      r.col(c) -= alpha * hp.col(c);
+      residual2(c) = r.col(c).squaredNorm();
+    }
+    if (failed || all_converged()) break;
+    // A stale factor shows at once: when the rate of the first three
+    // iterations would not reach the tolerance within kMaxPcgIterations,
+    // refactorising is cheaper than going on.
+    if (iterations == 3) {
+      bool hopeless = false;
+      for (Eigen::Index c = 0; c < k; ++c) {
+        if (residual2(c) <= target(c)) continue;
+        // Squared residual reduction per iteration so far.
+        const double rate2 = std::pow(residual2(c) / std::max(initial(c), 1e-300), 1.0 / iterations);
+        hopeless = hopeless || !(rate2 < 1.0) ||
+                   std::log(target(c) / residual2(c)) / std::log(rate2) > kMaxPcgIterations - iterations;
+      }
+      if (hopeless) break;
+    }
+    z = f.ApplyInverse(r);
+    for (Eigen::Index c = 0; c < k; ++c) {
+      if (residual2(c) <= target(c)) continue;
+      const double rz_new = r.col(c).dot(z.col(c));
+      p.col(c) = z.col(c) + (rz_new / rz(c)) * p.col(c);
+      rz(c) = rz_new;
+    }
+  }
+  last_pcg_iterations_ = iterations;
+  if (!failed && all_converged() && xs.allFinite()) {
+    f.pcg_back_off.Succeeded();
+    ++num_pcg_solves_;
+    f.refactor_next = last_pcg_iterations_ > kRefactorAfterPcgIterations;
+    return true;
+  }
+  f.pcg_back_off.Failed();
+  return false;
+}
+
 bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::VectorXd* x, double* lambda_used) {
   Eigen::MatrixXd solution;
   const bool ok = Solve(relative_lambda, max_retries, &solution, lambda_used);
@@ -349,117 +464,12 @@ bool BlockSparseSystem::Solve(double relative_lambda, int max_retries, Eigen::Ma
   for (int k = 0; k < n; ++k) values[diagonal_positions_[k]] += lambda;
   applied = lambda;
 
-  // Large systems (SetUseMultigrid): conjugate gradients preconditioned
-  // with aggregation multigrid, set up for this matrix. The
-  // aggregates of the last full setup are kept while the solves they serve
-  // take at most two iterations more than the first one did; a solve that
-  // takes more, or a new tolerance (the next stage), rebuilds them.
-  // A system multigrid did not solve goes to the factorisation, and so do
-  // the next 2^(k-1) solves after k such failures in a row: where the
-  // hierarchy does not suit the matrix (nearly degenerate information, as in
-  // some real pose graphs), each attempt would cost the iterations it takes
-  // to give up.
-  if (use_multigrid_ && multigrid_back_off_.Try()) {
-    if (!multigrid_) multigrid_ = std::make_unique<AggregationAmg>();
-    for (int pass = 0; pass < 2; ++pass) {
-      const bool reuse = pass == 0 && !multigrid_rebuild_;
-      bool converged = false;
-      if (block_dim_ == 1 ? multigrid_->Setup(matrix_, reuse) : multigrid_->SetupBlocks(matrix_, reuse)) {
-        last_pcg_iterations_ = multigrid_->Solve(
-            rhs_, pcg_tolerance_, block_dim_ == 1 ? kMaxMultigridIterations : kMaxBlockMultigridIterations, x, &converged);
-      }
-      converged = converged && x->allFinite();
-      if (!reuse) {
-        multigrid_baseline_iterations_ = last_pcg_iterations_;
-        multigrid_rebuild_ = false;
-      } else if (!converged || last_pcg_iterations_ > multigrid_baseline_iterations_ + 2) {
-        multigrid_rebuild_ = true;
-      }
-      if (converged) {
-        ++num_multigrid_solves_;
-        multigrid_back_off_.Succeeded();
-        for (int i = 0; i < n; ++i) values[diagonal_positions_[i]] -= applied;
-        if (lambda_used) *lambda_used = lambda;
-        return true;
-      }
-      if (!reuse) break;  // a fresh hierarchy did not converge: factorise
-    }
-    multigrid_back_off_.Failed();
-  }
-  // Otherwise first try conjugate gradients preconditioned with the factor
-  // of an earlier matrix of the same pattern: IRLS weights change little
-  // from one iteration to the next, so a few cheap iterations replace a
-  // factorisation. Where the weights change too much between solves (the
-  // robust start's early iterations), every attempt fails and costs about
-  // half a factorisation (three or more iterations through the old factor):
-  // after k failures in a row, the next 2^(k-1) solves factorise directly
-  // (100,000-view scale graph, all by factorisation: 29 failed attempts,
-  // ~8 s of a 26 s solve; with the back-off 6 attempts and 18 s).
-  if (f.has_factor && !f.refactor_next && reuse_factorization_ && f.pcg_back_off.Try()) {
-    // All right-hand sides iterate together, each with its own step
-    // lengths: one triangular solve with k columns streams the factor once
-    // (100,000-row grid Laplacian: 3 columns 44 ms, one column 30 ms), so
-    // the Laplacian's three coordinates cost little more than one.
-    const Eigen::Index k = rhs_.cols();
-    Eigen::MatrixXd& xs = *x;
-    xs = f.ApplyInverse(rhs_);
-    Eigen::MatrixXd r = rhs_ - Multiply(xs);
-    const Eigen::ArrayXd initial = r.colwise().squaredNorm().transpose().array();
-    const Eigen::ArrayXd target = pcg_tolerance_ * pcg_tolerance_ * rhs_.colwise().squaredNorm().transpose().array();
-    Eigen::ArrayXd residual2 = initial;
-    auto all_converged = [&]() { return (residual2 <= target).all(); };
-    Eigen::MatrixXd z = f.ApplyInverse(r);
-    Eigen::MatrixXd p = z;
-    Eigen::ArrayXd rz = (r.array() * z.array()).colwise().sum().transpose();
-    int iterations = 0;
-    bool failed = false;
-    while (!all_converged() && !failed && iterations < kMaxPcgIterations) {
-      const Eigen::MatrixXd hp = Multiply(p);
-      ++iterations;
-      for (Eigen::Index c = 0; c < k; ++c) {
-        if (residual2(c) <= target(c)) continue;  // this column is done
-        const double alpha = rz(c) / p.col(c).dot(hp.col(c));
-        if (!std::isfinite(alpha) || !(alpha > 0.0)) {
-          failed = true;
-          break;
-        }
-        xs.col(c) += alpha * p.col(c);
-        r.col(c) -= alpha * hp.col(c);
-        residual2(c) = r.col(c).squaredNorm();
-      }
-      if (failed || all_converged()) break;
-      // A stale factor shows at once: when the rate of the first three
-      // iterations would not reach the tolerance within kMaxPcgIterations,
-      // refactorising is cheaper than going on.
-      if (iterations == 3) {
-        bool hopeless = false;
-        for (Eigen::Index c = 0; c < k; ++c) {
-          if (residual2(c) <= target(c)) continue;
-          // Squared residual reduction per iteration so far.
-          const double rate2 = std::pow(residual2(c) / std::max(initial(c), 1e-300), 1.0 / iterations);
-          hopeless = hopeless || !(rate2 < 1.0) ||
-                     std::log(target(c) / residual2(c)) / std::log(rate2) > kMaxPcgIterations - iterations;
-        }
-        if (hopeless) break;
-      }
-      z = f.ApplyInverse(r);
-      for (Eigen::Index c = 0; c < k; ++c) {
-        if (residual2(c) <= target(c)) continue;
-        const double rz_new = r.col(c).dot(z.col(c));
-        p.col(c) = z.col(c) + (rz_new / rz(c)) * p.col(c);
-        rz(c) = rz_new;
-      }
-    }
-    last_pcg_iterations_ = iterations;
-    if (!failed && all_converged() && xs.allFinite()) {
-      f.pcg_back_off.Succeeded();
-      ++num_pcg_solves_;
-      f.refactor_next = last_pcg_iterations_ > kRefactorAfterPcgIterations;
-      for (int i = 0; i < n; ++i) values[diagonal_positions_[i]] -= applied;
-      if (lambda_used) *lambda_used = lambda;
-      return true;
-    }
-    f.pcg_back_off.Failed();
+  // The cheaper solves first; a factorisation where neither applies or
+  // converges.
+  if (TryMultigrid(x) || TryOldFactor(x)) {
+    for (int i = 0; i < n; ++i) values[diagonal_positions_[i]] -= applied;
+    if (lambda_used) *lambda_used = lambda;
+    return true;
   }
 
   ChooseFactorization();

@@ -160,6 +160,11 @@ class BlockSparseSystem {
   std::unique_ptr<AggregationAmg> multigrid_;
   struct Factorization;
   std::unique_ptr<Factorization> factorization_;
+  // Solve's cheaper paths, on the matrix with lambda already on its
+  // diagonal: each returns whether it solved the system into `x` (false when
+  // it does not apply, is backing off, or did not converge).
+  bool TryMultigrid(Eigen::MatrixXd* x);
+  bool TryOldFactor(Eigen::MatrixXd* x);
   // Picks the factorisation for this pattern (see FactorizationMethod), once.
   void ChooseFactorization() const;
   // PredictedFactorEntriesPerColumn and the block ordering it is for.
