@@ -92,7 +92,7 @@ for input in none_model plumb_bob_model plumb_bob_rectified; do
   bag="$OUT/demo_${input%_model}.bag"
   replay "demo_${input}_pairs" "$bag" "$NO_RIG" "use_rig_extrinsics: false"
   "$BIN/rotavg" eval --graph "$OUT/demo_${input}_pairs/graph.txt" --gt "$OUT/demo_${input}_pairs/ground_truth.csv" \
-    > "$OUT/demo_${input}_pairs_eval.txt"
+    --per-edge > "$OUT/demo_${input}_pairs_eval.txt"
 done
 
 python3 scripts/camera_models_report.py "$OUT" "$EUROC" "$PLUMB_BOB" "$FISHEYE" "${SCENES[@]}" \

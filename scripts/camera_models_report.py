@@ -25,6 +25,31 @@ def angle_deg(r):
     return np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1)))
 
 
+def pair_kinds(graph_txt, per_edge_txt):
+    """{kind: [(error_deg, nees)]} of a graph's scored pairs: sequential,
+    loop closures within a camera, loop closures between cameras (a keyframe
+    name is camera@stamp)."""
+    names, sources = {}, {}
+    for line in open(graph_txt):
+        f = line.split()
+        if f and f[0] == "VIEW":
+            names[f[1]] = f[2]
+        elif f and f[0] == "EDGE":
+            sources[frozenset((f[1], f[2]))] = f[3]
+    source_by_names = {frozenset(names[i] for i in ids): source for ids, source in sources.items()}
+    kinds = {}
+    for line in open(per_edge_txt):
+        f = line.split()
+        if not f or f[0] != "edge":
+            continue
+        source = source_by_names[frozenset((f[1], f[2]))]
+        if source != "sequential":
+            source = "loop closure, " + ("one camera" if f[1].split("@")[0] == f[2].split("@")[0] else
+                                         "two cameras")
+        kinds.setdefault(source, []).append((float(f[3]), float(f[4])))
+    return kinds
+
+
 def body_from_camera(sensor_yaml):
     """T_BS's rotation (camera-to-body) from a EuRoC sensor.yaml."""
     text = open(sensor_yaml).read()
@@ -132,6 +157,24 @@ def main():
                                              summary_value(scored, r"^edges scored: (\d+)"),
                                              summary_value(scored, r"^median edge error: ([0-9.]+) deg"),
                                              summary_value(scored, r"^NEES median: ([0-9.]+)")))
+    print()
+    print("The same pairs by kind: sequential (a camera's keyframe and its previous one), loop closures")
+    print("between two keyframes of one camera, and between keyframes of the two cameras.")
+    print()
+    print("| demo input | kind | pairs | median pair error (deg) | NEES median |")
+    print("|---|---|---|---|---|")
+    for input, label in (("none_model", "original images"), ("plumb_bob_model", "plumb_bob, with the model"),
+                         ("plumb_bob_rectified", "plumb_bob, warped, then rectified")):
+        scored = os.path.join(out, "demo_%s_pairs_eval.txt" % input)
+        if not os.path.exists(scored):
+            continue
+        kinds = pair_kinds(os.path.join(out, "demo_%s_pairs" % input, "graph.txt"), scored)
+        for kind in ("sequential", "loop closure, one camera", "loop closure, two cameras"):
+            pairs = np.array(kinds.get(kind, [])).reshape(-1, 2)
+            if len(pairs) == 0:
+                continue
+            print("| %s | %s | %d | %.4f | %.1f |" % (label, kind, len(pairs), np.median(pairs[:, 0]),
+                                                     np.median(pairs[:, 1])))
     print()
     print("## The replay's summary of the EuRoC run with the model")
     print()
