@@ -123,6 +123,46 @@ TEST(CameraModel, KeypointsTheModelCannotInvertAreDroppedWithTheirDescriptors) {
   for (const Eigen::Vector2d& p : features.keypoints_px) EXPECT_TRUE(p.allFinite());
 }
 
+// A focal length corrected after the keypoints were undistorted: moving
+// them gives what undistorting the raw pixels with the new K gives, which is
+// not the old undistorted pixels scaled; for every model.
+TEST(CameraModel, UndistortionRedoneWithANewFocalLengthMatchesUndistortingAgain) {
+  for (const auto& [model, coefficients] :
+       {std::make_pair(DistortionModel::kPlumbBob, std::vector<double>{-0.28, 0.07, 2e-4, 2e-5}),
+        std::make_pair(DistortionModel::kEquidistant, std::vector<double>{0.02, -0.01, 0.005, -0.001}),
+        std::make_pair(DistortionModel::kRationalPolynomial,
+                       std::vector<double>{-0.3, 0.1, 1e-4, -1e-4, 0.0, 0.05, 0.01, 0.0})}) {
+    CameraIntrinsics camera = EurocCam0();
+    camera.distortion = model;
+    camera.coefficients = coefficients;
+    Eigen::Matrix3d to_k = camera.k;
+    to_k(0, 0) *= 1.03;
+    to_k(1, 1) *= 1.03;
+    const std::vector<Eigen::Vector2d> raw = {{367.0, 248.0}, {40.0, 30.0}, {700.0, 450.0}, {600.0, 100.0}};
+    std::vector<Eigen::Vector2d> moved = raw, direct = raw;
+    UndistortPixels(camera, camera.k, &moved);
+    UndistortPixels(camera, to_k, &direct);
+    const std::vector<Eigen::Vector2d> old_pixels = moved;
+    EXPECT_EQ(RedoUndistortion(camera, camera.k, to_k, &moved), 0) << DistortionModelName(model);
+    double largest_move = 0.0;
+    for (std::size_t i = 0; i < raw.size(); ++i) {
+      EXPECT_LT((moved[i] - direct[i]).norm(), 1e-6) << DistortionModelName(model) << " pixel " << i;
+      largest_move = std::max(largest_move, (moved[i] - old_pixels[i]).norm());
+    }
+    EXPECT_GT(largest_move, 1.0) << DistortionModelName(model) << ": the new K moved nothing";
+  }
+  // A rectified camera's keypoints are the raw ones: nothing to redo.
+  CameraIntrinsics rectified = EurocCam0();
+  rectified.distortion = DistortionModel::kNone;
+  rectified.coefficients.clear();
+  Eigen::Matrix3d longer = rectified.k;
+  longer(0, 0) *= 1.1;
+  longer(1, 1) *= 1.1;
+  std::vector<Eigen::Vector2d> pixels = {{10.0, 20.0}};
+  EXPECT_EQ(RedoUndistortion(rectified, rectified.k, longer, &pixels), 0);
+  EXPECT_EQ(pixels[0], Eigen::Vector2d(10.0, 20.0));
+}
+
 TEST(CameraModel, DistortImageAndUndistortImageAreInverses) {
   cv::Mat ideal(240, 320, CV_8U);
   cv::randu(ideal, 0, 255);

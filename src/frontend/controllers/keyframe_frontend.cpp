@@ -33,6 +33,10 @@ struct KeyframeFrontend::Keyframe {
   // seen again from other views are the ones a later revisit will match.
   std::vector<std::uint16_t> inlier_hits;
   Eigen::Matrix3d k;  // intrinsics of the (resized) image the features come from
+  // The lens its keypoints were undistorted with (distortion model and
+  // coefficients; `k` is the one above). None for a rectified camera and
+  // for a keyframe loaded from a database.
+  CameraIntrinsics lens;
   int loaded_chain = -1;  // index into loaded_chains_; -1: a keyframe of this session
 };
 
@@ -250,14 +254,30 @@ bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double sc
     return false;
   }
   focal_correction_[camera] = FocalCorrection(camera) * scale;
+  const auto corrected = [scale](Eigen::Matrix3d k) {
+    k(0, 0) *= scale;
+    k(1, 1) *= scale;
+    return k;
+  };
+  // A raw image's keypoints were undistorted with the old focal length:
+  // they are undistorted again with the new one, those of the held pairs
+  // (while the keyframes still have the old K) and the keyframes' own, which
+  // later pairs match.
+  std::vector<HeldPair>& held = held_pairs_[camera];
+  for (HeldPair& p : held) {
+    for (const auto& [index, points] : {std::make_pair(p.first, p.points1), std::make_pair(p.second, p.points2)}) {
+      const Keyframe& kf = *keyframes_[index];
+      if (kf.key.frame_id == camera) RedoUndistortion(kf.lens, kf.k, corrected(kf.k), points.get());
+    }
+  }
   const auto chain = by_camera_.find(camera);
   if (chain != by_camera_.end()) {
     for (int i : chain->second) {
-      keyframes_[i]->k(0, 0) *= scale;
-      keyframes_[i]->k(1, 1) *= scale;
+      Keyframe& kf = *keyframes_[i];
+      RedoUndistortion(kf.lens, kf.k, corrected(kf.k), &kf.features.keypoints_px);
+      kf.k = corrected(kf.k);
     }
   }
-  std::vector<HeldPair>& held = held_pairs_[camera];
   std::vector<RelativePoseResult> poses(held.size());
   ParallelFor(static_cast<int>(held.size()), ResolveThreadCount(options_.num_threads), [&](int h) {
     const HeldPair& p = held[h];
@@ -410,6 +430,10 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   // a raw image are moved to where that camera would have seen them. A
   // rectified camera's are left exactly as detected.
   stats_.keypoints_outside_model += UndistortFeatures(camera, kf->k, &kf->features);
+  if (camera.HasDistortion()) {
+    kf->lens = camera;
+    kf->lens.k = kf->k;
+  }
   kf->index = std::make_unique<FeatureIndex>(kf->features);
   kf->inlier_hits.assign(kf->features.keypoints_px.size(), 0);
   stats_.last_features_s = Seconds(start);
@@ -735,8 +759,9 @@ bool KeyframeFrontend::SnapshotDatabase(KeyframeDatabase* database, std::string*
       stored.sequential_rotation = kf->sequential_rotation;
       stored.sequential_covariance = kf->sequential_covariance;
     }
-    // A compact keyframe's features are never changed in place (Compact
-    // replaces them): sharing its descriptors with the snapshot is safe.
+    // A compact keyframe's descriptors are never changed in place (Compact
+    // replaces them; a focal correction moves keypoints, which are copied):
+    // sharing them with the snapshot is safe.
     stored.features =
         kf->compact ? kf->features : CompactFeatures(kf->features, options_.compact_features, kf->inlier_hits);
     stored.bow = kf->bow;

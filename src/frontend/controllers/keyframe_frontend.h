@@ -215,11 +215,13 @@ class KeyframeFrontend {
   // anything), for those held (later pairs with them), and for the pairs of
   // it held (FocalMonitorOptions::hold_for_correction), which are estimated
   // again from their matches; their edges are returned, to replace the old
-  // ones. Keypoints of a distorted camera were undistorted with the former
-  // K, which the correction does not redo: for a lens's distortion a focal
-  // length a few percent off moves them by a few percent of that
-  // distortion. False, with `why`, and nothing changed, when the camera's
-  // pairs outgrew max_correction_pairs.
+  // ones. Keypoints of a distorted camera, undistorted with the former K,
+  // are undistorted again with the corrected one first (RedoUndistortion),
+  // the held pairs' and the keyframes': the lens's distortion acts on the
+  // normalised coordinates K gives, so scaling them would not do. Keyframes
+  // loaded from a database keep theirs (it holds no lens). False, with
+  // `why`, and nothing changed, when the camera's pairs outgrew
+  // max_correction_pairs.
   bool ApplyFocalCorrection(const std::string& camera, double scale, std::vector<KeyframeRelativeRotation>* edges,
                             std::string* why);
   // The product of the corrections applied to `camera` (1: none).

@@ -308,6 +308,28 @@ int UndistortPixels(const CameraIntrinsics& camera, const Eigen::Matrix3d& scale
   return failed;
 }
 
+int RedoUndistortion(const CameraIntrinsics& camera, const Eigen::Matrix3d& from_k, const Eigen::Matrix3d& to_k,
+                     std::vector<Eigen::Vector2d>* pixels) {
+  if (!camera.HasDistortion() || pixels->empty()) return 0;
+  const std::vector<double> d = OpenCvCoefficients(camera);
+  const Eigen::Matrix3d from_inverse = from_k.inverse();
+  std::vector<Eigen::Vector2d> raw(pixels->size());
+  for (std::size_t i = 0; i < pixels->size(); ++i) {
+    const Eigen::Vector2d x = (from_inverse * (*pixels)[i].homogeneous()).hnormalized();
+    raw[i] = (from_k * Distort(camera, d, x).homogeneous()).hnormalized();
+  }
+  UndistortPixels(camera, to_k, &raw);
+  int kept = 0;
+  for (std::size_t i = 0; i < pixels->size(); ++i) {
+    if (raw[i].allFinite()) {
+      (*pixels)[i] = raw[i];
+    } else {
+      ++kept;
+    }
+  }
+  return kept;
+}
+
 int UndistortFeatures(const CameraIntrinsics& camera, const Eigen::Matrix3d& scaled_k, ImageFeatures* features) {
   if (!camera.HasDistortion()) return 0;
   if (UndistortPixels(camera, scaled_k, &features->keypoints_px) == 0) return 0;

@@ -65,6 +65,17 @@ struct CameraIntrinsics {
 int UndistortPixels(const CameraIntrinsics& camera, const Eigen::Matrix3d& scaled_k,
                     std::vector<Eigen::Vector2d>* pixels);
 
+// Pixels undistorted with intrinsics `from_k` (as UndistortPixels took
+// them) moved to where undistorting the same raw pixels with `to_k` puts
+// them: back through the lens with `from_k`, then undistorted with `to_k`.
+// For a focal length corrected after keypoints were undistorted with the
+// old one: the distortion acts on normalised coordinates, so a new K moves
+// every keypoint, not only by the scale. A pixel that does not undistort
+// with `to_k` stays where it was; returns how many did. Without distortion
+// the pixels are the raw ones and are left as they are.
+int RedoUndistortion(const CameraIntrinsics& camera, const Eigen::Matrix3d& from_k, const Eigen::Matrix3d& to_k,
+                     std::vector<Eigen::Vector2d>* pixels);
+
 // Undistorts the keypoints of features detected in an image with intrinsics
 // `scaled_k`, dropping the features whose keypoint does not undistort (with
 // their descriptors, strengths and words). Returns the number dropped.
