@@ -71,7 +71,7 @@ TEST(FocalMonitor, EstimatesFallDueAsACameraGrowsAndStartAgainWithNewIntrinsics)
   const Eigen::Matrix3d k = SceneK();
   std::vector<std::uint64_t> due_at;
   for (int n = 1; n <= 13; ++n) {
-    monitor.Add("cam0", k, 500.0, false, sample);
+    monitor.Add("cam0", k, 500.0, CameraIntrinsics(), sample);
     EXPECT_LE(monitor.HeldPairs("cam0"), 5u);
     for (const FocalJob& job : monitor.TakeDue()) {
       EXPECT_EQ(job.camera, "cam0");
@@ -81,19 +81,19 @@ TEST(FocalMonitor, EstimatesFallDueAsACameraGrowsAndStartAgainWithNewIntrinsics)
   }
   EXPECT_EQ(due_at, (std::vector<std::uint64_t>{3, 6, 12}));
   // Another camera counts on its own; new intrinsics for cam0 restart it.
-  monitor.Add("cam1", k, 500.0, false, sample);
-  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, false, sample);
+  monitor.Add("cam1", k, 500.0, CameraIntrinsics(), sample);
+  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, CameraIntrinsics(), sample);
   EXPECT_EQ(monitor.HeldPairs("cam0"), 1u);
   EXPECT_EQ(monitor.HeldPairs("cam1"), 1u);
-  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, false, sample);
-  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, false, sample);
+  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, CameraIntrinsics(), sample);
+  monitor.Add("cam0", FocalTimes(k, 1.1), 550.0, CameraIntrinsics(), sample);
   const std::vector<FocalJob> due = monitor.TakeDue();
   ASSERT_EQ(due.size(), 1u);
   EXPECT_EQ(due[0].pairs_seen, 3u);
   EXPECT_DOUBLE_EQ(due[0].given_focal_px, 550.0);
   // Off: nothing is held.
   FocalMonitor off{FocalMonitorOptions()};
-  for (int n = 0; n < 5; ++n) off.Add("cam0", k, 500.0, false, sample);
+  for (int n = 0; n < 5; ++n) off.Add("cam0", k, 500.0, CameraIntrinsics(), sample);
   EXPECT_EQ(off.HeldPairs("cam0"), 0u);
   EXPECT_TRUE(off.TakeDue().empty());
 }
@@ -350,20 +350,36 @@ TEST(FocalMonitor, ACorrectedFocalLengthMakesTheCamerasPairsRight) {
   EXPECT_NEAR(again.back().given_focal_px, short_k(0, 0) * check.calibration.scale, 1e-9);
 }
 
-// focal_calibration: apply on a raw camera. Its keypoints were undistorted
-// with the focal length given 3% short, and the lens's distortion acts on
-// the normalised coordinates that focal length gave: the correction
-// undistorts them again with the corrected one. The camera's pairs estimated
-// again are then those of a run given the right focal length from the
-// start, pair by pair. Scaling the old undistorted keypoints instead leaves
-// them many times the pairs' own error away.
-TEST(FocalMonitor, ACorrectionUndistortsARawCamerasKeypointsAgain) {
+// A raw camera through a plumb_bob lens whose focal length is given 3%
+// short. Its keypoints were undistorted with that focal length, and the
+// lens's distortion acts on the normalised coordinates it gave: they land
+// near where the right focal length puts them, with a radial error.
+//  * The check undistorts them again for every focal length it tries, and
+//    finds the camera out as it does without a lens. Scaling them instead
+//    takes the radial error for a focal error of the opposite sign and finds
+//    nothing wrong.
+//  * The correction undistorts them again with the corrected focal length:
+//    the camera's pairs estimated again are those of a run given the right
+//    focal length from the start, pair by pair. Scaling the old undistorted
+//    keypoints instead leaves them many times the pairs' own error away.
+TEST(FocalMonitor, ARawCamerasFocalLengthIsCheckedAndCorrectedThroughItsLens) {
   CameraIntrinsics lens;
   lens.distortion = DistortionModel::kPlumbBob;
   lens.coefficients = {-0.28, 0.07, 2e-4, 2e-5};
   const std::unique_ptr<ShortFocalRun> run = RunShortFocal(true, &lens, 0.97);
   const std::unique_ptr<ShortFocalRun> right = RunShortFocal(false, &lens, 1.0);
   const std::string left = run->scene->Cameras()[1].frame_id;
+  const FocalJob* last = nullptr;
+  for (const FocalJob& job : run->jobs) {
+    if (job.camera == left) last = &job;
+  }
+  ASSERT_NE(last, nullptr);
+  EXPECT_TRUE(last->lens.HasDistortion());
+  const CameraFocalCheck check = RunFocalJob(*last, run->options.focal_monitor.focal);
+  ASSERT_TRUE(check.calibration.estimated) << check.Report();
+  RecordProperty("estimated_scale", std::to_string(check.calibration.scale));
+  EXPECT_NEAR(check.calibration.scale * 0.97, 1.0, 0.01) << check.Report();
+  EXPECT_TRUE(check.disagrees) << check.Report();
   std::vector<KeyframeRelativeRotation> after;
   std::string why;
   ASSERT_TRUE(run->frontend->ApplyFocalCorrection(left, 1.0 / 0.97, &after, &why)) << why;

@@ -89,7 +89,7 @@ CameraFocalCheck RunFocalJob(const FocalJob& job, const FocalCalibrationOptions&
   check.camera = job.camera;
   check.given_focal_px = job.given_focal_px;
   check.pairs_seen = job.pairs_seen;
-  check.calibration = EstimateFocalScale(pairs, job.k, options);
+  check.calibration = EstimateFocalScale(pairs, job.k, options, &job.lens);
   check.disagrees = ShouldApplyFocalScale(check.calibration, options);
   if (job.check_distortion) {
     RadialDistortionOptions distortion;
@@ -106,14 +106,17 @@ CameraFocalCheck RunFocalJob(const FocalJob& job, const FocalCalibrationOptions&
 }
 
 void FocalMonitor::Add(const std::string& camera, const Eigen::Matrix3d& k, double given_focal_px,
-                       bool has_distortion_model, std::shared_ptr<const FocalSample> sample) {
+                       const CameraIntrinsics& lens, std::shared_ptr<const FocalSample> sample) {
   if (!options_.enabled || !sample) return;
   Camera& c = cameras_[camera];
-  if (c.seen == 0 || !(c.k == k) || c.has_distortion_model != has_distortion_model) {
+  const bool same_lens = c.lens.HasDistortion() == lens.HasDistortion() &&
+                         (!lens.HasDistortion() ||
+                          (c.lens.distortion == lens.distortion && c.lens.coefficients == lens.coefficients));
+  if (c.seen == 0 || !(c.k == k) || !same_lens) {
     c = Camera();
     c.k = k;
     c.given_focal_px = given_focal_px;
-    c.has_distortion_model = has_distortion_model;
+    c.lens = lens;
     c.next_estimate = static_cast<std::uint64_t>(std::max(1, options_.first_estimate_pairs));
   }
   ++c.seen;
@@ -125,7 +128,7 @@ void FocalMonitor::Add(const std::string& camera, const Eigen::Matrix3d& k, doub
   }
   if (c.seen < c.next_estimate) return;
   c.next_estimate = std::max(c.seen + 1, static_cast<std::uint64_t>(std::ceil(c.seen * options_.growth)));
-  due_.push_back({camera, !c.has_distortion_model, c.k, c.given_focal_px, c.seen, c.held});
+  due_.push_back({camera, !c.lens.HasDistortion(), c.lens, c.k, c.given_focal_px, c.seen, c.held});
 }
 
 std::size_t FocalMonitor::HeldBytes() const {
@@ -144,9 +147,10 @@ double FocalMonitor::GivenFocal(const std::string& camera) const {
   return it == cameras_.end() ? 0.0 : it->second.given_focal_px;
 }
 
-bool FocalMonitor::HasDistortionModel(const std::string& camera) const {
+const CameraIntrinsics& FocalMonitor::Lens(const std::string& camera) const {
+  static const CameraIntrinsics kNoLens;
   const auto it = cameras_.find(camera);
-  return it != cameras_.end() && it->second.has_distortion_model;
+  return it == cameras_.end() ? kNoLens : it->second.lens;
 }
 
 std::vector<FocalJob> FocalMonitor::TakeDue() {

@@ -87,6 +87,9 @@ struct FocalJob {
   // The camera's intrinsics have no lens distortion: the pairs are also
   // checked for a radial distortion they do not describe.
   bool check_distortion = false;
+  // The camera's distortion model, which the keypoints were undistorted
+  // with (none: they are the raw ones); its own k is not used.
+  CameraIntrinsics lens;
   Eigen::Matrix3d k = Eigen::Matrix3d::Identity();  // of the features' images
   double given_focal_px = 0.0;                      // fx of the camera's own K (full resolution)
   std::uint64_t pairs_seen = 0;                     // verified pairs of the camera so far
@@ -122,22 +125,24 @@ class FocalMonitor {
  public:
   explicit FocalMonitor(const FocalMonitorOptions& options) : options_(options) {}
   // A verified pair of `camera` whose features' images have the pinhole
-  // matrix k (and a lens distortion model or none). A camera whose k
-  // changes (a new camera_info) starts again.
-  void Add(const std::string& camera, const Eigen::Matrix3d& k, double given_focal_px, bool has_distortion_model,
+  // matrix k, their keypoints undistorted by `lens`'s distortion model (or
+  // none; its k is not used). A camera whose k or model changes (a new
+  // camera_info) starts again.
+  void Add(const std::string& camera, const Eigen::Matrix3d& k, double given_focal_px, const CameraIntrinsics& lens,
            std::shared_ptr<const FocalSample> sample);
   // The estimates that fell due since the last call, in the order they did.
   std::vector<FocalJob> TakeDue();
   std::size_t HeldPairs(const std::string& camera) const;
   std::size_t HeldBytes() const;  // of every camera's pairs
   double GivenFocal(const std::string& camera) const;  // 0 before its first pair
-  bool HasDistortionModel(const std::string& camera) const;
+  // The distortion model of the camera's pairs (none before its first).
+  const CameraIntrinsics& Lens(const std::string& camera) const;
 
  private:
   struct Camera {
     Eigen::Matrix3d k = Eigen::Matrix3d::Identity();
     double given_focal_px = 0.0;
-    bool has_distortion_model = false;
+    CameraIntrinsics lens;
     std::uint64_t seen = 0, next_estimate = 0;
     std::vector<std::shared_ptr<const FocalSample>> held;
   };

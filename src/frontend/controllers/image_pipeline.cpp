@@ -165,7 +165,9 @@ std::vector<ProfilePair> ProfilePairs(const std::vector<FocalPair>& pairs, int m
 }
 
 // Where the keypoints are taken to be: moved by `warp` (null: as given).
-using PointWarp = std::function<Eigen::Vector2d(const Eigen::Vector2d&)>;
+// Moves all of a pair's keypoints of one image at once (one OpenCV call for
+// a lens's undistortion).
+using PointWarp = std::function<std::vector<Eigen::Vector2d>(const std::vector<Eigen::Vector2d>&)>;
 
 // The profile's cost with intrinsics k, over the pairs not in `left_out` (a
 // group of the jackknife; -1: none). Every pair's pose is refined from its
@@ -183,8 +185,8 @@ double ProfileCost(const std::vector<ProfilePair>& used, const Eigen::Matrix3d& 
     const FocalPair& p = *used[u].pair;
     std::vector<Eigen::Vector2d> warped1, warped2;
     if (warp) {
-      for (const Eigen::Vector2d& x : *p.points1) warped1.push_back((*warp)(x));
-      for (const Eigen::Vector2d& x : *p.points2) warped2.push_back((*warp)(x));
+      warped1 = (*warp)(*p.points1);
+      warped2 = (*warp)(*p.points2);
     }
     const std::vector<Eigen::Vector2d>& all1 = warp ? warped1 : *p.points1;
     const std::vector<Eigen::Vector2d>& all2 = warp ? warped2 : *p.points2;
@@ -217,12 +219,27 @@ double ProfileCost(const std::vector<ProfilePair>& used, const Eigen::Matrix3d& 
 // division model.
 PointWarp DivisionWarp(const Eigen::Matrix3d& k, double lambda) {
   const Eigen::Matrix3d k_inv = k.inverse();
-  return [k, k_inv, lambda](const Eigen::Vector2d& p) {
-    const Eigen::Vector2d x = (k_inv * p.homogeneous()).hnormalized();
-    // Past the model's turning point (a fisheye's corners at the range's
-    // end) the points are held where the division still holds.
-    const double denominator = std::max(1.0 + lambda * x.squaredNorm(), 0.2);
-    return (k * (x / denominator).homogeneous()).hnormalized().eval();
+  return [k, k_inv, lambda](const std::vector<Eigen::Vector2d>& points) {
+    std::vector<Eigen::Vector2d> out;
+    out.reserve(points.size());
+    for (const Eigen::Vector2d& p : points) {
+      const Eigen::Vector2d x = (k_inv * p.homogeneous()).hnormalized();
+      // Past the model's turning point (a fisheye's corners at the range's
+      // end) the points are held where the division still holds.
+      const double denominator = std::max(1.0 + lambda * x.squaredNorm(), 0.2);
+      out.push_back((k * (x / denominator).homogeneous()).hnormalized());
+    }
+    return out;
+  };
+}
+
+// Keypoints undistorted by `lens` with intrinsics `from_k`, as undistorting
+// the same raw pixels with `to_k` would have placed them.
+PointWarp LensWarp(const CameraIntrinsics& lens, const Eigen::Matrix3d& from_k, const Eigen::Matrix3d& to_k) {
+  return [lens, from_k, to_k](const std::vector<Eigen::Vector2d>& points) {
+    std::vector<Eigen::Vector2d> out = points;
+    RedoUndistortion(lens, from_k, to_k, &out);
+    return out;
   };
 }
 
@@ -295,19 +312,24 @@ double ProfileDeviation(const std::function<double(double, int)>& cost, const st
 }  // namespace
 
 FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const Eigen::Matrix3d& k,
-                                    const FocalCalibrationOptions& options) {
+                                    const FocalCalibrationOptions& options, const CameraIntrinsics* lens) {
   FocalCalibration out;
   const std::vector<ProfilePair> used = ProfilePairs(pairs, options.min_inliers);
   out.pairs = static_cast<int>(used.size());
   if (out.pairs < std::max(1, options.min_pairs)) return out;
   const int threads = ResolveThreadCount(options.num_threads);
   // The profile over the scale a of the focal length, for intrinsics `base`
-  // (k, or k with its principal point moved).
+  // (k, or k with its principal point moved). A lens's distortion acts on
+  // the normalised coordinates K gives: each K tried undistorts the raw
+  // keypoints again, as the camera would with it.
+  const bool redo = lens != nullptr && lens->HasDistortion();
   auto cost = [&](const Eigen::Matrix3d& base, double a, int left_out) {
     Eigen::Matrix3d ka = base;
     ka(0, 0) *= a;
     ka(1, 1) *= a;
-    return ProfileCost(used, ka, nullptr, left_out, options.min_inliers, threads);
+    if (!redo) return ProfileCost(used, ka, nullptr, left_out, options.min_inliers, threads);
+    const PointWarp warp = LensWarp(*lens, k, ka);
+    return ProfileCost(used, ka, &warp, left_out, options.min_inliers, threads);
   };
   const double range = std::clamp(options.search_range, 0.01, 0.5), step = 0.02;
   auto minimise = [&](const Eigen::Matrix3d& base, int left_out) {
@@ -455,7 +477,7 @@ std::vector<EdgeCorrespondences> CorrespondencesOfEdges(const ImagePipelineResul
 
 ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>& features,
                                                const std::vector<std::string>& names, const Eigen::Matrix3d& k,
-                                               const ImagePipelineOptions& options) {
+                                               const ImagePipelineOptions& options, const CameraIntrinsics* lens) {
   ImagePipelineResult result;
   result.k = k;
   const int n = static_cast<int>(features.size());
@@ -517,12 +539,19 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
     for (std::size_t p = 0; p < matched.size(); ++p) {
       focal_pairs.push_back({&matched[p].p1, &matched[p].p2, &result.pairs[p].pose});
     }
-    result.focal = EstimateFocalScale(focal_pairs, k, options.focal);
+    result.focal = EstimateFocalScale(focal_pairs, k, options.focal, lens);
     if (ShouldApplyFocalScale(result.focal, options.focal)) {
       result.focal.applied = true;
       result.k = k;
       result.k(0, 0) *= result.focal.scale;
       result.k(1, 1) *= result.focal.scale;
+      // A raw image's keypoints were undistorted with the old K.
+      if (lens != nullptr) {
+        for (Matched& m : matched) {
+          RedoUndistortion(*lens, k, result.k, &m.p1);
+          RedoUndistortion(*lens, k, result.k, &m.p2);
+        }
+      }
       // Every pair again, from its matches, in the corrected focal length.
       ViewGraph graph;
       for (const View& v : result.graph.Views()) graph.AddView(v.id, v.name);
@@ -569,7 +598,7 @@ ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& ima
       ExtractImageFeatures(image_paths, intrinsics, options.features, &names, &errors);
   const double features_s = Seconds(start);
   ImagePipelineResult result =
-      BuildViewGraphFromFeatures(features, names, FeatureIntrinsics(intrinsics, options.features), options);
+      BuildViewGraphFromFeatures(features, names, FeatureIntrinsics(intrinsics, options.features), options, &intrinsics);
   result.features_s = features_s;
   result.errors = std::move(errors);
   return result;

@@ -203,7 +203,7 @@ void KeyframeFrontend::CountInliers(const PairTask& task, const PairOutcome& out
 
 void KeyframeFrontend::MonitorFocal(const PairOutcome& outcome, const Keyframe& newer, const CameraIntrinsics& camera) {
   if (!outcome.focal_sample) return;
-  focal_monitor_.Add(newer.key.frame_id, newer.k, camera.k(0, 0), camera.HasDistortion(), outcome.focal_sample);
+  focal_monitor_.Add(newer.key.frame_id, newer.k, camera.k(0, 0), newer.lens, outcome.focal_sample);
 }
 
 void KeyframeFrontend::HoldPair(const PairTask& task, const PairOutcome& outcome, int newer_index, bool chain) {
@@ -310,7 +310,7 @@ bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double sc
     // The check starts again on the corrected focal length, with these pairs.
     if (focal.enabled && first.key.frame_id == camera && second.key.frame_id == camera && first.k == second.k &&
         pose.model == TwoViewModel::kEssential && static_cast<int>(pose.inliers.size()) >= focal.focal.min_inliers) {
-      focal_monitor_.Add(camera, first.k, given, focal_monitor_.HasDistortionModel(camera),
+      focal_monitor_.Add(camera, first.k, given, focal_monitor_.Lens(camera),
                          MakeFocalSample(*p.points1, *p.points2, pose, focal.max_matches_per_pair));
     }
   }

@@ -141,10 +141,13 @@ ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& ima
 
 // Same, from features already extracted (e.g. by the node); `k` is the
 // pinhole matrix at the resolution the features were detected in, the
-// keypoints are already undistorted.
+// keypoints are already undistorted, by `lens`'s distortion model if one is
+// given (the focal calibration then undistorts them again for every focal
+// length it tries, and with the one it applies).
 ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>& features,
                                                const std::vector<std::string>& names, const Eigen::Matrix3d& k,
-                                               const ImagePipelineOptions& options);
+                                               const ImagePipelineOptions& options,
+                                               const CameraIntrinsics* lens = nullptr);
 
 // Relative pose of images (image1, image2) from matched keypoints (pixels of
 // the images with pinhole matrix k), with the inlier points kept in
@@ -163,9 +166,14 @@ struct FocalPair {
 
 // Estimates the scale of the focal length of `k` from the successful
 // essential-matrix pairs (FocalCalibrationOptions). `applied` is left false:
-// the caller decides, with ShouldApplyFocalScale.
+// the caller decides, with ShouldApplyFocalScale. With a `lens` that has a
+// distortion, the keypoints are a raw image's undistorted with `k`: every
+// focal length tried undistorts them again (RedoUndistortion). Scaling them
+// instead would miss a focal error: undistorted with the wrong K, a raw
+// image's keypoints land near where the right K puts them, with a radial
+// error that the scale's profile takes for the opposite error.
 FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const Eigen::Matrix3d& k,
-                                    const FocalCalibrationOptions& options);
+                                    const FocalCalibrationOptions& options, const CameraIntrinsics* lens = nullptr);
 bool ShouldApplyFocalScale(const FocalCalibration& calibration, const FocalCalibrationOptions& options);
 
 // A radial lens distortion that the intrinsics do not describe, seen in the
