@@ -10,9 +10,11 @@
 #    focal_calibration: apply.
 #  * Lens distortion that camera_info does not describe: the demo through a
 #    plumb_bob lens and EuRoC's stereo camera, read without their model.
+#  * A raw camera with its model: the plumb_bob demo with camera_info's
+#    focal lengths right and 3% short (warn and apply).
 #  * Strecha scenes, whose K is exact, played as one camera's keyframes at a
 #    quarter of full width: the check must agree with them.
-#   bash scripts/benchmark_focal_check.sh        (about five minutes)
+#   bash scripts/benchmark_focal_check.sh        (about eight minutes)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
 OUT=build/benchmark_focal_check
@@ -43,6 +45,12 @@ PLUMB_BOB=plumb_bob:-0.28,0.07,0.0002,0.00002
 "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_plumb_bob.bag" --distortion "$PLUMB_BOB" > /dev/null 2>&1
 replay demo_plumb_bob_ignored "$OUT/demo_plumb_bob.bag" "$DEMO" "image_type: rectified"
 replay demo_plumb_bob_model "$OUT/demo_plumb_bob.bag" "$DEMO"
+# The same lens with its model, camera_info's focal lengths 3% short: the
+# check of a raw camera, and its correction.
+"$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_plumb_bob_0.97.bag" --distortion "$PLUMB_BOB" \
+  --info-focal-scale 0.97 > /dev/null 2>&1
+replay demo_plumb_bob_0.97_warn "$OUT/demo_plumb_bob_0.97.bag" "$DEMO"
+replay demo_plumb_bob_0.97_apply "$OUT/demo_plumb_bob_0.97.bag" "$DEMO" "focal_calibration: apply"
 EUROC="$DATA/euroc_v1_01_micro/mav0"
 if [ -d "$EUROC" ]; then
   "$BIN/rotation_averaging_images_to_bag" --euroc "$EUROC" --output "$OUT/euroc.bag" > /dev/null
