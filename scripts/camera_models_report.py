@@ -114,7 +114,8 @@ def main():
     print("demo renderer (two cameras, 60 captures, `config/demo.yaml`), written through a lens with")
     print("`--distortion`: plumb_bob `%s` and equidistant (fisheye) `%s`, the scene's K kept. The" %
           (plumb_bob.split(":", 1)[1], fisheye.split(":", 1)[1]))
-    print("corners of the plumb_bob images see rays outside the original image and are black. Median error of")
+    print("corners of the Strecha scenes' plumb_bob images see rays outside the original image and are black;")
+    print("the demo renders the wider field the lens sees (no black pixel). Median error of")
     print("the keyframes' orientations against ground truth (one robustly fitted rotation). *warped, then")
     print("rectified*: the lens's images undistorted again (`--distortion ... --rectify`), the same content")
     print("through the same two resamplings, without a model to apply (image_proc's `image_rect` of the raw")

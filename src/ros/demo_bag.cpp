@@ -131,6 +131,10 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
   // Before the first image, as a recorder started with the robot would have it.
   bag.write("/tf_static", t0 - ros::Duration(0.5), extrinsics);
 
+  // A barrel lens sees beyond the pinhole image of its size: the scene is
+  // rendered that much wider, so that no raw pixel is black (a real lens
+  // has no such border, whose hard edge would give features that stay put).
+  const int margin = LensMarginPx(camera, cv::Size(options.width, options.height));
   Orientations truth;
   truth.header.frame_id = "map";
   NamedOrientations truth_csv;
@@ -139,7 +143,7 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
     const ros::Time stamp = t0 + ros::Duration(scene.CaptureTime(capture));
     for (std::size_t c = 0; c < scene.Cameras().size(); ++c) {
       const std::string& frame = scene.Cameras()[c].frame_id;
-      cv::Mat image = DistortImage(scene.Render(capture, static_cast<int>(c)), camera);
+      cv::Mat image = DistortImage(scene.Render(capture, static_cast<int>(c), margin), camera, margin);
       if (bag_options.rectify) image = UndistortImage(image, camera);
       WriteKeyframeImage(&bag, frame, stamp, image, info, compressed);
       const KeyframeKey key{frame, ToNanoseconds(stamp)};

@@ -32,8 +32,9 @@ void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::T
 struct RigSceneBagOptions {
   bool progress = false;  // a line on stderr per capture
   // With a distortion (its K is ignored: the scene's), every image is what
-  // that lens would have seen (DistortImage) and camera_info carries the
-  // model: a raw camera stream.
+  // that lens would have seen (DistortImage, from a render of the wider
+  // field it sees: no black border) and camera_info carries the model: a
+  // raw camera stream.
   CameraIntrinsics lens;
   // The lens's images undistorted again (UndistortImage, as image_proc's
   // image_rect), camera_info without distortion: the same content through

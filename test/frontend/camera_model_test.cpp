@@ -183,6 +183,36 @@ TEST(CameraModel, DistortImageAndUndistortImageAreInverses) {
   EXPECT_EQ(cv::norm(DistortImage(smooth, camera), smooth, cv::NORM_INF), 0.0);
 }
 
+// A barrel lens sees beyond the pinhole image of its size: its corners are
+// black unless the ideal image is rendered wider, by LensMarginPx. Inside,
+// the wider image gives the same lens image.
+TEST(CameraModel, ALensImageFromAWiderIdealImageHasNoBlackBorder) {
+  CameraIntrinsics camera;
+  camera.k << 230, 0, 159.5, 0, 230, 119.5, 0, 0, 1;
+  camera.distortion = DistortionModel::kPlumbBob;
+  camera.coefficients = {-0.28, 0.07, 0.0, 0.0};
+  const cv::Size size(320, 240);
+  const int margin = LensMarginPx(camera, size);
+  ASSERT_GT(margin, 10);
+  cv::Mat noise(size.height + 2 * margin, size.width + 2 * margin, CV_8U), wide;
+  cv::randu(noise, 0, 255);
+  cv::resize(noise(cv::Rect(0, 0, 40, 30)), wide, noise.size(), 0, 0, cv::INTER_CUBIC);
+  cv::max(wide, 1, wide);  // no black in the scene itself
+  const cv::Mat ideal = wide(cv::Rect(margin, margin, size.width, size.height)).clone();
+  double lowest = 0.0;
+  const cv::Mat narrow_lens = DistortImage(ideal, camera);
+  cv::minMaxLoc(narrow_lens, &lowest);
+  EXPECT_EQ(lowest, 0.0) << "the corners of the lens image see beyond the ideal image";
+  const cv::Mat wide_lens = DistortImage(wide, camera, margin);
+  ASSERT_EQ(wide_lens.size(), size);
+  cv::minMaxLoc(wide_lens, &lowest);
+  EXPECT_GT(lowest, 0.0) << "a margin of " << margin << " px leaves black pixels";
+  const cv::Rect centre(80, 60, 160, 120);
+  EXPECT_LE(cv::norm(wide_lens(centre), narrow_lens(centre), cv::NORM_INF), 2.0);
+  camera.coefficients.assign(4, 0.0);
+  EXPECT_EQ(LensMarginPx(camera, size), 0);
+}
+
 TEST(CameraModel, ParsesNamesAndRefusesUnknownModels) {
   DistortionModel m;
   EXPECT_TRUE(ParseDistortionModel("plumb_bob", &m));

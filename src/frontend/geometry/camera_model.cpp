@@ -354,25 +354,51 @@ int UndistortFeatures(const CameraIntrinsics& camera, const Eigen::Matrix3d& sca
   return n - static_cast<int>(keep.size());
 }
 
-cv::Mat DistortImage(const cv::Mat& ideal, const CameraIntrinsics& camera) {
-  if (!camera.HasDistortion() || ideal.empty()) return ideal.clone();
+cv::Mat DistortImage(const cv::Mat& ideal, const CameraIntrinsics& camera, int margin_px) {
+  const int margin = std::max(0, margin_px);
+  const cv::Size size(ideal.cols - 2 * margin, ideal.rows - 2 * margin);
+  if (ideal.empty() || size.width <= 0 || size.height <= 0) return cv::Mat();
+  if (!camera.HasDistortion()) return ideal(cv::Rect(margin, margin, size.width, size.height)).clone();
   // For every pixel of the lens's image, where its ray lands in the ideal one.
   std::vector<Eigen::Vector2d> pixels;
-  pixels.reserve(static_cast<std::size_t>(ideal.rows) * ideal.cols);
-  for (int v = 0; v < ideal.rows; ++v)
-    for (int u = 0; u < ideal.cols; ++u) pixels.emplace_back(u, v);
+  pixels.reserve(static_cast<std::size_t>(size.area()));
+  for (int v = 0; v < size.height; ++v)
+    for (int u = 0; u < size.width; ++u) pixels.emplace_back(u, v);
   UndistortPixels(camera, camera.k, &pixels);
-  cv::Mat map_x(ideal.size(), CV_32F), map_y(ideal.size(), CV_32F);
-  for (int v = 0, i = 0; v < ideal.rows; ++v) {
-    for (int u = 0; u < ideal.cols; ++u, ++i) {
+  cv::Mat map_x(size, CV_32F), map_y(size, CV_32F);
+  for (int v = 0, i = 0; v < size.height; ++v) {
+    for (int u = 0; u < size.width; ++u, ++i) {
       const Eigen::Vector2d& p = pixels[static_cast<std::size_t>(i)];
-      map_x.at<float>(v, u) = p.allFinite() ? static_cast<float>(p.x()) : -1e6f;
-      map_y.at<float>(v, u) = p.allFinite() ? static_cast<float>(p.y()) : -1e6f;
+      map_x.at<float>(v, u) = p.allFinite() ? static_cast<float>(p.x() + margin) : -1e6f;
+      map_y.at<float>(v, u) = p.allFinite() ? static_cast<float>(p.y() + margin) : -1e6f;
     }
   }
   cv::Mat out;
   cv::remap(ideal, out, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar::all(0));
   return out;
+}
+
+int LensMarginPx(const CameraIntrinsics& camera, const cv::Size& size) {
+  if (!camera.HasDistortion()) return 0;
+  // The border of the raw image, every pixel of it: where the lens looks
+  // furthest out.
+  std::vector<Eigen::Vector2d> border;
+  for (int u = 0; u < size.width; ++u) {
+    border.emplace_back(u, 0);
+    border.emplace_back(u, size.height - 1);
+  }
+  for (int v = 0; v < size.height; ++v) {
+    border.emplace_back(0, v);
+    border.emplace_back(size.width - 1, v);
+  }
+  UndistortPixels(camera, camera.k, &border);
+  double beyond = 0.0;
+  for (const Eigen::Vector2d& p : border) {
+    if (!p.allFinite()) continue;
+    beyond = std::max({beyond, -p.x(), -p.y(), p.x() - (size.width - 1), p.y() - (size.height - 1)});
+  }
+  // One pixel more for the bilinear sample's neighbour.
+  return static_cast<int>(std::ceil(beyond)) + (beyond > 0.0 ? 1 : 0);
 }
 
 cv::Mat UndistortImage(const cv::Mat& raw, const CameraIntrinsics& camera) {

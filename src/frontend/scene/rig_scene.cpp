@@ -181,22 +181,23 @@ Eigen::Vector3d RigScene::CameraCentre(int capture, int camera) const {
   return RigPosition(capture) + WorldToRig(capture).transpose() * cameras_[camera].position_in_rig;
 }
 
-cv::Mat RigScene::Render(int capture, int camera) const {
+cv::Mat RigScene::Render(int capture, int camera, int margin_px) const {
   const std::uint64_t noise = options_.noise_seed != 0 ? options_.noise_seed : options_.seed;
   return RenderView(WorldToCamera(capture, camera), CameraCentre(capture, camera),
-                    noise * 7919 + static_cast<std::uint64_t>(capture) * 104729 + camera * 15485863);
+                    noise * 7919 + static_cast<std::uint64_t>(capture) * 104729 + camera * 15485863, margin_px);
 }
 
 cv::Mat RigScene::RenderView(const Eigen::Matrix3d& world_to_camera, const Eigen::Vector3d& centre,
-                             std::uint64_t noise_seed) const {
+                             std::uint64_t noise_seed, int margin_px) const {
   const Eigen::Matrix3d camera_to_world = world_to_camera.transpose();
-  const double cx = 0.5 * options_.width, cy = 0.5 * options_.height, f = options_.focal_px;
-  cv::Mat image(options_.height, options_.width, CV_8UC1);
+  const int margin = std::max(0, margin_px);
+  const double cx = 0.5 * options_.width + margin, cy = 0.5 * options_.height + margin, f = options_.focal_px;
+  cv::Mat image(options_.height + 2 * margin, options_.width + 2 * margin, CV_8UC1);
   cv::RNG rng(noise_seed);
   const bool lit = options_.light_gain != 1.0 || options_.light_gradient != 0.0;
-  for (int y = 0; y < options_.height; ++y) {
+  for (int y = 0; y < image.rows; ++y) {
     std::uint8_t* row = image.ptr<std::uint8_t>(y);
-    for (int x = 0; x < options_.width; ++x) {
+    for (int x = 0; x < image.cols; ++x) {
       const Eigen::Vector3d d = camera_to_world * Eigen::Vector3d((x + 0.5 - cx) / f, (y + 0.5 - cy) / f, 1.0);
       double best = std::numeric_limits<double>::infinity(), value = 128.0;
       for (const Surface& s : surfaces_) {

@@ -81,14 +81,18 @@ class RigScene {
   // World-to-camera rotation of a camera at a capture (the ground truth).
   Eigen::Matrix3d WorldToCamera(int capture, int camera) const;
   // 8-bit grey image of a camera at a capture, with noise (deterministic
-  // for a given seed, capture and camera).
-  cv::Mat Render(int capture, int camera) const;
+  // for a given seed, capture and camera). With a margin, the image extends
+  // that many pixels beyond the camera's on every side (the same focal
+  // length and optical axis: its K is Intrinsics() with the principal point
+  // moved by the margin), so that a lens with a wider field of view can be
+  // simulated from it (DistortImage).
+  cv::Mat Render(int capture, int camera, int margin_px = 0) const;
   // Position (world frame) of a camera at a capture.
   Eigen::Vector3d CameraCentre(int capture, int camera) const;
   // The room seen by any pinhole camera with the scene's intrinsics, from
   // `centre` (world frame), with noise drawn from `noise_seed`.
   cv::Mat RenderView(const Eigen::Matrix3d& world_to_camera, const Eigen::Vector3d& centre,
-                     std::uint64_t noise_seed) const;
+                     std::uint64_t noise_seed, int margin_px = 0) const;
 
  private:
   struct Surface;

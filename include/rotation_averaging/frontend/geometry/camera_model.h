@@ -87,7 +87,15 @@ int UndistortFeatures(const CameraIntrinsics& camera, const Eigen::Matrix3d& sca
 // ray the ideal image does not hold are black), UndistortImage the reverse
 // (a raw image rectified, as image_proc does). Bilinear; `camera.k` is the
 // images' own K. Without distortion both return the image unchanged.
-cv::Mat DistortImage(const cv::Mat& ideal, const CameraIntrinsics& camera);
+// With a margin, the ideal image extends `margin_px` pixels beyond the lens's
+// on every side (principal point moved by the margin) and the lens's image
+// is that much smaller: a barrel lens sees further out than the pinhole
+// image of its size, and a margin of LensMarginPx leaves no black pixel.
+cv::Mat DistortImage(const cv::Mat& ideal, const CameraIntrinsics& camera, int margin_px = 0);
+// How far beyond an image of `size` the rays of `camera`'s raw pixels land
+// in its ideal pinhole image, in whole pixels (0 for a lens that only
+// looks inside it).
+int LensMarginPx(const CameraIntrinsics& camera, const cv::Size& size);
 cv::Mat UndistortImage(const cv::Mat& raw, const CameraIntrinsics& camera);
 
 // "plumb_bob:k1,k2,p1,p2,k3" (any model name ParseDistortionModel takes and
