@@ -311,45 +311,51 @@ void KeyframePipeline::ApplyFocalCorrections(std::vector<std::string>* warnings)
   if (!focal_checker_ || config_.focal_calibration != "apply") return;
   const std::map<std::string, CameraFocalCheck> checks = focal_checker_->Checks();
   const std::map<std::string, std::pair<std::string, Eigen::Matrix3d>> rig_cameras = rig_.RigCameras();
+  const std::map<std::string, double> corrected = FocalCorrections();
   for (const auto& [camera, check] : checks) {
     if (!check.disagrees || corrections_refused_.count(camera)) continue;
     const auto applied = applied_checks_.find(camera);
     if (applied != applied_checks_.end() && applied->second == std::make_pair(check.given_focal_px, check.pairs_seen)) {
       continue;  // this estimate is decided already
     }
-    applied_checks_[camera] = {check.given_focal_px, check.pairs_seen};
     // The cameras of a rig (extrinsics known) share one orientation per
     // capture: correcting one while another stays as wrong makes their edges
     // disagree, which can cost more than an error they share (it did on the
     // demo rig, whose forward camera cannot be checked). So a rig camera is
     // corrected only when each other camera of its rig is checked as
     // precisely as a correction needs (its deviation within
-    // min_correction) and agrees, or disagrees too.
+    // min_correction) and agrees, or disagrees too, or was corrected.
     const auto rig = rig_cameras.find(camera);
     std::string unchecked;
     if (rig != rig_cameras.end()) {
       for (const auto& [other, other_rig] : rig_cameras) {
         if (other == camera || other_rig.first != rig->second.first) continue;
         const auto c = checks.find(other);
-        const bool settled = c != checks.end() && c->second.calibration.estimated &&
-                             (c->second.disagrees || c->second.calibration.standard_deviation <=
-                                                         config_.frontend.focal_monitor.focal.min_correction);
+        const bool settled = corrected.count(other) > 0 ||
+                             (c != checks.end() && c->second.calibration.estimated &&
+                              (c->second.disagrees || c->second.calibration.standard_deviation <=
+                                                          config_.frontend.focal_monitor.focal.min_correction));
         if (!settled) unchecked += (unchecked.empty() ? "" : ", ") + other;
       }
     }
     if (check.distortion_unmodelled) {
       // A lens the model leaves out bends the focal estimate too: correcting
       // it would fit the focal length to the distortion.
+      applied_checks_[camera] = {check.given_focal_px, check.pairs_seen};
       HoldBackCorrection(camera, "its images are distorted and camera_info has no distortion model, which the "
                                  "estimate cannot tell from a focal length error; give the model first");
       continue;
     }
     if (!unchecked.empty()) {
+      // Not decided for good: the other cameras' checks may settle while
+      // this estimate stands (the estimates of a rig's cameras arrive one
+      // after the other), and it is looked at again with every keyframe.
       HoldBackCorrection(camera, "the other cameras of its rig (" + unchecked +
                                      ") are not checked precisely enough, and correcting one camera of a rig alone "
                                      "makes its cameras disagree; fix camera_info");
       continue;
     }
+    applied_checks_[camera] = {check.given_focal_px, check.pairs_seen};
     held_back_.erase(camera);
     std::vector<KeyframeRelativeRotation> edges;
     std::string why;

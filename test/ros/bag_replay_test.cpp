@@ -276,6 +276,34 @@ TEST_F(BagReplay, DistortedImagesWithoutADistortionModelAreFoundOut) {
   EXPECT_GE(unmodelled, 1);
 }
 
+// A raw rig through a plumb_bob lens whose camera_info has the model and
+// focal lengths 3% short, with focal_calibration: apply. Through the lens
+// the focal length of both cameras is determined (a wrong one bends the
+// undistorted keypoints radially, which the forward camera's pairs show as
+// well), so both are corrected: the rig waits for the second camera's
+// estimate instead of deciding on the first one's alone.
+TEST_F(BagReplay, BothCamerasOfARawRigAreCorrectedThroughTheirLens) {
+  const RigScene scene(CheckScene());
+  CameraIntrinsics lens;
+  std::string error;
+  ASSERT_TRUE(ParseDistortionSpec("plumb_bob:-0.28,0.07,0.0002,0.00002", &lens, &error)) << error;
+  const ReplayResult result = ReplayCheckScene(scene, "lens_short_focal", lens, 0.97, "focal_calibration: apply\n");
+  ASSERT_TRUE(result.ok) << result.error;
+  std::string notices;
+  for (const std::string& n : result.focal_notices) notices += n + "\n";
+  rosbag::Bag out(result.output_bag, rosbag::bagmode::Read);
+  rosbag::View checks_topic(out, rosbag::TopicQuery("/rotation_averaging/camera_info_checks"));
+  CameraInfoCheckArray::ConstPtr last;
+  for (const rosbag::MessageInstance& m : checks_topic) last = m.instantiate<CameraInfoCheckArray>();
+  ASSERT_TRUE(last);
+  std::set<std::string> corrected;
+  for (const CameraInfoCheck& c : last->cameras) {
+    EXPECT_NEAR(c.applied_scale * 0.97, 1.0, 0.01) << c.frame_id << "\n" << notices;
+    if (c.applied_scale != 1.0) corrected.insert(c.frame_id);
+  }
+  EXPECT_EQ(corrected, (std::set<std::string>{"cam_front", "cam_left"})) << notices;
+}
+
 // The node's configuration for sessions of the rendered rig: its two
 // cameras' streams, every image a keyframe, and a vocabulary trained on
 // another room's textures (saved in `dir`). The camera_info check, which
