@@ -413,6 +413,15 @@ TEST(FocalMonitor, ARawCamerasFocalLengthIsCheckedAndCorrectedThroughItsLens) {
   EXPECT_LT(median_to_right, 0.1 * median_error)
       << "the corrected pairs are " << median_to_right << " deg (median) from those given the right focal length, "
       << "whose own error is " << median_error << " deg";
+  // The check starts again through the same lens, on the corrected focal
+  // length, and agrees with it.
+  const std::vector<FocalJob> again = run->frontend->TakeFocalJobs();
+  ASSERT_FALSE(again.empty());
+  EXPECT_EQ(again.back().camera, left);
+  EXPECT_TRUE(again.back().lens.HasDistortion());
+  EXPECT_FALSE(again.back().check_distortion);
+  const CameraFocalCheck rechecked = RunFocalJob(again.back(), run->options.focal_monitor.focal);
+  EXPECT_FALSE(rechecked.disagrees) << rechecked.Report();
 }
 
 }  // namespace

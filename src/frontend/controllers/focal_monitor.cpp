@@ -106,7 +106,7 @@ CameraFocalCheck RunFocalJob(const FocalJob& job, const FocalCalibrationOptions&
 }
 
 void FocalMonitor::Add(const std::string& camera, const Eigen::Matrix3d& k, double given_focal_px,
-                       const CameraIntrinsics& lens, std::shared_ptr<const FocalSample> sample) {
+                       CameraIntrinsics lens, std::shared_ptr<const FocalSample> sample) {
   if (!options_.enabled || !sample) return;
   Camera& c = cameras_[camera];
   const bool same_lens = c.lens.HasDistortion() == lens.HasDistortion() &&
@@ -116,7 +116,7 @@ void FocalMonitor::Add(const std::string& camera, const Eigen::Matrix3d& k, doub
     c = Camera();
     c.k = k;
     c.given_focal_px = given_focal_px;
-    c.lens = lens;
+    c.lens = std::move(lens);
     c.next_estimate = static_cast<std::uint64_t>(std::max(1, options_.first_estimate_pairs));
   }
   ++c.seen;
@@ -147,10 +147,9 @@ double FocalMonitor::GivenFocal(const std::string& camera) const {
   return it == cameras_.end() ? 0.0 : it->second.given_focal_px;
 }
 
-const CameraIntrinsics& FocalMonitor::Lens(const std::string& camera) const {
-  static const CameraIntrinsics kNoLens;
+CameraIntrinsics FocalMonitor::Lens(const std::string& camera) const {
   const auto it = cameras_.find(camera);
-  return it == cameras_.end() ? kNoLens : it->second.lens;
+  return it == cameras_.end() ? CameraIntrinsics() : it->second.lens;
 }
 
 std::vector<FocalJob> FocalMonitor::TakeDue() {

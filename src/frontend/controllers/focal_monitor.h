@@ -128,7 +128,7 @@ class FocalMonitor {
   // matrix k, their keypoints undistorted by `lens`'s distortion model (or
   // none; its k is not used). A camera whose k or model changes (a new
   // camera_info) starts again.
-  void Add(const std::string& camera, const Eigen::Matrix3d& k, double given_focal_px, const CameraIntrinsics& lens,
+  void Add(const std::string& camera, const Eigen::Matrix3d& k, double given_focal_px, CameraIntrinsics lens,
            std::shared_ptr<const FocalSample> sample);
   // The estimates that fell due since the last call, in the order they did.
   std::vector<FocalJob> TakeDue();
@@ -136,7 +136,7 @@ class FocalMonitor {
   std::size_t HeldBytes() const;  // of every camera's pairs
   double GivenFocal(const std::string& camera) const;  // 0 before its first pair
   // The distortion model of the camera's pairs (none before its first).
-  const CameraIntrinsics& Lens(const std::string& camera) const;
+  CameraIntrinsics Lens(const std::string& camera) const;
 
  private:
   struct Camera {
