@@ -30,6 +30,14 @@ DEMO_PAIR_INPUTS = (("none_model", "original images"), ("plumb_bob_model", "plum
                     ("plumb_bob_rectified", "plumb_bob, warped, then rectified"))
 
 
+def demo_pair_runs(out):
+    """(run name, label, its `rotavg eval --graph` output) of each demo input that ran."""
+    for input, label in DEMO_PAIR_INPUTS:
+        scored = os.path.join(out, "demo_%s_pairs_eval.txt" % input)
+        if os.path.exists(scored):
+            yield input, label, scored
+
+
 def pair_kinds(graph_txt, per_edge_txt):
     """{kind: [(error_deg, nees)]} of a graph's scored pairs: sequential,
     loop closures within a camera, loop closures between cameras (a keyframe
@@ -154,11 +162,8 @@ def main():
     print()
     print("| demo input | median (deg) | pairs | median pair error (deg) | NEES median | NEES median after per-view offsets |")
     print("|---|---|---|---|---|---|")
-    for input, label in DEMO_PAIR_INPUTS:
+    for input, label, scored in demo_pair_runs(out):
         summary = os.path.join(out, "demo_%s_pairs.txt" % input)
-        scored = os.path.join(out, "demo_%s_pairs_eval.txt" % input)
-        if not os.path.exists(scored):
-            continue
         print("| %s | %s | %s | %s | %s | %s |" % (label, summary_value(summary, median),
                                                   summary_value(scored, r"^edges scored: (\d+)"),
                                                   summary_value(scored, r"^median edge error: ([0-9.]+) deg"),
@@ -170,10 +175,7 @@ def main():
     print()
     print("| demo input | kind | pairs | median pair error (deg) | NEES median |")
     print("|---|---|---|---|---|")
-    for input, label in DEMO_PAIR_INPUTS:
-        scored = os.path.join(out, "demo_%s_pairs_eval.txt" % input)
-        if not os.path.exists(scored):
-            continue
+    for input, label, scored in demo_pair_runs(out):
         kinds = pair_kinds(os.path.join(out, "demo_%s_pairs" % input, "graph.txt"), scored)
         for kind in ("sequential", "loop closure, one camera", "loop closure, two cameras"):
             pairs = np.array(kinds.get(kind, [])).reshape(-1, 2)

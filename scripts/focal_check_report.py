@@ -63,6 +63,12 @@ def distortion(text, prefix):
     return found
 
 
+def first_warning(warned, camera):
+    """The estimate of `camera` that first disagreed, as a table cell."""
+    first = [w for w in warned.get(camera, []) if w["verdict"] == "disagrees"]
+    return "at %d pairs: x%.4f ± %.4f" % (first[0]["seen"], first[0]["scale"], first[0]["sd"]) if first else "none"
+
+
 def cell(c, truth=None):
     if c["verdict"] == "undetermined":
         return "not determined (%d pairs)" % c["seen"], "", ""
@@ -102,9 +108,7 @@ def main():
         for camera in sorted(last):
             c = last[camera][-1]
             text_cell, off, sigmas = cell(c, truth)
-            first = [w for w in warned.get(camera, []) if w["verdict"] == "disagrees"]
-            first_cell = "at %d pairs: x%.4f ± %.4f" % (first[0]["seen"], first[0]["scale"], first[0]["sd"]) \
-                if first else "none"
+            first_cell = first_warning(warned, camera)
             seen = lens.get(camera)
             lens_cell = "%.3f ± %.3f, %.1f px: %s" % seen if seen else "not determined"
             print("| x%s | %s | %s | %s | %s | %s | %s | %s | %.4f |" % (
@@ -194,9 +198,7 @@ def main():
         for camera in sorted(last):
             c = last[camera][-1]
             text_cell, off, sigmas = cell(c, 1.0 / float(s))
-            first = [w for w in warned.get(camera, []) if w["verdict"] == "disagrees"]
-            first_cell = "at %d pairs: x%.4f ± %.4f" % (first[0]["seen"], first[0]["scale"], first[0]["sd"]) \
-                if first else "none"
+            first_cell = first_warning(warned, camera)
             print("| x%s | %s | %s | %s | %s | %s | %s | %.4f |" % (s, camera, text_cell, off, sigmas, c["verdict"],
                                                                    first_cell, median))
     text = read(out, "demo_plumb_bob_0.97_apply")

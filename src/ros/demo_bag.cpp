@@ -147,13 +147,14 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
       if (bag_options.rectify) image = UndistortImage(image, camera);
       WriteKeyframeImage(&bag, frame, stamp, image, info, compressed);
       const KeyframeKey key{frame, ToNanoseconds(stamp)};
+      const std::string name = OnlineAverager::KeyframeName(key);
       const Eigen::Matrix3d world_to_camera = scene.WorldToCamera(capture, static_cast<int>(c));
-      if (!images_dir.empty() && !cv::imwrite(images_dir + "/" + OnlineAverager::KeyframeName(key) + ".png", image)) {
-        if (error) *error = "cannot write " + images_dir + "/" + OnlineAverager::KeyframeName(key) + ".png";
+      if (!images_dir.empty() && !cv::imwrite(images_dir + "/" + name + ".png", image)) {
+        if (error) *error = "cannot write " + images_dir + "/" + name + ".png";
         return false;
       }
       truth.keyframes.push_back(ToMsg(key, world_to_camera, 0));
-      truth_csv[OnlineAverager::KeyframeName(key)] = world_to_camera;
+      truth_csv[name] = world_to_camera;
     }
     if (progress) std::fprintf(stderr, "\rrendered capture %d/%d", capture + 1, options.num_captures);
   }
