@@ -416,16 +416,13 @@ BundleAdjustment BundleAdjust(const py::dict& initial, const py::list& pairs, co
   return out;
 }
 
-}  // namespace
-
-PYBIND11_MODULE(_core, m) {
-  m.doc() = "Uncertainty-aware robust rotation averaging (C++ core bindings)";
-
-  py::class_<PyViewGraph>(m, "ViewGraph", R"(Views (64-bit ids) and relative-rotation edges.
+// ViewGraph: building one, view by view, edge by edge, or from arrays.
+py::class_<PyViewGraph> BindViewGraph(py::module_& m) {
+  py::class_<PyViewGraph> graph(m, "ViewGraph", R"(Views (64-bit ids) and relative-rotation edges.
 
 An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
-3x3 covariance (rad^2) of a right perturbation in camera j's frame.)")
-      .def(py::init<>())
+3x3 covariance (rad^2) of a right perturbation in camera j's frame.)");
+  graph.def(py::init<>())
       .def("add_view", [](PyViewGraph& g, ra::ViewId id, const std::string& name) { return g.graph.AddView(id, name); },
            py::arg("id"), py::arg("name") = "", "Adds a view; False if the id exists. The name defaults to the id.")
       .def(
@@ -453,7 +450,28 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
                   "Graph from arrays: view ids (m,), rotations (m, 3, 3) or quaternions (m, 4), optional covariances "
                   "(m, 3, 3) and inlier counts (m,); optional view ids and names to declare views up front. Edges "
                   "the graph rejects are skipped and listed in `warnings`.")
-      .def_property_readonly("num_views", [](const PyViewGraph& g) { return g.graph.NumViews(); })
+      .def(
+          "add_relative_pose",
+          [](PyViewGraph& g, ra::ViewId i, ra::ViewId j, const ra::RelativePoseResult& pose, const std::string& source,
+             std::uint32_t channel) {
+            if (!pose.success) {
+              throw py::value_error("edge " + std::to_string(i) + "-" + std::to_string(j) + ": the pair has no pose (" +
+                                    ra::TwoViewFailureName(pose.failure) + ": " + pose.message + ")");
+            }
+            if (!g.graph.HasView(i)) g.graph.AddView(i);
+            if (!g.graph.HasView(j)) g.graph.AddView(j);
+            AddEdgeOrThrow(&g, i, j, pose.EdgeRotation(), py::cast(pose.covariance), static_cast<int>(pose.inliers.size()),
+                           source, channel);
+          },
+          py::arg("view1"), py::arg("view2"), py::arg("pose"), py::arg("source") = "other", py::arg("channel") = 0,
+          "Adds the edge a relative_pose(points of view1, points of view2, ...) measures: R_12 = pose.rotation^T, "
+          "its covariance and inlier count. Raises ValueError if the pair has no pose or the graph rejects it.");
+  return graph;
+}
+
+// ViewGraph: reading it back as arrays, its components.
+void BindViewGraphContents(py::class_<PyViewGraph> graph) {
+  graph.def_property_readonly("num_views", [](const PyViewGraph& g) { return g.graph.NumViews(); })
       .def_property_readonly("num_edges", [](const PyViewGraph& g) { return g.graph.NumEdges(); })
       .def_readonly("warnings", &PyViewGraph::warnings, "Edges skipped on input, with the reason.")
       .def_property_readonly("view_ids",
@@ -499,22 +517,6 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
                                for (const auto& e : g.graph.Edges()) n.push_back(e.num_inliers);
                                return py::array_t<int>(n.size(), n.data());
                              })
-      .def(
-          "add_relative_pose",
-          [](PyViewGraph& g, ra::ViewId i, ra::ViewId j, const ra::RelativePoseResult& pose, const std::string& source,
-             std::uint32_t channel) {
-            if (!pose.success) {
-              throw py::value_error("edge " + std::to_string(i) + "-" + std::to_string(j) + ": the pair has no pose (" +
-                                    ra::TwoViewFailureName(pose.failure) + ": " + pose.message + ")");
-            }
-            if (!g.graph.HasView(i)) g.graph.AddView(i);
-            if (!g.graph.HasView(j)) g.graph.AddView(j);
-            AddEdgeOrThrow(&g, i, j, pose.EdgeRotation(), py::cast(pose.covariance), static_cast<int>(pose.inliers.size()),
-                           source, channel);
-          },
-          py::arg("view1"), py::arg("view2"), py::arg("pose"), py::arg("source") = "other", py::arg("channel") = 0,
-          "Adds the edge a relative_pose(points of view1, points of view2, ...) measures: R_12 = pose.rotation^T, "
-          "its covariance and inlier count. Raises ValueError if the pair has no pose or the graph rejects it.")
       .def("connected_components",
            [](const PyViewGraph& g) {
              std::vector<py::array_t<std::uint64_t>> out;
@@ -525,7 +527,9 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
         return "<ViewGraph " + std::to_string(g.graph.NumViews()) + " views, " + std::to_string(g.graph.NumEdges()) +
                " edges>";
       });
+}
 
+void BindSolveOptions(py::module_& m) {
   py::class_<ra::RotationAveragingOptions> options(m, "SolveOptions",
                                                    "Every option of the C++ solver (rotation_averaging.h); "
                                                    "enumerations as strings.");
@@ -600,7 +604,10 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
               "Raises ValueError naming the first field out of its range (solve() checks it too).");
   options.def("default_loss_scale", &ra::DefaultLossScale,
               "The loss scale used when loss_scale <= 0, for this loss, weighting and normalisation.");
+}
 
+// The solve and what it returns.
+void BindSolve(py::module_& m) {
   py::class_<Solution>(m, "Solution", "Orientations of the solved views and the solve's summary.")
       .def_property_readonly("ids", [](const Solution& s) { return py::array_t<std::uint64_t>(s.ids.size(), s.ids.data()); },
                              "(n,) ids of the oriented views (isolated views are not oriented)")
@@ -661,6 +668,13 @@ An edge (i, j) holds R_ij = R_i R_j^T for world-to-camera R, and optionally the
                " components, " + (s.success ? "success" : "failed") + ">";
       });
 
+  m.def("solve", &Solve, py::arg("graph"), py::arg("options") = ra::RotationAveragingOptions(),
+        py::arg("initial") = py::none(),
+        "Solves every connected component. `initial`: {id: 3x3} warm-start orientations (options.warm_start).");
+}
+
+// The two-view estimation with its rotation covariance.
+void BindRelativePose(py::module_& m) {
   py::class_<ra::RelativePoseOptions> pose_options(
       m, "RelativePoseOptions", "Every option of the two-view estimation (relative_pose.h); enumerations as strings.");
   DefaultConstructibleCopyable(pose_options);
@@ -734,7 +748,9 @@ ViewGraph.add_edge takes it.)")
         py::arg("options") = ra::RelativePoseOptions(),
         "Relative pose of two views from corresponding pixels (n, 2) of undistorted images with intrinsics K1, K2 "
         "(K2 defaults to K1), with the covariance of its rotation. Releases the GIL.");
+}
 
+void BindBundleAdjustment(py::module_& m) {
   py::class_<ra::BundleAdjustmentOptions> ba_options(m, "BundleAdjustmentOptions",
                                                      "Every option of the bundle adjustment (bundle_adjustment.h).");
   DefaultConstructibleCopyable(ba_options);
@@ -795,11 +811,10 @@ ViewGraph.add_edge takes it.)")
         "pairs are (view1, view2, points1, points2, pose), pose = relative_pose(points1, points2, ...); "
         "a keypoint is its pixel coordinates in its view, so give each view's keypoints the same coordinates in "
         "every pair. intrinsics: one 3x3 K, or {id: K}. Releases the GIL.");
+}
 
-  m.def("solve", &Solve, py::arg("graph"), py::arg("options") = ra::RotationAveragingOptions(),
-        py::arg("initial") = py::none(),
-        "Solves every connected component. `initial`: {id: 3x3} warm-start orientations (options.warm_start).");
-
+// Graphs, orientations and ground truth on disk, and the scoring.
+void BindFilesAndEvaluation(py::module_& m) {
   m.def(
       "read_graph",
       [](const std::string& path, const std::string& format_text) {
@@ -867,6 +882,10 @@ ViewGraph.add_edge takes it.)")
       py::arg("estimate"), py::arg("ground_truth"), py::arg("auc_thresholds_deg") = std::vector<double>{2, 5, 10, 20},
       "Aligns the estimate by one robustly fitted rotation and scores it: median and mean error, AUC per threshold, "
       "per-view errors. Both are {name: 3x3 world-to-camera}.");
+}
+
+// A synthetic graph with its truth, SO(3) maps and the names of the choices.
+void BindUtilities(py::module_& m) {
   m.def(
       "synthetic_graph",
       [](int num_views, double mean_degree, double noise_deg, double noise_spread, bool anisotropic, double outlier_ratio,
@@ -912,4 +931,18 @@ ViewGraph.add_edge takes it.)")
     for (ra::EdgeWeighting w : ra::AllEdgeWeightings()) names.push_back(ra::EdgeWeightingName(w));
     return names;
   });
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "Uncertainty-aware robust rotation averaging (C++ core bindings)";
+  // Options classes come before the functions whose defaults are built from them.
+  BindViewGraphContents(BindViewGraph(m));
+  BindSolveOptions(m);
+  BindSolve(m);
+  BindRelativePose(m);
+  BindBundleAdjustment(m);
+  BindFilesAndEvaluation(m);
+  BindUtilities(m);
 }
