@@ -57,7 +57,7 @@ if [ "$QUICK" = 1 ]; then
 fi
 # Timing-sensitive parts run alone; then the 1,000,000-view scale run (about 18
 # minutes, single-threaded) shares the two cores with the front-end
-# evaluation (single-threaded too), which keeps the whole under 30 minutes.
+# evaluation (single-threaded too), which keeps those two together under 30 minutes.
 step "core solvers"
 "$BIN/rotavg_benchmark" --data "$DATA" --output results/core_benchmark.md > /dev/null
 step "online re-solve"
