@@ -58,10 +58,17 @@ ImageFeatures ExtractFeatures(const cv::Mat& image, const FeatureOptions& option
   }
   std::vector<cv::KeyPoint> keypoints;
   detector->detectAndCompute(grey, cv::noArray(), keypoints, out.descriptors);
+  // OpenCV's SIFT looks for keypoints in the image doubled by a linear
+  // resize, whose pixel X lies at X / 2 - 1/4 of the input, and reports them at
+  // X / 2: every keypoint a quarter pixel right of and below its place
+  // (opencv/opencv#23123). Taken back, a keypoint has the pixel-centre
+  // coordinates K is given in. ORB finds whole pixels per pyramid level and
+  // is left as it is.
+  const double offset = options.type == FeatureType::kSift ? kSiftUpscaleOffsetPx : 0.0;
   out.keypoints_px.reserve(keypoints.size());
   out.strength.reserve(keypoints.size());
   for (const cv::KeyPoint& k : keypoints) {
-    out.keypoints_px.emplace_back(k.pt.x, k.pt.y);
+    out.keypoints_px.emplace_back(k.pt.x - offset, k.pt.y - offset);
     out.strength.push_back(k.response);
   }
   return out;

@@ -39,7 +39,15 @@ struct ImageFeatures {
 };
 
 // Detects and describes features in an 8-bit image (grey or colour).
+// Keypoints are in pixel-centre coordinates (pixel (0, 0) spans
+// [-0.5, 0.5]^2), as OpenCV's K and undistortion take them; SIFT's own
+// quarter-pixel offset is removed (kSiftUpscaleOffsetPx).
 ImageFeatures ExtractFeatures(const cv::Mat& image, const FeatureOptions& options);
+
+// Where OpenCV's SIFT puts a keypoint, minus where it is, in both axes
+// (pixels): its doubled image is a linear resize (pixel X at X/2 - 1/4),
+// reported at X/2.
+constexpr double kSiftUpscaleOffsetPx = 0.25;
 
 struct MatchOptions {
   double ratio = 0.8;          // Lowe's ratio test: best < ratio * second best
