@@ -256,10 +256,14 @@ std::unique_ptr<ShortFocalRun> RunShortFocal(bool hold_for_correction, const Cam
   given.k = run->short_k;
   CameraIntrinsics front;
   front.k = scene.Intrinsics();
+  // The lens's image is warped from the wider field it sees: no black border.
+  const int margin =
+      LensMarginPx(true_lens, cv::Size(run->scene_options.width, run->scene_options.height));
   for (int c = 0; c < run->scene_options.num_captures; ++c) {
     for (int cam = 0; cam < 2; ++cam) {
       const KeyframeKey key{scene.Cameras()[cam].frame_id, (c + 1) * 1'000'000'000LL};
-      const cv::Mat image = cam == 1 ? DistortImage(scene.Render(c, cam), true_lens) : scene.Render(c, cam);
+      const cv::Mat image =
+          cam == 1 ? DistortImage(scene.Render(c, cam, margin), true_lens, margin) : scene.Render(c, cam);
       for (const KeyframeRelativeRotation& e : run->frontend->AddKeyframe(key, image, cam == 1 ? given : front)) {
         run->edges.push_back(e);
       }

@@ -39,5 +39,31 @@ TEST(RigScene, GroundTruthMatchesTheRigGeometry) {
   EXPECT_GT(stddev[0], 20.0);
 }
 
+TEST(RigScene, ACameraTurnedHalfAroundItsAxisSeesItsImageTurnedAboutThePrincipalPoint) {
+  // The renderer and Intrinsics() must agree on where a pixel's centre is:
+  // turned 180 degrees about its optical axis, the camera sees pixel (x, y)
+  // at 2 c - (x, y) for K's principal point c = (W/2, H/2).
+  RigSceneOptions o;
+  o.WithWidth(160);
+  o.noise_grey = 0.0;
+  const RigScene scene(o);
+  const Eigen::Matrix3d world_to_camera = scene.WorldToCamera(5, 0);
+  const Eigen::Matrix3d half_turn = Eigen::Vector3d(-1.0, -1.0, 1.0).asDiagonal();
+  const cv::Mat image = scene.RenderView(world_to_camera, scene.CameraCentre(5, 0), 1);
+  const cv::Mat turned = scene.RenderView(half_turn * world_to_camera, scene.CameraCentre(5, 0), 1);
+  const Eigen::Matrix3d k = scene.Intrinsics();
+  int compared = 0, same = 0;
+  for (int y = 0; y < image.rows; ++y) {
+    for (int x = 0; x < image.cols; ++x) {
+      const int xt = static_cast<int>(2.0 * k(0, 2)) - x, yt = static_cast<int>(2.0 * k(1, 2)) - y;
+      if (xt < 0 || yt < 0 || xt >= image.cols || yt >= image.rows) continue;
+      ++compared;
+      same += image.at<std::uint8_t>(y, x) == turned.at<std::uint8_t>(yt, xt);
+    }
+  }
+  ASSERT_GT(compared, image.rows * image.cols / 2);
+  EXPECT_EQ(same, compared);
+}
+
 }  // namespace
 }  // namespace rotation_averaging

@@ -198,7 +198,8 @@ cv::Mat RigScene::RenderView(const Eigen::Matrix3d& world_to_camera, const Eigen
   for (int y = 0; y < image.rows; ++y) {
     std::uint8_t* row = image.ptr<std::uint8_t>(y);
     for (int x = 0; x < image.cols; ++x) {
-      const Eigen::Vector3d d = camera_to_world * Eigen::Vector3d((x + 0.5 - cx) / f, (y + 0.5 - cy) / f, 1.0);
+      // Pixel x's centre is at x (OpenCV's convention, the one Intrinsics() is in).
+      const Eigen::Vector3d d = camera_to_world * Eigen::Vector3d((x - cx) / f, (y - cy) / f, 1.0);
       double best = std::numeric_limits<double>::infinity(), value = 128.0;
       for (const Surface& s : surfaces_) {
         const double dn = d.dot(s.normal);
