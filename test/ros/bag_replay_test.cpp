@@ -510,10 +510,13 @@ TEST_F(BagReplay, TheNextSessionContinuesTheSavedMap) {
   // errors only; online_averager_test AddedGraphsKeepTheirFramesUntilJoined
   // joins frames that differ). The loop closures between the maps correct
   // single keyframes within a few posterior standard deviations, which
-  // turns the best-fitting frame by a few hundredths of a degree.
+  // turns the best-fitting frame by a few hundredths of a degree. Two maps of
+  // the same size correct each other more than a session does the map it
+  // continues, and the posterior is as over-confident as the pairs'
+  // covariances (camera_models.md, "NEES"): up to five.
   EXPECT_TRUE(third.map_merged);
   EXPECT_LT(third.map_merge_frame_deg, 0.1);
-  EXPECT_LT(third.map_merge_move_sigma, 3.0);
+  EXPECT_LT(third.map_merge_move_sigma, 5.0);
 
   // A truncated database: the replay stops and says why.
   const std::string database = ReadAll(map + ".keyframes");

@@ -252,7 +252,7 @@ bool OnlineAverager::SolveLocked(bool force_full) {
   const bool took_background =
       TakeBackgroundSolve(generation, force_full, cold, &orientations, &changed, &background_covariances);
   const SolveRun run = RunSolve(averaging, local_enabled, took_background, changed, &orientations, &solution->summary);
-  if (run.ok && cold) AlignToPublished(&orientations);
+  if (run.ok && !run.local) KeepPublishedFrames(run.components, &orientations);
   RecordSolve(run.ok, run.local, std::chrono::duration<double>(Clock::now() - start).count(), solution->summary);
   if (!run.ok) {
     // The previous good solution stays published.
@@ -279,6 +279,7 @@ bool OnlineAverager::TakeBackgroundSolve(std::uint64_t generation, bool force_fu
     if (!background_stale_ && !force_full && !cold && full.ok && full.generation == generation) {
       // Views that came after the snapshot keep their current orientations
       // and are re-solved locally around them.
+      KeepPublishedFrames(full.components, &full.orientations);
       for (auto& [id, r] : full.orientations) (*orientations)[id] = r;
       TakeComponents(full.components, full.summary);
       edge_results_ = std::move(full.summary.edges);
@@ -344,20 +345,35 @@ OnlineAverager::SolveRun OnlineAverager::RunSolve(const RotationAveragingOptions
   return run;
 }
 
-void OnlineAverager::AlignToPublished(ViewOrientations* orientations) const {
-  // One robust global rotation, so published frames do not jump.
+void OnlineAverager::KeepPublishedFrames(const std::vector<std::vector<ViewId>>& components,
+                                         ViewOrientations* orientations) const {
   const std::shared_ptr<const OnlineSolution> previous = Solution();
-  std::vector<Eigen::Matrix3d> before, after;
-  for (const auto& [id, r] : *orientations) {
-    if (id >= keys_.size()) continue;
-    auto it = previous->orientations.find(keys_[id]);
-    if (it == previous->orientations.end()) continue;
-    before.push_back(it->second);
-    after.push_back(r);
-  }
-  if (!before.empty()) {
-    const Eigen::Matrix3d g = AlignRotations(before, after);  // after ~ before * g
-    for (auto& [id, r] : *orientations) r = r * g.transpose();
+  if (previous->orientations.empty()) return;
+  for (const std::vector<ViewId>& component : components) {
+    // The component's views published before, by the component they were
+    // published in (-1: none, a view published on its own).
+    std::map<int, std::pair<std::vector<Eigen::Matrix3d>, std::vector<Eigen::Matrix3d>>> published;
+    for (ViewId id : component) {
+      if (id >= keys_.size()) continue;
+      const auto before = previous->orientations.find(keys_[id]);
+      const auto after = orientations->find(id);
+      if (before == previous->orientations.end() || after == orientations->end()) continue;
+      const auto label = previous->component.find(keys_[id]);
+      auto& pair = published[label == previous->component.end() ? -1 : label->second];
+      pair.first.push_back(before->second);
+      pair.second.push_back(after->second);
+    }
+    // The most views; of equal counts the first (largest) component.
+    const std::pair<std::vector<Eigen::Matrix3d>, std::vector<Eigen::Matrix3d>>* frame = nullptr;
+    for (const auto& [label, pair] : published) {
+      if (frame == nullptr || pair.first.size() > frame->first.size()) frame = &pair;
+    }
+    if (frame == nullptr) continue;
+    const Eigen::Matrix3d g = AlignRotations(frame->first, frame->second);  // after ~ before * g
+    for (ViewId id : component) {
+      const auto it = orientations->find(id);
+      if (it != orientations->end()) it->second = it->second * g.transpose();
+    }
   }
 }
 

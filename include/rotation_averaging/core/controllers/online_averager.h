@@ -224,8 +224,14 @@ class OnlineAverager {
   SolveRun RunSolve(const RotationAveragingOptions& averaging, bool local_enabled, bool took_background,
                     const std::vector<ViewId>& changed, ViewOrientations* orientations,
                     RotationAveragingSummary* summary);
-  // A cold solve has its own gauge: rotated onto the published solution.
-  void AlignToPublished(ViewOrientations* orientations) const;
+  // A full solve holds one view of each component where it was (its gauge),
+  // so the component's frame would follow that one view's correction; a
+  // cold solve has a gauge of its own. Each component of `components` is
+  // rotated instead onto the published orientations of its views, one
+  // robust rotation fitted on them all: its frame as a whole stays. A
+  // component that joins components published apart keeps the frame of the
+  // one with the most views.
+  void KeepPublishedFrames(const std::vector<std::vector<ViewId>>& components, ViewOrientations* orientations) const;
   void RecordSolve(bool ok, bool local, double seconds, const RotationAveragingSummary& summary);
   // After a failed solve the changed views wait for the next one.
   void RequeueChanged(const std::vector<ViewId>& changed);
