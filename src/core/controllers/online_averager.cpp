@@ -349,27 +349,40 @@ void OnlineAverager::KeepPublishedFrames(const std::vector<std::vector<ViewId>>&
                                          ViewOrientations* orientations) const {
   const std::shared_ptr<const OnlineSolution> previous = Solution();
   if (previous->orientations.empty()) return;
+  // The frame is fitted on at most this many of a component's keyframes,
+  // evenly spread: the fit is robust and the corrections of a re-solve are
+  // small, while a fit on every keyframe of a large map would cost the
+  // solve that takes a background solve tens of milliseconds.
+  constexpr std::size_t kFrameSample = 256;
+  const auto label_of = [this](ViewId id) {
+    return id < component_label_.size() ? component_label_[id] : -1;
+  };
   for (const std::vector<ViewId>& component : components) {
-    // The component's views published before, by the component they were
-    // published in (-1: none, a view published on its own).
-    std::map<int, std::pair<std::vector<Eigen::Matrix3d>, std::vector<Eigen::Matrix3d>>> published;
+    // The component (of the last full solve) most of these keyframes were
+    // in; -1: keyframes that came since, or a map just loaded.
+    std::map<int, std::size_t> count;
+    for (ViewId id : component) ++count[label_of(id)];
+    int keep = count.begin()->first;
+    for (const auto& [label, n] : count) {
+      if (n > count[keep]) keep = label;
+    }
+    std::vector<ViewId> members;
     for (ViewId id : component) {
+      if (label_of(id) == keep) members.push_back(id);
+    }
+    const std::size_t stride = std::max<std::size_t>(1, members.size() / kFrameSample);
+    std::vector<Eigen::Matrix3d> before, after;
+    for (std::size_t k = 0; k < members.size(); k += stride) {
+      const ViewId id = members[k];
       if (id >= keys_.size()) continue;
-      const auto before = previous->orientations.find(keys_[id]);
-      const auto after = orientations->find(id);
-      if (before == previous->orientations.end() || after == orientations->end()) continue;
-      const auto label = previous->component.find(keys_[id]);
-      auto& pair = published[label == previous->component.end() ? -1 : label->second];
-      pair.first.push_back(before->second);
-      pair.second.push_back(after->second);
+      const auto published = previous->orientations.find(keys_[id]);
+      const auto solved = orientations->find(id);
+      if (published == previous->orientations.end() || solved == orientations->end()) continue;
+      before.push_back(published->second);
+      after.push_back(solved->second);
     }
-    // The most views; of equal counts the first (largest) component.
-    const std::pair<std::vector<Eigen::Matrix3d>, std::vector<Eigen::Matrix3d>>* frame = nullptr;
-    for (const auto& [label, pair] : published) {
-      if (frame == nullptr || pair.first.size() > frame->first.size()) frame = &pair;
-    }
-    if (frame == nullptr) continue;
-    const Eigen::Matrix3d g = AlignRotations(frame->first, frame->second);  // after ~ before * g
+    if (before.empty()) continue;
+    const Eigen::Matrix3d g = AlignRotations(before, after);  // after ~ before * g
     for (ViewId id : component) {
       const auto it = orientations->find(id);
       if (it != orientations->end()) it->second = it->second * g.transpose();

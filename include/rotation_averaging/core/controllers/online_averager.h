@@ -228,9 +228,9 @@ class OnlineAverager {
   // so the component's frame would follow that one view's correction; a
   // cold solve has a gauge of its own. Each component of `components` is
   // rotated instead onto the published orientations of its views, one
-  // robust rotation fitted on them all: its frame as a whole stays. A
-  // component that joins components published apart keeps the frame of the
-  // one with the most views.
+  // robust rotation fitted on them (on an even sample of a large one): its
+  // frame as a whole stays. A component that joins components solved apart
+  // keeps the frame of the one with the most views.
   void KeepPublishedFrames(const std::vector<std::vector<ViewId>>& components, ViewOrientations* orientations) const;
   void RecordSolve(bool ok, bool local, double seconds, const RotationAveragingSummary& summary);
   // After a failed solve the changed views wait for the next one.
