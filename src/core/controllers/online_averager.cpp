@@ -354,21 +354,13 @@ void OnlineAverager::KeepPublishedFrames(const std::vector<std::vector<ViewId>>&
   // small, while a fit on every keyframe of a large map would cost the
   // solve that takes a background solve tens of milliseconds.
   constexpr std::size_t kFrameSample = 256;
-  const auto label_of = [this](ViewId id) {
-    return id < component_label_.size() ? component_label_[id] : -1;
-  };
   for (const std::vector<ViewId>& component : components) {
     // The component (of the last full solve) most of these keyframes were
     // in; -1: keyframes that came since, or a map just loaded.
-    std::map<int, std::size_t> count;
-    for (ViewId id : component) ++count[label_of(id)];
-    int keep = count.begin()->first;
-    for (const auto& [label, n] : count) {
-      if (n > count[keep]) keep = label;
-    }
+    const int keep = MostViewsLabel(component, /*count_unlabelled=*/true).first;
     std::vector<ViewId> members;
     for (ViewId id : component) {
-      if (label_of(id) == keep) members.push_back(id);
+      if (LabelOf(id) == keep) members.push_back(id);
     }
     const std::size_t stride = std::max<std::size_t>(1, members.size() / kFrameSample);
     std::vector<Eigen::Matrix3d> before, after;
@@ -510,21 +502,32 @@ void OnlineAverager::StartFromTree(ViewOrientations* orientations) {
 void OnlineAverager::StartJoinedComponentsFromTree(const std::vector<std::vector<ViewId>>& components,
                                                    ViewOrientations* orientations) const {
   for (const std::vector<ViewId>& component : components) {
-    std::map<int, std::size_t> count;  // previous label -> keyframes
+    const auto [keep, labels] = MostViewsLabel(component, /*count_unlabelled=*/false);
+    if (labels < 2) continue;
     for (ViewId id : component) {
-      if (id < component_label_.size() && component_label_[id] >= 0) ++count[component_label_[id]];
-    }
-    if (count.size() < 2) continue;
-    int keep = count.begin()->first;
-    for (const auto& [label, n] : count) {
-      if (n > count[keep]) keep = label;
-    }
-    for (ViewId id : component) {
-      if (id < component_label_.size() && component_label_[id] >= 0 && component_label_[id] != keep) {
-        orientations->erase(id);
-      }
+      const int label = LabelOf(id);
+      if (label >= 0 && label != keep) orientations->erase(id);
     }
   }
+}
+
+int OnlineAverager::LabelOf(ViewId id) const {
+  return id < component_label_.size() ? component_label_[id] : -1;
+}
+
+std::pair<int, std::size_t> OnlineAverager::MostViewsLabel(const std::vector<ViewId>& component,
+                                                           bool count_unlabelled) const {
+  std::map<int, std::size_t> count;  // previous label -> keyframes
+  for (ViewId id : component) {
+    const int label = LabelOf(id);
+    if (label >= 0 || count_unlabelled) ++count[label];
+  }
+  if (count.empty()) return {-1, 0};
+  int keep = count.begin()->first;
+  for (const auto& [label, n] : count) {
+    if (n > count[keep]) keep = label;
+  }
+  return {keep, count.size()};
 }
 
 void OnlineAverager::ClearLocalState() {

@@ -19,6 +19,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "rotation_averaging/core/estimators/rotation_averaging.h"
@@ -232,6 +233,13 @@ class OnlineAverager {
   // frame as a whole stays. A component that joins components solved apart
   // keeps the frame of the one with the most views.
   void KeepPublishedFrames(const std::vector<std::vector<ViewId>>& components, ViewOrientations* orientations) const;
+  // A view's component at the last full solve (-1: none: new since, or a
+  // singleton).
+  int LabelOf(ViewId id) const;
+  // The label most of `component`'s views had (of equal counts the smallest)
+  // and how many labels they had; -1 counts as a label when
+  // `count_unlabelled`.
+  std::pair<int, std::size_t> MostViewsLabel(const std::vector<ViewId>& component, bool count_unlabelled) const;
   void RecordSolve(bool ok, bool local, double seconds, const RotationAveragingSummary& summary);
   // After a failed solve the changed views wait for the next one.
   void RequeueChanged(const std::vector<ViewId>& changed);
