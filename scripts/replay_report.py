@@ -45,12 +45,20 @@ def bag_row(label, text):
     return "| " + " | ".join(cells) + " |"
 
 
+def cost(text):
+    return "%.2f" % float(text) if text else "-"
+
+
 def offline_row(label, node, afresh, offline):
     """The node's summary against the offline run's; `afresh`: the node's graph solved again, or None."""
     node_median, offline_median = value(node, MEDIAN), value(offline, MEDIAN)
     cells = [label, value(node, r"^keyframes: ([0-9]*) "), value(node, r"^solved variables: .*; edges: ([0-9]*) "),
-             node_median, value(afresh, MEDIAN) if afresh is not None else "-",
-             value(offline, r"^averaging: components solved: .*, ([0-9]*) edges\)$"), offline_median,
+             node_median, value(node, MEAN), cost(value(node, r"; final cost: ([0-9.]*)$"))]
+    if afresh is not None:
+        cells += [value(afresh, MEDIAN), value(afresh, MEAN), cost(value(afresh, r"^final cost: ([0-9.]*)$"))]
+    else:
+        cells += ["-", "-", "-"]
+    cells += [value(offline, r"^averaging: components solved: .*, ([0-9]*) edges\)$"), offline_median,
              "%.2f" % (float(node_median) / float(offline_median))]
     return "| " + " | ".join(cells) + " |"
 
@@ -133,10 +141,13 @@ tree alone when new keyframes came, keeping the lower cost), scored against the 
 `ground_truth.csv`. The demo: its 120 images at full size (`rotation_averaging_make_demo_bag
 --images-dir`) against its bag replayed with config/demo.yaml, whose rig's extrinsics the node
 uses and the offline run cannot (each image is a view of its own there; no afresh solve: the
-node's graph is of rig captures). Median errors in degrees; ratio: the node's over the offline one.""")
+node's graph is of rig captures). Median and mean errors in degrees; cost: the final cost of the
+averaging's objective (the same for both solves of one graph: where the node's is lower, its graph
+prefers the node's solution to the one from the spanning tree); ratio: the node's median over the
+offline one.""")
     p()
-    table_head(p, "| scene | keyframes | node: edges | node: median | node's graph afresh: median | offline: edges "
-      "| offline: median | ratio |")
+    table_head(p, "| scene | keyframes | node: edges | node: median | node: mean | node: cost "
+      "| afresh: median | afresh: mean | afresh: cost | offline: edges | offline: median | ratio |")
     for s in offline:
         p(offline_row(s, runs.text(s + "_vocabulary.txt"), runs.text(s + "_afresh.txt"),
                       runs.text(s + "_exhaustive.txt")))
