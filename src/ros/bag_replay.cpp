@@ -669,6 +669,7 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
     result->frontend_chain_bridged = f->Stats().chain_bridged;
     result->loop_candidates = f->Stats().loop_candidates_tried;
     result->loop_closure_edges = f->Stats().loop_closure_edges;
+    result->loops_same_place = f->Stats().loops_same_place;
     result->map_links = f->Stats().map_links;
     result->map_link_s = f->Stats().map_link_s;
     result->frontend_bytes = f->Stats().keyframe_bytes;
@@ -802,6 +803,9 @@ std::string ReplayResult::Summary() const {
         << " edges from the rotation-only model\n";
     out << "loop closures: " << loop_closure_edges << " edges from " << loop_candidates
         << " verified candidates; retrieval: " << retrieval << "\n";
+    if (loops_same_place > 0) {
+      out << "  and " << loops_same_place << " dropped for a loop with more inliers to the same place (one_loop_per_place)\n";
+    }
     if (map_links > 0) {
       out << "  of them between added maps and the map held: " << map_links << " (matched in " << map_link_s
           << " s)\n";

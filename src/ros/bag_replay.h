@@ -68,6 +68,7 @@ struct ReplayResult {
   std::map<std::string, std::uint64_t> frontend_failures;  // two-view failure reason -> count
   std::string retrieval;  // how loop-closure candidates were found
   std::uint64_t loop_candidates = 0, loop_closure_edges = 0;
+  std::uint64_t loops_same_place = 0;  // dropped by one_loop_per_place
   // Of those, between added maps and the map held (add_maps), and the time
   // matching them took.
   std::uint64_t map_links = 0;

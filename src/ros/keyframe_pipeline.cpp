@@ -221,6 +221,7 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("num_threads", &f.num_threads);
   r.Read("max_loop_candidates", &f.max_loop_candidates);
   r.Read("min_loop_inliers", &f.min_loop_inliers);
+  r.Read("one_loop_per_place", &f.one_loop_per_place);
   r.Read("jackknife_grid", &f.relative_pose.jackknife_grid, {"covariance_jackknife_grid"});
   r.Read("loop_jackknife_grid", &f.loop_jackknife_grid, {"loop_covariance_jackknife_grid"});
   r.Read("retrieval_sample", &f.retrieval_sample);

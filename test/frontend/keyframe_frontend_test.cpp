@@ -475,9 +475,11 @@ TEST(KeyframeFrontend, ASavedDatabaseLetsTheNextSessionCloseLoopsWithTheFirst) {
 // `alternate`, the cameras of every other capture arrive in reverse order.
 std::vector<KeyframeRelativeRotation> RigEdges(const RigScene& scene, int threads, bool vocabulary,
                                                bool alternate = false,
-                                               int loop_jackknife_grid = KeyframeFrontendOptions().loop_jackknife_grid) {
+                                               int loop_jackknife_grid = KeyframeFrontendOptions().loop_jackknife_grid,
+                                               bool one_loop_per_place = KeyframeFrontendOptions().one_loop_per_place) {
   KeyframeFrontendOptions options;
   options.loop_jackknife_grid = loop_jackknife_grid;
+  options.one_loop_per_place = one_loop_per_place;
   options.num_threads = threads;
   options.features.max_features = 600;
   if (vocabulary) options.vocabulary = TestVocabulary();
@@ -561,6 +563,50 @@ TEST(KeyframeFrontend, LoopClosuresCarryTheCellJackknifeCovariance) {
   EXPECT_GT(other, 20);
   EXPECT_GE(loops, 3);
   EXPECT_GE(2 * wider, loops) << "most loop closures are widened by the jackknife";
+}
+
+// A keyframe's loop closures to neighbouring old keyframes (one capture
+// apart, one camera) see one place; with one_loop_per_place only the one with
+// the most inliers is kept, and the sequential and rig edges stay the same.
+TEST(KeyframeFrontend, OneLoopPerPlaceKeepsOneLoopToNeighbouringOldKeyframes) {
+  RigSceneOptions scene_options;
+  scene_options.num_captures = 16;
+  scene_options.WithWidth(480);
+  const RigScene scene(scene_options);
+  using Loop = std::pair<std::string, std::int64_t>;  // old end: camera, stamp
+  struct Run {
+    std::map<std::string, std::vector<Loop>> loops;  // by new keyframe
+    std::map<std::pair<std::string, std::string>, Eigen::Matrix3d> others;
+  };
+  auto run = [&](bool one_loop_per_place) {
+    Run out;
+    const int grid = KeyframeFrontendOptions().loop_jackknife_grid;
+    for (const KeyframeRelativeRotation& e : RigEdges(scene, 2, true, false, grid, one_loop_per_place)) {
+      if (e.source == EdgeSource::kLoopClosure) {
+        out.loops[OnlineAverager::KeyframeName(e.keyframe2)].push_back({e.keyframe1.frame_id, e.keyframe1.stamp_ns});
+      } else {
+        out.others[{OnlineAverager::KeyframeName(e.keyframe1), OnlineAverager::KeyframeName(e.keyframe2)}] = e.rotation;
+      }
+    }
+    return out;
+  };
+  // Pairs of one keyframe's loops whose old ends are neighbours.
+  auto same_place = [](const Run& r) {
+    int n = 0;
+    for (const auto& [newer, loops] : r.loops) {
+      for (std::size_t i = 0; i < loops.size(); ++i) {
+        for (std::size_t j = i + 1; j < loops.size(); ++j) {
+          n += loops[i].first == loops[j].first && std::llabs(loops[i].second - loops[j].second) == 1'000'000'000LL;
+        }
+      }
+    }
+    return n;
+  };
+  const Run all = run(false), one = run(true);
+  ASSERT_GT(same_place(all), 0) << "the scene must give loops to neighbouring old keyframes";
+  EXPECT_EQ(same_place(one), 0);
+  EXPECT_EQ(one.loops.size(), all.loops.size()) << "every keyframe with loop closures keeps one";
+  EXPECT_TRUE(one.others == all.others) << "sequential and rig edges do not depend on the loops kept";
 }
 
 // The cameras of one capture reach a live node in either order (their topics

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <set>
 
@@ -360,7 +361,8 @@ bool KeyframeFrontend::ChainRotation(int a, int b, Eigen::Matrix3d* r_ab) const 
 }
 
 void KeyframeFrontend::FilterInconsistentLoops(std::vector<KeyframeRelativeRotation>* loops,
-                                               const std::vector<int>& old_ends) {
+                                               std::vector<int>* old_ends_io) {
+  const std::vector<int>& old_ends = *old_ends_io;
   const int n = static_cast<int>(loops->size());
   if (n < 2) return;
   std::vector<int> agree(n, 0), compared(n, 0);
@@ -390,11 +392,52 @@ void KeyframeFrontend::FilterInconsistentLoops(std::vector<KeyframeRelativeRotat
     for (int i = 0; i < n; ++i) keep[i] = compared[i] == 0 || 2 * agree[i] >= compared[i];
   }
   std::vector<KeyframeRelativeRotation> kept;
+  std::vector<int> kept_ends;
   for (int i = 0; i < n; ++i) {
-    if (keep[i]) kept.push_back((*loops)[i]);
-    else ++stats_.loops_rejected_inconsistent;
+    if (keep[i]) {
+      kept.push_back((*loops)[i]);
+      kept_ends.push_back(old_ends[i]);
+    } else {
+      ++stats_.loops_rejected_inconsistent;
+    }
   }
   loops->swap(kept);
+  old_ends_io->swap(kept_ends);
+}
+
+void KeyframeFrontend::KeepOneLoopPerPlace(std::vector<KeyframeRelativeRotation>* loops,
+                                           std::vector<int>* old_ends) {
+  const int n = static_cast<int>(loops->size());
+  if (n < 2) return;
+  // Most inliers first; ties in retrieval order.
+  std::vector<int> order(n);
+  for (int i = 0; i < n; ++i) order[i] = i;
+  std::stable_sort(order.begin(), order.end(),
+                   [&](int a, int b) { return (*loops)[a].num_inliers > (*loops)[b].num_inliers; });
+  const auto neighbours = [&](int a, int b) {
+    const Keyframe& ka = *keyframes_[a];
+    const Keyframe& kb = *keyframes_[b];
+    return &ChainOf(ka) == &ChainOf(kb) && std::abs(ka.camera_position - kb.camera_position) <= 1;
+  };
+  std::vector<bool> keep(n, false);
+  std::vector<int> kept_ends;
+  for (int i : order) {
+    const int end = (*old_ends)[i];
+    keep[i] = std::none_of(kept_ends.begin(), kept_ends.end(), [&](int k) { return neighbours(k, end); });
+    if (keep[i]) kept_ends.push_back(end);
+  }
+  std::vector<KeyframeRelativeRotation> kept;
+  std::vector<int> ends;
+  for (int i = 0; i < n; ++i) {
+    if (keep[i]) {
+      kept.push_back((*loops)[i]);
+      ends.push_back((*old_ends)[i]);
+    } else {
+      ++stats_.loops_same_place;
+    }
+  }
+  loops->swap(kept);
+  old_ends->swap(ends);
 }
 
 std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
@@ -594,7 +637,8 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AcceptLoops(const std::v
     loops.push_back(verified[c].edge);
     old_ends.push_back(candidates[c].older);
   }
-  FilterInconsistentLoops(&loops, old_ends);
+  FilterInconsistentLoops(&loops, &old_ends);
+  if (options_.one_loop_per_place) KeepOneLoopPerPlace(&loops, &old_ends);
   accepted->clear();
   for (const KeyframeRelativeRotation& e : loops) {
     ++stats_.loop_closure_edges;

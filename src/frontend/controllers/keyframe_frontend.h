@@ -94,6 +94,14 @@ struct KeyframeFrontendOptions {
   // with fewer than half of the others are dropped; of two that disagree,
   // the one with more inliers is kept.
   double loop_consistency_deg = 1.0;
+  // Loop closures of one keyframe to neighbouring old keyframes (next to
+  // each other on one camera's chain) see one place through near-duplicate
+  // images: wrong matches on its repeated structure recur in each of them,
+  // so their errors are shared, and as several edges they can outvote the
+  // chain. True: a loop is dropped when one with more inliers reaches the
+  // keyframe next to its old end (results/replay.md, "One loop closure per
+  // place"). False: every loop that passes the checks above is kept.
+  bool one_loop_per_place = false;
   // Loop-closure pairs get the cell jackknife's covariance
   // (RelativePoseOptions::jackknife_grid) with this grid, whatever
   // relative_pose says: they are the wide-baseline pairs, where groups of
@@ -124,6 +132,7 @@ struct KeyframeFrontendStats {
   std::uint64_t rotation_model_edges = 0;  // edges from the rotation-only two-view model (no parallax)
   std::uint64_t loop_candidates_tried = 0;
   std::uint64_t loops_rejected_inconsistent = 0;
+  std::uint64_t loops_same_place = 0;  // dropped by one_loop_per_place
   // Loop closures between an added database's keyframes and those held
   // (AddDatabase with links; also counted in loop_closure_edges and
   // loop_candidates_tried), and the wall time of that matching (apart from
@@ -236,7 +245,9 @@ class KeyframeFrontend {
   // R_ab composed along the sequential edges of one camera (a before b);
   // false if the chain between them is broken.
   bool ChainRotation(int a, int b, Eigen::Matrix3d* r_ab) const;
-  void FilterInconsistentLoops(std::vector<KeyframeRelativeRotation>* loops, const std::vector<int>& old_ends);
+  // Both drop loops and their old ends (index into keyframes_) together.
+  void FilterInconsistentLoops(std::vector<KeyframeRelativeRotation>* loops, std::vector<int>* old_ends);
+  void KeepOneLoopPerPlace(std::vector<KeyframeRelativeRotation>* loops, std::vector<int>* old_ends);
   struct PairTask {
     int older = 0;  // index into keyframes_ (the edge's first keyframe)
     EdgeSource source = EdgeSource::kSequential;
