@@ -391,18 +391,23 @@ void KeyframeFrontend::FilterInconsistentLoops(std::vector<KeyframeRelativeRotat
   } else {
     for (int i = 0; i < n; ++i) keep[i] = compared[i] == 0 || 2 * agree[i] >= compared[i];
   }
+  DropLoops(keep, loops, old_ends_io, &stats_.loops_rejected_inconsistent);
+}
+
+void KeyframeFrontend::DropLoops(const std::vector<bool>& keep, std::vector<KeyframeRelativeRotation>* loops,
+                                 std::vector<int>* old_ends, std::uint64_t* dropped) {
   std::vector<KeyframeRelativeRotation> kept;
   std::vector<int> kept_ends;
-  for (int i = 0; i < n; ++i) {
+  for (std::size_t i = 0; i < keep.size(); ++i) {
     if (keep[i]) {
       kept.push_back((*loops)[i]);
-      kept_ends.push_back(old_ends[i]);
+      kept_ends.push_back((*old_ends)[i]);
     } else {
-      ++stats_.loops_rejected_inconsistent;
+      ++*dropped;
     }
   }
   loops->swap(kept);
-  old_ends_io->swap(kept_ends);
+  old_ends->swap(kept_ends);
 }
 
 void KeyframeFrontend::KeepOneLoopPerPlace(std::vector<KeyframeRelativeRotation>* loops,
@@ -426,18 +431,7 @@ void KeyframeFrontend::KeepOneLoopPerPlace(std::vector<KeyframeRelativeRotation>
     keep[i] = std::none_of(kept_ends.begin(), kept_ends.end(), [&](int k) { return neighbours(k, end); });
     if (keep[i]) kept_ends.push_back(end);
   }
-  std::vector<KeyframeRelativeRotation> kept;
-  std::vector<int> ends;
-  for (int i = 0; i < n; ++i) {
-    if (keep[i]) {
-      kept.push_back((*loops)[i]);
-      ends.push_back((*old_ends)[i]);
-    } else {
-      ++stats_.loops_same_place;
-    }
-  }
-  loops->swap(kept);
-  old_ends->swap(ends);
+  DropLoops(keep, loops, old_ends, &stats_.loops_same_place);
 }
 
 std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const KeyframeKey& key, const cv::Mat& image,

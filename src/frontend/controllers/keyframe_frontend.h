@@ -248,6 +248,9 @@ class KeyframeFrontend {
   // Both drop loops and their old ends (index into keyframes_) together.
   void FilterInconsistentLoops(std::vector<KeyframeRelativeRotation>* loops, std::vector<int>* old_ends);
   void KeepOneLoopPerPlace(std::vector<KeyframeRelativeRotation>* loops, std::vector<int>* old_ends);
+  // Keeps the loops (and old ends) whose `keep` is true, counting the others in `dropped`.
+  static void DropLoops(const std::vector<bool>& keep, std::vector<KeyframeRelativeRotation>* loops,
+                        std::vector<int>* old_ends, std::uint64_t* dropped);
   struct PairTask {
     int older = 0;  // index into keyframes_ (the edge's first keyframe)
     EdgeSource source = EdgeSource::kSequential;
