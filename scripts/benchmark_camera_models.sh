@@ -12,7 +12,8 @@
 #    (fisheye) lens, and the demo renderer through a plumb_bob lens: median
 #    error against ground truth on the original input, with the model,
 #    without it, and on the warped images rectified (image_proc's
-#    image_rect of the same stream).
+#    image_rect of the same stream); and the scenes' sequential pairs, the
+#    same image pairs in every input, scored one by one.
 #   bash scripts/benchmark_camera_models.sh        (about ten minutes)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
@@ -70,6 +71,12 @@ for s in "${SCENES[@]}"; do
       replay "${s}_${lens}_rectified" "$OUT/${s}_${lens}_rectified.bag" "$STRECHA" "keyframe_selection: all" \
         "max_features: 4000"
     fi
+  done
+  # Every pair of the final graphs scored against ground truth with its
+  # covariance: the sequential pairs are the same image pairs in each input.
+  for run in none_model plumb_bob_model plumb_bob_rectified equidistant_model equidistant_rectified; do
+    "$BIN/rotavg" eval --graph "$OUT/${s}_$run/graph.txt" --gt "$OUT/${s}_$run/ground_truth.csv" --per-edge \
+      > "$OUT/${s}_${run}_eval.txt"
   done
 done
 
