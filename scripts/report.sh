@@ -22,14 +22,19 @@
 #   sessions.md        two 400-capture sessions (other start, other lighting) merged, against one 800-capture run
 # results/README.md is the written summary of these files.
 #
-#   bash scripts/report.sh            about 90 minutes on 2 cores (the COLMAP comparison about 17 of them; 1,000,000 views alone: 3-4, beside the front end)
+#   bash scripts/report.sh            about 110 minutes on 2 cores (the COLMAP comparison about 17 of them; 1,000,000 views alone: 3-4, beside the front end)
 #   bash scripts/report.sh --quick    under 3 minutes; small sizes, written to build/report_quick/
 #                                     (CI runs it so the report code never rots)
+#   bash scripts/report.sh --node     only the files that run the node's pipeline (node_benchmark.md
+#                                     to sessions.md below: what a default of the node or its front
+#                                     end changes), about 75 minutes
 # Real data comes from ../shared/data (ROTAVG_DATA_DIR to override); parts that
 # need it say so and are skipped when it is absent.
 source "$(dirname "$0")/common.sh"
 QUICK=0
+NODE_ONLY=0
 [ "${1:-}" = "--quick" ] && QUICK=1
+[ "${1:-}" = "--node" ] && NODE_ONLY=1
 bash scripts/setup.sh > /dev/null
 start=$(date +%s)
 step() { echo "== $1 ($(( $(date +%s) - start )) s so far)"; }
@@ -58,18 +63,20 @@ fi
 # Timing-sensitive parts run alone; then the 1,000,000-view scale run (about 18
 # minutes, single-threaded) shares the two cores with the front-end
 # evaluation (single-threaded too), which keeps those two together under 30 minutes.
-step "core solvers"
-"$BIN/rotavg_benchmark" --data "$DATA" --output results/core_benchmark.md > /dev/null
-step "online re-solve"
-"$BIN/rotavg_scale_benchmark" --only online --output results/online.md > /dev/null
-step "COLMAP on the Strecha scenes (its models are scored in frontend.md too)"
-bash scripts/benchmark_colmap.sh > /dev/null
-step "scale (in the background) and the front end with the loss x weighting table"
-"$BIN/rotavg_scale_benchmark" --only scale --output results/scale.md > build/report_scale.log 2>&1 &
-SCALE=$!
-"$BIN/rotavg_frontend_eval" --data "$DATA" --scales 1,0.25 --output results/frontend.md --plots results/plots > /dev/null
-step "front end done; waiting for the scale run"
-wait $SCALE || { cat build/report_scale.log >&2; exit 1; }
+if [ "$NODE_ONLY" = 0 ]; then
+  step "core solvers"
+  "$BIN/rotavg_benchmark" --data "$DATA" --output results/core_benchmark.md > /dev/null
+  step "online re-solve"
+  "$BIN/rotavg_scale_benchmark" --only online --output results/online.md > /dev/null
+  step "COLMAP on the Strecha scenes (its models are scored in frontend.md too)"
+  bash scripts/benchmark_colmap.sh > /dev/null
+  step "scale (in the background) and the front end with the loss x weighting table"
+  "$BIN/rotavg_scale_benchmark" --only scale --output results/scale.md > build/report_scale.log 2>&1 &
+  SCALE=$!
+  "$BIN/rotavg_frontend_eval" --data "$DATA" --scales 1,0.25 --output results/frontend.md --plots results/plots > /dev/null
+  step "front end done; waiting for the scale run"
+  wait $SCALE || { cat build/report_scale.log >&2; exit 1; }
+fi
 step "node"
 bash scripts/benchmark_node.sh > /dev/null
 step "bag replay"
