@@ -4,14 +4,18 @@
 # fails when a test fails); the quick results report (scripts/report.sh
 # --quick); the demo and every command of the README (scripts/demo.sh,
 # scripts/test_readme.sh); the package built and installed in a fresh catkin workspace
-# (scripts/test_workspace.sh); then the same suite again in an
-# AddressSanitizer + UndefinedBehaviorSanitizer build
-# (scripts/test_sanitizers.sh) and a 60 s libFuzzer run of each target: file
-# readers and the message path (scripts/fuzz.sh).
-#   bash scripts/test.sh [--no-sanitizers]
+# (scripts/test_workspace.sh); and a 60 s libFuzzer run of each target, built
+# with AddressSanitizer and UndefinedBehaviorSanitizer: file readers and the
+# message path through the front end and a solve (scripts/fuzz.sh). With
+# --sanitizers, also the whole suite again in an ASan + UBSan build
+# (scripts/test_sanitizers.sh). That pass is left out of CI: on a slower
+# 2-core machine its build took 23 minutes and its first 25 of 38 tests 19
+# more, the heaviest still to come; beside the rest of CI it left no margin
+# under CI's 90 minutes.
+#   bash scripts/test.sh [--sanitizers]
 source "$(dirname "$0")/common.sh"
-SANITIZERS=1
-[ "${1:-}" = "--no-sanitizers" ] && SANITIZERS=0
+SANITIZERS=0
+[ "${1:-}" = "--sanitizers" ] && SANITIZERS=1
 # CI always has ../shared/data: there a test that needs it fails instead of
 # skipping when it is missing.
 if [ "${CI:-}" = true ]; then export ROTAVG_REQUIRE_DATA=1; fi
@@ -40,7 +44,7 @@ if [ "$SANITIZERS" = 1 ]; then
   # runs under them in keyframe_pipeline_test, camera_model_test,
   # keyframe_selector_test and bag_replay_test.
   bash scripts/test_sanitizers.sh -j "$(nproc)" -E node_streams
-  stage "Fuzzing the file readers and the message path, 60 s each (libFuzzer)"
-  bash scripts/fuzz.sh 60
 fi
+stage "Fuzzing the file readers and the message path, 60 s each (libFuzzer, ASan + UBSan)"
+bash scripts/fuzz.sh 60
 stage "All passed"
