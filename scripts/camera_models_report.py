@@ -38,10 +38,8 @@ def demo_pair_runs(out):
             yield input, label, scored
 
 
-def pair_kinds(graph_txt, per_edge_txt):
-    """{kind: [(error_deg, nees)]} of a graph's scored pairs: sequential,
-    loop closures within a camera, loop closures between cameras (a keyframe
-    name is camera@stamp)."""
+def edge_sources(graph_txt):
+    """{pair of keyframe names: edge source} of a graph file's edges."""
     names, sources = {}, {}
     for line in open(graph_txt):
         f = line.split()
@@ -49,7 +47,14 @@ def pair_kinds(graph_txt, per_edge_txt):
             names[f[1]] = f[2]
         elif f and f[0] == "EDGE":
             sources[frozenset((f[1], f[2]))] = f[3]
-    source_by_names = {frozenset(names[i] for i in ids): source for ids, source in sources.items()}
+    return {frozenset(names[i] for i in ids): source for ids, source in sources.items()}
+
+
+def pair_kinds(graph_txt, per_edge_txt):
+    """{kind: [(error_deg, nees)]} of a graph's scored pairs: sequential,
+    loop closures within a camera, loop closures between cameras (a keyframe
+    name is camera@stamp)."""
+    source_by_names = edge_sources(graph_txt)
     kinds = {}
     for line in open(per_edge_txt):
         f = line.split()
@@ -69,14 +74,8 @@ def sequential_pairs(out, scene, run):
     scored = os.path.join(out, "%s_%s_eval.txt" % (scene, run))
     if not os.path.exists(scored):
         return None
-    names, sequential = {}, set()
-    for line in open(os.path.join(out, "%s_%s" % (scene, run), "graph.txt")):
-        f = line.split()
-        if f and f[0] == "VIEW":
-            names[f[1]] = f[2]
-        elif f and f[0] == "EDGE" and f[3] == "sequential":
-            sequential.add(frozenset((f[1], f[2])))
-    sequential = {frozenset(names[i] for i in ids) for ids in sequential}
+    sources = edge_sources(os.path.join(out, "%s_%s" % (scene, run), "graph.txt"))
+    sequential = {names for names, source in sources.items() if source == "sequential"}
     pairs = {}
     for line in open(scored):
         f = line.split()

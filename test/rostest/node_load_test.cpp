@@ -108,13 +108,13 @@ class NodeLoad : public ::testing::Test {
       ++diagnostics_received_;
     }
   }
-  // The node's own counters, from a diagnostics message newer than now.
   // The newest diagnostics received, without waiting for another.
   std::map<std::string, double> LastDiagnostics() {
     std::lock_guard<std::mutex> lock(mutex_);
     return diagnostics_;
   }
 
+  // The node's own counters, from a diagnostics message newer than now.
   std::map<std::string, double> FreshDiagnostics() {
     int seen;
     {
