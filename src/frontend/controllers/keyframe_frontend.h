@@ -99,9 +99,10 @@ struct KeyframeFrontendOptions {
   // images: wrong matches on its repeated structure recur in each of them,
   // so their errors are shared, and as several edges they can outvote the
   // chain. True: a loop is dropped when one with more inliers reaches the
-  // keyframe next to its old end (results/replay.md, "One loop closure per
-  // place"). False: every loop that passes the checks above is kept.
-  bool one_loop_per_place = false;
+  // keyframe next to its old end, as ORB-SLAM and VINS-Mono keep one loop
+  // per keyframe (results/replay.md, "One loop closure per place"). False:
+  // every loop that passes the checks above is kept.
+  bool one_loop_per_place = true;
   // Loop-closure pairs get the cell jackknife's covariance
   // (RelativePoseOptions::jackknife_grid) with this grid, whatever
   // relative_pose says: they are the wide-baseline pairs, where groups of
