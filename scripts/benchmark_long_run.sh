@@ -11,8 +11,9 @@
 #      every keyframe (`vocabulary: none`), in the same run;
 #   4. 200 captures, and the 400 and 200 captures with loop closures on the
 #      pixel model's covariance at 60 inliers (loop_jackknife_grid
-#      0, min_loop_inliers 60): what the defaults cost or gain there.
-#   bash scripts/benchmark_long_run.sh        (about 18 minutes on 2 cores)
+#      0, min_loop_inliers 60), and with every loop kept
+#      (one_loop_per_place: false): what the defaults cost or gain there.
+#   bash scripts/benchmark_long_run.sh        (about 25 minutes on 2 cores)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
 OUT=build/benchmark_long_run
@@ -43,6 +44,9 @@ replay "$MID" config/demo.yaml mid
 { cat config/demo.yaml; echo "loop_jackknife_grid: 0"; echo "min_loop_inliers: 60"; } > "$OUT/pixel60.yaml"
 replay "$LONG" "$OUT/pixel60.yaml" long_pixel60
 replay "$MID" "$OUT/pixel60.yaml" mid_pixel60
+{ cat config/demo.yaml; echo "one_loop_per_place: false"; } > "$OUT/all_loops.yaml"
+replay "$LONG" "$OUT/all_loops.yaml" long_all_loops
+replay "$MID" "$OUT/all_loops.yaml" mid_all_loops
 cp "$OUT/long/frontend_cost.png" results/plots/long_run_frontend_cost.png
 
 python3 scripts/long_run_report.py "$OUT" > results/long_run.md

@@ -2,7 +2,7 @@
 
 usage: long_run_report.py OUT
   OUT: the benchmark's folder (long.txt, laps.txt, demo.txt, demo_voting.txt, mid.txt, long_pixel60.txt,
-  mid_pixel60.txt and laps/graph.txt).
+  mid_pixel60.txt, long_all_loops.txt, mid_all_loops.txt and laps/graph.txt).
 """
 import os
 import re
@@ -10,7 +10,7 @@ import sys
 
 from report_common import first, reproduce_line
 
-RUNS = ("long", "laps", "demo", "demo_voting", "mid", "long_pixel60", "mid_pixel60")
+RUNS = ("long", "laps", "demo", "demo_voting", "mid", "long_pixel60", "mid_pixel60", "long_all_loops", "mid_all_loops")
 LAP_CAPTURES, FIRST_STAMP_S, LAPS = 60, 1000, 3  # the three-lap bag: 60 captures per lap, stamps from 1000 s
 
 
@@ -59,12 +59,15 @@ per second; speed = bag time / wall time. Retrieval and pair verification are wa
                         ("demo_voting", "60 captures, voting over every keyframe (`vocabulary: none`)"),
                         ("mid", "200 captures, one lap"),
                         ("long_pixel60", "400 captures, loop closures with the pixel model at 60 inliers"),
-                        ("mid_pixel60", "200 captures, the same")):
+                        ("mid_pixel60", "200 captures, the same"),
+                        ("long_all_loops", "400 captures, every loop kept (`one_loop_per_place: false`)"),
+                        ("mid_all_loops", "200 captures, the same")):
         print(row(label, text[name]))
     print()
-    print("""The last two rows: loop closures on the pixel model's covariance (`loop_jackknife_grid: 0`)
+    print("""The pixel-model rows: loop closures on the pixel model's covariance (`loop_jackknife_grid: 0`)
 at `min_loop_inliers: 60`, against the defaults (the cell jackknife's covariance at 40; results/README.md,
-"Loop closures and their covariances").""")
+"Loop closures and their covariances"). The last two rows: every loop closure kept, against the default of
+one per place (docs/decisions.md, "One loop closure per place").""")
     print()
     print("## Cost per keyframe against the keyframe count (400 captures)")
     print()
