@@ -27,7 +27,7 @@
 #                                     (CI runs it so the report code never rots)
 #   bash scripts/report.sh --node     only the files that run the node's pipeline (node_benchmark.md
 #                                     to sessions.md below: what a default of the node or its front
-#                                     end changes), about 75 minutes
+#                                     end changes), about 75 minutes (127 on a slower machine)
 # Real data comes from ../shared/data (ROTAVG_DATA_DIR to override); parts that
 # need it say so and are skipped when it is absent.
 source "$(dirname "$0")/common.sh"
