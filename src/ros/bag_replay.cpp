@@ -683,7 +683,7 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
   for (const auto& [camera, check] : pipeline.FocalChecks()) result->focal_checks.push_back(check.Report());
   for (const auto& [camera, correction] : pipeline.FocalCorrections()) {
     std::ostringstream line;
-    line << camera << ": camera_info's focal length x" << std::setprecision(5) << correction;
+    line << camera << ": camera_info's focal length x" << std::setprecision(6) << correction;
     result->focal_corrections.push_back(line.str());
   }
 }

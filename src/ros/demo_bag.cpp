@@ -98,11 +98,28 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
     info.distortion = DistortionModel::kNone;
     info.coefficients.clear();
   }
-  info.k(0, 0) *= bag_options.info_focal_scale;
-  info.k(1, 1) *= bag_options.info_focal_scale;
+  const std::size_t num_cameras = scene.Cameras().size();
+  std::vector<double> focal_scales(num_cameras, bag_options.info_focal_scale);
+  if (!bag_options.info_focal_scales.empty()) {
+    if (bag_options.info_focal_scales.size() != num_cameras) {
+      if (error) {
+        *error = std::to_string(bag_options.info_focal_scales.size()) + " focal scales for " +
+                 std::to_string(num_cameras) + " cameras";
+      }
+      return false;
+    }
+    focal_scales = bag_options.info_focal_scales;
+  }
+  std::vector<CameraIntrinsics> infos(num_cameras, info);
+  bool focal_off = false;
+  for (std::size_t c = 0; c < num_cameras; ++c) {
+    infos[c].k(0, 0) *= focal_scales[c];
+    infos[c].k(1, 1) *= focal_scales[c];
+    focal_off = focal_off || focal_scales[c] != 1.0;
+  }
   const std::string& images_dir = bag_options.images_dir;
   if (!images_dir.empty()) {
-    if (camera.HasDistortion() || bag_options.info_focal_scale != 1.0) {
+    if (camera.HasDistortion() || focal_off) {
       if (error) *error = "an image folder holds ideal pinhole images with the scene's K: no lens, no focal scale";
       return false;
     }
@@ -145,7 +162,7 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
       const std::string& frame = scene.Cameras()[c].frame_id;
       cv::Mat image = DistortImage(scene.Render(capture, static_cast<int>(c), margin), camera, margin);
       if (bag_options.rectify) image = UndistortImage(image, camera);
-      WriteKeyframeImage(&bag, frame, stamp, image, info, compressed);
+      WriteKeyframeImage(&bag, frame, stamp, image, infos[c], compressed);
       const KeyframeKey key{frame, ToNanoseconds(stamp)};
       const std::string name = OnlineAverager::KeyframeName(key);
       const Eigen::Matrix3d world_to_camera = scene.WorldToCamera(capture, static_cast<int>(c));

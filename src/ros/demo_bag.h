@@ -13,6 +13,7 @@
 
 #include <opencv2/core.hpp>
 #include <string>
+#include <vector>
 
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "frontend/io/euroc_dataset.h"
@@ -43,11 +44,15 @@ struct RigSceneBagOptions {
   // camera_info's focal lengths are the scene's times this: a calibration
   // that is a little off.
   double info_focal_scale = 1.0;
+  // Not empty: one such factor per camera (in the scene's order), in place
+  // of info_focal_scale: a rig whose cameras' calibrations are off by
+  // different amounts.
+  std::vector<double> info_focal_scales;
   // Not empty: the same images also as a folder for `rotavg images`:
   // <dir>/<keyframe name>.png (mono8, <frame_id>@<stamp_ns> as in the bag),
   // <dir>/K.txt (the scene's K) and <dir>/ground_truth.csv (world-to-camera
   // orientations keyed by the image files' names). Ideal pinhole images
-  // only: refused with a lens or an info_focal_scale other than 1.
+  // only: refused with a lens or a focal scale other than 1.
   std::string images_dir;
 };
 

@@ -5,7 +5,7 @@
 //       [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]
 //       [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]
 //       [--start-angle 0] [--start-time 0] [--light-gain 1] [--light-gradient 0] [--noise-seed 0]
-//       [--info-focal-scale 1] [--rectify] [--images-dir DIR]
+//       [--info-focal-scale 1 | S1,S2,...] [--rectify] [--images-dir DIR]
 //
 // The bag holds, per camera, <cam>/image_raw (mono8, or <cam>/image_raw/compressed
 // PNG with --compressed) and <cam>/camera_info; the rig extrinsics on
@@ -17,7 +17,7 @@
 // lens's images undistorted again and camera_info without distortion, as
 // image_proc's image_rect (the same content through both resamplings).
 // --info-focal-scale writes camera_info's focal lengths that many times the
-// scene's. --images-dir also writes the same images as a folder for `rotavg
+// scene's (one factor, or one per camera: 0.97,1.01). --images-dir also writes the same images as a folder for `rotavg
 // images` (<keyframe name>.png, K.txt, ground_truth.csv keyed by file name;
 // ideal pinhole images only). The --start-* and --light-*
 // options and --noise-seed make another session in the same room (same
@@ -43,7 +43,7 @@ int Usage(const std::string& why) {
                "           [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]\n"
                "           [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]\n"
                "           [--start-angle 0] [--start-time 0] [--light-gain 1] [--light-gradient 0] [--noise-seed 0]\n"
-               "           [--info-focal-scale 1] [--rectify] [--images-dir DIR]\n";
+               "           [--info-focal-scale 1 | S1,S2,...] [--rectify] [--images-dir DIR]\n";
   return 2;
 }
 
@@ -85,8 +85,6 @@ int main(int argc, char** argv) {
        [&](double v) { options.light_gradient = v; }},
       {"--noise-seed", "a number >= 0", [](double v) { return v >= 0; },
        [&](double v) { options.noise_seed = static_cast<std::uint64_t>(v); }},
-      {"--info-focal-scale", "a number in [0.5, 2]", [](double v) { return v >= 0.5 && v <= 2; },
-       [&](double v) { bag_options.info_focal_scale = v; }},
   };
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
@@ -101,6 +99,28 @@ int main(int argc, char** argv) {
       bag_options.images_dir = argv[++k];
     } else if (a == "--distortion") {
       if (!ra::ParseDistortionSpec(argv[++k], &bag_options.lens, &error)) return Usage("--distortion: " + error);
+    } else if (a == "--info-focal-scale") {
+      // One factor for every camera, or one per camera separated by commas.
+      if (!has_value) return Usage(a + " needs a value: a number in [0.5, 2], or one per camera (0.97,1.01)");
+      const std::string text = argv[++k];
+      std::vector<double> scales;
+      std::size_t start = 0;
+      while (start <= text.size()) {
+        const std::size_t comma = std::min(text.find(',', start), text.size());
+        const std::string item = text.substr(start, comma - start);
+        char* end = nullptr;
+        const double v = std::strtod(item.c_str(), &end);
+        if (item.empty() || !end || *end != '\0' || !std::isfinite(v) || v < 0.5 || v > 2) {
+          return Usage(a + " takes a number in [0.5, 2], or one per camera (0.97,1.01), not '" + text + "'");
+        }
+        scales.push_back(v);
+        start = comma + 1;
+      }
+      if (scales.size() == 1) {
+        bag_options.info_focal_scale = scales[0];
+      } else {
+        bag_options.info_focal_scales = scales;
+      }
     } else if (a == "--compressed") {
       compressed = true;
     } else if (a == "--rectify") {
@@ -119,8 +139,16 @@ int main(int argc, char** argv) {
     }
   }
   if (output.empty()) return Usage("give --output");
+  if (!bag_options.info_focal_scales.empty() &&
+      bag_options.info_focal_scales.size() != static_cast<std::size_t>(options.num_cameras)) {
+    return Usage("--info-focal-scale: " + std::to_string(bag_options.info_focal_scales.size()) +
+                 " factors for " + std::to_string(options.num_cameras) + " cameras");
+  }
+  const bool focal_off = bag_options.info_focal_scale != 1.0 ||
+                         std::any_of(bag_options.info_focal_scales.begin(), bag_options.info_focal_scales.end(),
+                                     [](double v) { return v != 1.0; });
   if (bag_options.rectify && !bag_options.lens.HasDistortion()) return Usage("--rectify needs a --distortion");
-  if (!bag_options.images_dir.empty() && (bag_options.lens.HasDistortion() || bag_options.info_focal_scale != 1.0)) {
+  if (!bag_options.images_dir.empty() && (bag_options.lens.HasDistortion() || focal_off)) {
     return Usage("--images-dir writes ideal pinhole images with the scene's K: not with --distortion or "
                  "--info-focal-scale");
   }

@@ -1,6 +1,7 @@
 // The rendered rig's writers: the image folder for `rotavg images` holds the
-// bag's keyframes under their names, and a lens's images rectified again are
-// written as a rectified camera's.
+// bag's keyframes under their names, a lens's images rectified again are
+// written as a rectified camera's, and each camera's camera_info carries its
+// own focal scale.
 #include "ros/demo_bag.h"
 
 #include <gtest/gtest.h>
@@ -137,6 +138,32 @@ TEST(DemoBag, ALensImagesRectifiedAgainAreARectifiedCamerasImages) {
     const double raw_error = MeanAbsoluteDifference(raw.at(name), ideal, ring);
     EXPECT_LT(rectified_error, 0.5 * raw_error) << name << ": rectified " << rectified_error << ", raw " << raw_error;
   }
+}
+
+TEST(DemoBag, EachCamerasCameraInfoCarriesItsOwnFocalScale) {
+  ros::Time::init();
+  const RigScene scene(SmallScene());
+  const Eigen::Matrix3d k = scene.Intrinsics();
+  RigSceneBagOptions options;
+  options.info_focal_scales = {0.97, 1.02};
+  const std::string path = TempDir() + "/focal.bag";
+  std::string error;
+  ASSERT_TRUE(WriteRigSceneBag(scene, path, false, nullptr, &error, options)) << error;
+  std::map<std::string, cv::Mat> images;
+  std::map<std::string, sensor_msgs::CameraInfo> infos;
+  ReadBag(path, &images, &infos);
+  ASSERT_EQ(infos.size(), 2u);
+  for (int c = 0; c < 2; ++c) {
+    const sensor_msgs::CameraInfo& info = infos.at(scene.Cameras()[c].frame_id);
+    EXPECT_NEAR(info.K[0], k(0, 0) * options.info_focal_scales[c], 1e-9) << c;
+    EXPECT_NEAR(info.K[4], k(1, 1) * options.info_focal_scales[c], 1e-9) << c;
+    EXPECT_EQ(info.K[2], k(0, 2)) << c << ": the principal point is the scene's";
+    EXPECT_NEAR(info.P[0], info.K[0], 1e-12) << c;
+  }
+  // One factor per camera or none: three for two cameras is refused.
+  options.info_focal_scales = {0.97, 1.02, 1.0};
+  EXPECT_FALSE(WriteRigSceneBag(scene, TempDir() + "/refused.bag", false, nullptr, &error, options));
+  EXPECT_NE(error.find("3 focal scales for 2 cameras"), std::string::npos) << error;
 }
 
 }  // namespace
