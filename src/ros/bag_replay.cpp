@@ -670,6 +670,8 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
     result->loop_candidates = f->Stats().loop_candidates_tried;
     result->loop_closure_edges = f->Stats().loop_closure_edges;
     result->loops_same_place = f->Stats().loops_same_place;
+    result->window_edges = f->Stats().window_edges;
+    result->window_rejected_inconsistent = f->Stats().window_rejected_inconsistent;
     result->map_links = f->Stats().map_links;
     result->map_link_s = f->Stats().map_link_s;
     result->frontend_bytes = f->Stats().keyframe_bytes;
@@ -801,6 +803,10 @@ std::string ReplayResult::Summary() const {
     out << ", " << frontend_chain_bridged
         << " failed previous pairs bridged by an older keyframe, " << frontend_rotation_model_edges
         << " edges from the rotation-only model\n";
+    if (window_edges + window_rejected_inconsistent > 0) {
+      out << "window pairs: " << window_edges << " edges to older keyframes of the window, "
+          << window_rejected_inconsistent << " verified but off the chain's prediction (window_pairs)\n";
+    }
     out << "loop closures: " << loop_closure_edges << " edges from " << loop_candidates
         << " verified candidates; retrieval: " << retrieval << "\n";
     if (loops_same_place > 0) {

@@ -69,6 +69,9 @@ struct ReplayResult {
   std::string retrieval;  // how loop-closure candidates were found
   std::uint64_t loop_candidates = 0, loop_closure_edges = 0;
   std::uint64_t loops_same_place = 0;  // dropped by one_loop_per_place
+  // window_pairs: edges to older keyframes of the window, and the verified
+  // ones dropped for disagreeing with the chain.
+  std::uint64_t window_edges = 0, window_rejected_inconsistent = 0;
   // Of those, between added maps and the map held (add_maps), and the time
   // matching them took.
   std::uint64_t map_links = 0;

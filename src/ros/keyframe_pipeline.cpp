@@ -218,6 +218,7 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("use_rig_extrinsics", &c.rig.enabled);
   r.Read("rig_frame", &c.rig.rig_frame);
   r.Read("covisibility_window", &f.covisibility_window);
+  r.Read("window_pairs", &f.window_pairs);
   r.Read("num_threads", &f.num_threads);
   r.Read("max_loop_candidates", &f.max_loop_candidates);
   r.Read("min_loop_inliers", &f.min_loop_inliers);

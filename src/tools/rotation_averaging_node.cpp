@@ -550,6 +550,10 @@ class RotationAveragingNode {
       status.add("loop-closure edges", f.loop_closure_edges);
       status.add("of them, between added maps and the map held", f.map_links);
       status.add("failed two-view pairs", f.failed_pairs);
+      if (pipeline_->Config().frontend.window_pairs) {
+        status.add("window-pair edges (to older keyframes of the window)", f.window_edges);
+        status.add("window pairs off the chain (dropped)", f.window_rejected_inconsistent);
+      }
       // Each camera's focal-length check: its line, and the figures alone.
       for (const auto& [camera, check] : focal) {
         status.add("focal length check of " + camera, check.Report());

@@ -43,7 +43,7 @@ struct CastleRun {
 
 // castle-P19 fed as one camera's keyframes at 1/4 scale, averaged with and
 // without its loop closures.
-CastleRun RunCastle(const std::string& dir, int covisibility_window) {
+CastleRun RunCastle(const std::string& dir, int covisibility_window, bool window_pairs = false) {
   CastleRun run;
   const std::vector<std::string> images = ListImages(dir + "/images");
   EXPECT_EQ(images.size(), 19u);
@@ -53,6 +53,7 @@ CastleRun RunCastle(const std::string& dir, int covisibility_window) {
   KeyframeFrontendOptions options;
   options.features.downsample = 0.25;
   options.covisibility_window = covisibility_window;
+  options.window_pairs = window_pairs;
   KeyframeFrontend frontend(options);
   OnlineAverager averager(OnlineAveragerOptions{});
   OnlineAverager sequential_only(OnlineAveragerOptions{});
@@ -90,7 +91,8 @@ CastleRun RunCastle(const std::string& dir, int covisibility_window) {
   std::cout << "castle at 1/4, covisibility window " << covisibility_window << ": sequential edges "
             << run.stats.sequential_edges << ", loop closures " << run.stats.loop_closure_edges << " of "
             << run.stats.loop_candidates_tried << " candidates (" << run.stats.loops_rejected_inconsistent
-            << " rejected as inconsistent); loops:";
+            << " rejected as inconsistent); window pairs " << run.stats.window_edges << " ("
+            << run.stats.window_rejected_inconsistent << " off the chain); loops:";
   for (const auto& [a, b] : run.loops) std::cout << " " << a << "-" << b;
   std::cout << "; median " << run.with_loops_deg << " deg with loop closures, " << run.chain_deg
             << " deg from the sequential edges alone\n";
@@ -118,6 +120,20 @@ TEST(KeyframeFrontend, CastleClosesTheLoopAndAveragesToGroundTruth) {
   EXPECT_GE(run.stats.loops_rejected_inconsistent, 1u);
   EXPECT_LT(run.with_loops_deg, 0.5);
   EXPECT_LT(run.chain_deg, 1.0);
+}
+
+// castle-P19's repeated facades make pairs two and three images apart that
+// verify and err up to degrees; with window_pairs those that disagree with
+// the chain through the previous keyframe are dropped, and the averaging
+// stays where the chain and the loop closures put it.
+TEST(KeyframeFrontend, CastleWindowPairsOffTheChainAreDropped) {
+  const std::string dir = SharedDataPath("strecha/castle-P19");
+  ROTAVG_REQUIRE_SHARED_DATA(dir);
+  const CastleRun run = RunCastle(dir, KeyframeFrontendOptions().covisibility_window, true);
+  EXPECT_GE(run.stats.window_edges, 10u);
+  EXPECT_GE(run.stats.window_rejected_inconsistent, 3u);
+  EXPECT_TRUE(ClosesTheLoop(run));
+  EXPECT_LT(run.with_loops_deg, 0.5);
 }
 
 // The demo room seen by one camera; `world_to_camera` and `centres` give
@@ -231,6 +247,72 @@ TEST(KeyframeFrontend, AFailedPairDoesNotCutTheChain) {
   options.covisibility_window = 1;
   KeyframeFrontend no_window(options);
   EXPECT_EQ(Components(Feed(&no_window, seq), members), 2);
+}
+
+// With window_pairs a keyframe is also related to the keyframes two and
+// three before it (covisibility_window 3) when those pairs agree with the
+// chain; they carry the cell jackknife's covariance, the previous pair the
+// pixel model's. Without it, only the chain.
+TEST(KeyframeFrontend, WindowPairsRelateAKeyframeToTheOlderOnesOfItsWindow) {
+  RigSceneOptions scene_options;
+  scene_options.num_cameras = 1;
+  scene_options.num_captures = 40;  // small steps along the circle
+  scene_options.WithWidth(480);
+  const RigScene scene(scene_options);
+  RenderedSequence seq;
+  seq.k = scene.Intrinsics();
+  for (int i = 0; i < 8; ++i) {
+    seq.world_to_camera.push_back(scene.WorldToCamera(i, 0));
+    seq.images.push_back(scene.Render(i, 0));
+  }
+  KeyframeFrontendOptions options;
+  options.max_loop_candidates = 0;
+  ASSERT_EQ(options.covisibility_window, 3);
+  KeyframeFrontend chain_only(options);
+  const std::vector<KeyframeRelativeRotation> chain = Feed(&chain_only, seq);
+  ASSERT_EQ(chain.size(), 7u);
+  options.window_pairs = true;
+  KeyframeFrontend frontend(options);
+  const std::vector<KeyframeRelativeRotation> edges = Feed(&frontend, seq);
+  std::map<std::pair<int, int>, KeyframeRelativeRotation> by_pair;
+  for (const KeyframeRelativeRotation& e : edges) {
+    const int a = Index(e.keyframe1), b = Index(e.keyframe2);
+    EXPECT_GE(b - a, 1);
+    EXPECT_LE(b - a, 3) << a << "-" << b << ": beyond the window";
+    EXPECT_EQ(e.source, EdgeSource::kSequential);
+    EXPECT_LT(EdgeErrorDeg(seq, e), 0.2) << a << "-" << b;
+    by_pair[{a, b}] = e;
+  }
+  // 6 pairs two apart and 5 three apart in 8 keyframes; all of them verify
+  // here, and none disagrees with the chain.
+  EXPECT_EQ(frontend.Stats().window_edges, 11u);
+  EXPECT_EQ(frontend.Stats().window_rejected_inconsistent, 0u);
+  EXPECT_EQ(edges.size(), chain.size() + 11u);
+  for (const KeyframeRelativeRotation& c : chain) {
+    const auto it = by_pair.find({Index(c.keyframe1), Index(c.keyframe2)});
+    ASSERT_NE(it, by_pair.end());
+    EXPECT_TRUE(it->second.rotation == c.rotation) << "the chain is the same with window pairs";
+    EXPECT_TRUE(it->second.covariance == c.covariance);
+  }
+  // The jackknife covariance of a longer pair: at least the pixel model's
+  // of the same pair (the pair estimated alone, without the jackknife).
+  KeyframeFrontendOptions pixel_options = options;
+  pixel_options.loop_jackknife_grid = 0;
+  KeyframeFrontend pixel_frontend(pixel_options);
+  int wider = 0, longer = 0;
+  for (const KeyframeRelativeRotation& e : Feed(&pixel_frontend, seq)) {
+    const int a = Index(e.keyframe1), b = Index(e.keyframe2);
+    if (b - a < 2) continue;
+    const auto it = by_pair.find({a, b});
+    if (it == by_pair.end()) continue;
+    ++longer;
+    EXPECT_TRUE(it->second.rotation == e.rotation);
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> difference(it->second.covariance - e.covariance);
+    EXPECT_GE(difference.eigenvalues().minCoeff(), -1e-9 * e.covariance.trace()) << a << "-" << b;
+    wider += it->second.covariance.trace() > 1.01 * e.covariance.trace();
+  }
+  EXPECT_GE(longer, 8);
+  EXPECT_GE(2 * wider, longer) << "most window pairs are widened by the jackknife";
 }
 
 // Three laps round the room: retrieval by vocabulary finds loop closures on

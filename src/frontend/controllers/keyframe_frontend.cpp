@@ -154,7 +154,7 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
       pb.push_back(second.features.keypoints_px[j]);
     }
     RelativePoseOptions relative_pose = options_.relative_pose;
-    if (tasks[t].source == EdgeSource::kLoopClosure) {
+    if (tasks[t].source == EdgeSource::kLoopClosure || tasks[t].wide) {
       relative_pose.jackknife_grid = std::max(relative_pose.jackknife_grid, options_.loop_jackknife_grid);
     }
     const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, first.k, second.k, relative_pose);
@@ -541,8 +541,13 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   // previous keyframe of this camera needed a bridge, they are verified in
   // the same batch, which costs idle threads rather than a second round.
   std::vector<PairTask> fallback;
-  for (int r = 2; r <= window; ++r) fallback.push_back({same[same.size() - r], EdgeSource::kSequential});
-  const bool speculate = !fallback.empty() && keyframes_[same.back()]->bridged;
+  for (int r = 2; r <= window; ++r) {
+    PairTask task{same[same.size() - r], EdgeSource::kSequential};
+    task.wide = options_.window_pairs;
+    fallback.push_back(task);
+  }
+  // With window_pairs they are verified whatever the previous pair gives.
+  const bool speculate = !fallback.empty() && (options_.window_pairs || keyframes_[same.back()]->bridged);
   std::vector<PairTask> batch = tasks;
   batch.insert(batch.end(), candidates.begin(), candidates.end());
   if (speculate) batch.insert(batch.end(), fallback.begin(), fallback.end());
@@ -565,6 +570,38 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
       ++stats_.chain_bridged;
       kf->bridged = true;
       break;
+    }
+  } else if (!same.empty() && outcomes[0].success && options_.window_pairs) {
+    // The previous pair holds: each verified older pair of the window is kept
+    // when it agrees with the chain through the previous keyframe,
+    // R_older,new = R_older,previous R_previous,new, within three standard
+    // deviations of the pair's and the chain's covariances. Unlike a loop
+    // closure's check, no angle is added for the drift of a long chain: over
+    // the window the chain has none beyond its covariance, and wrong pairs
+    // that verify on repeated structure err tenths of a degree to degrees.
+    const std::vector<PairOutcome> verified(verified_batch.end() - fallback.size(), verified_batch.end());
+    const KeyframeRelativeRotation& previous = outcomes[0].edge;
+    for (std::size_t f = 0; f < fallback.size(); ++f) {
+      Count(verified[f]);
+      if (!verified[f].success) continue;
+      Eigen::Matrix3d r_op;
+      if (!ChainRotation(fallback[f].older, same.back(), &r_op)) continue;
+      Eigen::Matrix3d chain_covariance = previous.covariance;
+      const std::vector<int>& chain = ChainOf(*keyframes_[same.back()]);
+      for (int p = keyframes_[fallback[f].older]->camera_position + 1; p <= keyframes_[same.back()]->camera_position;
+           ++p) {
+        chain_covariance += keyframes_[chain[p]]->sequential_covariance;
+      }
+      const KeyframeRelativeRotation& e = verified[f].edge;
+      const double angle = AngularDistanceRad(r_op * previous.rotation, e.rotation);
+      const double spread = std::sqrt((e.covariance + chain_covariance).trace());
+      if (angle > 3.0 * spread) {
+        ++stats_.window_rejected_inconsistent;
+        continue;
+      }
+      tasks.push_back(fallback[f]);
+      outcomes.push_back(verified[f]);
+      ++stats_.window_edges;
     }
   }
   for (std::size_t t = 0; t < tasks.size(); ++t) {

@@ -52,6 +52,12 @@ struct KeyframeFrontendOptions {
   // adds pairs whose errors exceed their covariances more the longer they are,
   // and was less accurate (docs/decisions.md, "Covisibility window").
   int covisibility_window = 3;
+  // True: the new keyframe is also related to the older keyframes of the
+  // window (not only the previous one), each pair kept when its rotation
+  // agrees with the one the chain through the previous keyframe predicts
+  // (within three standard deviations of both), with the cell jackknife's
+  // covariance (loop_jackknife_grid: wider baselines, as loop closures).
+  bool window_pairs = false;
   int num_threads = 0;                  // pair verification and retrieval; 0: the machine's cores
   int max_loop_candidates = 3;          // verified per keyframe
   int loop_exclude_recent = 5;          // keyframes of the same camera too recent to be loop closures
@@ -130,6 +136,8 @@ struct KeyframeFrontendStats {
   std::uint64_t sequential_edges = 0, rig_edges = 0, loop_closure_edges = 0;
   std::uint64_t rig_pairs_skipped = 0;   // same capture, both cameras with known extrinsics
   std::uint64_t chain_bridged = 0;         // previous pair failed, an older keyframe of the window verified
+  std::uint64_t window_edges = 0;          // window_pairs: edges to the window beyond the previous keyframe
+  std::uint64_t window_rejected_inconsistent = 0;  // window_pairs: verified, but off the chain's prediction
   std::uint64_t rotation_model_edges = 0;  // edges from the rotation-only two-view model (no parallax)
   std::uint64_t loop_candidates_tried = 0;
   std::uint64_t loops_rejected_inconsistent = 0;
@@ -259,6 +267,7 @@ class KeyframeFrontend {
     // related in the order of their frame ids, not of their arrival.
     bool newer_first = false;
     int newer = 0;  // index into VerifyPairs' `newers`
+    bool wide = false;  // estimated with loop_jackknife_grid, as loop closures
   };
   // Keeps only what loop-closure verification needs of a keyframe that left
   // the recent window.
