@@ -61,6 +61,11 @@ def main():
         if setting == DEFAULT_SETTING:
             label += " (defaults)"
         print(row(label, read(out, "stream_%s_%s" % (motion, tracked))))
+    print(row("1 Hz demo bag, `window_pairs: true`", read(out, "demo_1hz_window")))
+    print(row("20 Hz stream, defaults, `window_pairs: true`", read(out, "stream_window")))
+    print()
+    print("`window_pairs: true` relates each keyframe also to the older keyframes of its window (results/replay.md, "
+          "\"Window pairs\"): two more pairs per keyframe.")
     print()
     print("## Over noise realisations")
     print()
@@ -68,18 +73,20 @@ def main():
     print("other noise (`--noise-seed`; seed 1 is the bags above), the 20 Hz stream replayed with the default")
     print("thresholds: the spread between seeds is the scale on which the two inputs can be compared.")
     print()
-    print("| noise seed | 1 Hz demo: median (deg) | 20 Hz stream: keyframes | 20 Hz stream: median (deg) |")
-    print("|---|---|---|---|")
-    one_hz, stream = [], []
+    print("| noise seed | 1 Hz demo: median (deg) | 20 Hz stream: keyframes | 20 Hz stream: median (deg) "
+          "| 1 Hz demo, window pairs | 20 Hz stream, window pairs |")
+    print("|---|---|---|---|---|---|")
+    columns = ([], [], [], [])
     for seed in seeds:
-        a, b = read(out, "seed%s_1hz" % seed), read(out, "seed%s_stream" % seed)
-        one_hz.append(median_of(a))
-        stream.append(median_of(b))
-        print("| %s | %s | %s | %s |" % (seed, value(a, r"^median error: ([\d.]+) deg", "-"),
-                                         value(b, r"^keyframes: (\d+) ", "-"),
-                                         value(b, r"^median error: ([\d.]+) deg", "-")))
-    print("| mean (min - max) | %.4f (%.4f - %.4f) | | %.4f (%.4f - %.4f) |" %
-          (statistics.mean(one_hz), min(one_hz), max(one_hz), statistics.mean(stream), min(stream), max(stream)))
+        runs = [read(out, "seed%s_%s" % (seed, name)) for name in ("1hz", "stream", "1hz_window", "stream_window")]
+        for column, text in zip(columns, runs):
+            column.append(median_of(text))
+        print("| %s | %s | %s | %s | %s | %s |" % (
+            seed, value(runs[0], r"^median error: ([\d.]+) deg", "-"), value(runs[1], r"^keyframes: (\d+) ", "-"),
+            value(runs[1], r"^median error: ([\d.]+) deg", "-"), value(runs[2], r"^median error: ([\d.]+) deg", "-"),
+            value(runs[3], r"^median error: ([\d.]+) deg", "-")))
+    spread = ["%.4f (%.4f - %.4f)" % (statistics.mean(c), min(c), max(c)) for c in columns]
+    print("| mean (min - max) | %s | | %s | %s | %s |" % tuple(spread))
     print()
     print("## The 20 Hz stream with the defaults")
     print()
