@@ -201,15 +201,14 @@ def main():
             first_cell = first_warning(warned, camera)
             print("| x%s | %s | %s | %s | %s | %s | %s | %.4f |" % (s, camera, text_cell, off, sigmas, c["verdict"],
                                                                    first_cell, median))
-    text = read(out, "demo_plumb_bob_0.97_apply")
-    applied = re.findall(r"focal length corrected \(focal_calibration: apply\): (.*)", text)
+    median_of = lambda name: value(read(out, name), r"median error: ([\d.]+) deg")
+    applied = re.findall(r"focal length corrected \(focal_calibration: apply\): (.*)",
+                         read(out, "demo_plumb_bob_0.97_apply"))
     print("\nWith `focal_calibration: apply` on the x0.97 bag: %s; median error %.4f deg (warn: %.4f; camera_info "
           "right: %.4f)." % ("; ".join(applied) if applied else "no correction",
-                             value(text, r"median error: ([\d.]+) deg"),
-                             value(read(out, "demo_plumb_bob_0.97_warn"), r"median error: ([\d.]+) deg"),
-                             value(read(out, "demo_plumb_bob_model"), r"median error: ([\d.]+) deg")))
+                             median_of("demo_plumb_bob_0.97_apply"), median_of("demo_plumb_bob_0.97_warn"),
+                             median_of("demo_plumb_bob_model")))
     scales = open(os.path.join(out, "demo_plumb_bob_corrected.scales")).read().split()[0].split(",")
-    median_of = lambda name: value(read(out, name), r"median error: ([\d.]+) deg")
     print("\nHow far `apply` can get: the same lens and model with camera_info's focal lengths a little off from "
           "the first image, `focal_calibration: off`. The last row gives each camera the focal length that "
           "`apply` arrived at above (the true one times 0.97 times its correction).\n")

@@ -345,18 +345,21 @@ const std::vector<int>& KeyframeFrontend::ChainOf(const Keyframe& keyframe) cons
   return keyframe.loaded_chain >= 0 ? loaded_chains_[keyframe.loaded_chain] : by_camera_.at(keyframe.key.frame_id);
 }
 
-bool KeyframeFrontend::ChainRotation(int a, int b, Eigen::Matrix3d* r_ab) const {
+bool KeyframeFrontend::ChainRotation(int a, int b, Eigen::Matrix3d* r_ab, Eigen::Matrix3d* covariance) const {
   const Keyframe& ka = *keyframes_[a];
   const Keyframe& kb = *keyframes_[b];
   if (ka.key.frame_id != kb.key.frame_id || ka.loaded_chain != kb.loaded_chain) return false;
   const std::vector<int>& chain = ChainOf(ka);
   Eigen::Matrix3d r = Eigen::Matrix3d::Identity();
+  Eigen::Matrix3d sum = covariance ? *covariance : Eigen::Matrix3d::Zero();
   for (int p = ka.camera_position + 1; p <= kb.camera_position; ++p) {
     const Keyframe& k = *keyframes_[chain[p]];
     if (!k.has_sequential) return false;
     r = r * k.sequential_rotation;  // R_a,p = R_a,p-1 R_p-1,p
+    sum += k.sequential_covariance;
   }
   *r_ab = r;
+  if (covariance) *covariance = sum;
   return true;
 }
 
@@ -584,14 +587,8 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     for (std::size_t f = 0; f < fallback.size(); ++f) {
       Count(verified[f]);
       if (!verified[f].success) continue;
-      Eigen::Matrix3d r_op;
-      if (!ChainRotation(fallback[f].older, same.back(), &r_op)) continue;
-      Eigen::Matrix3d chain_covariance = previous.covariance;
-      const std::vector<int>& chain = ChainOf(*keyframes_[same.back()]);
-      for (int p = keyframes_[fallback[f].older]->camera_position + 1; p <= keyframes_[same.back()]->camera_position;
-           ++p) {
-        chain_covariance += keyframes_[chain[p]]->sequential_covariance;
-      }
+      Eigen::Matrix3d r_op, chain_covariance = previous.covariance;
+      if (!ChainRotation(fallback[f].older, same.back(), &r_op, &chain_covariance)) continue;
       const KeyframeRelativeRotation& e = verified[f].edge;
       const double angle = AngularDistanceRad(r_op * previous.rotation, e.rotation);
       const double spread = std::sqrt((e.covariance + chain_covariance).trace());

@@ -252,8 +252,9 @@ class KeyframeFrontend {
   // session, or one loaded from a database.
   const std::vector<int>& ChainOf(const Keyframe& keyframe) const;
   // R_ab composed along the sequential edges of one camera (a before b);
-  // false if the chain between them is broken.
-  bool ChainRotation(int a, int b, Eigen::Matrix3d* r_ab) const;
+  // false if the chain between them is broken. `covariance` (optional) gets
+  // the sequential edges' covariances added, in chain order.
+  bool ChainRotation(int a, int b, Eigen::Matrix3d* r_ab, Eigen::Matrix3d* covariance = nullptr) const;
   // Both drop loops and their old ends (index into keyframes_) together.
   void FilterInconsistentLoops(std::vector<KeyframeRelativeRotation>* loops, std::vector<int>* old_ends);
   void KeepOneLoopPerPlace(std::vector<KeyframeRelativeRotation>* loops, std::vector<int>* old_ends);
