@@ -4,7 +4,7 @@
 # bags (one camera, images at a quarter of full width), with scores against
 # ground truth, the speed against real time (bags at one capture per second)
 # and the loop-closure recall of the retrieval, with one_loop_per_place (the
-# default) and with every loop kept, with and without window pairs; and the node against
+# default) and with every loop kept, with window pairs (the default) and without; and the node against
 # `rotavg images --no-bundle-adjustment` on the Strecha scenes, lund_door and
 # the demo's images.
 #   bash scripts/benchmark_replay.sh        (about twenty minutes: the demo's exhaustive offline run takes 14)
@@ -20,9 +20,9 @@ DEMO=build/demo/demo_60.bag
 { cat config/demo.yaml; echo "one_loop_per_place: false"; } > "$OUT/demo_all.yaml"
 "$BIN/rotation_averaging_replay" --bag "$DEMO" --config "$OUT/demo_all.yaml" --gt "$DEMO" --output-dir "$OUT/demo_all" \
   --no-progress > "$OUT/demo_all.txt"
-{ cat config/demo.yaml; echo "window_pairs: true"; } > "$OUT/demo_window.yaml"
-"$BIN/rotation_averaging_replay" --bag "$DEMO" --config "$OUT/demo_window.yaml" --gt "$DEMO" \
-  --output-dir "$OUT/demo_window" --no-progress > "$OUT/demo_window.txt"
+{ cat config/demo.yaml; echo "window_pairs: false"; } > "$OUT/demo_chain.yaml"
+"$BIN/rotation_averaging_replay" --bag "$DEMO" --config "$OUT/demo_chain.yaml" --gt "$DEMO" \
+  --output-dir "$OUT/demo_chain" --no-progress > "$OUT/demo_chain.txt"
 
 # Strecha scenes as bags (one camera, images at a quarter of full width):
 # castle-P19 replayed for the table, and every scene for loop-closure recall
@@ -55,12 +55,12 @@ for s in "${SCENES[@]}"; do
   { cat "$OUT/$s.yaml"; echo "loop_jackknife_grid: 0"; } > "$OUT/${s}_pixel.yaml"
   { cat "$OUT/$s.yaml"; echo "loop_jackknife_grid: 0"; echo "min_loop_inliers: 60"; } > "$OUT/${s}_pixel60.yaml"
   { cat "$OUT/$s.yaml"; echo "one_loop_per_place: false"; } > "$OUT/${s}_all.yaml"
-  { cat "$OUT/$s.yaml"; echo "window_pairs: true"; } > "$OUT/${s}_window.yaml"
+  { cat "$OUT/$s.yaml"; echo "window_pairs: false"; } > "$OUT/${s}_chain.yaml"
   # Also the offline reference for the node: every pair, the averaging alone.
   "$BIN/rotavg" images --images "$C/images" --intrinsics "$C/images/K.txt" --downsample 0.25 --pairs exhaustive \
     --no-bundle-adjustment --gt "$C" --graph-out "$OUT/${s}_exhaustive_graph.txt" \
     --output "$OUT/${s}_exhaustive.csv" > "$OUT/${s}_exhaustive.txt"
-  for mode in vocabulary voting compact2000 pixel pixel60 all window; do
+  for mode in vocabulary voting compact2000 pixel pixel60 all chain; do
     config="$OUT/$s.yaml"
     [ "$mode" != vocabulary ] && config="$OUT/${s}_$mode.yaml"
     replay_scene "$s" "$mode" "$config"
@@ -80,8 +80,8 @@ if [ -d "$LUND" ]; then
   replay_scene lund_door vocabulary "$OUT/lund_door.yaml"
   { cat "$OUT/lund_door.yaml"; echo "one_loop_per_place: false"; } > "$OUT/lund_door_all.yaml"
   replay_scene lund_door all "$OUT/lund_door_all.yaml"
-  { cat "$OUT/lund_door.yaml"; echo "window_pairs: true"; } > "$OUT/lund_door_window.yaml"
-  replay_scene lund_door window "$OUT/lund_door_window.yaml"
+  { cat "$OUT/lund_door.yaml"; echo "window_pairs: false"; } > "$OUT/lund_door_chain.yaml"
+  replay_scene lund_door chain "$OUT/lund_door_chain.yaml"
   "$BIN/rotavg" images --images "$LUND/images" --intrinsics "$LUND/colmap_ground_truth/cameras.txt" --downsample 0.25 \
     --pairs exhaustive --no-bundle-adjustment --gt "$LUND/colmap_ground_truth/images.txt" > "$OUT/lund_door_exhaustive.txt"
   solve_afresh lund_door

@@ -226,22 +226,23 @@ loops so dropped. Errors against ground truth of the replay's final solution."""
     p("### Window pairs")
     p()
     p("""A keyframe is related to the previous keyframe of its camera (and, when that pair fails, to the
-newest of its `covisibility_window` that verifies). With `window_pairs: true` it is also related to
-the older keyframes of the window (two and three before it), each pair kept when it agrees with the
-rotation the chain through the previous keyframe predicts (within three standard deviations of
-both), with the cell jackknife's covariance as loop closures have. "window edges": pairs so kept;
-"off the chain": verified but dropped. "pairs, ms": pair verification per keyframe (two more pairs
-each); speed-up against real time. Errors against ground truth of the replay's final solution;
-ratio: the median over `rotavg images`' in the table above.""")
+newest of its `covisibility_window` that verifies). With `window_pairs: true` (the default) it is
+also related to the older keyframes of the window (two and three before it), each pair kept when it
+agrees with the rotation the chain through the previous keyframe predicts (within three standard
+deviations of both), with the cell jackknife's covariance as loop closures have; `false` keeps the
+chain alone. "window edges": pairs so kept; "off the chain": verified but dropped. "pairs, ms": pair
+verification per keyframe (two more pairs each with window pairs); speed-up against real time.
+Errors against ground truth of the replay's final solution; ratio: the median over `rotavg images`'
+in the table above.""")
     p()
     table_head(p, "| bag | window_pairs | window edges | off the chain | pairs, ms | speed-up | median (deg) "
       "| mean (deg) | AUC@2 (%) | ratio to rotavg images |")
     for s in offline:
         exhaustive = runs.text(s + "_exhaustive.txt")
-        p(window_row(s, "false (default)", runs.text(s + "_vocabulary.txt"), exhaustive))
-        p(window_row(s, "true", runs.text(s + "_window.txt"), exhaustive))
-    p(window_row("demo (config/demo.yaml)", "false (default)", runs.text("demo.txt"), runs.text("demo_exhaustive.txt")))
-    p(window_row("demo (config/demo.yaml)", "true", runs.text("demo_window.txt"), runs.text("demo_exhaustive.txt")))
+        p(window_row(s, "true (default)", runs.text(s + "_vocabulary.txt"), exhaustive))
+        p(window_row(s, "false", runs.text(s + "_chain.txt"), exhaustive))
+    p(window_row("demo (config/demo.yaml)", "true (default)", runs.text("demo.txt"), runs.text("demo_exhaustive.txt")))
+    p(window_row("demo (config/demo.yaml)", "false", runs.text("demo_chain.txt"), runs.text("demo_exhaustive.txt")))
     p()
     p("### Twice the features per compact keyframe")
     p()

@@ -5,6 +5,7 @@
 #include "common/test_data.h"
 #include "common/test_vocabulary.h"
 
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -209,6 +210,7 @@ TEST(KeyframeFrontend, TurningOnTheSpotGivesRotationEdges) {
   }
   KeyframeFrontendOptions options;
   options.max_loop_candidates = 0;
+  options.window_pairs = false;  // the chain alone: each pair its own rotation-only estimate
   KeyframeFrontend frontend(options);
   const std::vector<KeyframeRelativeRotation> edges = Feed(&frontend, seq);
   ASSERT_EQ(edges.size(), 5u) << "failures: " << frontend.Stats().failed_pairs;
@@ -251,8 +253,8 @@ TEST(KeyframeFrontend, AFailedPairDoesNotCutTheChain) {
 
 // With window_pairs a keyframe is also related to the keyframes two and
 // three before it (covisibility_window 3) when those pairs agree with the
-// chain; they carry the cell jackknife's covariance, the previous pair the
-// pixel model's. Without it, only the chain.
+// chain (the default); they carry the cell jackknife's covariance, the
+// previous pair the pixel model's. Without it, only the chain.
 TEST(KeyframeFrontend, WindowPairsRelateAKeyframeToTheOlderOnesOfItsWindow) {
   RigSceneOptions scene_options;
   scene_options.num_cameras = 1;
@@ -268,6 +270,8 @@ TEST(KeyframeFrontend, WindowPairsRelateAKeyframeToTheOlderOnesOfItsWindow) {
   KeyframeFrontendOptions options;
   options.max_loop_candidates = 0;
   ASSERT_EQ(options.covisibility_window, 3);
+  ASSERT_TRUE(options.window_pairs) << "window pairs are the default";
+  options.window_pairs = false;
   KeyframeFrontend chain_only(options);
   const std::vector<KeyframeRelativeRotation> chain = Feed(&chain_only, seq);
   ASSERT_EQ(chain.size(), 7u);
@@ -604,10 +608,12 @@ TEST(KeyframeFrontend, EdgesDoNotDependOnTheThreadCount) {
   }
 }
 
-// Loop closures carry the cell jackknife's covariance, the other pairs the
-// pixel model's: the same pairs verified with and without it have the same
-// rotations, the sequential and rig edges the same covariances, and every
-// loop closure a covariance at least as wide in every direction.
+// Loop closures and window pairs (a camera's keyframes more than one capture
+// apart) carry the cell jackknife's covariance, the other pairs the pixel
+// model's: the same pairs verified with and without it have the same
+// rotations, the previous-keyframe and rig edges the same covariances, and
+// every loop closure and window pair a covariance at least as wide in every
+// direction.
 TEST(KeyframeFrontend, LoopClosuresCarryTheCellJackknifeCovariance) {
   RigSceneOptions scene_options;
   scene_options.num_captures = 16;
@@ -624,24 +630,32 @@ TEST(KeyframeFrontend, LoopClosuresCarryTheCellJackknifeCovariance) {
   ASSERT_GT(KeyframeFrontendOptions().loop_jackknife_grid, 1) << "the node's loop closures use the jackknife";
   const std::map<Key, KeyframeRelativeRotation> pixel = keyed(RigEdges(scene, 2, true, false, 0));
   const std::map<Key, KeyframeRelativeRotation> jackknife = keyed(RigEdges(scene, 2, true, false, 4));
-  int loops = 0, other = 0, wider = 0;
+  int loops = 0, other = 0, wider = 0, windows = 0;
   for (const auto& [key, e] : jackknife) {
     auto it = pixel.find(key);
     if (it == pixel.end()) continue;  // a loop the consistency check kept with the wider covariance only
     const KeyframeRelativeRotation& p = it->second;
     EXPECT_TRUE(e.rotation == p.rotation) << key.first << " - " << key.second;
     EXPECT_EQ(e.num_inliers, p.num_inliers);
-    if (e.source != EdgeSource::kLoopClosure) {
+    const bool window_pair = e.source == EdgeSource::kSequential && e.keyframe1.frame_id == e.keyframe2.frame_id &&
+                             std::abs(e.keyframe2.stamp_ns - e.keyframe1.stamp_ns) > 1'000'000'000LL;
+    if (e.source != EdgeSource::kLoopClosure && !window_pair) {
       ++other;
       EXPECT_TRUE(e.covariance == p.covariance) << key.first << " - " << key.second;
       continue;
     }
-    ++loops;
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> difference(e.covariance - p.covariance);
     EXPECT_GE(difference.eigenvalues().minCoeff(), -1e-9 * p.covariance.trace()) << key.first << " - " << key.second;
+    if (window_pair) {
+      ++windows;
+      continue;
+    }
+    ++loops;
     wider += e.covariance.trace() > 1.01 * p.covariance.trace();
   }
-  std::cout << "loop closures in both runs " << loops << ", widened " << wider << "; other edges " << other << "\n";
+  std::cout << "loop closures in both runs " << loops << ", widened " << wider << "; window pairs " << windows
+            << "; other edges " << other << "\n";
+  EXPECT_GT(windows, 10);
   EXPECT_GT(other, 20);
   EXPECT_GE(loops, 3);
   EXPECT_GE(2 * wider, loops) << "most loop closures are widened by the jackknife";

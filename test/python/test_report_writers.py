@@ -78,20 +78,20 @@ def test_restart_rows_hold_each_cut_against_the_uninterrupted_run(tmp_path):
 def test_keyframe_selection_compares_the_stream_with_the_keyframe_bag_over_seeds(tmp_path):
     (tmp_path / "demo_1hz.txt").write_text(summary(120, 0.0137))
     (tmp_path / "stream_8_0.4.txt").write_text(summary(134, 0.0154, images=2400, selection="motion"))
-    (tmp_path / "demo_1hz_window.txt").write_text(summary(120, 0.0071))
-    (tmp_path / "stream_window.txt").write_text(summary(134, 0.0066, images=2400, selection="motion"))
+    (tmp_path / "demo_1hz_chain.txt").write_text(summary(120, 0.0071))
+    (tmp_path / "stream_chain.txt").write_text(summary(134, 0.0066, images=2400, selection="motion"))
     runs = {"1": (0.0137, 0.0154, 0.0071, 0.0066), "2": (0.0181, 0.0157, 0.0083, 0.0070)}
-    for seed, (one_hz, stream, one_hz_window, stream_window) in runs.items():
+    for seed, (one_hz, stream, one_hz_chain, stream_chain) in runs.items():
         (tmp_path / ("seed%s_1hz.txt" % seed)).write_text(summary(120, one_hz))
         (tmp_path / ("seed%s_stream.txt" % seed)).write_text(summary(134, stream, images=2400, selection="motion"))
-        (tmp_path / ("seed%s_1hz_window.txt" % seed)).write_text(summary(120, one_hz_window))
-        (tmp_path / ("seed%s_stream_window.txt" % seed)).write_text(
-            summary(134, stream_window, images=2400, selection="motion"))
+        (tmp_path / ("seed%s_1hz_chain.txt" % seed)).write_text(summary(120, one_hz_chain))
+        (tmp_path / ("seed%s_stream_chain.txt" % seed)).write_text(
+            summary(134, stream_chain, images=2400, selection="motion"))
     text = run("keyframe_selection_report.py", tmp_path, "8/0.4", "1,2")
     row = table_row(text, "20 Hz stream, 8 deg / 0.4 (defaults)")
     assert row[1:4] == ["2400", "134", "67"]
     assert row[4] == "2.50" and row[7] == "0.0154"
-    assert table_row(text, "20 Hz stream, defaults, `window_pairs: true`")[7] == "0.0066"
+    assert table_row(text, "20 Hz stream, defaults but `window_pairs: false`")[7] == "0.0066"
     assert table_row(text, "2") == ["2", "0.0181", "134", "0.0157", "0.0083", "0.0070"]
     mean = table_row(text, "mean (min - max)")
     assert mean[1] == "0.0159 (0.0137 - 0.0181)" and mean[3] == "0.0155 (0.0154 - 0.0157)"

@@ -57,7 +57,9 @@ struct KeyframeFrontendOptions {
   // agrees with the one the chain through the previous keyframe predicts
   // (within three standard deviations of both), with the cell jackknife's
   // covariance (loop_jackknife_grid: wider baselines, as loop closures).
-  bool window_pairs = false;
+  // False: the chain alone, and the older keyframes only when the previous
+  // pair fails (docs/decisions.md, "Window pairs").
+  bool window_pairs = true;
   int num_threads = 0;                  // pair verification and retrieval; 0: the machine's cores
   int max_loop_candidates = 3;          // verified per keyframe
   int loop_exclude_recent = 5;          // keyframes of the same camera too recent to be loop closures
