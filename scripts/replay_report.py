@@ -265,7 +265,8 @@ solution.""")
                             ("vocabulary, compact_features 2000:", "compact2000"),
                             ("vocabulary, loop closures with the pixel model (loop_jackknife_grid 0):", "pixel"),
                             ("the same at min_loop_inliers 60:", "pixel60"),
-                            ("vocabulary, every loop kept (one_loop_per_place false):", "all")):
+                            ("vocabulary, every loop kept (one_loop_per_place false):", "all"),
+                            ("vocabulary, the chain alone (window_pairs false):", "chain")):
             p(label)
             p(runs.text("%s_%s_recall.txt" % (s, mode)).rstrip("\n"))
         p("```")
