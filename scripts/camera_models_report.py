@@ -39,7 +39,10 @@ def demo_pair_runs(out):
 
 
 def edge_sources(graph_txt):
-    """{pair of keyframe names: edge source} of a graph file's edges."""
+    """{pair of keyframe names: edge source} of a graph file's edges; a
+    sequential edge between keyframes of one camera that are not next to each
+    other in its sequence (a window pair, or a failed pair bridged) is
+    "window"."""
     names, sources = {}, {}
     for line in open(graph_txt):
         f = line.split()
@@ -47,7 +50,18 @@ def edge_sources(graph_txt):
             names[f[1]] = f[2]
         elif f and f[0] == "EDGE":
             sources[frozenset((f[1], f[2]))] = f[3]
-    return {frozenset(names[i] for i in ids): source for ids, source in sources.items()}
+    order = {}  # keyframe name (camera@stamp) -> its place in its camera's sequence
+    for camera in {n.split("@")[0] for n in names.values()}:
+        own = sorted((n for n in names.values() if n.split("@")[0] == camera), key=lambda n: int(n.split("@")[1]))
+        order.update({n: i for i, n in enumerate(own)})
+    out = {}
+    for ids, source in sources.items():
+        pair = frozenset(names[i] for i in ids)
+        a, b = sorted(pair)
+        if source == "sequential" and a.split("@")[0] == b.split("@")[0] and abs(order[a] - order[b]) > 1:
+            source = "window"
+        out[pair] = source
+    return out
 
 
 def pair_kinds(graph_txt, per_edge_txt):
@@ -61,7 +75,9 @@ def pair_kinds(graph_txt, per_edge_txt):
         if not f or f[0] != "edge":
             continue
         source = source_by_names[frozenset((f[1], f[2]))]
-        if source != "sequential":
+        if source == "window":
+            source = "window pair"
+        elif source != "sequential":
             source = "loop closure, " + ("one camera" if f[1].split("@")[0] == f[2].split("@")[0] else
                                          "two cameras")
         kinds.setdefault(source, []).append((float(f[3]), float(f[4])))
@@ -223,14 +239,15 @@ def main():
                                                   summary_value(scored, r"^NEES median: ([0-9.]+)"),
                                                   summary_value(scored, r"^NEES median after per-view offsets: ([0-9.]+)")))
     print()
-    print("The same pairs by kind: sequential (a camera's keyframe and its previous one), loop closures")
-    print("between two keyframes of one camera, and between keyframes of the two cameras.")
+    print("The same pairs by kind: sequential (a camera's keyframe and its previous one), window pairs (the")
+    print("older keyframes of its window, `window_pairs`), loop closures between two keyframes of one camera,")
+    print("and between keyframes of the two cameras.")
     print()
     print("| demo input | kind | pairs | median pair error (deg) | NEES median |")
     print("|---|---|---|---|---|")
     for input, label, scored in demo_pair_runs(out):
         kinds = pair_kinds(os.path.join(out, "demo_%s_pairs" % input, "graph.txt"), scored)
-        for kind in ("sequential", "loop closure, one camera", "loop closure, two cameras"):
+        for kind in ("sequential", "window pair", "loop closure, one camera", "loop closure, two cameras"):
             pairs = np.array(kinds.get(kind, [])).reshape(-1, 2)
             if len(pairs) == 0:
                 continue
