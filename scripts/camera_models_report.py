@@ -42,7 +42,7 @@ def edge_sources(graph_txt):
     """{pair of keyframe names: edge source} of a graph file's edges; a
     sequential edge between keyframes of one camera that are not next to each
     other in its sequence (a window pair, or a failed pair bridged) is
-    "window"."""
+    "window pair"."""
     names, sources = {}, {}
     for line in open(graph_txt):
         f = line.split()
@@ -59,7 +59,7 @@ def edge_sources(graph_txt):
         pair = frozenset(names[i] for i in ids)
         a, b = sorted(pair)
         if source == "sequential" and a.split("@")[0] == b.split("@")[0] and abs(order[a] - order[b]) > 1:
-            source = "window"
+            source = "window pair"
         out[pair] = source
     return out
 
@@ -75,9 +75,7 @@ def pair_kinds(graph_txt, per_edge_txt):
         if not f or f[0] != "edge":
             continue
         source = source_by_names[frozenset((f[1], f[2]))]
-        if source == "window":
-            source = "window pair"
-        elif source != "sequential":
+        if source not in ("sequential", "window pair"):
             source = "loop closure, " + ("one camera" if f[1].split("@")[0] == f[2].split("@")[0] else
                                          "two cameras")
         kinds.setdefault(source, []).append((float(f[3]), float(f[4])))
