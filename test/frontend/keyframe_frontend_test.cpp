@@ -356,9 +356,11 @@ TEST(KeyframeFrontend, VocabularyClosesLoopsOnEveryLapWithCompactKeyframes) {
 }
 
 // A keyframe database saved after one lap and loaded by a new front end (a
-// restart): the second lap closes loops with the first lap's keyframes, so
-// the two sessions' edges make one graph, and no sequential edge bridges the
-// restart. Damaged, foreign or newer files are refused with the reason and
+// restart): the camera's chain is resumed, so the second lap's first
+// keyframes pair with the last ones saved as sequential and window pairs,
+// and the second lap closes loops with the first lap's keyframes; the two
+// sessions' edges make one graph. A pair across the restart needs a loop
+// closure's inliers. Damaged, foreign or newer files are refused with the reason and
 // leave the keyframes held as they were.
 TEST(KeyframeFrontend, ASavedDatabaseLetsTheNextSessionCloseLoopsWithTheFirst) {
   constexpr int kPerLap = 16;
@@ -396,16 +398,39 @@ TEST(KeyframeFrontend, ASavedDatabaseLetsTheNextSessionCloseLoopsWithTheFirst) {
   // A key already held is refused: it would be a second view under one name.
   EXPECT_TRUE(second.AddKeyframe(KeyframeKey{"cam", 1'000'000'000LL}, seq.images[0], seq.k).empty());
   EXPECT_EQ(second.Stats().duplicate_keyframes, 1u);
+  EXPECT_EQ(second.Stats().resumed_chains, 1u);
   const std::vector<KeyframeRelativeRotation> second_lap = feed(&second, kPerLap, 2 * kPerLap);
-  int across = 0;
+  int across = 0, resumed = 0;
+  bool previous_pair = false;
   for (const KeyframeRelativeRotation& e : second_lap) {
     EXPECT_LT(EdgeErrorDeg(seq, e), 1.0) << Index(e.keyframe1) << "-" << Index(e.keyframe2);
-    if (Index(e.keyframe1) < kPerLap) {
-      ++across;
-      EXPECT_EQ(e.source, EdgeSource::kLoopClosure) << Index(e.keyframe1) << "-" << Index(e.keyframe2);
-    }
+    if (Index(e.keyframe1) >= kPerLap) continue;
+    ++across;
+    if (e.source == EdgeSource::kLoopClosure) continue;
+    // Sequential across the restart only within the window of the last
+    // keyframe saved, and with a loop closure's inliers.
+    EXPECT_EQ(e.source, EdgeSource::kSequential);
+    EXPECT_GE(Index(e.keyframe1), kPerLap - options.covisibility_window) << Index(e.keyframe1);
+    EXPECT_LT(Index(e.keyframe2), kPerLap + options.covisibility_window) << Index(e.keyframe2);
+    EXPECT_GE(e.num_inliers, options.compact_loop_inlier_fraction * options.min_loop_inliers);
+    ++resumed;
+    if (Index(e.keyframe1) == kPerLap - 1 && Index(e.keyframe2) == kPerLap) previous_pair = true;
   }
-  EXPECT_GE(across, 2);
+  EXPECT_TRUE(previous_pair);
+  EXPECT_GE(resumed, 2);
+  EXPECT_GE(across, resumed + 2);
+  // Asked for more loop-closure inliers than any pair has, the resumed pairs
+  // are refused as the loop closures are, and counted: no edge crosses.
+  {
+    KeyframeFrontendOptions strict = options;
+    strict.min_loop_inliers = 100000;
+    KeyframeFrontend restarted(strict);
+    ASSERT_TRUE(restarted.LoadDatabase(path, &error)) << error;
+    for (const KeyframeRelativeRotation& e : feed(&restarted, kPerLap, kPerLap + 2)) {
+      EXPECT_FALSE(Index(e.keyframe1) < kPerLap) << Index(e.keyframe1) << "-" << Index(e.keyframe2);
+    }
+    EXPECT_GE(restarted.Stats().failures.count("resumed_too_few_inliers"), 1u);
+  }
   std::set<int> all;
   for (int c = 0; c < 2 * kPerLap; ++c) all.insert(c);
   std::vector<KeyframeRelativeRotation> both = first_lap;

@@ -39,6 +39,10 @@ struct KeyframeFrontend::Keyframe {
   // for a keyframe loaded from a database.
   CameraIntrinsics lens;
   int loaded_chain = -1;  // index into loaded_chains_; -1: a keyframe of this session
+  // Loaded, of the chain a new session continues (LoadDatabase): the camera
+  // may have moved while no keyframe was made, so a pair with a new keyframe
+  // needs a loop closure's evidence.
+  bool resumed = false;
 };
 
 bool KeyframeFrontendOptions::Validate(std::string* error) const {
@@ -180,6 +184,12 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
       out.inlier_features.emplace_back(swap ? j : i, swap ? i : j);
     }
     out.edge.source = tasks[t].source;
+    if (a.resumed && tasks[t].source == EdgeSource::kSequential &&
+        out.edge.num_inliers < options_.compact_loop_inlier_fraction * options_.min_loop_inliers) {
+      out.success = false;
+      out.failure = "resumed_too_few_inliers";
+      return;
+    }
     const FocalMonitorOptions& focal = options_.focal_monitor;
     if (focal.enabled && first.key.frame_id == second.key.frame_id && first.k == second.k &&
         pose.model == TwoViewModel::kEssential && static_cast<int>(pose.inliers.size()) >= focal.focal.min_inliers) {
@@ -275,6 +285,10 @@ bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double sc
   if (chain != by_camera_.end()) {
     for (int i : chain->second) {
       Keyframe& kf = *keyframes_[i];
+      // A loaded keyframe keeps the K it was saved with, as a loop
+      // closure's old end does: the session that made it may have
+      // corrected it already.
+      if (kf.resumed) continue;
       RedoUndistortion(kf.lens, kf.k, corrected(kf.k), &kf.features.keypoints_px);
       kf.k = corrected(kf.k);
     }
@@ -921,8 +935,36 @@ bool KeyframeFrontend::TakeDatabase(const std::string& path, bool add, std::size
     ++stats_.loaded_keyframes;
     keyframes_.push_back(std::move(kf));
   }
+  if (!add) ResumeChains();
   if (already_held) *already_held = skipped;
   return true;
+}
+
+void KeyframeFrontend::ResumeChains() {
+  // Each camera's newest loaded chain becomes its chain again. Started
+  // afresh, a camera's next keyframes would find the keyframes just before
+  // the restart only by retrieval: as loop closures, which take the
+  // candidates older places would have had and leave out the window pairs
+  // (results/restart.md).
+  std::map<std::string, int> newest;  // camera -> loaded chain
+  for (int c = 0; c < static_cast<int>(loaded_chains_.size()); ++c) {
+    if (loaded_chains_[c].empty()) continue;
+    const Keyframe& last = *keyframes_[loaded_chains_[c].back()];
+    auto it = newest.find(last.key.frame_id);
+    if (it == newest.end() || keyframes_[loaded_chains_[it->second].back()]->key.stamp_ns < last.key.stamp_ns) {
+      newest[last.key.frame_id] = c;
+    }
+  }
+  for (const auto& [camera, c] : newest) {
+    std::vector<int>& chain = by_camera_[camera];
+    chain = std::move(loaded_chains_[c]);
+    loaded_chains_[c].clear();
+    for (int index : chain) {
+      keyframes_[index]->loaded_chain = -1;
+      keyframes_[index]->resumed = true;
+    }
+    ++stats_.resumed_chains;
+  }
 }
 
 }  // namespace rotation_averaging

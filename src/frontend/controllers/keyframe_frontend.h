@@ -135,6 +135,7 @@ struct KeyframeFrontendStats {
   std::uint64_t keyframes = 0;
   std::uint64_t duplicate_keyframes = 0;  // refused: a keyframe with that key is held
   std::uint64_t loaded_keyframes = 0;     // from the database (LoadDatabase)
+  std::uint64_t resumed_chains = 0;       // cameras whose loaded chain new keyframes continue
   std::uint64_t sequential_edges = 0, rig_edges = 0, loop_closure_edges = 0;
   std::uint64_t rig_pairs_skipped = 0;   // same capture, both cameras with known extrinsics
   std::uint64_t chain_bridged = 0;         // previous pair failed, an older keyframe of the window verified
@@ -202,9 +203,12 @@ class KeyframeFrontend {
   bool SnapshotDatabase(KeyframeDatabase* database, std::string* error) const;
   // Replaces every keyframe with those of a database (file of SaveDatabase).
   // They take part in retrieval and loop-closure verification like any old
-  // keyframe, but start no chain: the next keyframe of each camera is the
-  // first of a new session, related to the old ones only by loop closures,
-  // which need more evidence than a sequential pair. A file of another
+  // keyframe, and each camera's newest chain is resumed: its next keyframe
+  // is related to the last keyframes of that chain as it would have been
+  // without the restart (previous keyframe and window), except that those
+  // pairs need a loop closure's inliers (the camera may have moved while
+  // the node was down), and `failures` counts the others as
+  // "resumed_too_few_inliers". A file of another
   // version, another vocabulary, a truncated or corrupted one is refused
   // with the reason, and the keyframes held are left as they were.
   bool LoadDatabase(const std::string& path, std::string* error);
@@ -334,6 +338,7 @@ class KeyframeFrontend {
   // Chains of the keyframes loaded from a database, per camera (indices into
   // keyframes_), apart from this session's in by_camera_.
   std::vector<std::vector<int>> loaded_chains_;
+  void ResumeChains();  // LoadDatabase: each camera's newest loaded chain back into by_camera_
   std::set<KeyframeKey> keys_;  // of every keyframe held: a key added twice is refused
   KeyframeFrontendStats stats_;
   std::set<std::string> rig_calibrated_;
