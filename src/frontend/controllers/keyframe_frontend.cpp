@@ -184,8 +184,7 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
       out.inlier_features.emplace_back(swap ? j : i, swap ? i : j);
     }
     out.edge.source = tasks[t].source;
-    if (a.resumed && tasks[t].source == EdgeSource::kSequential &&
-        out.edge.num_inliers < options_.compact_loop_inlier_fraction * options_.min_loop_inliers) {
+    if (a.resumed && tasks[t].source == EdgeSource::kSequential && out.edge.num_inliers < LoopInliersNeeded(a)) {
       out.success = false;
       out.failure = "resumed_too_few_inliers";
       return;
@@ -353,6 +352,10 @@ void KeyframeFrontend::Count(const PairOutcome& outcome) {
     ++stats_.failed_pairs;
     ++stats_.failures[outcome.failure];
   }
+}
+
+double KeyframeFrontend::LoopInliersNeeded(const Keyframe& older) const {
+  return older.compact ? options_.compact_loop_inlier_fraction * options_.min_loop_inliers : options_.min_loop_inliers;
 }
 
 const std::vector<int>& KeyframeFrontend::ChainOf(const Keyframe& keyframe) const {
@@ -668,10 +671,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AcceptLoops(const std::v
   for (std::size_t c = 0; c < candidates.size(); ++c) {
     Count(verified[c]);
     if (!verified[c].success) continue;
-    const double needed = keyframes_[candidates[c].older]->compact
-                              ? options_.compact_loop_inlier_fraction * options_.min_loop_inliers
-                              : options_.min_loop_inliers;
-    if (verified[c].edge.num_inliers < needed) {
+    if (verified[c].edge.num_inliers < LoopInliersNeeded(*keyframes_[candidates[c].older])) {
       ++stats_.failed_pairs;
       ++stats_.failures["loop_too_few_inliers"];
       continue;

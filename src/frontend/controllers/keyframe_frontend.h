@@ -261,6 +261,9 @@ class KeyframeFrontend {
   // false if the chain between them is broken. `covariance` (optional) gets
   // the sequential edges' covariances added, in chain order.
   bool ChainRotation(int a, int b, Eigen::Matrix3d* r_ab, Eigen::Matrix3d* covariance = nullptr) const;
+  // Inliers a loop closure to `older` needs (fewer to a compact keyframe);
+  // also a pair across a restart (LoadDatabase's resumed chains).
+  double LoopInliersNeeded(const Keyframe& older) const;
   // Both drop loops and their old ends (index into keyframes_) together.
   void FilterInconsistentLoops(std::vector<KeyframeRelativeRotation>* loops, std::vector<int>* old_ends);
   void KeepOneLoopPerPlace(std::vector<KeyframeRelativeRotation>* loops, std::vector<int>* old_ends);
