@@ -239,6 +239,7 @@ int RefinePoseOnInliers(const std::vector<Eigen::Vector2d>& points1, const std::
   return RefineSampson(points1, points2, inliers, k1.inverse(), k2.inverse(), max_iterations, rotation, translation);
 }
 
+
 const char* RotationCovarianceModelName(RotationCovarianceModel model) {
   return model == RotationCovarianceModel::kConditional ? "conditional" : "marginal";
 }
@@ -520,6 +521,39 @@ bool TransferError(const Eigen::Matrix3d& k2, const Eigen::Matrix3d& rotation, c
   return true;
 }
 
+// Gauss-Newton on omega, R = Exp(omega) R_hat, over the transfer errors of
+// `inliers` (bearings b1 of image 1, pixels of image 2): at most
+// max_iterations steps. Leaves J^T J and the sum of squared errors of the
+// last linearisation; returns the steps taken, -1 if one was not finite.
+int GaussNewtonRotation(const std::vector<Eigen::Vector3d>& b1, const std::vector<Eigen::Vector2d>& points2,
+                        const Eigen::Matrix3d& k2, const std::vector<int>& inliers, int max_iterations,
+                        Eigen::Matrix3d* rotation, Eigen::Matrix3d* information, double* sum_squares) {
+  int it = 0;
+  for (; it < max_iterations; ++it) {
+    Eigen::Matrix3d jtj = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d jte = Eigen::Vector3d::Zero();
+    *sum_squares = 0.0;
+    for (int i : inliers) {
+      const Eigen::Vector3d x = *rotation * b1[i];
+      const Eigen::Vector3d u = k2 * x;
+      if (!(u.z() > 0.0)) continue;
+      const Eigen::Vector2d e = u.head<2>() / u.z() - points2[i];
+      Eigen::Matrix<double, 2, 3> d_proj;
+      d_proj << 1.0 / u.z(), 0.0, -u.x() / (u.z() * u.z()), 0.0, 1.0 / u.z(), -u.y() / (u.z() * u.z());
+      const Eigen::Matrix<double, 2, 3> jac = d_proj * k2 * -Hat(x);  // d/d omega of Exp(omega) x = -[x]x
+      jtj += jac.transpose() * jac;
+      jte += jac.transpose() * e;
+      *sum_squares += e.squaredNorm();
+    }
+    *information = jtj;
+    const Eigen::Vector3d step = jtj.ldlt().solve(-jte);
+    if (!step.allFinite()) return -1;
+    *rotation = ExpSO3(step) * *rotation;
+    if (step.norm() < 1e-12) return it;  // the step that converged is not counted
+  }
+  return it;
+}
+
 // sqrt of the 99% quantile of chi^2 with 2 degrees of freedom: the inlier
 // radius of a 2-d error in units of its per-coordinate sigma.
 constexpr double kChi2Radius99 = 3.035;
@@ -600,28 +634,10 @@ RelativePoseResult EstimateRotationOnly(const std::vector<Eigen::Vector2d>& poin
   double sum_squares = 0.0;
   int iterations = 0;
   for (int round = 0; round < kMaxReselectionRounds; ++round) {
-    for (int it = 0; it < kRotationRefineIterations; ++it, ++iterations) {
-      Eigen::Matrix3d jtj = Eigen::Matrix3d::Zero();
-      Eigen::Vector3d jte = Eigen::Vector3d::Zero();
-      sum_squares = 0.0;
-      for (int i : inliers) {
-        const Eigen::Vector3d x = rotation * b1[i];
-        const Eigen::Vector3d u = k2 * x;
-        if (!(u.z() > 0.0)) continue;
-        const Eigen::Vector2d e = u.head<2>() / u.z() - points2[i];
-        Eigen::Matrix<double, 2, 3> d_proj;
-        d_proj << 1.0 / u.z(), 0.0, -u.x() / (u.z() * u.z()), 0.0, 1.0 / u.z(), -u.y() / (u.z() * u.z());
-        const Eigen::Matrix<double, 2, 3> jac = d_proj * k2 * -Hat(x);  // d/d omega of Exp(omega) x = -[x]x
-        jtj += jac.transpose() * jac;
-        jte += jac.transpose() * e;
-        sum_squares += e.squaredNorm();
-      }
-      information = jtj;
-      const Eigen::Vector3d step = jtj.ldlt().solve(-jte);
-      if (!step.allFinite()) return Fail(TwoViewFailure::kRefinementFailed, "rotation-model step is not finite");
-      rotation = ExpSO3(step) * rotation;
-      if (step.norm() < 1e-12) break;
-    }
+    const int done = GaussNewtonRotation(b1, points2, k2, inliers, kRotationRefineIterations, &rotation, &information,
+                                         &sum_squares);
+    if (done < 0) return Fail(TwoViewFailure::kRefinementFailed, "rotation-model step is not finite");
+    iterations += done;
     std::vector<double> norms;
     norms.reserve(inliers.size());
     Eigen::Vector2d e;
@@ -764,6 +780,19 @@ RelativePoseResult EstimateEssential(const std::vector<Eigen::Vector2d>& points1
 }
 
 }  // namespace
+
+int RefineRotationOnInliers(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                            const std::vector<int>& inliers, const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
+                            Eigen::Matrix3d* rotation, int max_iterations) {
+  const Eigen::Matrix3d k1_inv = k1.inverse();
+  std::vector<Eigen::Vector3d> b1(points1.size());
+  for (int i : inliers) b1[i] = (k1_inv * points1[i].homogeneous()).normalized();
+  Eigen::Matrix3d information;
+  double sum_squares = 0.0;
+  const int done = GaussNewtonRotation(b1, points2, k2, inliers, max_iterations, rotation, &information, &sum_squares);
+  *rotation = ProjectToSO3(*rotation);
+  return done;
+}
 
 const char* const kCameraIntrinsicsRule = "finite, positive focal lengths, last row 0 0 1";
 

@@ -179,6 +179,12 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
 int RefinePoseOnInliers(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
                         const std::vector<int>& inliers, const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
                         Eigen::Matrix3d* rotation, Eigen::Vector3d* translation, int max_iterations = 50);
+// The same for the rotation-only model (R_21, no translation): Gauss-Newton
+// on the transfer errors in image 2, as the estimation's own refinement
+// does. Returns its steps, -1 if one was not finite.
+int RefineRotationOnInliers(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                            const std::vector<int>& inliers, const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
+                            Eigen::Matrix3d* rotation, int max_iterations = 20);
 
 }  // namespace rotation_averaging
 
