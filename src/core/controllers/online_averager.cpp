@@ -691,6 +691,15 @@ void OnlineAverager::SnapshotGraph(ViewGraph* graph, std::map<ViewId, Eigen::Mat
   }
 }
 
+void OnlineAverager::PendingGraph(ViewGraph* graph, std::map<KeyframeKey, ViewId>* ids, ViewOrientations* start) {
+  std::lock_guard<std::mutex> solve_lock(solve_mutex_);
+  std::lock_guard<std::mutex> lock(graph_mutex_);
+  DrainQueue();
+  *graph = graph_;
+  *ids = ids_;
+  *start = warm_start_;
+}
+
 bool OnlineAverager::SaveGraph(const std::string& path, std::string* error) const {
   ViewGraph graph;
   std::map<ViewId, Eigen::Matrix3d> orientations;

@@ -181,6 +181,11 @@ class OnlineAverager {
   // copied under the graph lock only (a solve waits for that much, not for
   // the file).
   void SnapshotGraph(ViewGraph* graph, std::map<ViewId, Eigen::Matrix3d>* orientations) const;
+  // The graph as the next solve will see it (the queued measurements applied
+  // to it first, as a solve would), the view of each keyframe in it, and
+  // the warm start of the next solve: for a caller that solves variants of
+  // it (core/estimators/loop_calibration.h). Waits for a solve under way.
+  void PendingGraph(ViewGraph* graph, std::map<KeyframeKey, ViewId>* ids, ViewOrientations* start);
   // Replaces the graph (and drops the measurements queued) with a saved
   // one, then solves; its first solve starts from the orientations saved
   // with it, so its keyframes keep the frames they were published in. A
