@@ -197,6 +197,7 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
     if (focal.hold_for_correction) {
       out.points1 = std::make_shared<std::vector<Eigen::Vector2d>>(std::move(pa));
       out.points2 = std::make_shared<std::vector<Eigen::Vector2d>>(std::move(pb));
+      out.pose = std::make_shared<RelativePoseResult>(pose);
     }
   });
   return outcomes;
@@ -226,6 +227,7 @@ void KeyframeFrontend::HoldPair(const PairTask& task, const PairOutcome& outcome
   held.chain = chain;
   held.points1 = outcome.points1;
   held.points2 = outcome.points2;
+  held.pose = outcome.pose;
   const std::string& older_camera = keyframes_[task.older]->key.frame_id;
   const std::string& newer_camera = outcome.newer_first ? outcome.edge.keyframe1.frame_id : outcome.edge.keyframe2.frame_id;
   std::set<std::string> cameras{older_camera, newer_camera};
@@ -248,8 +250,59 @@ double KeyframeFrontend::FocalCorrection(const std::string& camera) const {
   return it == focal_correction_.end() ? 1.0 : it->second;
 }
 
+std::vector<FocalSensitivity> KeyframeFrontend::FocalSensitivities(const std::string& camera, double step) {
+  std::vector<FocalSensitivity> out;
+  const auto held = held_pairs_.find(camera);
+  if (held == held_pairs_.end() || held_overflow_.count(camera) || !(step > 0.0)) return out;
+  std::vector<HeldPair>& pairs = held->second;
+  ParallelFor(static_cast<int>(pairs.size()), ResolveThreadCount(options_.num_threads), [&](int h) {
+    HeldPair& p = pairs[h];
+    if (p.has_derivative || !p.pose) return;
+    const Keyframe& first = *keyframes_[p.first];
+    const Keyframe& second = *keyframes_[p.second];
+    const RelativePoseResult& pose = *p.pose;
+    // Only the camera's own keyframes change focal length, and of those not
+    // the resumed ones, as in ApplyFocalCorrection.
+    auto moves = [&camera](const Keyframe& kf) { return kf.key.frame_id == camera && !kf.resumed; };
+    Eigen::Matrix3d edge[2];
+    for (int side = 0; side < 2; ++side) {
+      const double s = side == 0 ? 1.0 + step : 1.0 - step;
+      std::vector<Eigen::Vector2d> points[2] = {*p.points1, *p.points2};
+      Eigen::Matrix3d k[2] = {first.k, second.k};
+      const Keyframe* ends[2] = {&first, &second};
+      for (int e = 0; e < 2; ++e) {
+        if (!moves(*ends[e])) continue;
+        Eigen::Matrix3d scaled = k[e];
+        scaled(0, 0) *= s;
+        scaled(1, 1) *= s;
+        RedoUndistortion(ends[e]->lens, k[e], scaled, &points[e]);
+        k[e] = scaled;
+      }
+      Eigen::Matrix3d rotation = pose.rotation;
+      if (pose.model == TwoViewModel::kEssential) {
+        Eigen::Vector3d translation = pose.translation;
+        RefinePoseOnInliers(points[0], points[1], pose.inliers, k[0], k[1], &rotation, &translation,
+                            options_.relative_pose.refine_max_iterations);
+      } else if (RefineRotationOnInliers(points[0], points[1], pose.inliers, k[0], k[1], &rotation) < 0) {
+        return;
+      }
+      edge[side] = rotation.transpose();
+    }
+    const Eigen::Vector3d derivative = LogSO3(edge[1].transpose() * edge[0]) / (2.0 * step);
+    if (!derivative.allFinite()) return;
+    p.derivative = derivative;
+    p.has_derivative = true;
+  });
+  for (const HeldPair& p : pairs) {
+    if (!p.has_derivative) continue;
+    out.push_back(FocalSensitivity{keyframes_[p.first]->key, keyframes_[p.second]->key, p.source, p.derivative});
+  }
+  return out;
+}
+
 bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double scale,
-                                            std::vector<KeyframeRelativeRotation>* edges, std::string* why) {
+                                            std::vector<KeyframeRelativeRotation>* edges, std::string* why,
+                                            bool linearised) {
   edges->clear();
   if (!(scale > 0.0) || !std::isfinite(scale)) {
     if (why) *why = "the correction is not a positive number";
@@ -292,6 +345,29 @@ bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double sc
       kf.k = corrected(kf.k);
     }
   }
+  if (linearised) {
+    for (HeldPair& p : held) {
+      if (!p.has_derivative || !p.pose) continue;  // the old edge stays
+      RelativePoseResult& pose = *p.pose;
+      pose.rotation = (pose.EdgeRotation() * ExpSO3((scale - 1.0) * p.derivative)).transpose();
+      Keyframe& first = *keyframes_[p.first];
+      Keyframe& second = *keyframes_[p.second];
+      KeyframeRelativeRotation e;
+      e.keyframe1 = first.key;
+      e.keyframe2 = second.key;
+      e.rotation = pose.EdgeRotation();
+      e.has_covariance = true;
+      e.covariance = pose.covariance;
+      e.num_inliers = static_cast<int>(pose.inliers.size());
+      e.source = p.source;
+      edges->push_back(e);
+      if (p.chain) {
+        second.sequential_rotation = e.rotation;
+        second.sequential_covariance = e.covariance;
+      }
+    }
+    return true;
+  }
   std::vector<RelativePoseResult> poses(held.size());
   ParallelFor(static_cast<int>(held.size()), ResolveThreadCount(options_.num_threads), [&](int h) {
     const HeldPair& p = held[h];
@@ -306,6 +382,8 @@ bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double sc
     const HeldPair& p = held[h];
     const RelativePoseResult& pose = poses[h];
     if (!pose.success) continue;  // the old edge stays
+    if (held[h].pose) *held[h].pose = pose;
+    held[h].has_derivative = false;  // at the new focal length, when next needed
     Keyframe& first = *keyframes_[p.first];
     Keyframe& second = *keyframes_[p.second];
     KeyframeRelativeRotation e;
@@ -339,6 +417,7 @@ std::size_t KeyframeFrontend::FocalBytes() const {
     for (const HeldPair& p : list) {
       if (counted.insert(p.points1.get()).second) {
         bytes += sizeof(HeldPair) + (p.points1->size() + p.points2->size()) * sizeof(Eigen::Vector2d);
+        if (p.pose) bytes += sizeof(RelativePoseResult) + p.pose->inliers.size() * sizeof(int);
       }
     }
   }

@@ -166,6 +166,17 @@ struct KeyframeFrontendStats {
   std::size_t focal_bytes = 0;  // the pairs the focal-length check holds
 };
 
+// How one held pair's edge rotation moves with its camera's focal length
+// (KeyframeFrontend::FocalSensitivities).
+struct FocalSensitivity {
+  KeyframeKey keyframe1, keyframe2;  // the edge, in ApplyFocalCorrection's order
+  EdgeSource source = EdgeSource::kSequential;
+  // d Log(R_12(1)^T R_12(s)) / ds at s = 1, with the camera's focal length
+  // times s: the right perturbation of the edge rotation per unit of
+  // relative focal-length change.
+  Eigen::Vector3d derivative = Eigen::Vector3d::Zero();
+};
+
 class KeyframeFrontend {
  public:
   explicit KeyframeFrontend(const KeyframeFrontendOptions& options);
@@ -246,10 +257,23 @@ class KeyframeFrontend {
   // loaded from a database keep theirs (it holds no lens). False, with
   // `why`, and nothing changed, when the camera's pairs outgrew
   // max_correction_pairs.
+  // With `linearised`, the held pairs are not estimated again: each edge
+  // moves by its derivative (FocalSensitivities, which must have run),
+  // R_12 Exp((scale - 1) d), for a correction of a fraction of a percent
+  // (RefineFocalByLoops in the node); its covariance stays, and the check
+  // goes on with the camera's next pairs.
   bool ApplyFocalCorrection(const std::string& camera, double scale, std::vector<KeyframeRelativeRotation>* edges,
-                            std::string* why);
+                            std::string* why, bool linearised = false);
   // The product of the corrections applied to `camera` (1: none).
   double FocalCorrection(const std::string& camera) const;
+  // focal_calibration: apply. The held pairs of `camera` (those that
+  // ApplyFocalCorrection would estimate again), each pose refined on its
+  // inliers with the camera's focal length times 1 +- step (its keypoints
+  // undistorted again for each): the central difference of its edge
+  // rotation. Computed once per pair and camera (a correction of a few
+  // percent changes it by as little). Pairs whose refinement fails are left
+  // out. Empty when the camera's pairs are not held (overflowed, or never).
+  std::vector<FocalSensitivity> FocalSensitivities(const std::string& camera, double step = 1e-3);
 
  private:
   struct Keyframe;
@@ -298,8 +322,10 @@ class KeyframeFrontend {
     // A pair of two keyframes of one camera with the essential-matrix model,
     // for the focal-length check (options_.focal_monitor).
     std::shared_ptr<const FocalSample> focal_sample;
-    // Every match, for focal_calibration: apply (hold_for_correction).
+    // Every match, for focal_calibration: apply (hold_for_correction), and
+    // the pose they gave (its inliers, for the focal length's derivative).
     std::shared_ptr<std::vector<Eigen::Vector2d>> points1, points2;
+    std::shared_ptr<RelativePoseResult> pose;
     bool newer_first = false;  // the edge's first keyframe is the new one
     int jackknife_grid = 0;    // that the pair was estimated with
   };
@@ -310,6 +336,12 @@ class KeyframeFrontend {
     int jackknife_grid = 0;
     bool chain = false;  // the sequential edge of `second` from its previous keyframe
     std::shared_ptr<std::vector<Eigen::Vector2d>> points1, points2;
+    // The pair's latest pose (shared by the lists of both cameras of a
+    // pair of two), and its edge's derivative with respect to this list's
+    // camera's focal length once FocalSensitivities has computed it.
+    std::shared_ptr<RelativePoseResult> pose;
+    bool has_derivative = false;
+    Eigen::Vector3d derivative = Eigen::Vector3d::Zero();
   };
   void HoldPair(const PairTask& task, const PairOutcome& outcome, int newer_index, bool chain);
   std::size_t FocalBytes() const;  // what the focal-length check and correction hold
