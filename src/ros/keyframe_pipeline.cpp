@@ -18,6 +18,7 @@
 
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/graph_io.h"
+#include "core/estimators/loop_calibration.h"
 #include "core/util/option_check.h"
 #include "ros/msg_conversion.h"
 
@@ -215,6 +216,7 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("keyframe_min_tracked_fraction", &c.selection.min_tracked_fraction);
   r.Read("keyframe_max_interval_s", &c.selection.max_interval_s);
   r.Read("focal_calibration", &c.focal_calibration);
+  r.Read("focal_loop_refinement", &c.focal_loop_refinement);
   r.Read("use_rig_extrinsics", &c.rig.enabled);
   r.Read("rig_frame", &c.rig.rig_frame);
   r.Read("covisibility_window", &f.covisibility_window);
@@ -376,6 +378,10 @@ void KeyframePipeline::ApplyFocalCorrections(std::vector<std::string>* warnings)
       line << "focal length not corrected: " << why;
     } else {
       focal_checker_->ExpectFocal(camera, check.given_focal_px * check.calibration.scale);
+      focal_in_use_px_[camera] = check.given_focal_px * check.calibration.scale;
+      focal_prior_px_[camera] = {check.given_focal_px * check.calibration.scale,
+                                 check.given_focal_px * check.calibration.standard_deviation};
+      loops_at_refinement_ = 0;  // the loops look again at the new focal length
       std::size_t replaced = 0;
       for (const KeyframeRelativeRotation& e : edges) {
         std::string error;
@@ -392,6 +398,144 @@ void KeyframePipeline::ApplyFocalCorrections(std::vector<std::string>* warnings)
     if (ok) focal_corrections_[camera] = correction;
     correction_notices_.emplace_back(line.str(), true);
   }
+}
+
+void KeyframePipeline::RefineFocalByLoops() {
+  if (!focal_checker_ || config_.focal_calibration != "apply" || !config_.focal_loop_refinement) return;
+  if (focal_in_use_px_.empty()) return;
+  std::uint64_t loops = 0;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    loops = frontend_stats_.loop_closure_edges;
+  }
+  // Each estimate is at most a tenth of the loops behind: the loops that
+  // close last (the longest, around the whole trajectory) decide the most.
+  if (loops == 0 || loops <= loops_at_refinement_ || 10 * loops < 11 * loops_at_refinement_) return;
+  loops_at_refinement_ = loops;
+  // The prior: the latest check of the focal length in use, when there is
+  // one (a check at the former focal length is dropped by ExpectFocal).
+  for (const auto& [camera, check] : focal_checker_->Checks()) {
+    const auto in_use = focal_in_use_px_.find(camera);
+    if (in_use == focal_in_use_px_.end() || !check.calibration.estimated ||
+        std::abs(check.given_focal_px - in_use->second) > 1e-9 * in_use->second) {
+      continue;
+    }
+    focal_prior_px_[camera] = {check.given_focal_px * check.calibration.scale,
+                               check.given_focal_px * check.calibration.standard_deviation};
+  }
+  std::vector<std::string> cameras;
+  std::vector<std::vector<FocalSensitivity>> sensitivities;
+  {
+    std::lock_guard<std::mutex> lock(frontend_mutex_);
+    for (const auto& [camera, px] : focal_in_use_px_) {
+      std::vector<FocalSensitivity> s = frontend_->FocalSensitivities(camera);
+      if (s.empty()) continue;
+      cameras.push_back(camera);
+      sensitivities.push_back(std::move(s));
+    }
+  }
+  if (cameras.empty()) return;
+  ViewGraph graph;
+  std::map<KeyframeKey, ViewId> ids;
+  ViewOrientations start;
+  averager_->PendingGraph(&graph, &ids, &start);
+  // Graph edges by (views, source, channel), as the rig model turns a
+  // camera pair into one (RigModel::ToVariables).
+  std::map<std::tuple<ViewId, ViewId, EdgeSource, std::uint32_t>, std::size_t> edge_of;
+  for (std::size_t k = 0; k < graph.NumEdges(); ++k) {
+    const RelativeRotation& e = graph.Edges()[k];
+    edge_of[{std::min(e.view1, e.view2), std::max(e.view1, e.view2), e.source, e.channel}] = k;
+  }
+  const std::map<std::string, std::pair<std::string, Eigen::Matrix3d>> rig_cameras = rig_.RigCameras();
+  LoopCalibrationOptions options;
+  options.averaging = config_.averager.averaging;
+  std::vector<EdgeParameterDerivative> derivatives;
+  for (std::size_t p = 0; p < cameras.size(); ++p) {
+    const double in_use = focal_in_use_px_.at(cameras[p]);
+    const std::pair<double, double>& prior = focal_prior_px_.at(cameras[p]);
+    options.prior_center.push_back(prior.first / in_use - 1.0);
+    options.prior_sigma.push_back(prior.second / in_use);
+    for (const FocalSensitivity& s : sensitivities[p]) {
+      KeyframeRelativeRotation m;
+      m.keyframe1 = s.keyframe1;
+      m.keyframe2 = s.keyframe2;
+      m.source = s.source;
+      KeyframeRelativeRotation v;
+      if (!rig_.ToVariables(m, &v)) continue;  // two cameras of one capture: no edge
+      const auto id1 = ids.find(v.keyframe1), id2 = ids.find(v.keyframe2);
+      if (id1 == ids.end() || id2 == ids.end()) continue;
+      const auto edge = edge_of.find({std::min(id1->second, id2->second), std::max(id1->second, id2->second),
+                                      v.source, v.channel});
+      if (edge == edge_of.end()) continue;  // not in the graph (rejected, or capped)
+      // R_var = E_a^T R E_b: a right perturbation d of R is E_b^T d of R_var;
+      // an edge stored from the other end is its inverse, whose right
+      // perturbation is -R_21^T times that.
+      const auto rig2 = rig_cameras.find(s.keyframe2.frame_id);
+      const Eigen::Matrix3d eb = rig2 != rig_cameras.end() ? rig2->second.second : Eigen::Matrix3d::Identity();
+      Eigen::Vector3d d = eb.transpose() * s.derivative;
+      const RelativeRotation& stored = graph.Edges()[edge->second];
+      if (stored.view1 != id1->second) d = -(stored.rotation.transpose() * d);
+      derivatives.push_back(EdgeParameterDerivative{edge->second, static_cast<int>(p), d});
+    }
+  }
+  const LoopCalibrationResult result = EstimateParametersFromLoops(graph, derivatives, options, start);
+  std::vector<std::pair<std::string, bool>> notices;
+  if (!result.success) {
+    notices.emplace_back("focal lengths not refined by the loops: " + result.message, false);
+  }
+  for (std::size_t p = 0; result.success && p < cameras.size(); ++p) {
+    const std::string& camera = cameras[p];
+    const double e = result.value[p], sigma = result.sigma[p];
+    const double center = options.prior_center[p], prior_sigma = options.prior_sigma[p];
+    std::ostringstream line;
+    line << std::fixed << std::setprecision(5) << camera << ": the loops put its focal length at x" << 1.0 + e
+         << " +- " << sigma << " of the one in use (the focal check: x" << 1.0 + center << " +- " << prior_sigma
+         << "; " << loops << " loop closures, " << result.solves << " averaging solves): ";
+    if (!(sigma <= 0.5 * prior_sigma)) {
+      line << "not refined, the loops know it no better than the check";
+      notices.emplace_back(line.str(), false);
+      continue;
+    }
+    if (std::abs(e - center) > 3.0 * prior_sigma) {
+      // Something else bends the loops (extrinsics, a lens, outliers): the
+      // focal length is not the parameter to fit to them.
+      line << "not refined, they disagree with the check";
+      notices.emplace_back(line.str(), true);
+      continue;
+    }
+    if (std::abs(e) <= sigma) {
+      line << "kept, within the loops' deviation";
+      notices.emplace_back(line.str(), false);
+      continue;
+    }
+    std::vector<KeyframeRelativeRotation> edges;
+    std::string why;
+    bool ok = false;
+    double correction = 1.0;
+    {
+      std::lock_guard<std::mutex> lock(frontend_mutex_);
+      ok = frontend_->ApplyFocalCorrection(camera, 1.0 + e, &edges, &why, /*linearised=*/true);
+      correction = frontend_->FocalCorrection(camera);
+    }
+    if (!ok) {
+      line << "not refined: " << why;
+      notices.emplace_back(line.str(), true);
+      continue;
+    }
+    focal_in_use_px_[camera] *= 1.0 + e;
+    focal_checker_->ExpectFocal(camera, focal_in_use_px_[camera]);
+    std::size_t replaced = 0;
+    for (const KeyframeRelativeRotation& edge : edges) {
+      if (AddMeasurement(edge, nullptr)) ++replaced;
+    }
+    line << "refined (x" << std::setprecision(6) << correction << " of camera_info's in all): " << replaced
+         << " of its pairs' edges moved by their derivatives";
+    notices.emplace_back(line.str(), false);  // a refinement of a correction already announced
+    std::lock_guard<std::mutex> lock(mutex_);
+    focal_corrections_[camera] = correction;
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  correction_notices_.insert(correction_notices_.end(), notices.begin(), notices.end());
 }
 
 void KeyframePipeline::WaitForFocalChecks() {
@@ -666,6 +810,7 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   if (!frontend_) return 0;
   if (rig_.IsRigCamera(keyframe.key.frame_id)) frontend_->SetRigCalibrated(keyframe.key.frame_id);
   ApplyFocalCorrections(warnings);
+  RefineFocalByLoops();
   std::size_t added = 0;
   std::vector<KeyframeRelativeRotation> edges;
   KeyframeFrontendStats frontend_stats;

@@ -82,6 +82,10 @@ struct PipelineConfig {
   // pairs estimated again, their edges replaced; a camera of a rig only when
   // the rig's other cameras are checked too); "off" does neither.
   std::string focal_calibration = "warn";
+  // With "apply": once a camera is corrected, its focal length is refined
+  // further by the loops of the averaging (RefineFocalByLoops), as loop
+  // closures arrive.
+  bool focal_loop_refinement = true;
   KeyframeSelectionOptions selection;  // keyframe_min_motion_deg, ...; its rig tolerance is rig_stamp_tolerance_s
   KeyframeFrontendOptions frontend;    // frontend.vocabulary: loaded from `vocabulary`
   // File of `rotavg vocabulary`; "default": DefaultVocabularyPath(); "" or
@@ -294,6 +298,25 @@ class KeyframePipeline {
   // A notice that the camera's correction is held back, unless the last one
   // gave the same reason.
   void HoldBackCorrection(const std::string& camera, const std::string& reason);
+  // focal_calibration: apply with focal_loop_refinement. The corrected
+  // cameras' focal lengths estimated together from the loops of the graph
+  // (core/estimators/loop_calibration.h), each pair's derivative from the
+  // front end (KeyframeFrontend::FocalSensitivities), the focal check's
+  // estimate as the prior; applied as a correction when the loops know the
+  // focal length at least twice as precisely as the check, agree with it
+  // (within 3 of its standard deviations) and move it by more than their
+  // own deviation; the pairs' edges then move by their derivatives
+  // (ApplyFocalCorrection, linearised). Runs when the front end's loop
+  // closures have grown by a tenth since it last ran (or since a
+  // correction): at a cost that grows with the log of their number, and
+  // for as long as the camera's pairs are held (max_correction_pairs).
+  // Called by ProcessKeyframe after ApplyFocalCorrections.
+  void RefineFocalByLoops();
+  std::uint64_t loops_at_refinement_ = 0;
+  // Per corrected camera: the focal length in use, px, and the latest focal
+  // check's estimate of it with its deviation, px (the loops' prior).
+  std::map<std::string, double> focal_in_use_px_;
+  std::map<std::string, std::pair<double, double>> focal_prior_px_;
   std::map<std::string, std::pair<double, std::uint64_t>> applied_checks_;  // camera -> (given px, pairs) applied
   std::set<std::string> corrections_refused_;
   // The reason a camera's correction was last held back: each new estimate
