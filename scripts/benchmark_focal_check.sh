@@ -10,11 +10,12 @@
 #    focal_calibration: apply.
 #  * Lens distortion that camera_info does not describe: the demo through a
 #    plumb_bob lens and EuRoC's stereo camera, read without their model.
-#  * A raw camera with its model: the plumb_bob demo with camera_info's
-#    focal lengths right and 3% short (warn and apply).
+#  * A raw camera with its model: the plumb_bob demo (the rig, and one
+#    camera) with camera_info's focal lengths right and 3% short (warn, and
+#    apply with and without the loops' refinement).
 #  * Strecha scenes, whose K is exact, played as one camera's keyframes at a
 #    quarter of full width: the check must agree with them.
-#   bash scripts/benchmark_focal_check.sh        (about eight minutes)
+#   bash scripts/benchmark_focal_check.sh        (about twenty minutes)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
 OUT=build/benchmark_focal_check
@@ -51,6 +52,20 @@ replay demo_plumb_bob_model "$OUT/demo_plumb_bob.bag" "$DEMO"
   --info-focal-scale 0.97 > /dev/null 2>&1
 replay demo_plumb_bob_0.97_warn "$OUT/demo_plumb_bob_0.97.bag" "$DEMO"
 replay demo_plumb_bob_0.97_apply "$OUT/demo_plumb_bob_0.97.bag" "$DEMO" "focal_calibration: apply"
+replay demo_plumb_bob_0.97_check_only "$OUT/demo_plumb_bob_0.97.bag" "$DEMO" "focal_calibration: apply" \
+  "focal_loop_refinement: false"
+# The same with one camera (the rig's forward one): no second camera whose
+# pairs relate the same captures.
+"$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo1_plumb_bob.bag" --cameras 1 --distortion "$PLUMB_BOB" \
+  > /dev/null 2>&1
+"$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo1_plumb_bob_0.97.bag" --cameras 1 \
+  --distortion "$PLUMB_BOB" --info-focal-scale 0.97 > /dev/null 2>&1
+DEMO1=$(printf '%s\n' "$DEMO" | grep -v '^image_topics:'; echo 'image_topics: ["/cam_front/image_raw"]')
+replay demo1_plumb_bob_model "$OUT/demo1_plumb_bob.bag" "$DEMO1"
+replay demo1_plumb_bob_0.97_warn "$OUT/demo1_plumb_bob_0.97.bag" "$DEMO1"
+replay demo1_plumb_bob_0.97_apply "$OUT/demo1_plumb_bob_0.97.bag" "$DEMO1" "focal_calibration: apply"
+replay demo1_plumb_bob_0.97_check_only "$OUT/demo1_plumb_bob_0.97.bag" "$DEMO1" "focal_calibration: apply" \
+  "focal_loop_refinement: false"
 # The focal lengths apply arrived at, in camera_info from the first image
 # (the true ones times 0.97 times each correction): the best apply can do
 # with its estimates, their residual errors included.
