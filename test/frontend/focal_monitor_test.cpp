@@ -299,6 +299,24 @@ TEST(FocalMonitor, TheFrontEndFindsACameraWhoseFocalLengthIsOff) {
   }
 }
 
+// The errors of the edges between two keyframes of the rig's sideways
+// camera (its second) against the scene's true R_12 = R_1 R_2^T, sorted, deg.
+std::vector<double> SidewaysErrors(const RigScene& scene, const std::vector<KeyframeRelativeRotation>& edges) {
+  const std::string& left = scene.Cameras()[1].frame_id;
+  auto world_to_camera = [&](const KeyframeKey& key) {
+    const int capture = static_cast<int>(key.stamp_ns / 1'000'000'000LL) - 1;
+    return scene.WorldToCamera(capture, key.frame_id == left ? 1 : 0);
+  };
+  std::vector<double> errors;
+  for (const KeyframeRelativeRotation& e : edges) {
+    if (e.keyframe1.frame_id != left || e.keyframe2.frame_id != left) continue;
+    const Eigen::Matrix3d r = world_to_camera(e.keyframe1) * world_to_camera(e.keyframe2).transpose();
+    errors.push_back(RadToDeg(AngularDistanceRad(r, e.rotation)));
+  }
+  std::sort(errors.begin(), errors.end());
+  return errors;
+}
+
 // focal_calibration: apply. The camera's pairs estimated again with the
 // corrected focal length measure its rotations several times better, and
 // its check then agrees with the corrected focal length.
@@ -311,20 +329,8 @@ TEST(FocalMonitor, ACorrectedFocalLengthMakesTheCamerasPairsRight) {
   const std::string left = scene.Cameras()[1].frame_id;
   const std::vector<KeyframeRelativeRotation>& before = run->edges;
   const std::vector<FocalJob>& jobs = run->jobs;
-  // True R_12 = R_1 R_2^T of every keyframe pair of the left camera.
-  auto world_to_camera = [&](const KeyframeKey& key) {
-    const int capture = static_cast<int>(key.stamp_ns / 1'000'000'000LL) - 1;
-    return scene.WorldToCamera(capture, key.frame_id == left ? 1 : 0);
-  };
   auto left_errors = [&](const std::vector<KeyframeRelativeRotation>& edges) {
-    std::vector<double> errors;
-    for (const KeyframeRelativeRotation& e : edges) {
-      if (e.keyframe1.frame_id != left || e.keyframe2.frame_id != left) continue;
-      const Eigen::Matrix3d r = world_to_camera(e.keyframe1) * world_to_camera(e.keyframe2).transpose();
-      errors.push_back(RadToDeg(AngularDistanceRad(r, e.rotation)));
-    }
-    std::sort(errors.begin(), errors.end());
-    return errors;
+    return SidewaysErrors(scene, edges);
   };
   const FocalJob* last = nullptr;
   for (const FocalJob& job : jobs) {
@@ -389,18 +395,8 @@ TEST(FocalMonitor, ALinearisedCorrectionIsAsGoodAsEstimatingThePairsAgain) {
   ASSERT_TRUE(moved->frontend->ApplyFocalCorrection(left, remaining, &linearised, &why, true)) << why;
   EXPECT_NEAR(moved->frontend->FocalCorrection(left), 1.0 / 0.97, 1e-12);
   EXPECT_EQ(linearised.size(), sensitivities.size());
-  auto world_to_camera = [&](const KeyframeKey& key) {
-    const int capture = static_cast<int>(key.stamp_ns / 1'000'000'000LL) - 1;
-    return scene.WorldToCamera(capture, key.frame_id == left ? 1 : 0);
-  };
   auto median_error = [&](const std::vector<KeyframeRelativeRotation>& edges) {
-    std::vector<double> errors;
-    for (const KeyframeRelativeRotation& e : edges) {
-      if (e.keyframe1.frame_id != left || e.keyframe2.frame_id != left) continue;
-      const Eigen::Matrix3d r = world_to_camera(e.keyframe1) * world_to_camera(e.keyframe2).transpose();
-      errors.push_back(RadToDeg(AngularDistanceRad(r, e.rotation)));
-    }
-    std::sort(errors.begin(), errors.end());
+    const std::vector<double> errors = SidewaysErrors(scene, edges);
     return errors.empty() ? 0.0 : errors[errors.size() / 2];
   };
   const double before = median_error(first), after_estimated = median_error(estimated),

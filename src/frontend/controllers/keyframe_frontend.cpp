@@ -345,26 +345,30 @@ bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double sc
       kf.k = corrected(kf.k);
     }
   }
+  // The pair's new edge, replacing the old one (and the keyframe's
+  // sequential edge, for the chain's predictions).
+  auto replace_edge = [&](const HeldPair& p, const RelativePoseResult& pose) {
+    Keyframe& second = *keyframes_[p.second];
+    KeyframeRelativeRotation e;
+    e.keyframe1 = keyframes_[p.first]->key;
+    e.keyframe2 = second.key;
+    e.rotation = pose.EdgeRotation();
+    e.has_covariance = true;
+    e.covariance = pose.covariance;
+    e.num_inliers = static_cast<int>(pose.inliers.size());
+    e.source = p.source;
+    edges->push_back(e);
+    if (p.chain) {
+      second.sequential_rotation = e.rotation;
+      second.sequential_covariance = e.covariance;
+    }
+  };
   if (linearised) {
     for (HeldPair& p : held) {
       if (!p.has_derivative || !p.pose) continue;  // the old edge stays
       RelativePoseResult& pose = *p.pose;
       pose.rotation = (pose.EdgeRotation() * ExpSO3((scale - 1.0) * p.derivative)).transpose();
-      Keyframe& first = *keyframes_[p.first];
-      Keyframe& second = *keyframes_[p.second];
-      KeyframeRelativeRotation e;
-      e.keyframe1 = first.key;
-      e.keyframe2 = second.key;
-      e.rotation = pose.EdgeRotation();
-      e.has_covariance = true;
-      e.covariance = pose.covariance;
-      e.num_inliers = static_cast<int>(pose.inliers.size());
-      e.source = p.source;
-      edges->push_back(e);
-      if (p.chain) {
-        second.sequential_rotation = e.rotation;
-        second.sequential_covariance = e.covariance;
-      }
+      replace_edge(p, pose);
     }
     return true;
   }
@@ -384,21 +388,9 @@ bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double sc
     if (!pose.success) continue;  // the old edge stays
     if (held[h].pose) *held[h].pose = pose;
     held[h].has_derivative = false;  // at the new focal length, when next needed
-    Keyframe& first = *keyframes_[p.first];
-    Keyframe& second = *keyframes_[p.second];
-    KeyframeRelativeRotation e;
-    e.keyframe1 = first.key;
-    e.keyframe2 = second.key;
-    e.rotation = pose.EdgeRotation();
-    e.has_covariance = true;
-    e.covariance = pose.covariance;
-    e.num_inliers = static_cast<int>(pose.inliers.size());
-    e.source = p.source;
-    edges->push_back(e);
-    if (p.chain) {
-      second.sequential_rotation = e.rotation;
-      second.sequential_covariance = e.covariance;
-    }
+    replace_edge(p, pose);
+    const Keyframe& first = *keyframes_[p.first];
+    const Keyframe& second = *keyframes_[p.second];
     // The check starts again on the corrected focal length, with these pairs.
     if (focal.enabled && first.key.frame_id == camera && second.key.frame_id == camera && first.k == second.k &&
         pose.model == TwoViewModel::kEssential && static_cast<int>(pose.inliers.size()) >= focal.focal.min_inliers) {
