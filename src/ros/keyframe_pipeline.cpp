@@ -311,6 +311,15 @@ void KeyframePipeline::HoldBackCorrection(const std::string& camera, const std::
   correction_notices_.emplace_back(camera + ": focal length not corrected: " + reason, true);
 }
 
+namespace {
+
+// A focal check's estimate and its standard deviation, px.
+std::pair<double, double> FocalEstimatePx(const CameraFocalCheck& check) {
+  return {check.given_focal_px * check.calibration.scale, check.given_focal_px * check.calibration.standard_deviation};
+}
+
+}  // namespace
+
 void KeyframePipeline::ApplyFocalCorrections(std::vector<std::string>* warnings) {
   if (!focal_checker_ || config_.focal_calibration != "apply") return;
   const std::map<std::string, CameraFocalCheck> checks = focal_checker_->Checks();
@@ -379,8 +388,7 @@ void KeyframePipeline::ApplyFocalCorrections(std::vector<std::string>* warnings)
     } else {
       focal_checker_->ExpectFocal(camera, check.given_focal_px * check.calibration.scale);
       focal_in_use_px_[camera] = check.given_focal_px * check.calibration.scale;
-      focal_prior_px_[camera] = {check.given_focal_px * check.calibration.scale,
-                                 check.given_focal_px * check.calibration.standard_deviation};
+      focal_prior_px_[camera] = FocalEstimatePx(check);
       loops_at_refinement_ = 0;  // the loops look again at the new focal length
       std::size_t replaced = 0;
       for (const KeyframeRelativeRotation& e : edges) {
@@ -420,8 +428,7 @@ void KeyframePipeline::RefineFocalByLoops() {
         std::abs(check.given_focal_px - in_use->second) > 1e-9 * in_use->second) {
       continue;
     }
-    focal_prior_px_[camera] = {check.given_focal_px * check.calibration.scale,
-                               check.given_focal_px * check.calibration.standard_deviation};
+    focal_prior_px_[camera] = FocalEstimatePx(check);
   }
   std::vector<std::string> cameras;
   std::vector<std::vector<FocalSensitivity>> sensitivities;
@@ -446,7 +453,6 @@ void KeyframePipeline::RefineFocalByLoops() {
     const RelativeRotation& e = graph.Edges()[k];
     edge_of[{std::min(e.view1, e.view2), std::max(e.view1, e.view2), e.source, e.channel}] = k;
   }
-  const std::map<std::string, std::pair<std::string, Eigen::Matrix3d>> rig_cameras = rig_.RigCameras();
   LoopCalibrationOptions options;
   options.averaging = config_.averager.averaging;
   std::vector<EdgeParameterDerivative> derivatives;
@@ -467,12 +473,9 @@ void KeyframePipeline::RefineFocalByLoops() {
       const auto edge = edge_of.find({std::min(id1->second, id2->second), std::max(id1->second, id2->second),
                                       v.source, v.channel});
       if (edge == edge_of.end()) continue;  // not in the graph (rejected, or capped)
-      // R_var = E_a^T R E_b: a right perturbation d of R is E_b^T d of R_var;
-      // an edge stored from the other end is its inverse, whose right
-      // perturbation is -R_21^T times that.
-      const auto rig2 = rig_cameras.find(s.keyframe2.frame_id);
-      const Eigen::Matrix3d eb = rig2 != rig_cameras.end() ? rig2->second.second : Eigen::Matrix3d::Identity();
-      Eigen::Vector3d d = eb.transpose() * s.derivative;
+      // An edge stored from the other end is the inverse, whose right
+      // perturbation is -R_21^T times the variable edge's.
+      Eigen::Vector3d d = rig_.PerturbationToVariables(s.keyframe2.frame_id, s.derivative);
       const RelativeRotation& stored = graph.Edges()[edge->second];
       if (stored.view1 != id1->second) d = -(stored.rotation.transpose() * d);
       derivatives.push_back(EdgeParameterDerivative{edge->second, static_cast<int>(p), d});

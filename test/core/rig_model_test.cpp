@@ -95,6 +95,10 @@ TEST(RigModel, MeasurementsBecomeCaptureLevelAndExpandBack) {
   KeyframeRelativeRotation pv;
   ASSERT_TRUE(rig.ToVariables(perturbed, &pv));
   EXPECT_LT(AngularDistanceRad(pv.rotation, v.rotation * ExpSO3(f.a_from_rig().transpose() * e)), 1e-12);
+  // PerturbationToVariables gives that vector (the identity for a camera
+  // without extrinsics).
+  EXPECT_LT(AngularDistanceRad(pv.rotation, v.rotation * ExpSO3(rig.PerturbationToVariables(a1.frame_id, e))), 1e-12);
+  EXPECT_TRUE(rig.PerturbationToVariables("cam_loose", e).isApprox(e, 1e-15));
   // Different camera pairs of the same two captures are told apart.
   KeyframeRelativeRotation other;
   ASSERT_TRUE(rig.ToVariables(Measure(a0, ra0, a1, ra1), &other));

@@ -88,8 +88,8 @@ bool RigModel::ToVariables(const KeyframeRelativeRotation& in, KeyframeRelativeR
   *out = in;
   out->keyframe1 = VariableLocked(in.keyframe1);
   out->keyframe2 = VariableLocked(in.keyframe2);
-  const Camera* a = cameras_[in.keyframe1.frame_id].in_rig ? &cameras_[in.keyframe1.frame_id] : nullptr;
-  const Camera* b = cameras_[in.keyframe2.frame_id].in_rig ? &cameras_[in.keyframe2.frame_id] : nullptr;
+  const bool a = cameras_[in.keyframe1.frame_id].in_rig;
+  const bool b = cameras_[in.keyframe2.frame_id].in_rig;
   if (a && b && out->keyframe1.frame_id == out->keyframe2.frame_id &&
       out->keyframe1.stamp_ns == out->keyframe2.stamp_ns) {
     ++absorbed_;
@@ -99,11 +99,22 @@ bool RigModel::ToVariables(const KeyframeRelativeRotation& in, KeyframeRelativeR
   const std::string& f1 = in.keyframe1.frame_id;
   const std::string& f2 = in.keyframe2.frame_id;
   out->channel = static_cast<std::uint32_t>(std::hash<std::string>()(std::min(f1, f2) + '\n' + std::max(f1, f2)));
-  const Eigen::Matrix3d ea = a ? a->camera_from_rig : Eigen::Matrix3d::Identity();
-  const Eigen::Matrix3d eb = b ? b->camera_from_rig : Eigen::Matrix3d::Identity();
+  const Eigen::Matrix3d ea = CameraFromRigLocked(f1);
+  const Eigen::Matrix3d eb = CameraFromRigLocked(f2);
   out->rotation = ea.transpose() * in.rotation * eb;
   if (in.has_covariance) out->covariance = eb.transpose() * in.covariance * eb;
   return true;
+}
+
+Eigen::Matrix3d RigModel::CameraFromRigLocked(const std::string& camera_frame) const {
+  const auto it = cameras_.find(camera_frame);
+  return it != cameras_.end() && it->second.in_rig ? it->second.camera_from_rig : Eigen::Matrix3d::Identity();
+}
+
+Eigen::Vector3d RigModel::PerturbationToVariables(const std::string& frame2, const Eigen::Vector3d& d) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  // R_var = E_1^T R E_2, so R Exp(d) gives R_var E_2^T Exp(d) E_2 = R_var Exp(E_2^T d).
+  return CameraFromRigLocked(frame2).transpose() * d;
 }
 
 OnlineSolution RigModel::ToCameraKeyframes(const OnlineSolution& solution) const {

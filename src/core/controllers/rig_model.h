@@ -69,6 +69,11 @@ class RigModel {
   // Maps a camera-level measurement to the solved variables. False when it
   // is absorbed (both ends in one capture).
   bool ToVariables(const KeyframeRelativeRotation& in, KeyframeRelativeRotation* out);
+  // A right perturbation d of the rotation of a camera-level measurement
+  // whose second keyframe is of camera `frame2`, as the right perturbation
+  // of the variable edge ToVariables makes of it (E_2^T d, as its
+  // covariance moves).
+  Eigen::Vector3d PerturbationToVariables(const std::string& frame2, const Eigen::Vector3d& d) const;
   // Expands a solution over variables into one over camera keyframes.
   OnlineSolution ToCameraKeyframes(const OnlineSolution& solution) const;
 
@@ -100,6 +105,8 @@ class RigModel {
 
  private:
   bool ResolveLocked(const std::string& camera_frame);
+  // camera_from_rig of a resolved rig camera; the identity otherwise.
+  Eigen::Matrix3d CameraFromRigLocked(const std::string& camera_frame) const;
   KeyframeKey VariableLocked(const KeyframeKey& keyframe);
 
   RigModelOptions options_;
