@@ -299,6 +299,15 @@ TEST(FocalMonitor, TheFrontEndFindsACameraWhoseFocalLengthIsOff) {
   }
 }
 
+// A barrel lens as strong as EuRoC's (k1 = -0.28), which the raw-camera
+// tests render through.
+CameraIntrinsics PlumbBobLens() {
+  CameraIntrinsics lens;
+  lens.distortion = DistortionModel::kPlumbBob;
+  lens.coefficients = {-0.28, 0.07, 2e-4, 2e-5};
+  return lens;
+}
+
 // The errors of the edges between two keyframes of the rig's sideways
 // camera (its second) against the scene's true R_12 = R_1 R_2^T, sorted, deg.
 std::vector<double> SidewaysErrors(const RigScene& scene, const std::vector<KeyframeRelativeRotation>& edges) {
@@ -371,9 +380,7 @@ TEST(FocalMonitor, ACorrectedFocalLengthMakesTheCamerasPairsRight) {
 // through this lens; the loops' corrections are a few hundredths of a
 // percent). A camera that holds no pairs has no derivatives.
 TEST(FocalMonitor, ALinearisedCorrectionIsAsGoodAsEstimatingThePairsAgain) {
-  CameraIntrinsics lens;
-  lens.distortion = DistortionModel::kPlumbBob;
-  lens.coefficients = {-0.28, 0.07, 2e-4, 2e-5};
+  const CameraIntrinsics lens = PlumbBobLens();
   const std::unique_ptr<ShortFocalRun> again = RunShortFocal(true, &lens, 0.97);
   const std::unique_ptr<ShortFocalRun> moved = RunShortFocal(true, &lens, 0.97);
   const RigScene& scene = *again->scene;
@@ -425,9 +432,7 @@ TEST(FocalMonitor, ALinearisedCorrectionIsAsGoodAsEstimatingThePairsAgain) {
 //    focal length from the start, pair by pair. Scaling the old undistorted
 //    keypoints instead leaves them many times the pairs' own error away.
 TEST(FocalMonitor, ARawCamerasFocalLengthIsCheckedAndCorrectedThroughItsLens) {
-  CameraIntrinsics lens;
-  lens.distortion = DistortionModel::kPlumbBob;
-  lens.coefficients = {-0.28, 0.07, 2e-4, 2e-5};
+  const CameraIntrinsics lens = PlumbBobLens();
   const std::unique_ptr<ShortFocalRun> run = RunShortFocal(true, &lens, 0.97);
   const std::unique_ptr<ShortFocalRun> right = RunShortFocal(false, &lens, 1.0);
   const std::string left = run->scene->Cameras()[1].frame_id;

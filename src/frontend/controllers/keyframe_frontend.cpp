@@ -17,6 +17,13 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
 
+// K with its focal lengths times `scale` (a focal-length correction).
+Eigen::Matrix3d FocalScaled(Eigen::Matrix3d k, double scale) {
+  k(0, 0) *= scale;
+  k(1, 1) *= scale;
+  return k;
+}
+
 }  // namespace
 
 struct KeyframeFrontend::Keyframe {
@@ -272,9 +279,7 @@ std::vector<FocalSensitivity> KeyframeFrontend::FocalSensitivities(const std::st
       const Keyframe* ends[2] = {&first, &second};
       for (int e = 0; e < 2; ++e) {
         if (!moves(*ends[e])) continue;
-        Eigen::Matrix3d scaled = k[e];
-        scaled(0, 0) *= s;
-        scaled(1, 1) *= s;
+        const Eigen::Matrix3d scaled = FocalScaled(k[e], s);
         RedoUndistortion(ends[e]->lens, k[e], scaled, &points[e]);
         k[e] = scaled;
       }
@@ -317,11 +322,7 @@ bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double sc
     return false;
   }
   focal_correction_[camera] = FocalCorrection(camera) * scale;
-  const auto corrected = [scale](Eigen::Matrix3d k) {
-    k(0, 0) *= scale;
-    k(1, 1) *= scale;
-    return k;
-  };
+  const auto corrected = [scale](const Eigen::Matrix3d& k) { return FocalScaled(k, scale); };
   // A raw image's keypoints were undistorted with the old focal length:
   // they are undistorted again with the new one, those of the held pairs
   // (while the keyframes still have the old K) and the keyframes' own, which

@@ -239,7 +239,6 @@ int RefinePoseOnInliers(const std::vector<Eigen::Vector2d>& points1, const std::
   return RefineSampson(points1, points2, inliers, k1.inverse(), k2.inverse(), max_iterations, rotation, translation);
 }
 
-
 const char* RotationCovarianceModelName(RotationCovarianceModel model) {
   return model == RotationCovarianceModel::kConditional ? "conditional" : "marginal";
 }
