@@ -688,6 +688,7 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
     line << camera << ": camera_info's focal length x" << std::setprecision(6) << correction;
     result->focal_corrections.push_back(line.str());
   }
+  for (const auto& [camera, line] : pipeline.FocalLoopRefinements()) result->focal_loop_refinements.push_back(line);
 }
 
 // The front end's cost per keyframe: a CSV, and a plot of its means over 20
@@ -839,6 +840,7 @@ std::string ReplayResult::Summary() const {
   for (const std::string& camera : camera_models) out << "camera " << camera << "\n";
   for (const std::string& check : focal_checks) out << "camera_info check, last estimate: " << check << "\n";
   for (const std::string& c : focal_corrections) out << "focal length corrected (focal_calibration: apply): " << c << "\n";
+  for (const std::string& r : focal_loop_refinements) out << "focal length by the loops, last estimate: " << r << "\n";
   if (!rig_cameras.empty()) {
     out << "rig cameras (one orientation per capture): ";
     for (std::size_t k = 0; k < rig_cameras.size(); ++k) out << (k ? ", " : "") << rig_cameras[k];

@@ -55,6 +55,9 @@ struct ReplayResult {
   // camera's last estimate (CameraFocalCheck::Report).
   std::vector<std::string> focal_notices, focal_checks;
   std::vector<std::string> focal_corrections;  // focal_calibration: apply: "cam: camera_info's focal length x1.03"
+  // focal_loop_refinement: each camera's latest estimate from the loops and
+  // what became of it (KeyframePipeline::FocalLoopRefinements).
+  std::vector<std::string> focal_loop_refinements;
   std::size_t absorbed_by_rig = 0;
   std::map<std::string, std::size_t> edges_by_source;
   std::size_t keyframe_images = 0, rejected_images = 0, rejected_messages = 0;

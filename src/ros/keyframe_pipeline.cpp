@@ -303,6 +303,11 @@ std::map<std::string, double> KeyframePipeline::FocalCorrections() const {
   return focal_corrections_;
 }
 
+std::map<std::string, std::string> KeyframePipeline::FocalLoopRefinements() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return focal_loop_refinements_;
+}
+
 void KeyframePipeline::HoldBackCorrection(const std::string& camera, const std::string& reason) {
   std::string& said = held_back_[camera];
   if (said == reason) return;
@@ -486,6 +491,7 @@ void KeyframePipeline::RefineFocalByLoops() {
   if (!result.success) {
     notices.emplace_back("focal lengths not refined by the loops: " + result.message, false);
   }
+  std::map<std::string, std::string> latest;  // camera -> its line
   for (std::size_t p = 0; result.success && p < cameras.size(); ++p) {
     const std::string& camera = cameras[p];
     const double e = result.value[p], sigma = result.sigma[p];
@@ -494,21 +500,23 @@ void KeyframePipeline::RefineFocalByLoops() {
     line << std::fixed << std::setprecision(5) << camera << ": the loops put its focal length at x" << 1.0 + e
          << " +- " << sigma << " of the one in use (the focal check: x" << 1.0 + center << " +- " << prior_sigma
          << "; " << loops << " loop closures, " << result.solves << " averaging solves): ";
+    auto say = [&](const std::string& outcome, bool disagrees) {
+      line << outcome;
+      notices.emplace_back(line.str(), disagrees);
+      latest[camera] = line.str();
+    };
     if (!(sigma <= 0.5 * prior_sigma)) {
-      line << "not refined, the loops know it no better than the check";
-      notices.emplace_back(line.str(), false);
+      say("not refined, the loops know it no better than the check", false);
       continue;
     }
     if (std::abs(e - center) > 3.0 * prior_sigma) {
       // Something else bends the loops (extrinsics, a lens, outliers): the
       // focal length is not the parameter to fit to them.
-      line << "not refined, they disagree with the check";
-      notices.emplace_back(line.str(), true);
+      say("not refined, they disagree with the check", true);
       continue;
     }
     if (std::abs(e) <= sigma) {
-      line << "kept, within the loops' deviation";
-      notices.emplace_back(line.str(), false);
+      say("kept, within the loops' deviation", false);
       continue;
     }
     std::vector<KeyframeRelativeRotation> edges;
@@ -521,8 +529,7 @@ void KeyframePipeline::RefineFocalByLoops() {
       correction = frontend_->FocalCorrection(camera);
     }
     if (!ok) {
-      line << "not refined: " << why;
-      notices.emplace_back(line.str(), true);
+      say("not refined: " + why, true);
       continue;
     }
     focal_in_use_px_[camera] *= 1.0 + e;
@@ -531,14 +538,16 @@ void KeyframePipeline::RefineFocalByLoops() {
     for (const KeyframeRelativeRotation& edge : edges) {
       if (AddMeasurement(edge, nullptr)) ++replaced;
     }
-    line << "refined (x" << std::setprecision(6) << correction << " of camera_info's in all): " << replaced
-         << " of its pairs' edges moved by their derivatives";
-    notices.emplace_back(line.str(), false);  // a refinement of a correction already announced
+    std::ostringstream refined;
+    refined << std::fixed << "refined (x" << std::setprecision(6) << correction << " of camera_info's in all): " << replaced
+            << " of its pairs' edges moved by their derivatives";
+    say(refined.str(), false);  // a refinement of a correction already announced
     std::lock_guard<std::mutex> lock(mutex_);
     focal_corrections_[camera] = correction;
   }
   std::lock_guard<std::mutex> lock(mutex_);
   correction_notices_.insert(correction_notices_.end(), notices.begin(), notices.end());
+  for (auto& [camera, line] : latest) focal_loop_refinements_[camera] = std::move(line);
 }
 
 void KeyframePipeline::WaitForFocalChecks() {

@@ -268,6 +268,10 @@ class KeyframePipeline {
   // each camera's focal length, by camera (cameras never corrected are not
   // listed).
   std::map<std::string, double> FocalCorrections() const;
+  // focal_calibration: apply with focal_loop_refinement. Each corrected
+  // camera's latest estimate from the loops and what became of it, as its
+  // log line says it (cameras the loops have not estimated are not listed).
+  std::map<std::string, std::string> FocalLoopRefinements() const;
 
   PipelineStats Stats() const;
   // The front end's counters as of its latest keyframe; safe to call while
@@ -324,6 +328,7 @@ class KeyframePipeline {
   std::map<std::string, std::string> held_back_;
   std::vector<std::pair<std::string, bool>> correction_notices_;  // under mutex_
   std::map<std::string, double> focal_corrections_;  // under mutex_
+  std::map<std::string, std::string> focal_loop_refinements_;  // under mutex_
   // Held while the front end adds a keyframe, and while its database is
   // saved or loaded (the node saves from a timer thread).
   std::mutex frontend_mutex_;
