@@ -13,7 +13,9 @@
 #    error against ground truth on the original input, with the model,
 #    without it, and on the warped images rectified (image_proc's
 #    image_rect of the same stream); and the scenes' sequential pairs, the
-#    same image pairs in every input, scored one by one.
+#    same image pairs in every input, scored one by one; each view's error;
+#    and the plumb_bob inputs with loop closures admitted at 36 and 44
+#    inliers instead of 40.
 #   bash scripts/benchmark_camera_models.sh        (about ten minutes)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
@@ -77,6 +79,20 @@ for s in "${SCENES[@]}"; do
   for run in none_model plumb_bob_model plumb_bob_rectified equidistant_model equidistant_rectified; do
     "$BIN/rotavg" eval --graph "$OUT/${s}_$run/graph.txt" --gt "$OUT/${s}_$run/ground_truth.csv" --per-edge \
       > "$OUT/${s}_${run}_eval.txt"
+    # And each view's error: where along the sequence the inputs differ.
+    "$BIN/rotavg" eval --estimate "$OUT/${s}_$run/orientations.csv" --gt "$OUT/${s}_$run/ground_truth.csv" \
+      --per-view > "$OUT/${s}_${run}_views.txt"
+  done
+  # The plumb_bob inputs again with loop closures admitted at fewer and at
+  # more inliers (min_loop_inliers, default 40): whether a median above is
+  # the input's, or that of which marginal loop closures got in.
+  for inliers in 36 44; do
+    replay "${s}_none_model_loops$inliers" "$OUT/${s}_none.bag" "$STRECHA" "keyframe_selection: all" \
+      "max_features: 4000" "min_loop_inliers: $inliers"
+    replay "${s}_plumb_bob_model_loops$inliers" "$OUT/${s}_plumb_bob.bag" "$STRECHA" "keyframe_selection: all" \
+      "max_features: 4000" "min_loop_inliers: $inliers"
+    replay "${s}_plumb_bob_rectified_loops$inliers" "$OUT/${s}_plumb_bob_rectified.bag" "$STRECHA" \
+      "keyframe_selection: all" "max_features: 4000" "min_loop_inliers: $inliers"
   done
 done
 

@@ -122,6 +122,49 @@ def strecha_pair_table(out, scenes):
                 np.median(err[1]) / np.median(err[2]), int(np.sum(err[1] < err[2])), len(common), *nees))
 
 
+def view_errors(path):
+    """Each view's error (deg) of `rotavg eval --per-view`, in name order."""
+    views = []
+    with open(path) as f:
+        for line in f:
+            fields = line.split()
+            if len(fields) == 3 and fields[0] == "view":
+                views.append((fields[1], float(fields[2])))
+    return [e for _, e in sorted(views)]
+
+
+STRECHA_RUNS = (("original", "none_model"), ("plumb_bob, with the model", "plumb_bob_model"),
+                ("plumb_bob, warped, then rectified", "plumb_bob_rectified"),
+                ("equidistant, with the model", "equidistant_model"),
+                ("equidistant, warped, then rectified", "equidistant_rectified"))
+
+
+def strecha_view_tables(out, scenes):
+    median = r"^median error: ([0-9.]+) deg"
+    for scene in scenes:
+        rows = [(label, view_errors(os.path.join(out, "%s_%s_views.txt" % (scene, run))))
+                for label, run in STRECHA_RUNS]
+        n = max(len(e) for _, e in rows)
+        print("%s, each view's error (deg), views in name order:" % scene)
+        print()
+        print("| input | " + " | ".join(str(k) for k in range(n)) + " |")
+        print("|---|" + "---|" * n)
+        for label, errors in rows:
+            print("| %s | " % label + " | ".join("%.2f" % e for e in errors) + " |")
+        print()
+    print("The plumb_bob inputs with loop closures admitted at fewer and at more inliers (`min_loop_inliers`,")
+    print("default 40): median error (deg).")
+    print()
+    print("| scene | input | 36 | 40 (default) | 44 |")
+    print("|---|---|---|---|---|")
+    for scene in scenes:
+        for label, run in STRECHA_RUNS[:3]:
+            cells = [summary_value(os.path.join(out, "%s_%s_loops36.txt" % (scene, run)), median),
+                     summary_value(os.path.join(out, "%s_%s.txt" % (scene, run)), median),
+                     summary_value(os.path.join(out, "%s_%s_loops44.txt" % (scene, run)), median)]
+            print("| %s | %s | %s |" % (scene, label, " | ".join(cells)))
+
+
 def body_from_camera(sensor_yaml):
     """T_BS's rotation (camera-to-body) from a EuRoC sensor.yaml."""
     text = open(sensor_yaml).read()
@@ -220,6 +263,15 @@ def main():
     print("pair for pair.")
     print()
     strecha_pair_table(out, scenes)
+    print()
+    print("Where along the sequence the inputs differ, and whether the medians are the inputs' own: each")
+    print("view's error, and the medians again with the loop closures that only just pass or fail the")
+    print("inlier bar included or left out. castle-P19 is a courtyard of repeated windows whose pairs match")
+    print("windows to their neighbours (results/README.md, \"How accurate is it from images?\"); the views")
+    print("along them are off in every input, and how far their error spreads to the rest of the sequence")
+    print("differs from input to input, while the pairs themselves compare as in the table above.")
+    print()
+    strecha_view_tables(out, scenes)
     print()
     print("The demo's pairs on their own: the same bags replayed without the rig's extrinsics")
     print("(`use_rig_extrinsics: false`: each keyframe a view of its own), each pair of the final graph scored")
