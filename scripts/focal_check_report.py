@@ -204,24 +204,25 @@ def main():
     median_of = lambda name: value(read(out, name), r"median error: ([\d.]+) deg")
     cpu_of = lambda name: value(read(out, name), r"CPU time: ([\d.]+) s")
 
+    def per_camera(name, cameras, pattern, cell, missing):
+        # One entry per camera from the (camera, number) pairs `pattern` finds in a replay's summary.
+        found = dict(re.findall(pattern, read(out, name)))
+        return ", ".join("%s %s" % (c, cell(float(found[c])) if c in found else missing) for c in cameras)
+
     def ended_at(name, cameras):
         # camera_info's focal length times the corrections, of the true one (camera_info is 0.97 of it).
-        found = dict(re.findall(r"focal length corrected \(focal_calibration: apply\): (\S+): camera_info's focal "
-                                r"length x([\d.]+)", read(out, name)))
-        return ", ".join("%s x%.5f" % (c, 0.97 * float(found[c])) if c in found else "%s not corrected" % c
-                         for c in cameras)
+        return per_camera(name, cameras, r"focal length corrected \(focal_calibration: apply\): (\S+): camera_info's "
+                          r"focal length x([\d.]+)", lambda v: "x%.5f" % (0.97 * v), "not corrected")
+
+    def loops_deviation(name, cameras):
+        # The loops' last estimate's standard deviation, of the focal length in use.
+        return per_camera(name, cameras, r"focal length by the loops, last estimate: (\S+): the loops put its focal "
+                          r"length at x[\d.]+ \+- ([\d.]+)", lambda v: "±%.4f%%" % (100.0 * v), "none")
 
     print("\nWith `focal_calibration: apply` on the x0.97 bags: the check's estimate alone "
           "(`focal_loop_refinement: false`), and refined by the loops of the averaging as loop closures arrive "
           "(the default; docs/node.md). *ended at*: the focal lengths used at the end, of the true ones. "
           "*one camera*: `make_demo_bag --cameras 1`, the rig's forward camera alone.\n")
-    def loops_deviation(name, cameras):
-        # The loops' last estimate's standard deviation, of the focal length in use.
-        found = dict(re.findall(r"focal length by the loops, last estimate: (\S+): the loops put its focal length at "
-                                r"x[\d.]+ \+- ([\d.]+)", read(out, name)))
-        return ", ".join("%s ±%.4f%%" % (c, 100.0 * float(found[c])) if c in found else "%s none" % c
-                         for c in cameras)
-
     print("| input | camera_info right | x0.97, warn | x0.97, apply, the check alone | x0.97, apply | "
           "apply / right | ended at (check alone) | ended at (apply) | the loops' last deviation (apply) | "
           "CPU time, apply / check alone (s) |")
