@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from report_common import first, reproduce_line
+from report_common import first, reproduce_line, view_errors
 
 
 def quaternion_matrix(w, x, y, z):
@@ -122,17 +122,6 @@ def strecha_pair_table(out, scenes):
                 np.median(err[1]) / np.median(err[2]), int(np.sum(err[1] < err[2])), len(common), *nees))
 
 
-def view_errors(path):
-    """Each view's error (deg) of `rotavg eval --per-view`, in name order."""
-    views = []
-    with open(path) as f:
-        for line in f:
-            fields = line.split()
-            if len(fields) == 3 and fields[0] == "view":
-                views.append((fields[1], float(fields[2])))
-    return [e for _, e in sorted(views)]
-
-
 STRECHA_RUNS = (("original", "none_model"), ("plumb_bob, with the model", "plumb_bob_model"),
                 ("plumb_bob, warped, then rectified", "plumb_bob_rectified"),
                 ("equidistant, with the model", "equidistant_model"),
@@ -142,7 +131,8 @@ STRECHA_RUNS = (("original", "none_model"), ("plumb_bob, with the model", "plumb
 def strecha_view_tables(out, scenes):
     median = r"^median error: ([0-9.]+) deg"
     for scene in scenes:
-        rows = [(label, view_errors(os.path.join(out, "%s_%s_views.txt" % (scene, run))))
+        # Each view's error (deg), in name order.
+        rows = [(label, [float(e) for _, e in sorted(view_errors(os.path.join(out, "%s_%s_views.txt" % (scene, run))))])
                 for label, run in STRECHA_RUNS]
         n = max(len(e) for _, e in rows)
         print("%s, each view's error (deg), views in name order:" % scene)

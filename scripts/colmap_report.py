@@ -9,7 +9,7 @@ import os
 import re
 import sys
 
-from report_common import reproduce_line
+from report_common import reproduce_line, view_errors
 
 ESTIMATES = ("edges_vs_reference", "edges_vs_colmap", "edges_vs_colmap_matches")
 
@@ -38,18 +38,6 @@ def floored(path, label):
 def viewed(path, label):
     values = fields(path, label)
     return values[2] if len(values) > 2 else ""
-
-
-def view_errors(path):
-    """The per-view errors of a scores file (rotavg eval --per-view), in its order."""
-    errors = []
-    if not os.path.exists(path):
-        return errors
-    for line in open(path).read().splitlines():
-        parts = line.split()
-        if len(parts) == 3 and parts[0] == "view":
-            errors.append((parts[1], parts[2]))
-    return errors
 
 
 def view_error(path, name):

@@ -31,3 +31,16 @@ def value(text, pattern, default=""):
     """The first group of the lines matching `pattern`, one per line; `default` if none matches."""
     found = values(text, pattern)
     return "\n".join(found) if found else default
+
+
+def view_errors(path):
+    """The per-view errors of a scores file (rotavg eval --per-view), in its order: (name, error as printed);
+    none if the file is missing."""
+    errors = []
+    if not os.path.exists(path):
+        return errors
+    for line in open(path).read().splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[0] == "view":
+            errors.append((parts[1], parts[2]))
+    return errors
