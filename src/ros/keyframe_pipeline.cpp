@@ -613,9 +613,95 @@ bool IsRectifiedTopic(const std::string& topic, const std::string& image_type) {
   return name.rfind("image_rect", 0) == 0;
 }
 
+namespace {
+
+// The sensor readout of REP 104: which full-resolution pixels the image
+// holds (roi, all zero for the whole sensor) and how many of them each of
+// its pixels combines (binning, 0 meaning 1). K's convention puts a pixel's
+// centre at its integer coordinate, so the binned pixel u' averages the
+// full-resolution pixels x_offset + b u' ... x_offset + b u' + b - 1 and
+// lies at their centre, u = x_offset + b u' + (b - 1) / 2. image_geometry's
+// PinholeCameraModel leaves out the (b - 1) / 2, which puts a 2 x 2 binned
+// image's keypoints a quarter of its pixel off K; through a lens that is
+// no small turn of the camera (docs/decisions.md, "Keypoints in K's pixel
+// convention").
+struct Readout {
+  unsigned binning_x = 1, binning_y = 1;
+  unsigned x_offset = 0, y_offset = 0;
+  unsigned width = 0, height = 0;  // of the region, full-resolution pixels; 0: unknown
+  bool windowed = false;           // a region of interest or binning other than 1
+};
+
+bool ReadoutFromInfo(const sensor_msgs::CameraInfo& info, Readout* readout, std::string* error) {
+  // Far beyond any sensor's binning: a value this large is a corrupt message.
+  constexpr unsigned kMaxBinning = 64;
+  Readout r;
+  r.binning_x = std::max(1u, info.binning_x);
+  r.binning_y = std::max(1u, info.binning_y);
+  if (r.binning_x > kMaxBinning || r.binning_y > kMaxBinning) {
+    *error = "binning " + std::to_string(info.binning_x) + " x " + std::to_string(info.binning_y) + " (at most " +
+             std::to_string(kMaxBinning) + ")";
+    return false;
+  }
+  const sensor_msgs::RegionOfInterest& roi = info.roi;
+  const bool has_roi = roi.x_offset != 0 || roi.y_offset != 0 || roi.width != 0 || roi.height != 0;
+  if (has_roi) {
+    if (roi.width == 0 || roi.height == 0) {
+      *error = "region of interest at (" + std::to_string(roi.x_offset) + ", " + std::to_string(roi.y_offset) +
+               ") has no size";
+      return false;
+    }
+    // In 64 bits: offset + width of two 32-bit fields may wrap around.
+    const auto beyond = [](std::uint64_t offset, std::uint64_t extent, std::uint64_t limit) {
+      return limit > 0 && offset + extent > limit;
+    };
+    if (beyond(roi.x_offset, roi.width, info.width) || beyond(roi.y_offset, roi.height, info.height)) {
+      *error = "region of interest " + std::to_string(roi.width) + " x " + std::to_string(roi.height) + " at (" +
+               std::to_string(roi.x_offset) + ", " + std::to_string(roi.y_offset) + ") does not lie on the " +
+               std::to_string(info.width) + " x " + std::to_string(info.height) + " sensor";
+      return false;
+    }
+    r.x_offset = roi.x_offset;
+    r.y_offset = roi.y_offset;
+    r.width = roi.width;
+    r.height = roi.height;
+  } else {
+    r.width = info.width;
+    r.height = info.height;
+  }
+  if (r.width > 0 && (r.width < r.binning_x || r.height < r.binning_y)) {
+    *error = "binning " + std::to_string(r.binning_x) + " x " + std::to_string(r.binning_y) + " leaves no pixel of " +
+             std::to_string(r.width) + " x " + std::to_string(r.height);
+    return false;
+  }
+  r.windowed = has_roi || r.binning_x > 1 || r.binning_y > 1;
+  *readout = r;
+  return true;
+}
+
+// K (or P's left 3x3) of the full sensor as the camera of the readout's image.
+Eigen::Matrix3d ReadoutIntrinsics(const Eigen::Matrix3d& full, const Readout& r) {
+  if (!r.windowed) return full;
+  Eigen::Matrix3d to_image = Eigen::Matrix3d::Identity();
+  to_image(0, 0) = 1.0 / r.binning_x;
+  to_image(1, 1) = 1.0 / r.binning_y;
+  to_image(0, 2) = -(r.x_offset + 0.5 * (r.binning_x - 1.0)) / r.binning_x;
+  to_image(1, 2) = -(r.y_offset + 0.5 * (r.binning_y - 1.0)) / r.binning_y;
+  return to_image * full;
+}
+
+}  // namespace
+
 bool CameraFromInfo(const sensor_msgs::CameraInfo& info, bool rectified, CameraIntrinsics* camera,
-                    std::string* error) {
+                    std::string* error, cv::Size* image_size) {
   *camera = CameraIntrinsics();
+  Readout readout;
+  if (!ReadoutFromInfo(info, &readout, error)) return false;
+  if (image_size) {
+    *image_size = readout.width > 0 ? cv::Size(static_cast<int>(readout.width / readout.binning_x),
+                                               static_cast<int>(readout.height / readout.binning_y))
+                                    : cv::Size(0, 0);
+  }
   if (rectified) {
     // image_proc's rectified image is seen by the camera P describes; a
     // camera_info without P (all zero) falls back to K.
@@ -626,6 +712,7 @@ bool CameraFromInfo(const sensor_msgs::CameraInfo& info, bool rectified, CameraI
       *error = std::string("no valid ") + (has_p ? "P" : "K") + " for a rectified image (" + kCameraIntrinsicsRule + ")";
       return false;
     }
+    camera->k = ReadoutIntrinsics(camera->k, readout);
     return true;
   }
   for (int i = 0; i < 9; ++i) camera->k(i / 3, i % 3) = info.K[i];
@@ -640,6 +727,7 @@ bool CameraFromInfo(const sensor_msgs::CameraInfo& info, bool rectified, CameraI
     *error = std::string("no valid K (") + kCameraIntrinsicsRule + ")";
     return false;
   }
+  camera->k = ReadoutIntrinsics(camera->k, readout);
   if (!camera->Validate(&why)) {
     *error = "D does not fit distortion_model '" + info.distortion_model + "': " + why;
     return false;
@@ -648,9 +736,18 @@ bool CameraFromInfo(const sensor_msgs::CameraInfo& info, bool rectified, CameraI
 }
 
 namespace {
-std::string DescribeCamera(const std::string& frame, const CameraIntrinsics& camera, bool rectified) {
+std::string DescribeCamera(const std::string& frame, const CameraIntrinsics& camera, bool rectified,
+                           const sensor_msgs::CameraInfo& info) {
   std::ostringstream out;
   out << frame << ": f " << camera.k(0, 0) << ", " << camera.k(1, 1) << " px, ";
+  const sensor_msgs::RegionOfInterest& roi = info.roi;
+  if (roi.x_offset != 0 || roi.y_offset != 0 || roi.width != 0 || roi.height != 0) {
+    out << "region " << roi.width << " x " << roi.height << " at (" << roi.x_offset << ", " << roi.y_offset
+        << ") of the sensor, ";
+  }
+  if (info.binning_x > 1 || info.binning_y > 1) {
+    out << "binned " << std::max(1u, info.binning_x) << " x " << std::max(1u, info.binning_y) << ", ";
+  }
   if (camera.HasDistortion()) {
     out << "keypoints undistorted by " << DistortionModelName(camera.distortion) << " (";
     for (std::size_t i = 0; i < camera.coefficients.size(); ++i) out << (i ? " " : "") << camera.coefficients[i];
@@ -676,13 +773,22 @@ bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp
   if (grey.empty()) return Reject(&stats_.rejected_images, "empty image from " + frame, error);
   CameraIntrinsics camera;
   std::string why;
+  cv::Size size;
   // Refused here, once per image with its camera's name, rather than by the
   // two-view estimation of every pair the keyframe would be tried in.
-  if (!CameraFromInfo(info, rectified, &camera, &why)) {
+  if (!CameraFromInfo(info, rectified, &camera, &why, &size)) {
     return Reject(&stats_.rejected_images, "camera_info of " + frame + ": " + why, error);
   }
-  if (info.width > 0 && (static_cast<int>(info.width) != grey.cols || static_cast<int>(info.height) != grey.rows)) {
-    return Reject(&stats_.rejected_images, "image of " + frame + " does not match its camera_info size", error);
+  if (size.width > 0 && (size.width != grey.cols || size.height != grey.rows)) {
+    std::string expected = std::to_string(size.width) + " x " + std::to_string(size.height);
+    if (size.width != static_cast<int>(info.width) || size.height != static_cast<int>(info.height)) {
+      expected += " (camera_info's " + std::to_string(info.width) + " x " + std::to_string(info.height) +
+                  " sensor through its roi and binning)";
+    }
+    return Reject(&stats_.rejected_images,
+                  "image of " + frame + " is " + std::to_string(grey.cols) + " x " + std::to_string(grey.rows) +
+                      ", its camera_info says " + expected,
+                  error);
   }
   if (!IsNormalizedStamp(stamp)) {
     return Reject(&stats_.rejected_images, "image of " + frame + " has a stamp with nsec >= 1e9 (not normalised)", error);
@@ -703,7 +809,7 @@ bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp
   out->camera = camera;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    std::string description = DescribeCamera(frame, camera, rectified);
+    std::string description = DescribeCamera(frame, camera, rectified, info);
     std::string& known = camera_models_[frame];
     if (known != description) {
       known = description;
@@ -757,16 +863,24 @@ bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage&
   if (format.empty()) {
     return Reject(&stats_.rejected_images, from() + " is neither PNG nor JPEG, or its header is cut short", error);
   }
-  // camera_info's size, or its transpose (an EXIF orientation that the
-  // decoder applies; Validate then compares the decoded image).
-  const bool sized = info.width > 0 && info.height > 0;
-  const bool as_info = (width == info.width && height == info.height) || (width == info.height && height == info.width);
+  // The size camera_info gives the image (its sensor through roi and
+  // binning), or its transpose (an EXIF orientation that the decoder
+  // applies; Validate then compares the decoded image).
+  CameraIntrinsics camera;
+  std::string why;
+  cv::Size size;
+  if (!CameraFromInfo(info, rectified, &camera, &why, &size)) {
+    return Reject(&stats_.rejected_images, "camera_info of " + image.header.frame_id + ": " + why, error);
+  }
+  const std::uint32_t w = static_cast<std::uint32_t>(size.width), h = static_cast<std::uint32_t>(size.height);
+  const bool sized = w > 0 && h > 0;
+  const bool as_info = (width == w && height == h) || (width == h && height == w);
   const bool plausible = width > 0 && height > 0 && std::uint64_t{width} * height <= kMaxKeyframePixels;
   if (!plausible || (sized && !as_info)) {
     return Reject(&stats_.rejected_images,
                   from() + ": its " + format + " header declares " + std::to_string(width) + "x" +
                       std::to_string(height) + " pixels, " +
-                      (plausible ? "not camera_info's " + std::to_string(info.width) + "x" + std::to_string(info.height)
+                      (plausible ? "not camera_info's " + std::to_string(w) + "x" + std::to_string(h)
                                  : "an empty or implausibly large image"),
                   error);
   }

@@ -129,12 +129,22 @@ struct PendingKeyframe {
 bool IsRectifiedTopic(const std::string& topic, const std::string& image_type);
 
 // The camera of an image described by `info`: K, distortion_model and D for
-// a raw image; P's left 3x3 and no distortion for a rectified one. False,
-// with `error`, for a K (or P) that is not a camera's, an unknown
-// distortion_model (named) or a D that does not fit its model, such as
-// non-zero coefficients with no model.
+// a raw image; P's left 3x3 and no distortion for a rectified one. K and P
+// are the full sensor's (width x height); a driver that reads out a region
+// of interest or bins pixels (REP 104: roi in full-resolution pixels, then
+// binning_x x binning_y blocks, 0 meaning 1) delivers a smaller image, whose
+// camera is that K moved by the region's offset and scaled by the binning,
+// with each binned pixel at the centre of its block (see the .cpp). The
+// distortion acts on normalised coordinates and carries over unchanged.
+// `image_size` (optional) gets the size the image must have: the region's
+// (the full sensor's without one) divided by the binning, or 0 x 0 where
+// camera_info states no size (width 0). False, with `error`, for a K (or P)
+// that is not a camera's, an unknown distortion_model (named), a D that does
+// not fit its model, such as non-zero coefficients with no model, or a
+// region of interest that does not lie on the sensor or leaves no binned
+// pixel.
 bool CameraFromInfo(const sensor_msgs::CameraInfo& info, bool rectified, CameraIntrinsics* camera,
-                    std::string* error);
+                    std::string* error, cv::Size* image_size = nullptr);
 
 // Counters of the inputs the pipeline turned away (the averager counts its own).
 struct PipelineStats {

@@ -10,6 +10,7 @@
 #include <limits>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "rotation_averaging/core/geometry/so3.h"
 #include "ros/msg_conversion.h"
@@ -208,6 +209,129 @@ TEST(KeyframePipeline, CameraInfoGivesTheCameraModelOfRawAndRectifiedImages) {
   EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 2.0, 64, 48, "mono8"), raw, &k, &error));
   EXPECT_NE(error.find("camera_info of cam: unknown distortion_model 'fov'"), std::string::npos) << error;
   EXPECT_EQ(pipeline.Stats().rejected_images, 1u);
+}
+
+// A driver that reads out a region of the sensor or bins its pixels
+// (REP 104) keeps camera_info's K, width and height those of the full
+// sensor. The image's camera must put each of its pixels where the sensor
+// pixels it combines are: a spot rendered on the full sensor and read out
+// binned 2 x 2 (block means, as the sensor sums its charges) and from a
+// region must be seen, through the camera CameraFromInfo gives the image,
+// along the ray the full sensor's K gives the spot. image_geometry's
+// formula, which leaves out half a block, misses by a quarter of a binned
+// pixel.
+TEST(KeyframePipeline, BinningAndRegionOfInterestGiveTheReadoutsCamera) {
+  const int width = 200, height = 160;
+  const Eigen::Vector2d spot(83.3, 61.7);  // full-sensor pixels, K's convention
+  cv::Mat full(height, width, CV_64F);
+  for (int v = 0; v < height; ++v)
+    for (int u = 0; u < width; ++u)
+      full.at<double>(v, u) = std::exp(-((u - spot.x()) * (u - spot.x()) + (v - spot.y()) * (v - spot.y())) / 18.0);
+  const auto centroid = [](const cv::Mat& image) {
+    Eigen::Vector2d sum = Eigen::Vector2d::Zero();
+    double mass = 0.0;
+    for (int v = 0; v < image.rows; ++v)
+      for (int u = 0; u < image.cols; ++u) {
+        sum += image.at<double>(v, u) * Eigen::Vector2d(u, v);
+        mass += image.at<double>(v, u);
+      }
+    return Eigen::Vector2d(sum / mass);
+  };
+  sensor_msgs::CameraInfo info = Info(width, height);
+  info.K = {150.0, 0, 97.3, 0, 152.0, 83.1, 0, 0, 1};
+  info.P = {140.0, 0, 95.0, 0, 0, 141.0, 80.0, 0, 0, 0, 1, 0};
+  const Eigen::Matrix3d k_full = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(info.K.data());
+  const Eigen::Vector3d ray = (k_full.inverse() * spot.homogeneous()).normalized();
+
+  struct Readout {
+    unsigned binning, x, y, w, h;
+  };
+  for (const Readout& r : {Readout{2, 0, 0, 0, 0}, Readout{1, 40, 30, 120, 90}, Readout{2, 40, 30, 120, 90},
+                           Readout{4, 20, 10, 160, 120}}) {
+    SCOPED_TRACE("binning " + std::to_string(r.binning) + ", roi at (" + std::to_string(r.x) + ", " +
+                 std::to_string(r.y) + ")");
+    info.binning_x = info.binning_y = r.binning;
+    info.roi.x_offset = r.x;
+    info.roi.y_offset = r.y;
+    info.roi.width = r.w;
+    info.roi.height = r.h;
+    cv::Mat readout = r.w > 0 ? full(cv::Rect(r.x, r.y, r.w, r.h)) : full;
+    cv::resize(readout, readout, cv::Size(readout.cols / r.binning, readout.rows / r.binning), 0, 0, cv::INTER_AREA);
+    CameraIntrinsics camera;
+    std::string error;
+    cv::Size size;
+    ASSERT_TRUE(CameraFromInfo(info, /*rectified=*/false, &camera, &error, &size)) << error;
+    EXPECT_EQ(size, readout.size());
+    const Eigen::Vector3d seen = (camera.k.inverse() * centroid(readout).homogeneous()).normalized();
+    // 0.002 px of the full sensor, in radians at its focal length.
+    EXPECT_LT(std::acos(std::min(1.0, seen.dot(ray))), 0.002 / 150.0);
+    // A rectified image's P goes through the same readout.
+    ASSERT_TRUE(CameraFromInfo(info, /*rectified=*/true, &camera, &error)) << error;
+    EXPECT_DOUBLE_EQ(camera.k(0, 0), 140.0 / r.binning);
+    EXPECT_DOUBLE_EQ(camera.k(1, 2), (80.0 - r.y - 0.5 * (r.binning - 1.0)) / r.binning);
+  }
+
+  // Binning 0 is 1, and a sensor read out whole leaves K as it is.
+  info = Info(width, height);
+  info.K = {150.0, 0, 97.3, 0, 152.0, 83.1, 0, 0, 1};
+  CameraIntrinsics camera;
+  std::string error;
+  cv::Size size;
+  ASSERT_TRUE(CameraFromInfo(info, false, &camera, &error, &size)) << error;
+  EXPECT_EQ(camera.k, k_full);
+  EXPECT_EQ(size, cv::Size(width, height));
+  // The lens acts on normalised coordinates: its model carries over.
+  info.distortion_model = "plumb_bob";
+  info.D = {-0.28, 0.07, 0.0002, 0.00002, 0.0};
+  info.binning_x = info.binning_y = 2;
+  ASSERT_TRUE(CameraFromInfo(info, false, &camera, &error, &size)) << error;
+  EXPECT_EQ(camera.coefficients, info.D);
+  EXPECT_EQ(size, cv::Size(width / 2, height / 2));
+
+  // Readouts that do not fit the sensor are refused with the reason.
+  info.roi.x_offset = 150;
+  info.roi.width = 100;
+  info.roi.height = 50;
+  EXPECT_FALSE(CameraFromInfo(info, false, &camera, &error));
+  EXPECT_NE(error.find("does not lie on the 200 x 160 sensor"), std::string::npos) << error;
+  info.roi.x_offset = 4294967295u;  // offset + width wraps around in 32 bits
+  EXPECT_FALSE(CameraFromInfo(info, false, &camera, &error));
+  info.roi.x_offset = 10;
+  info.roi.width = 0;
+  EXPECT_FALSE(CameraFromInfo(info, false, &camera, &error));
+  EXPECT_NE(error.find("has no size"), std::string::npos) << error;
+  info.roi = sensor_msgs::RegionOfInterest();
+  info.binning_x = 1000;
+  EXPECT_FALSE(CameraFromInfo(info, false, &camera, &error));
+  info.binning_x = 2;
+  info.roi.width = info.roi.height = 1;
+  EXPECT_FALSE(CameraFromInfo(info, false, &camera, &error));
+  EXPECT_NE(error.find("leaves no pixel"), std::string::npos) << error;
+
+  // Through the pipeline: the binned image is taken with the readout's
+  // camera; the full sensor's size is not the image's, raw or compressed.
+  KeyframePipeline pipeline(DefaultConfig());
+  PendingKeyframe k;
+  info.roi = sensor_msgs::RegionOfInterest();
+  ASSERT_TRUE(pipeline.DecodeImage(Image("cam", 1.0, width / 2, height / 2, "mono8"), info, &k, &error)) << error;
+  EXPECT_DOUBLE_EQ(k.camera.k(0, 0), 75.0);
+  EXPECT_DOUBLE_EQ(k.camera.k(0, 2), (97.3 - 0.5) / 2.0);
+  const std::vector<std::string> notices = pipeline.TakeCameraModelNotices();
+  ASSERT_EQ(notices.size(), 1u);
+  EXPECT_NE(notices[0].find("binned 2 x 2"), std::string::npos) << notices[0];
+  EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 2.0, width, height, "mono8"), info, &k, &error));
+  EXPECT_NE(error.find("is 200 x 160, its camera_info says 100 x 80"), std::string::npos) << error;
+  sensor_msgs::CompressedImage png;
+  png.header.frame_id = "cam";
+  png.header.stamp = ros::Time(3.0);
+  png.format = "mono8; png compressed";
+  cv::Mat grey(height / 2, width / 2, CV_8UC1, cv::Scalar(7));
+  cv::imencode(".png", grey, png.data);
+  EXPECT_TRUE(pipeline.DecodeCompressedImage(png, info, &k, &error)) << error;
+  info.binning_x = info.binning_y = 1;
+  png.header.stamp = ros::Time(4.0);
+  EXPECT_FALSE(pipeline.DecodeCompressedImage(png, info, &k, &error));
+  EXPECT_EQ(pipeline.Stats().rejected_images, 2u);
 }
 
 sensor_msgs::CompressedImage Compressed(double t, const std::string& extension) {
