@@ -13,6 +13,7 @@
 #include <fstream>
 #include <tuple>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/core/geometry/so3.h"
@@ -49,14 +50,38 @@ geometry_msgs::TransformStamped StaticTransform(const ros::Time& stamp, const st
 
 }  // namespace
 
+cv::Mat ReadOut(const cv::Mat& sensor_image, const SensorReadout& readout) {
+  cv::Mat region = readout.roi.empty() ? sensor_image : sensor_image(readout.roi);
+  const int b = std::max(1, readout.binning);
+  if (b == 1) return region.clone();
+  region = region(cv::Rect(0, 0, region.cols / b * b, region.rows / b * b));
+  // INTER_AREA at a whole factor is the mean of each block.
+  cv::Mat binned;
+  cv::resize(region, binned, cv::Size(region.cols / b, region.rows / b), 0, 0, cv::INTER_AREA);
+  return binned;
+}
+
 void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
                         const CameraIntrinsics& camera, bool compressed) {
+  WriteKeyframeImage(bag, frame, stamp, grey, camera, compressed, grey.size(), SensorReadout());
+}
+
+void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
+                        const CameraIntrinsics& camera, bool compressed, const cv::Size& sensor,
+                        const SensorReadout& readout) {
   const Eigen::Matrix3d& k = camera.k;
   sensor_msgs::CameraInfo info;
   info.header.stamp = stamp;
   info.header.frame_id = frame;
-  info.width = grey.cols;
-  info.height = grey.rows;
+  info.width = sensor.width;
+  info.height = sensor.height;
+  info.binning_x = info.binning_y = static_cast<std::uint32_t>(std::max(1, readout.binning));
+  if (!readout.roi.empty()) {
+    info.roi.x_offset = readout.roi.x;
+    info.roi.y_offset = readout.roi.y;
+    info.roi.width = readout.roi.width;
+    info.roi.height = readout.roi.height;
+  }
   if (camera.distortion == DistortionModel::kNone) {
     info.distortion_model = "plumb_bob";
     info.D.assign(5, 0.0);
@@ -115,12 +140,31 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
   for (std::size_t c = 0; c < num_cameras; ++c) {
     infos[c].k(0, 0) *= focal_scales[c];
     infos[c].k(1, 1) *= focal_scales[c];
-    focal_off = focal_off || focal_scales[c] != 1.0;
+    infos[c].k(0, 2) += bag_options.info_principal_offset_x;
+    infos[c].k(1, 2) += bag_options.info_principal_offset_y;
+    focal_off = focal_off || focal_scales[c] != 1.0 || bag_options.info_principal_offset_x != 0.0 ||
+                bag_options.info_principal_offset_y != 0.0;
+  }
+  const SensorReadout& readout = bag_options.readout;
+  const cv::Rect sensor_rect(0, 0, options.width, options.height);
+  if (readout.binning < 1 || (!readout.roi.empty() && (readout.roi & sensor_rect) != readout.roi) ||
+      (readout.roi.empty() ? sensor_rect : readout.roi).width < readout.binning ||
+      (readout.roi.empty() ? sensor_rect : readout.roi).height < readout.binning) {
+    if (error) {
+      *error = "the readout (binning " + std::to_string(readout.binning) + ", region " +
+               std::to_string(readout.roi.width) + " x " + std::to_string(readout.roi.height) + " at (" +
+               std::to_string(readout.roi.x) + ", " + std::to_string(readout.roi.y) + ")) does not fit the " +
+               std::to_string(options.width) + " x " + std::to_string(options.height) + " sensor";
+    }
+    return false;
   }
   const std::string& images_dir = bag_options.images_dir;
   if (!images_dir.empty()) {
-    if (camera.HasDistortion() || focal_off) {
-      if (error) *error = "an image folder holds ideal pinhole images with the scene's K: no lens, no focal scale";
+    if (camera.HasDistortion() || focal_off || !bag_options.readout.Whole()) {
+      if (error) {
+        *error = "an image folder holds ideal pinhole images with the scene's K: no lens, camera_info as the scene's, "
+                 "the whole sensor";
+      }
       return false;
     }
     std::error_code ec;
@@ -162,7 +206,9 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
       const std::string& frame = scene.Cameras()[c].frame_id;
       cv::Mat image = DistortImage(scene.Render(capture, static_cast<int>(c), margin), camera, margin);
       if (bag_options.rectify) image = UndistortImage(image, camera);
-      WriteKeyframeImage(&bag, frame, stamp, image, infos[c], compressed);
+      const cv::Size sensor = image.size();
+      if (!bag_options.readout.Whole()) image = ReadOut(image, bag_options.readout);
+      WriteKeyframeImage(&bag, frame, stamp, image, infos[c], compressed, sensor, bag_options.readout);
       const KeyframeKey key{frame, ToNanoseconds(stamp)};
       const std::string name = OnlineAverager::KeyframeName(key);
       const Eigen::Matrix3d world_to_camera = scene.WorldToCamera(capture, static_cast<int>(c));

@@ -29,6 +29,24 @@ namespace rotation_averaging {
 void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
                         const CameraIntrinsics& camera, bool compressed);
 
+// How a driver reads its sensor out (REP 104): a region of it (empty: the
+// whole sensor), then binned in binning x binning blocks, each the mean of
+// its pixels, as a sensor's binning sums their charges.
+struct SensorReadout {
+  cv::Rect roi;
+  int binning = 1;
+  bool Whole() const { return roi.empty() && binning == 1; }
+};
+// The image a readout gives of a full-sensor image: the region's pixels, its
+// width and height cut to whole blocks, then binned.
+cv::Mat ReadOut(const cv::Mat& sensor_image, const SensorReadout& readout);
+// WriteKeyframeImage for an image read out of a `sensor`-sized sensor whose
+// intrinsics `camera` are: camera_info keeps the sensor's K, width and
+// height and carries the readout in binning_x, binning_y and roi.
+void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
+                        const CameraIntrinsics& camera, bool compressed, const cv::Size& sensor,
+                        const SensorReadout& readout);
+
 // How WriteRigSceneBag writes the camera streams.
 struct RigSceneBagOptions {
   bool progress = false;  // a line on stderr per capture
@@ -48,11 +66,20 @@ struct RigSceneBagOptions {
   // of info_focal_scale: a rig whose cameras' calibrations are off by
   // different amounts.
   std::vector<double> info_focal_scales;
+  // camera_info's principal point this far (sensor pixels, x and y) from
+  // the scene's.
+  double info_principal_offset_x = 0.0, info_principal_offset_y = 0.0;
+  // Not whole: each camera's images are read out of the rendered sensor
+  // (its width x height, the scene's K) by a region of interest and
+  // binning, and camera_info says so, as a driver with those settings
+  // publishes them.
+  SensorReadout readout;
   // Not empty: the same images also as a folder for `rotavg images`:
   // <dir>/<keyframe name>.png (mono8, <frame_id>@<stamp_ns> as in the bag),
   // <dir>/K.txt (the scene's K) and <dir>/ground_truth.csv (world-to-camera
   // orientations keyed by the image files' names). Ideal pinhole images
-  // only: refused with a lens or a focal scale other than 1.
+  // only: refused with a lens, a focal scale other than 1 or a readout of
+  // part of the sensor.
   std::string images_dir;
 };
 

@@ -6,6 +6,7 @@
 //       [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]
 //       [--start-angle 0] [--start-time 0] [--light-gain 1] [--light-gradient 0] [--noise-seed 0]
 //       [--info-focal-scale 1 | S1,S2,...] [--rectify] [--images-dir DIR]
+//       [--binning 1] [--roi X,Y,W,H] [--info-principal-offset DX,DY]
 //
 // The bag holds, per camera, <cam>/image_raw (mono8, or <cam>/image_raw/compressed
 // PNG with --compressed) and <cam>/camera_info; the rig extrinsics on
@@ -17,13 +18,19 @@
 // lens's images undistorted again and camera_info without distortion, as
 // image_proc's image_rect (the same content through both resamplings).
 // --info-focal-scale writes camera_info's focal lengths that many times the
-// scene's (one factor, or one per camera: 0.97,1.01). --images-dir also writes the same images as a folder for `rotavg
+// scene's (one factor, or one per camera: 0.97,1.01), --info-principal-offset
+// its principal point that many sensor pixels off. --images-dir also writes the same images as a folder for `rotavg
 // images` (<keyframe name>.png, K.txt, ground_truth.csv keyed by file name;
 // ideal pinhole images only). The --start-* and --light-*
 // options and --noise-seed make another session in the same room (same
 // --seed): starting elsewhere on the loop, later, under other lighting.
+// --roi and --binning read each image out of the rendered sensor (--width x
+// --height) as a driver with those settings does: the region X,Y,W,H of it
+// (sensor pixels), then binned in N x N blocks; camera_info keeps the
+// sensor's K and size and carries roi and binning_x/binning_y (REP 104).
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <iostream>
 #include <functional>
@@ -43,7 +50,8 @@ int Usage(const std::string& why) {
                "           [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]\n"
                "           [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]\n"
                "           [--start-angle 0] [--start-time 0] [--light-gain 1] [--light-gradient 0] [--noise-seed 0]\n"
-               "           [--info-focal-scale 1 | S1,S2,...] [--rectify] [--images-dir DIR]\n";
+               "           [--info-focal-scale 1 | S1,S2,...] [--rectify] [--images-dir DIR]\n"
+               "           [--binning 1] [--roi X,Y,W,H] [--info-principal-offset DX,DY]\n";
   return 2;
 }
 
@@ -85,6 +93,8 @@ int main(int argc, char** argv) {
        [&](double v) { options.light_gradient = v; }},
       {"--noise-seed", "a number >= 0", [](double v) { return v >= 0; },
        [&](double v) { options.noise_seed = static_cast<std::uint64_t>(v); }},
+      {"--binning", "a whole number from 1 to 8", [](double v) { return v >= 1 && v <= 8 && v == std::floor(v); },
+       [&](double v) { bag_options.readout.binning = static_cast<int>(v); }},
   };
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];
@@ -121,6 +131,26 @@ int main(int argc, char** argv) {
       } else {
         bag_options.info_focal_scales = scales;
       }
+    } else if (a == "--info-principal-offset") {
+      const std::string text = has_value ? argv[++k] : "";
+      double x = 0.0, y = 0.0;
+      char extra = 0;
+      if (std::sscanf(text.c_str(), "%lf,%lf%c", &x, &y, &extra) != 2 || !std::isfinite(x) || !std::isfinite(y) ||
+          std::abs(x) > 100.0 || std::abs(y) > 100.0) {
+        return Usage("--info-principal-offset takes DX,DY (pixels, at most 100), not '" + text + "'");
+      }
+      bag_options.info_principal_offset_x = x;
+      bag_options.info_principal_offset_y = y;
+    } else if (a == "--roi") {
+      // X,Y,W,H: whole numbers, a region of the sensor.
+      const std::string text = has_value ? argv[++k] : "";
+      int v[4];
+      char extra = 0;
+      if (std::sscanf(text.c_str(), "%d,%d,%d,%d%c", &v[0], &v[1], &v[2], &v[3], &extra) != 4 || v[0] < 0 ||
+          v[1] < 0 || v[2] < 1 || v[3] < 1) {
+        return Usage("--roi takes X,Y,W,H (whole numbers, W and H at least 1), not '" + text + "'");
+      }
+      bag_options.readout.roi = cv::Rect(v[0], v[1], v[2], v[3]);
     } else if (a == "--compressed") {
       compressed = true;
     } else if (a == "--rectify") {
@@ -146,13 +176,29 @@ int main(int argc, char** argv) {
   }
   const bool focal_off = bag_options.info_focal_scale != 1.0 ||
                          std::any_of(bag_options.info_focal_scales.begin(), bag_options.info_focal_scales.end(),
-                                     [](double v) { return v != 1.0; });
+                                     [](double v) { return v != 1.0; }) ||
+                         bag_options.info_principal_offset_x != 0.0 || bag_options.info_principal_offset_y != 0.0;
   if (bag_options.rectify && !bag_options.lens.HasDistortion()) return Usage("--rectify needs a --distortion");
   if (!bag_options.images_dir.empty() && (bag_options.lens.HasDistortion() || focal_off)) {
-    return Usage("--images-dir writes ideal pinhole images with the scene's K: not with --distortion or "
-                 "--info-focal-scale");
+    return Usage("--images-dir writes ideal pinhole images with the scene's K: not with --distortion, "
+                 "--info-focal-scale or --info-principal-offset");
   }
 
+  const ra::SensorReadout& readout = bag_options.readout;
+  if (!readout.roi.empty() &&
+      (readout.roi & cv::Rect(0, 0, options.width, options.height)) != readout.roi) {
+    return Usage("--roi: the region does not lie on the " + std::to_string(options.width) + "x" +
+                 std::to_string(options.height) + " sensor");
+  }
+  const cv::Size region = readout.roi.empty() ? cv::Size(options.width, options.height) : readout.roi.size();
+  const cv::Size image(region.width / readout.binning, region.height / readout.binning);
+  if (image.width < 64 || image.height < 48) {
+    return Usage("the readout leaves " + std::to_string(image.width) + "x" + std::to_string(image.height) +
+                 " pixels (at least 64x48)");
+  }
+  if (!bag_options.images_dir.empty() && !readout.Whole()) {
+    return Usage("--images-dir writes the whole sensor's images: not with --roi or --binning");
+  }
   const ra::RigScene scene(options);
   ra::NamedOrientations truth_csv;
   if (!ra::WriteRigSceneBag(scene, output, compressed, &truth_csv, &error, bag_options)) {
@@ -164,7 +210,11 @@ int main(int argc, char** argv) {
     return 1;
   }
   std::cout << "wrote " << output << ": " << options.num_captures << " captures x " << scene.Cameras().size()
-            << " cameras at " << options.width << "x" << options.height << ", " << options.capture_period_s
+            << " cameras at " << image.width << "x" << image.height
+            << (readout.Whole() ? std::string()
+                                : " (read out of a " + std::to_string(options.width) + "x" +
+                                      std::to_string(options.height) + " sensor)")
+            << ", " << options.capture_period_s
             << " s apart (" << scene.CaptureTime(options.num_captures - 1) << " s of bag time), ground truth on "
             << "/ground_truth/orientations" << (gt_csv.empty() ? "" : " and in " + gt_csv)
             << (bag_options.images_dir.empty() ? "" : "; the images also in " + bag_options.images_dir) << std::endl;

@@ -1,7 +1,8 @@
 // The rendered rig's writers: the image folder for `rotavg images` holds the
 // bag's keyframes under their names, a lens's images rectified again are
-// written as a rectified camera's, and each camera's camera_info carries its
-// own focal scale.
+// written as a rectified camera's, a readout of part of the sensor is what
+// camera_info says, and each camera's camera_info carries its own focal
+// scale.
 #include "ros/demo_bag.h"
 
 #include <gtest/gtest.h>
@@ -19,6 +20,7 @@
 
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
+#include "ros/keyframe_pipeline.h"
 #include "ros/msg_conversion.h"
 
 namespace rotation_averaging {
@@ -138,6 +140,58 @@ TEST(DemoBag, ALensImagesRectifiedAgainAreARectifiedCamerasImages) {
     const double raw_error = MeanAbsoluteDifference(raw.at(name), ideal, ring);
     EXPECT_LT(rectified_error, 0.5 * raw_error) << name << ": rectified " << rectified_error << ", raw " << raw_error;
   }
+}
+
+// A driver's readout of part of the sensor: each image is the region of the
+// whole sensor's image, binned, and camera_info keeps the sensor's K and
+// size and says how it was read out, so that the node's camera of the image
+// (CameraFromInfo) has the image's size.
+TEST(DemoBag, AReadoutOfPartOfTheSensorIsWhatCameraInfoSays) {
+  ros::Time::init();
+  const RigScene scene(SmallScene());
+  const std::string whole_bag = TempDir() + "/whole.bag", readout_bag = TempDir() + "/readout.bag";
+  std::string error;
+  ASSERT_TRUE(WriteRigSceneBag(scene, whole_bag, false, nullptr, &error)) << error;
+  RigSceneBagOptions options;
+  options.readout.roi = cv::Rect(40, 30, 161, 120);  // an odd width: the last column is left out
+  options.readout.binning = 2;
+  ASSERT_TRUE(WriteRigSceneBag(scene, readout_bag, false, nullptr, &error, options)) << error;
+  std::map<std::string, cv::Mat> whole, read_out;
+  std::map<std::string, sensor_msgs::CameraInfo> whole_infos, infos;
+  ReadBag(whole_bag, &whole, &whole_infos);
+  ReadBag(readout_bag, &read_out, &infos);
+  ASSERT_EQ(read_out.size(), whole.size());
+  for (const auto& [name, image] : read_out) {
+    ASSERT_EQ(image.size(), cv::Size(80, 60)) << name;
+    EXPECT_EQ(cv::norm(image, ReadOut(whole.at(name), options.readout), cv::NORM_INF), 0.0) << name;
+  }
+  // One pixel is the mean of its block.
+  const cv::Mat& sensor = whole.begin()->second;
+  const cv::Mat& binned = read_out.begin()->second;
+  const double block = (sensor.at<std::uint8_t>(30 + 2 * 5, 40 + 2 * 7) + sensor.at<std::uint8_t>(30 + 2 * 5, 41 + 2 * 7) +
+                        sensor.at<std::uint8_t>(31 + 2 * 5, 40 + 2 * 7) + sensor.at<std::uint8_t>(31 + 2 * 5, 41 + 2 * 7)) /
+                       4.0;
+  EXPECT_LE(std::abs(binned.at<std::uint8_t>(5, 7) - block), 0.5);
+  for (const auto& [frame, info] : infos) {
+    const sensor_msgs::CameraInfo& full = whole_infos.at(frame);
+    EXPECT_EQ(info.width, full.width) << frame;
+    EXPECT_EQ(info.height, full.height) << frame;
+    EXPECT_EQ(info.K, full.K) << frame << ": the sensor's K";
+    EXPECT_EQ(info.binning_x, 2u);
+    EXPECT_EQ(info.binning_y, 2u);
+    EXPECT_EQ(info.roi.x_offset, 40u);
+    EXPECT_EQ(info.roi.y_offset, 30u);
+    EXPECT_EQ(info.roi.width, 161u);
+    EXPECT_EQ(info.roi.height, 120u);
+    CameraIntrinsics camera;
+    cv::Size size;
+    ASSERT_TRUE(CameraFromInfo(info, /*rectified=*/false, &camera, &error, &size)) << error;
+    EXPECT_EQ(size, cv::Size(80, 60)) << frame;
+  }
+  // A region beyond the sensor is refused.
+  options.readout.roi = cv::Rect(200, 0, 200, 100);
+  EXPECT_FALSE(WriteRigSceneBag(scene, TempDir() + "/beyond.bag", false, nullptr, &error, options));
+  EXPECT_NE(error.find("does not fit the 320 x 240 sensor"), std::string::npos) << error;
 }
 
 TEST(DemoBag, EachCamerasCameraInfoCarriesItsOwnFocalScale) {
