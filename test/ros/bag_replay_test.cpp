@@ -175,7 +175,8 @@ CameraIntrinsics PlumbBobLens() {
 // times info_focal_scale, replayed with every image a keyframe, no loop
 // closures, and `extra` configuration lines.
 ReplayResult ReplayCheckScene(const RigScene& scene, const std::string& name, const CameraIntrinsics& lens,
-                              double info_focal_scale, const std::string& extra) {
+                              double info_focal_scale, const std::string& extra,
+                              const SensorReadout& readout = SensorReadout()) {
   const std::string dir = TempDir();
   const std::string bag = dir + "/" + name + ".bag", config = dir + "/" + name + ".yaml";
   NamedOrientations truth;
@@ -183,6 +184,7 @@ ReplayResult ReplayCheckScene(const RigScene& scene, const std::string& name, co
   RigSceneBagOptions bag_options;
   bag_options.lens = lens;
   bag_options.info_focal_scale = info_focal_scale;
+  bag_options.readout = readout;
   if (!WriteRigSceneBag(scene, bag, /*compressed=*/false, &truth, &failed.error, bag_options)) {
     return failed;
   }
@@ -194,7 +196,36 @@ ReplayResult ReplayCheckScene(const RigScene& scene, const std::string& name, co
   o.config_path = config;
   o.output_dir = dir + "/" + name;
   o.progress = false;
+  o.ground_truth_path = bag;
   return ReplayBags(o);
+}
+
+// A raw rig whose driver bins its sensor 2 x 2 and reads out a region of it
+// (camera_info: the sensor's K and size, binning and roi), through a strong
+// barrel lens: every image is taken, with the readout's camera, and the
+// orientations are as accurate as the same lens's whole-sensor images'.
+TEST_F(BagReplay, ABinnedRegionOfTheSensorIsReadWithItsCamera) {
+  RigSceneOptions options;
+  options.num_captures = 12;
+  options.WithWidth(960);
+  SensorReadout readout;
+  readout.binning = 2;
+  readout.roi = cv::Rect(32, 24, 896, 672);
+  const ReplayResult binned =
+      ReplayCheckScene(RigScene(options), "binned_region", PlumbBobLens(), 1.0, "focal_calibration: off\n", readout);
+  ASSERT_TRUE(binned.ok) << binned.error;
+  EXPECT_EQ(binned.rejected_images, 0u);
+  EXPECT_EQ(binned.keyframes, 24u);
+  ASSERT_TRUE(binned.have_scores);
+  EXPECT_EQ(binned.scores.views_common, 24u);
+  // The whole sensor's images at the readout's size, through the same lens.
+  options.WithWidth(448);
+  const ReplayResult whole =
+      ReplayCheckScene(RigScene(options), "whole_448", PlumbBobLens(), 1.0, "focal_calibration: off\n");
+  ASSERT_TRUE(whole.ok) << whole.error;
+  ASSERT_TRUE(whole.have_scores);
+  EXPECT_LT(binned.scores.median_error_deg, 2.0 * whole.scores.median_error_deg + 0.005)
+      << "whole sensor: " << whole.scores.median_error_deg << " deg";
 }
 
 // A camera_info whose focal length is 3% short: the replay's check of each
