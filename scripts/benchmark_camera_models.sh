@@ -16,7 +16,10 @@
 #    same image pairs in every input, scored one by one; each view's error;
 #    and the plumb_bob inputs with loop closures admitted at 36 and 44
 #    inliers instead of 40.
-#   bash scripts/benchmark_camera_models.sh        (about ten minutes)
+#  * A sensor read out binned or by a region of interest (camera_info's
+#    binning_x/binning_y and roi, REP 104): the demo rendered on a larger
+#    sensor, with and without the lens.
+#   bash scripts/benchmark_camera_models.sh        (about fifteen minutes)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
 OUT=build/benchmark_camera_models
@@ -117,6 +120,27 @@ for input in none_model plumb_bob_model plumb_bob_rectified; do
   "$BIN/rotavg" eval --graph "$OUT/demo_${input}_pairs/graph.txt" --gt "$OUT/demo_${input}_pairs/ground_truth.csv" \
     --per-edge > "$OUT/demo_${input}_pairs_eval.txt"
 done
+
+# A driver that reads its sensor out in part or binned (REP 104): the demo
+# rendered on a larger sensor and read out binned 2 x 2, or by a region of
+# interest, with no lens and through the plumb_bob lens; camera_info keeps
+# the sensor's K and size. And binned with camera_info's principal point
+# half a sensor pixel off: where image_geometry's binning formula, which
+# leaves out half a block, puts the binned image's camera.
+readout() {  # name, make_demo_bag flags...
+  local name=$1
+  shift
+  "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_$name.bag" "$@" > /dev/null
+  replay "demo_$name" "$OUT/demo_$name.bag" "$DEMO"
+}
+BIN2=(--width 1280 --height 960 --binning 2)
+ROI=(--width 800 --height 600 --roi 80,60,640,480)
+readout readout_binned "${BIN2[@]}"
+readout readout_binned_offset "${BIN2[@]}" --info-principal-offset 0.5,0.5
+readout readout_binned_plumb_bob "${BIN2[@]}" --distortion "$PLUMB_BOB"
+readout readout_binned_plumb_bob_offset "${BIN2[@]}" --distortion "$PLUMB_BOB" --info-principal-offset 0.5,0.5
+readout readout_roi "${ROI[@]}"
+readout readout_roi_plumb_bob "${ROI[@]}" --distortion "$PLUMB_BOB"
 
 python3 scripts/camera_models_report.py "$OUT" "$EUROC" "$PLUMB_BOB" "$FISHEYE" "${SCENES[@]}" \
   > results/camera_models.md
