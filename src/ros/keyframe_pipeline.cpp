@@ -622,9 +622,9 @@ namespace {
 // full-resolution pixels x_offset + b u' ... x_offset + b u' + b - 1 and
 // lies at their centre, u = x_offset + b u' + (b - 1) / 2. image_geometry's
 // PinholeCameraModel leaves out the (b - 1) / 2, which puts a 2 x 2 binned
-// image's keypoints a quarter of its pixel off K; through a lens that is
-// no small turn of the camera (docs/decisions.md, "Keypoints in K's pixel
-// convention").
+// image's keypoints a quarter of its pixel off K (docs/decisions.md, "A
+// binned pixel at the centre of its block": five times the median error on
+// the binned demo).
 struct Readout {
   unsigned binning_x = 1, binning_y = 1;
   unsigned x_offset = 0, y_offset = 0;
