@@ -321,6 +321,21 @@ TEST(KeyframePipeline, BinningAndRegionOfInterestGiveTheReadoutsCamera) {
   EXPECT_NE(notices[0].find("binned 2 x 2"), std::string::npos) << notices[0];
   EXPECT_FALSE(pipeline.DecodeImage(Image("cam", 2.0, width, height, "mono8"), info, &k, &error));
   EXPECT_NE(error.find("is 200 x 160, its camera_info says 100 x 80"), std::string::npos) << error;
+  // The driver's readout changes at run time (REP 104: without a new
+  // calibration): the next image is taken with the new readout's camera,
+  // and the camera is described again.
+  sensor_msgs::CameraInfo region = info;
+  region.binning_x = region.binning_y = 1;
+  region.roi.x_offset = 40;
+  region.roi.y_offset = 30;
+  region.roi.width = 120;
+  region.roi.height = 90;
+  ASSERT_TRUE(pipeline.DecodeImage(Image("cam", 2.5, 120, 90, "mono8"), region, &k, &error)) << error;
+  EXPECT_DOUBLE_EQ(k.camera.k(0, 2), 97.3 - 40.0);
+  EXPECT_DOUBLE_EQ(k.camera.k(0, 0), 150.0);
+  const std::vector<std::string> again = pipeline.TakeCameraModelNotices();
+  ASSERT_EQ(again.size(), 1u);
+  EXPECT_NE(again[0].find("region 120 x 90 at (40, 30) of the sensor"), std::string::npos) << again[0];
   sensor_msgs::CompressedImage png;
   png.header.frame_id = "cam";
   png.header.stamp = ros::Time(3.0);
