@@ -136,20 +136,20 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
     focal_scales = bag_options.info_focal_scales;
   }
   std::vector<CameraIntrinsics> infos(num_cameras, info);
-  bool focal_off = false;
+  bool info_off = false;  // camera_info other than the scene's camera
   for (std::size_t c = 0; c < num_cameras; ++c) {
     infos[c].k(0, 0) *= focal_scales[c];
     infos[c].k(1, 1) *= focal_scales[c];
     infos[c].k(0, 2) += bag_options.info_principal_offset_x;
     infos[c].k(1, 2) += bag_options.info_principal_offset_y;
-    focal_off = focal_off || focal_scales[c] != 1.0 || bag_options.info_principal_offset_x != 0.0 ||
-                bag_options.info_principal_offset_y != 0.0;
+    info_off = info_off || focal_scales[c] != 1.0 || bag_options.info_principal_offset_x != 0.0 ||
+               bag_options.info_principal_offset_y != 0.0;
   }
   const SensorReadout& readout = bag_options.readout;
   const cv::Rect sensor_rect(0, 0, options.width, options.height);
-  if (readout.binning < 1 || (!readout.roi.empty() && (readout.roi & sensor_rect) != readout.roi) ||
-      (readout.roi.empty() ? sensor_rect : readout.roi).width < readout.binning ||
-      (readout.roi.empty() ? sensor_rect : readout.roi).height < readout.binning) {
+  const cv::Rect region = readout.roi.empty() ? sensor_rect : readout.roi;
+  if (readout.binning < 1 || (region & sensor_rect) != region || region.width < readout.binning ||
+      region.height < readout.binning) {
     if (error) {
       *error = "the readout (binning " + std::to_string(readout.binning) + ", region " +
                std::to_string(readout.roi.width) + " x " + std::to_string(readout.roi.height) + " at (" +
@@ -160,7 +160,7 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
   }
   const std::string& images_dir = bag_options.images_dir;
   if (!images_dir.empty()) {
-    if (camera.HasDistortion() || focal_off || !bag_options.readout.Whole()) {
+    if (camera.HasDistortion() || info_off || !bag_options.readout.Whole()) {
       if (error) {
         *error = "an image folder holds ideal pinhole images with the scene's K: no lens, camera_info as the scene's, "
                  "the whole sensor";

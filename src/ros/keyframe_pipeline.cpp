@@ -632,6 +632,11 @@ struct Readout {
   bool windowed = false;           // a region of interest or binning other than 1
 };
 
+// REP 104: a roi of all zeros is the whole sensor.
+bool HasRegionOfInterest(const sensor_msgs::RegionOfInterest& roi) {
+  return roi.x_offset != 0 || roi.y_offset != 0 || roi.width != 0 || roi.height != 0;
+}
+
 bool ReadoutFromInfo(const sensor_msgs::CameraInfo& info, Readout* readout, std::string* error) {
   // Far beyond any sensor's binning: a value this large is a corrupt message.
   constexpr unsigned kMaxBinning = 64;
@@ -644,7 +649,7 @@ bool ReadoutFromInfo(const sensor_msgs::CameraInfo& info, Readout* readout, std:
     return false;
   }
   const sensor_msgs::RegionOfInterest& roi = info.roi;
-  const bool has_roi = roi.x_offset != 0 || roi.y_offset != 0 || roi.width != 0 || roi.height != 0;
+  const bool has_roi = HasRegionOfInterest(roi);
   if (has_roi) {
     if (roi.width == 0 || roi.height == 0) {
       *error = "region of interest at (" + std::to_string(roi.x_offset) + ", " + std::to_string(roi.y_offset) +
@@ -741,7 +746,7 @@ std::string DescribeCamera(const std::string& frame, const CameraIntrinsics& cam
   std::ostringstream out;
   out << frame << ": f " << camera.k(0, 0) << ", " << camera.k(1, 1) << " px, ";
   const sensor_msgs::RegionOfInterest& roi = info.roi;
-  if (roi.x_offset != 0 || roi.y_offset != 0 || roi.width != 0 || roi.height != 0) {
+  if (HasRegionOfInterest(roi)) {
     out << "region " << roi.width << " x " << roi.height << " at (" << roi.x_offset << ", " << roi.y_offset
         << ") of the sensor, ";
   }

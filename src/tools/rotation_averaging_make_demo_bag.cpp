@@ -174,12 +174,12 @@ int main(int argc, char** argv) {
     return Usage("--info-focal-scale: " + std::to_string(bag_options.info_focal_scales.size()) +
                  " factors for " + std::to_string(options.num_cameras) + " cameras");
   }
-  const bool focal_off = bag_options.info_focal_scale != 1.0 ||
+  const bool info_off = bag_options.info_focal_scale != 1.0 ||
                          std::any_of(bag_options.info_focal_scales.begin(), bag_options.info_focal_scales.end(),
                                      [](double v) { return v != 1.0; }) ||
                          bag_options.info_principal_offset_x != 0.0 || bag_options.info_principal_offset_y != 0.0;
   if (bag_options.rectify && !bag_options.lens.HasDistortion()) return Usage("--rectify needs a --distortion");
-  if (!bag_options.images_dir.empty() && (bag_options.lens.HasDistortion() || focal_off)) {
+  if (!bag_options.images_dir.empty() && (bag_options.lens.HasDistortion() || info_off)) {
     return Usage("--images-dir writes ideal pinhole images with the scene's K: not with --distortion, "
                  "--info-focal-scale or --info-principal-offset");
   }
