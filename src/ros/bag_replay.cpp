@@ -489,12 +489,12 @@ class Replayer {
     if (loaded_ && !result_.map_merged) MeasureMerge(*solution);
     const OnlineSolution cameras = pipeline_.CameraSolution(*solution);
     out_.write("/rotation_averaging/orientations", when, pipeline_.OrientationsMsg(cameras, when));
-    if (pipeline_.HasFrontend() && config_.focal_calibration != "off") {
+    if (pipeline_.HasFrontend() && config_.focal_calibration != FocalCalibrationMode::kOff) {
       out_.write("/rotation_averaging/camera_info_checks", when, pipeline_.CameraInfoCheckMsg(when));
     }
-    if (config_.tf_mode == "all_keyframes") {
+    if (config_.tf_mode == TfMode::kAllKeyframes) {
       out_.write("/tf_static", when, pipeline_.KeyframeTransforms(cameras));
-    } else if (config_.tf_mode == "latest_per_camera") {
+    } else if (config_.tf_mode == TfMode::kLatestPerCamera) {
       tf2_msgs::TFMessage tf;
       tf.transforms = pipeline_.LatestTransforms(cameras, when);
       if (!tf.transforms.empty()) out_.write("/tf", when, tf);
@@ -657,7 +657,7 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
   result->images_seen = pipeline_stats.frames;
   result->images_skipped = pipeline_stats.frames_skipped;
   result->selection_s = pipeline_stats.selection_s;
-  result->keyframe_selection = pipeline.Config().keyframe_selection;
+  result->keyframe_selection = OptionName(pipeline.Config().keyframe_selection);
   result->rejected_images = pipeline_stats.rejected_images;
   result->rejected_messages = pipeline_stats.rejected_messages;
   if (const KeyframeFrontend* f = pipeline.Frontend()) {

@@ -1,10 +1,14 @@
 // Internal to the package: may change between versions.
-// What the live node and the bag replay tool share: reading the parameters,
-// turning messages into validated keyframes and relative rotations, running
-// the keyframe front end into the averager, and building the output messages.
-// The node adds subscriptions, threads and publishers around it; the replay
-// tool adds a bag reader and a bag-time solve schedule. Neither re-implements
-// anything here.
+// What the live node and the bag replay tool share: messages turned into
+// validated keyframes and relative rotations, keyframe selection, the
+// keyframe front end into the averager, focal calibration, the map on disk
+// and the output messages. It orchestrates: each of those is a unit of its
+// own (pipeline_config, image_conversion, msg_conversion, output_messages
+// here; the front end's focal_corrector and map_store), and this class wires
+// them to one averager, one rig model and one front end, with the locks
+// between the node's threads (docs/architecture.md). The node adds
+// subscriptions, threads and publishers around it; the replay tool adds a
+// bag reader and a bag-time solve schedule.
 #ifndef ROTATION_AVERAGING_SRC_ROS_KEYFRAME_PIPELINE_H_
 #define ROTATION_AVERAGING_SRC_ROS_KEYFRAME_PIPELINE_H_
 
@@ -25,98 +29,20 @@
 #include <string>
 #include <vector>
 
+#include "core/controllers/rig_model.h"
+#include "frontend/controllers/focal_corrector.h"
+#include "frontend/controllers/keyframe_frontend.h"
+#include "frontend/controllers/keyframe_selector.h"
+#include "frontend/controllers/map_store.h"
+#include "ros/image_conversion.h"
+#include "ros/output_messages.h"
+#include "ros/pipeline_config.h"
 #include "rotation_averaging/CameraInfoCheckArray.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePose.h"
-#include "frontend/controllers/keyframe_frontend.h"
-#include "frontend/controllers/keyframe_selector.h"
 #include "rotation_averaging/core/controllers/online_averager.h"
-#include "core/controllers/rig_model.h"
 
 namespace rotation_averaging {
-
-// Where parameters come from: the node's private namespace on the parameter
-// server, or a YAML file for the replay tool. Each getter returns false when
-// the parameter is absent (the caller keeps its default).
-class ParameterSource {
- public:
-  virtual ~ParameterSource() = default;
-  virtual bool Get(const std::string& name, std::string* value) const = 0;
-  virtual bool Get(const std::string& name, double* value) const = 0;
-  virtual bool Get(const std::string& name, int* value) const = 0;
-  virtual bool Get(const std::string& name, bool* value) const = 0;
-  virtual bool Get(const std::string& name, std::vector<std::string>* value) const = 0;
-};
-
-// Every parameter of config/rotation_averaging.yaml, with its default: the
-// node's parameters are the fields they set, under the field's name
-// (ReadPipelineConfig lists them).
-struct PipelineConfig {
-  PipelineConfig();  // the libraries' defaults, and the node's own where they differ
-
-  std::string fixed_frame = "map";
-  std::string tf_mode = "all_keyframes";  // all_keyframes, latest_per_camera, none
-  std::string keyframe_frame_format = "{frame_id}_kf_{stamp_ns}";
-  std::string latest_frame_format = "{frame_id}_averaged";
-  OnlineAveragerOptions averager;
-  std::vector<std::string> image_topics;
-  std::string image_transport = "raw";  // raw or compressed
-  // How camera_info describes the images (image_proc's convention: one
-  // camera_info serves both image_raw and image_rect): "raw" images are
-  // undistorted by camera_info's K, distortion_model and D; "rectified"
-  // images take the rectified camera, P's left 3x3, and no distortion;
-  // "auto" decides by topic: a topic whose last name starts with image_rect
-  // is rectified, any other raw.
-  std::string image_type = "auto";
-  // Which images become keyframes: "motion", those that moved enough since
-  // their camera's last keyframe, or that track too little of it
-  // (frontend/controllers/keyframe_selector.h; a raw 20-30 Hz stream);
-  // "all", every image (a stack that already publishes keyframes).
-  std::string keyframe_selection = "motion";
-  // The check of each camera's focal length against its verified image
-  // pairs (frontend/controllers/focal_monitor.h): "warn" estimates it as the
-  // pairs accumulate, reports it (diagnostics, ~camera_info_checks)
-  // and warns when camera_info's focal length disagrees (or when it has no
-  // distortion model and the images are distorted); "apply" also
-  // corrects it then (KeyframeFrontend::ApplyFocalCorrection: the camera's
-  // pairs estimated again, their edges replaced; a camera of a rig only when
-  // the rig's other cameras are checked too); "off" does neither.
-  std::string focal_calibration = "warn";
-  // With "apply": once a camera is corrected, its focal length is refined
-  // further by the loops of the averaging (RefineFocalByLoops), as loop
-  // closures arrive.
-  bool focal_loop_refinement = true;
-  KeyframeSelectionOptions selection;  // keyframe_min_motion_deg, ...; its rig tolerance is rig_stamp_tolerance_s
-  KeyframeFrontendOptions frontend;    // frontend.vocabulary: loaded from `vocabulary`
-  // File of `rotavg vocabulary`; "default": DefaultVocabularyPath(); "" or
-  // "none": no vocabulary (retrieval by voting, linear in the map).
-  std::string vocabulary = "default";
-  std::size_t max_image_queue = 8;
-  RigModelOptions rig;  // use_rig_extrinsics, rig_frame, rig_stamp_tolerance_s
-  // rviz markers: orientations carry no positions, so each camera (or rig)
-  // gets a lane along y and its keyframes are laid out along x in time order.
-  bool markers = true;
-  double marker_spacing_m = 0.5;       // between consecutive keyframes of a lane
-  int marker_max_keyframes = 2000;     // only the newest are drawn beyond this
-  std::string load_graph, save_on_shutdown;
-  std::vector<std::string> add_maps;  // added after load_graph (AddMap): other sessions', other robots
-  std::string autosave_path;    // graph saved atomically every autosave_period_s s ("" = off)
-  double autosave_period_s = 30.0;
-
-  // True if every field (the averager's and the front end's options
-  // included) is within its range; otherwise false, with `error` naming the
-  // first field that is not.
-  bool Validate(std::string* error) const;
-};
-
-// Reads every parameter into `config` (which holds the defaults), each under
-// the name of the field it sets; a parameter under its former name is read
-// too, with a deprecation warning. False, with `error` naming the parameter,
-// when a value is out of its range or not one of its choices (Validate);
-// then `config` is not to be used. Warnings (deprecated names, a vocabulary
-// that does not load) are appended to `warnings`.
-bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, std::vector<std::string>* warnings,
-                        std::string* error);
 
 // A decoded, validated keyframe image waiting for the front end.
 struct PendingKeyframe {
@@ -124,27 +50,6 @@ struct PendingKeyframe {
   cv::Mat image;  // 8-bit grey, as the camera took it
   CameraIntrinsics camera;  // of that image: K and its lens distortion
 };
-
-// Whether images on `topic` are rectified under PipelineConfig::image_type.
-bool IsRectifiedTopic(const std::string& topic, const std::string& image_type);
-
-// The camera of an image described by `info`: K, distortion_model and D for
-// a raw image; P's left 3x3 and no distortion for a rectified one. K and P
-// are the full sensor's (width x height); a driver that reads out a region
-// of interest or bins pixels (REP 104: roi in full-resolution pixels, then
-// binning_x x binning_y blocks, 0 meaning 1) delivers a smaller image, whose
-// camera is that K moved by the region's offset and scaled by the binning,
-// with each binned pixel at the centre of its block (see the .cpp). The
-// distortion acts on normalised coordinates and carries over unchanged.
-// `image_size` (optional) gets the size the image must have: the region's
-// (the full sensor's without one) divided by the binning, or 0 x 0 where
-// camera_info states no size (width 0). False, with `error`, for a K (or P)
-// that is not a camera's, an unknown distortion_model (named), a D that does
-// not fit its model, such as non-zero coefficients with no model, or a
-// region of interest that does not lie on the sensor or leaves no binned
-// pixel.
-bool CameraFromInfo(const sensor_msgs::CameraInfo& info, bool rectified, CameraIntrinsics* camera,
-                    std::string* error, cv::Size* image_size = nullptr);
 
 // Counters of the inputs the pipeline turned away (the averager counts its own).
 struct PipelineStats {
@@ -156,14 +61,6 @@ struct PipelineStats {
   std::uint64_t processed_images = 0;   // keyframes through the front end
   std::uint64_t edges_from_images = 0;  // relative rotations the front end produced
   std::uint64_t absorbed_by_rig = 0;    // measurements within one rig capture (extrinsics known)
-};
-
-// How long a SaveMap held what the node's other threads wait for, and how
-// long it took in all (the files written after the copies; seconds).
-struct MapSaveTiming {
-  double graph_lock_s = 0.0;     // the graph and solution copied: solves wait
-  double frontend_lock_s = 0.0;  // the keyframes copied: new keyframes wait
-  double total_s = 0.0;
 };
 
 class KeyframePipeline {
@@ -249,28 +146,30 @@ class KeyframePipeline {
   // per solve and pass the result to the output messages below.
   OnlineSolution CameraSolution(const OnlineSolution& solution) const { return rig_.ToCameraKeyframes(solution); }
 
-  // Output messages for a solution expanded by CameraSolution.
-  Orientations OrientationsMsg(const OnlineSolution& cameras, const ros::Time& stamp) const;
+  // Output messages for a solution expanded by CameraSolution (OutputMessages).
+  Orientations OrientationsMsg(const OnlineSolution& cameras, const ros::Time& stamp) const {
+    return output_.OrientationsMsg(cameras, stamp);
+  }
+  tf2_msgs::TFMessage KeyframeTransforms(const OnlineSolution& cameras) const {
+    return output_.KeyframeTransforms(cameras);
+  }
+  visualization_msgs::MarkerArray Markers(const OnlineSolution& variables, const OnlineSolution& cameras,
+                                          const ros::Time& stamp) const {
+    return output_.Markers(variables, cameras, rig_, stamp);
+  }
+  std::vector<geometry_msgs::TransformStamped> LatestTransforms(const OnlineSolution& cameras, const ros::Time& now) {
+    return output_.LatestTransforms(cameras, now);
+  }
+  void ForgetLatestStamps() { output_.ForgetLatestStamps(); }  // after a reset
   // Each camera's latest focal-length check (~camera_info_checks).
   CameraInfoCheckArray CameraInfoCheckMsg(const ros::Time& stamp) const;
-  // all_keyframes: one transform per keyframe, stamped with its capture time.
-  tf2_msgs::TFMessage KeyframeTransforms(const OnlineSolution& cameras) const;
-  // rviz: camera frusta by solved orientation (namespace "keyframes") and the
-  // edges coloured by their robust weight (namespace "edges": green = full
-  // weight, red = rejected as an outlier). Lanes and edges come from the
-  // averager's `variables`, frusta from their expansion `cameras`.
-  visualization_msgs::MarkerArray Markers(const OnlineSolution& variables, const OnlineSolution& cameras,
-                                          const ros::Time& stamp) const;
-  // latest_per_camera: the newest keyframe of each camera, stamped `now`;
-  // a frame whose last transform had a stamp >= now is left out.
-  std::vector<geometry_msgs::TransformStamped> LatestTransforms(const OnlineSolution& cameras, const ros::Time& now);
-  void ForgetLatestStamps();  // after a reset
 
   // The latest focal-length check of each camera (focal_calibration), by
   // camera; estimates run on a thread of their own.
   std::map<std::string, CameraFocalCheck> FocalChecks() const;
-  // Log lines of the checks since the last call (FocalChecker::TakeNotices),
-  // each with whether the camera's focal length disagrees.
+  // Log lines of the checks and corrections since the last call
+  // (FocalChecker::TakeNotices, FocalCorrector::TakeNotices), each with
+  // whether it is a warning.
   std::vector<std::pair<std::string, bool>> TakeFocalNotices();
   // Waits for the estimates that are due (the replay, before its summary).
   void WaitForFocalChecks();
@@ -289,88 +188,32 @@ class KeyframePipeline {
   KeyframeFrontendStats FrontendStats() const;
 
  private:
-  // Reads the graph of a saved map and its rig file, if any (views named as
-  // keyframes, a rig file that reads), before any part is used: `rig` is
-  // what the rig file holds, applied once the rest has loaded.
-  bool CheckMap(const std::string& graph_path, SavedKeyframeGraph* graph, bool* have_rig, RigModel::Saved* rig,
-                std::string* error) const;
   bool Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
                 const sensor_msgs::CameraInfo& info, bool rectified, PendingKeyframe* out, std::string* error);
   bool Reject(std::uint64_t* counter, const std::string& why, std::string* error);
+  // Into the averager through the rig model (one variable per rig capture).
   bool AddMeasurement(const KeyframeRelativeRotation& m, std::string* error, bool* queue_full = nullptr);
-  geometry_msgs::TransformStamped Transform(const ros::Time& stamp, const std::string& child,
-                                            const geometry_msgs::Quaternion& camera_to_world) const;
 
   PipelineConfig config_;
   std::unique_ptr<OnlineAverager> averager_;
   std::unique_ptr<KeyframeFrontend> frontend_;
-  std::unique_ptr<FocalChecker> focal_checker_;  // with a front end and focal_calibration: warn or apply
-  // focal_calibration: apply. Corrects the cameras whose latest check
-  // disagrees; the re-estimated edges replace the old ones in the graph.
-  // Called by ProcessKeyframe before its keyframe, on the front end's thread.
-  void ApplyFocalCorrections(std::vector<std::string>* warnings);
-  // A notice that the camera's correction is held back, unless the last one
-  // gave the same reason.
-  void HoldBackCorrection(const std::string& camera, const std::string& reason);
-  // focal_calibration: apply with focal_loop_refinement. The corrected
-  // cameras' focal lengths estimated together from the loops of the graph
-  // (core/estimators/loop_calibration.h), each pair's derivative from the
-  // front end (KeyframeFrontend::FocalSensitivities), the focal check's
-  // estimate as the prior; applied as a correction when the loops know the
-  // focal length at least twice as precisely as the check, agree with it
-  // (within 3 of its standard deviations) and move it by more than their
-  // own deviation; the pairs' edges then move by their derivatives
-  // (ApplyFocalCorrection, linearised). Runs when the front end's loop
-  // closures have grown by a tenth since it last ran (or since a
-  // correction): at a cost that grows with the log of their number, and
-  // for as long as the camera's pairs are held (max_correction_pairs).
-  // Called by ProcessKeyframe after ApplyFocalCorrections.
-  void RefineFocalByLoops();
-  std::uint64_t loops_at_refinement_ = 0;
-  // Per corrected camera: the focal length in use, px, and the latest focal
-  // check's estimate of it with its deviation, px (the loops' prior).
-  std::map<std::string, double> focal_in_use_px_;
-  std::map<std::string, std::pair<double, double>> focal_prior_px_;
-  std::map<std::string, std::pair<double, std::uint64_t>> applied_checks_;  // camera -> (given px, pairs) applied
-  std::set<std::string> corrections_refused_;
-  // The reason a camera's correction was last held back: each new estimate
-  // that is held back for the same reason says nothing new.
-  std::map<std::string, std::string> held_back_;
-  std::vector<std::pair<std::string, bool>> correction_notices_;  // under mutex_
-  std::map<std::string, double> focal_corrections_;  // under mutex_
-  std::map<std::string, std::string> focal_loop_refinements_;  // under mutex_
+  std::unique_ptr<FocalChecker> focal_checker_;      // with a front end and focal_calibration: warn or apply
+  std::unique_ptr<FocalCorrector> focal_corrector_;  // with a front end and focal_calibration: apply
+  std::unique_ptr<MapStore> map_store_;
+  OutputMessages output_;
   // Held while the front end adds a keyframe, and while its database is
   // saved or loaded (the node saves from a timer thread).
   std::mutex frontend_mutex_;
-  // One save at a time: the autosave timer and ~save_graph may both save to
-  // the same path, and its files are written through the same temporaries.
-  std::mutex save_mutex_;
   RigModel rig_;
   std::mutex selector_mutex_;
   KeyframeSelector selector_;
-  mutable std::mutex mutex_;  // stats_, frontend_stats_, last_save_timing_, last_image_stamp_, last_latest_stamp_
+  mutable std::mutex mutex_;  // stats_, frontend_stats_, last_image_stamp_, camera_models_, camera_model_notices_
   PipelineStats stats_;
   KeyframeFrontendStats frontend_stats_;
-  MapSaveTiming last_save_timing_;  // under mutex_
   std::map<std::string, std::int64_t> last_image_stamp_;
-  std::map<std::string, ros::Time> last_latest_stamp_;
   std::map<std::string, std::string> camera_models_;  // frame -> description of its model
   std::vector<std::string> camera_model_notices_;
 };
-
-// The vocabulary the build trains (target `vocabulary`, run by
-// scripts/setup.sh) in the package's share folder of the devel space.
-std::string DefaultVocabularyPath();
-
-// Where SaveMap puts the keyframe database of the graph at `graph_path`:
-// beside it, with ".keyframes" appended.
-std::string KeyframeDatabasePath(const std::string& graph_path);
-// Where SaveMap puts the rig model (RigModel::Save): ".rig" appended.
-std::string RigPath(const std::string& graph_path);
-
-// "{frame_id}" and "{stamp_ns}" in a frame name pattern.
-std::string KeyframeFrameName(const std::string& format, const KeyframeKey& key);
-
 }  // namespace rotation_averaging
 
 #endif  // ROTATION_AVERAGING_SRC_ROS_KEYFRAME_PIPELINE_H_

@@ -8,6 +8,7 @@
 #include <memory>
 #include <set>
 
+#include "frontend/controllers/focal_corrector.h"
 #include "frontend/controllers/keyframe_frontend.h"
 #include "frontend/scene/focal_scene.h"
 #include "frontend/scene/rig_scene.h"
@@ -369,8 +370,61 @@ TEST(FocalMonitor, ACorrectedFocalLengthMakesTheCamerasPairsRight) {
   EXPECT_NEAR(again.back().given_focal_px, short_k(0, 0) * check.calibration.scale, 1e-9);
 }
 
-// focal_calibration: apply, refined by the loops (RefineFocalByLoops in the
-// node): once a camera is corrected, its held pairs' edges move by their
+// FocalCorrector, what focal_calibration: apply runs: a camera whose check
+// disagrees is corrected once per estimate. Its pairs estimated again go
+// into the graph through the given edge sink, the correction and its notice
+// are reported, and the checker then looks at the corrected focal length:
+// the same estimate is never applied twice, and the camera that agrees is
+// left as it is.
+TEST(FocalMonitor, TheCorrectorAppliesADisagreeingCheckOnce) {
+  const std::unique_ptr<ShortFocalRun> run = RunShortFocal(true);
+  const std::string front = run->scene->Cameras()[0].frame_id, left = run->scene->Cameras()[1].frame_id;
+  FocalChecker checker(run->options.focal_monitor.focal);
+  checker.Submit(run->jobs);
+  checker.Wait();
+  const CameraFocalCheck check = checker.Checks().at(left);
+  ASSERT_TRUE(check.disagrees) << check.Report();
+  std::mutex frontend_mutex;
+  RigModel rig{RigModelOptions()};
+  OnlineAverager averager{OnlineAveragerOptions()};
+  std::vector<KeyframeRelativeRotation> added;
+  FocalCorrector corrector(FocalCorrectorOptions(), run->frontend.get(), &frontend_mutex, &checker, &rig, &averager,
+                           [&added](const KeyframeRelativeRotation& e, std::string*) {
+                             added.push_back(e);
+                             return true;
+                           });
+  std::vector<std::string> warnings;
+  corrector.ApplyCorrections(&warnings);
+  EXPECT_TRUE(warnings.empty());
+  const std::map<std::string, double> corrections = corrector.Corrections();
+  ASSERT_EQ(corrections.size(), 1u);
+  EXPECT_DOUBLE_EQ(corrections.at(left), check.calibration.scale);
+  EXPECT_DOUBLE_EQ(run->frontend->FocalCorrection(left), check.calibration.scale);
+  EXPECT_DOUBLE_EQ(run->frontend->FocalCorrection(front), 1.0);
+  ASSERT_GE(added.size(), 20u);
+  for (const KeyframeRelativeRotation& e : added) {
+    EXPECT_TRUE(e.keyframe1.frame_id == left || e.keyframe2.frame_id == left);
+  }
+  const std::vector<std::pair<std::string, bool>> notices = corrector.TakeNotices();
+  ASSERT_EQ(notices.size(), 1u);
+  EXPECT_NE(notices[0].first.find(left + ": focal length corrected by x"), std::string::npos) << notices[0].first;
+  EXPECT_NE(notices[0].first.find(std::to_string(added.size()) + " of its pairs estimated again"), std::string::npos)
+      << notices[0].first;
+  EXPECT_TRUE(corrector.TakeNotices().empty());
+  // The check runs again at the corrected focal length; nothing more to do.
+  checker.Wait();
+  const std::size_t edges_after_first = added.size();
+  corrector.ApplyCorrections(&warnings);
+  EXPECT_EQ(added.size(), edges_after_first);
+  EXPECT_EQ(corrector.Corrections(), corrections);
+  EXPECT_TRUE(corrector.TakeNotices().empty());
+  // No loop closures: nothing for the loops to refine.
+  corrector.RefineByLoops(0);
+  EXPECT_TRUE(corrector.LoopRefinements().empty());
+}
+
+// focal_calibration: apply, refined by the loops (FocalCorrector::RefineByLoops
+// in the node): once a camera is corrected, its held pairs' edges move by their
 // derivatives with respect to its focal length for the loops' small
 // corrections, instead of being estimated again. The left camera of the
 // raw rig, its focal length given 3% short, corrected to 0.5% short of the

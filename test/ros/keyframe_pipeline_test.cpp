@@ -185,12 +185,12 @@ TEST(KeyframePipeline, CameraInfoGivesTheCameraModelOfRawAndRectifiedImages) {
   info.D = {-0.28, 0.07, 0.0, std::nan(""), 0.0};
   EXPECT_FALSE(CameraFromInfo(info, false, &camera, &error));
 
-  EXPECT_FALSE(IsRectifiedTopic("/cam0/image_raw", "auto"));
-  EXPECT_TRUE(IsRectifiedTopic("/cam0/image_rect", "auto"));
-  EXPECT_TRUE(IsRectifiedTopic("/stereo/left/image_rect_color", "auto"));
-  EXPECT_FALSE(IsRectifiedTopic("/image_rect/image_raw", "auto"));
-  EXPECT_FALSE(IsRectifiedTopic("/cam0/image_rect", "raw"));
-  EXPECT_TRUE(IsRectifiedTopic("/cam0/image_raw", "rectified"));
+  EXPECT_FALSE(IsRectifiedTopic("/cam0/image_raw", ImageType::kAuto));
+  EXPECT_TRUE(IsRectifiedTopic("/cam0/image_rect", ImageType::kAuto));
+  EXPECT_TRUE(IsRectifiedTopic("/stereo/left/image_rect_color", ImageType::kAuto));
+  EXPECT_FALSE(IsRectifiedTopic("/image_rect/image_raw", ImageType::kAuto));
+  EXPECT_FALSE(IsRectifiedTopic("/cam0/image_rect", ImageType::kRaw));
+  EXPECT_TRUE(IsRectifiedTopic("/cam0/image_raw", ImageType::kRectified));
 
   // Through the pipeline: the keyframe carries the camera; an unknown model
   // rejects the image with its camera and model named.

@@ -85,15 +85,15 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
   EXPECT_EQ(c.frontend.relative_pose.jackknife_grid, 3);
   EXPECT_EQ(c.averager.averaging.loss, LossType::kCauchy);
   EXPECT_EQ(c.marker_spacing_m, 2.0);
-  EXPECT_EQ(c.keyframe_selection, "all");
+  EXPECT_EQ(c.keyframe_selection, KeyframeSelectionMode::kAll);
   EXPECT_EQ(c.selection.min_motion_deg, 7.0);
   EXPECT_EQ(c.selection.min_tracked_fraction, 0.3);
   EXPECT_EQ(c.selection.max_interval_s, 2.0);
   // One rig tolerance for the front end, the rig model and keyframe selection.
   EXPECT_EQ(c.selection.rig_stamp_tolerance_s, 0.01);
   EXPECT_EQ(c.frontend.rig_stamp_tolerance_s, 0.01);
-  EXPECT_EQ(c.image_type, "rectified");
-  EXPECT_EQ(c.focal_calibration, "off");
+  EXPECT_EQ(c.image_type, ImageType::kRectified);
+  EXPECT_EQ(c.focal_calibration, FocalCalibrationMode::kOff);
 }
 
 TEST(PipelineConfig, FormerNamesAreReadWithADeprecationWarning) {

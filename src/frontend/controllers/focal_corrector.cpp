@@ -1,0 +1,295 @@
+#include "frontend/controllers/focal_corrector.h"
+
+#include <algorithm>
+#include <cmath>
+#include <iomanip>
+#include <sstream>
+#include <tuple>
+#include <utility>
+
+
+namespace rotation_averaging {
+namespace {
+
+// A focal check's estimate and its standard deviation, px.
+std::pair<double, double> FocalEstimatePx(const CameraFocalCheck& check) {
+  return {check.given_focal_px * check.calibration.scale, check.given_focal_px * check.calibration.standard_deviation};
+}
+
+}  // namespace
+
+FocalCorrector::FocalCorrector(const FocalCorrectorOptions& options, KeyframeFrontend* frontend,
+                               std::mutex* frontend_mutex, FocalChecker* checker, RigModel* rig,
+                               OnlineAverager* averager, AddEdge add_edge)
+    : options_(options),
+      frontend_(frontend),
+      frontend_mutex_(frontend_mutex),
+      checker_(checker),
+      rig_(rig),
+      averager_(averager),
+      add_edge_(std::move(add_edge)) {}
+
+std::map<std::string, double> FocalCorrector::Corrections() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return corrections_;
+}
+
+std::map<std::string, std::string> FocalCorrector::LoopRefinements() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return loop_refinements_;
+}
+
+std::vector<std::pair<std::string, bool>> FocalCorrector::TakeNotices() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<std::pair<std::string, bool>> out;
+  out.swap(notices_);
+  return out;
+}
+
+void FocalCorrector::HoldBack(const std::string& camera, const std::string& reason) {
+  std::string& said = held_back_[camera];
+  if (said == reason) return;
+  said = reason;
+  std::lock_guard<std::mutex> lock(mutex_);
+  notices_.emplace_back(camera + ": focal length not corrected: " + reason, true);
+}
+
+std::string FocalCorrector::UncheckedRigCameras(const std::string& camera,
+                                                const std::map<std::string, CameraFocalCheck>& checks,
+                                                const std::map<std::string, double>& corrected) const {
+  // The cameras of a rig (extrinsics known) share one orientation per
+  // capture: correcting one while another stays as wrong makes their edges
+  // disagree, which can cost more than an error they share (it did on the
+  // demo rig, whose forward camera cannot be checked). So a rig camera is
+  // corrected only when each other camera of its rig is checked as
+  // precisely as a correction needs (its deviation within
+  // min_correction) and agrees, or disagrees too, or was corrected.
+  const std::map<std::string, std::pair<std::string, Eigen::Matrix3d>> rig_cameras = rig_->RigCameras();
+  const auto rig = rig_cameras.find(camera);
+  std::string unchecked;
+  if (rig == rig_cameras.end()) return unchecked;
+  for (const auto& [other, other_rig] : rig_cameras) {
+    if (other == camera || other_rig.first != rig->second.first) continue;
+    const auto c = checks.find(other);
+    const bool settled = corrected.count(other) > 0 ||
+                         (c != checks.end() && c->second.calibration.estimated &&
+                          (c->second.disagrees || c->second.calibration.standard_deviation <= options_.min_correction));
+    if (!settled) unchecked += (unchecked.empty() ? "" : ", ") + other;
+  }
+  return unchecked;
+}
+
+void FocalCorrector::ApplyCorrections(std::vector<std::string>* warnings) {
+  const std::map<std::string, CameraFocalCheck> checks = checker_->Checks();
+  const std::map<std::string, double> corrected = Corrections();
+  for (const auto& [camera, check] : checks) {
+    if (!check.disagrees || refused_.count(camera)) continue;
+    const auto applied = applied_checks_.find(camera);
+    if (applied != applied_checks_.end() && applied->second == std::make_pair(check.given_focal_px, check.pairs_seen)) {
+      continue;  // this estimate is decided already
+    }
+    if (check.distortion_unmodelled) {
+      // A lens the model leaves out bends the focal estimate too: correcting
+      // it would fit the focal length to the distortion.
+      applied_checks_[camera] = {check.given_focal_px, check.pairs_seen};
+      HoldBack(camera, "its images are distorted and camera_info has no distortion model, which the "
+                       "estimate cannot tell from a focal length error; give the model first");
+      continue;
+    }
+    const std::string unchecked = UncheckedRigCameras(camera, checks, corrected);
+    if (!unchecked.empty()) {
+      // Not decided for good: the other cameras' checks may settle while
+      // this estimate stands (the estimates of a rig's cameras arrive one
+      // after the other), and it is looked at again with every keyframe.
+      HoldBack(camera, "the other cameras of its rig (" + unchecked +
+                           ") are not checked precisely enough, and correcting one camera of a rig alone "
+                           "makes its cameras disagree; fix camera_info");
+      continue;
+    }
+    applied_checks_[camera] = {check.given_focal_px, check.pairs_seen};
+    held_back_.erase(camera);
+    Correct(camera, check, warnings);
+  }
+}
+
+void FocalCorrector::Correct(const std::string& camera, const CameraFocalCheck& check,
+                             std::vector<std::string>* warnings) {
+  std::vector<KeyframeRelativeRotation> edges;
+  std::string why;
+  bool ok = false;
+  double correction = 1.0;
+  {
+    std::lock_guard<std::mutex> lock(*frontend_mutex_);
+    ok = frontend_->ApplyFocalCorrection(camera, check.calibration.scale, &edges, &why);
+    correction = frontend_->FocalCorrection(camera);
+    if (ok) checker_->Submit(frontend_->TakeFocalJobs());
+  }
+  std::ostringstream line;
+  line << std::fixed << std::setprecision(4) << camera << ": ";
+  if (!ok) {
+    refused_.insert(camera);
+    line << "focal length not corrected: " << why;
+  } else {
+    checker_->ExpectFocal(camera, check.given_focal_px * check.calibration.scale);
+    focal_in_use_px_[camera] = check.given_focal_px * check.calibration.scale;
+    focal_prior_px_[camera] = FocalEstimatePx(check);
+    loops_at_refinement_ = 0;  // the loops look again at the new focal length
+    std::size_t replaced = 0;
+    for (const KeyframeRelativeRotation& e : edges) {
+      std::string error;
+      if (add_edge_(e, &error)) {
+        ++replaced;
+      } else if (warnings) {
+        warnings->push_back("re-estimated edge dropped: " + error);
+      }
+    }
+    line << "focal length corrected by x" << check.calibration.scale << " (x" << correction
+         << " of camera_info's in all): " << replaced << " of its pairs estimated again";
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (ok) corrections_[camera] = correction;
+  notices_.emplace_back(line.str(), true);
+}
+
+void FocalCorrector::RefineByLoops(std::uint64_t loops) {
+  if (!options_.loop_refinement || focal_in_use_px_.empty()) return;
+  // Each estimate is at most a tenth of the loops behind: the loops that
+  // close last (the longest, around the whole trajectory) decide the most.
+  if (loops == 0 || loops <= loops_at_refinement_ || 10 * loops < 11 * loops_at_refinement_) return;
+  loops_at_refinement_ = loops;
+  // The prior: the latest check of the focal length in use, when there is
+  // one (a check at the former focal length is dropped by ExpectFocal).
+  for (const auto& [camera, check] : checker_->Checks()) {
+    const auto in_use = focal_in_use_px_.find(camera);
+    if (in_use == focal_in_use_px_.end() || !check.calibration.estimated ||
+        std::abs(check.given_focal_px - in_use->second) > 1e-9 * in_use->second) {
+      continue;
+    }
+    focal_prior_px_[camera] = FocalEstimatePx(check);
+  }
+  std::vector<std::string> cameras;
+  std::vector<std::vector<FocalSensitivity>> sensitivities;
+  {
+    std::lock_guard<std::mutex> lock(*frontend_mutex_);
+    for (const auto& [camera, px] : focal_in_use_px_) {
+      std::vector<FocalSensitivity> s = frontend_->FocalSensitivities(camera);
+      if (s.empty()) continue;
+      cameras.push_back(camera);
+      sensitivities.push_back(std::move(s));
+    }
+  }
+  if (cameras.empty()) return;
+  ViewGraph graph;
+  std::map<KeyframeKey, ViewId> ids;
+  ViewOrientations start;
+  averager_->PendingGraph(&graph, &ids, &start);
+  LoopCalibrationOptions options;
+  options.averaging = options_.averaging;
+  for (const std::string& camera : cameras) {
+    const double in_use = focal_in_use_px_.at(camera);
+    const std::pair<double, double>& prior = focal_prior_px_.at(camera);
+    options.prior_center.push_back(prior.first / in_use - 1.0);
+    options.prior_sigma.push_back(prior.second / in_use);
+  }
+  const LoopCalibrationResult result =
+      EstimateParametersFromLoops(graph, EdgeDerivatives(graph, ids, sensitivities), options, start);
+  std::vector<std::pair<std::string, bool>> notices;
+  if (!result.success) {
+    notices.emplace_back("focal lengths not refined by the loops: " + result.message, false);
+  }
+  std::map<std::string, std::string> latest;  // camera -> its line
+  for (std::size_t p = 0; result.success && p < cameras.size(); ++p) {
+    const std::string& camera = cameras[p];
+    const double center = options.prior_center[p], prior_sigma = options.prior_sigma[p];
+    std::ostringstream line;
+    line << std::fixed << std::setprecision(5) << camera << ": the loops put its focal length at x"
+         << 1.0 + result.value[p] << " +- " << result.sigma[p] << " of the one in use (the focal check: x"
+         << 1.0 + center << " +- " << prior_sigma << "; " << loops << " loop closures, " << result.solves
+         << " averaging solves): ";
+    bool disagrees = false;
+    line << RefineOne(camera, result.value[p], result.sigma[p], center, prior_sigma, &disagrees);
+    notices.emplace_back(line.str(), disagrees);
+    latest[camera] = line.str();
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  notices_.insert(notices_.end(), notices.begin(), notices.end());
+  for (auto& [camera, line] : latest) loop_refinements_[camera] = std::move(line);
+}
+
+std::vector<EdgeParameterDerivative> FocalCorrector::EdgeDerivatives(
+    const ViewGraph& graph, const std::map<KeyframeKey, ViewId>& ids,
+    const std::vector<std::vector<FocalSensitivity>>& sensitivities) const {
+  // Graph edges by (views, source, channel), as the rig model turns a
+  // camera pair into one (RigModel::ToVariables).
+  std::map<std::tuple<ViewId, ViewId, EdgeSource, std::uint32_t>, std::size_t> edge_of;
+  for (std::size_t k = 0; k < graph.NumEdges(); ++k) {
+    const RelativeRotation& e = graph.Edges()[k];
+    edge_of[{std::min(e.view1, e.view2), std::max(e.view1, e.view2), e.source, e.channel}] = k;
+  }
+  std::vector<EdgeParameterDerivative> derivatives;
+  for (std::size_t p = 0; p < sensitivities.size(); ++p) {
+    for (const FocalSensitivity& s : sensitivities[p]) {
+      KeyframeRelativeRotation m;
+      m.keyframe1 = s.keyframe1;
+      m.keyframe2 = s.keyframe2;
+      m.source = s.source;
+      KeyframeRelativeRotation v;
+      if (!rig_->ToVariables(m, &v)) continue;  // two cameras of one capture: no edge
+      const auto id1 = ids.find(v.keyframe1), id2 = ids.find(v.keyframe2);
+      if (id1 == ids.end() || id2 == ids.end()) continue;
+      const auto edge = edge_of.find({std::min(id1->second, id2->second), std::max(id1->second, id2->second),
+                                      v.source, v.channel});
+      if (edge == edge_of.end()) continue;  // not in the graph (rejected, or capped)
+      // An edge stored from the other end is the inverse, whose right
+      // perturbation is -R_21^T times the variable edge's.
+      Eigen::Vector3d d = rig_->PerturbationToVariables(s.keyframe2.frame_id, s.derivative);
+      const RelativeRotation& stored = graph.Edges()[edge->second];
+      if (stored.view1 != id1->second) d = -(stored.rotation.transpose() * d);
+      derivatives.push_back(EdgeParameterDerivative{edge->second, static_cast<int>(p), d});
+    }
+  }
+  return derivatives;
+}
+
+std::string FocalCorrector::RefineOne(const std::string& camera, double e, double sigma, double center,
+                                      double prior_sigma, bool* disagrees) {
+  *disagrees = false;
+  if (!(sigma <= 0.5 * prior_sigma)) return "not refined, the loops know it no better than the check";
+  if (std::abs(e - center) > 3.0 * prior_sigma) {
+    // Something else bends the loops (extrinsics, a lens, outliers): the
+    // focal length is not the parameter to fit to them.
+    *disagrees = true;
+    return "not refined, they disagree with the check";
+  }
+  if (std::abs(e) <= sigma) return "kept, within the loops' deviation";
+  std::vector<KeyframeRelativeRotation> edges;
+  std::string why;
+  bool ok = false;
+  double correction = 1.0;
+  {
+    std::lock_guard<std::mutex> lock(*frontend_mutex_);
+    ok = frontend_->ApplyFocalCorrection(camera, 1.0 + e, &edges, &why, /*linearised=*/true);
+    correction = frontend_->FocalCorrection(camera);
+  }
+  if (!ok) {
+    *disagrees = true;
+    return "not refined: " + why;
+  }
+  focal_in_use_px_[camera] *= 1.0 + e;
+  checker_->ExpectFocal(camera, focal_in_use_px_[camera]);
+  std::size_t replaced = 0;
+  for (const KeyframeRelativeRotation& edge : edges) {
+    if (add_edge_(edge, nullptr)) ++replaced;
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    corrections_[camera] = correction;
+  }
+  // A refinement of a correction already announced: not a warning.
+  std::ostringstream refined;
+  refined << std::fixed << "refined (x" << std::setprecision(6) << correction << " of camera_info's in all): " << replaced
+          << " of its pairs' edges moved by their derivatives";
+  return refined.str();
+}
+
+}  // namespace rotation_averaging
