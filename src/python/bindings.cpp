@@ -20,6 +20,7 @@
 
 #include "rotation_averaging/frontend/estimators/bundle_adjustment.h"
 #include "rotation_averaging/frontend/estimators/relative_pose.h"
+#include "rotation_averaging/frontend/geometry/camera_model.h"
 #include "rotation_averaging/core/estimators/rotation_averaging.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"

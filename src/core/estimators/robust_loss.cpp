@@ -70,8 +70,7 @@ void TukeyLoss::Evaluate(double s, double rho[3]) const {
 }
 
 MagsacLoss::MagsacLoss(double sigma_max)
-    : sigma_max_(sigma_max),
-      two_sigma2_(2.0 * sigma_max * sigma_max),
+    : two_sigma2_(2.0 * sigma_max * sigma_max),
       cutoff_s_(kChiQuantile * kChiQuantile * sigma_max * sigma_max),
       outer_value_(two_sigma2_ * -std::expm1(-0.5 * kChiQuantile * kChiQuantile)) {}
 

@@ -285,7 +285,7 @@ bool BlockSparseSystem::TryOldFactor(Eigen::MatrixXd* x) {
   // (100,000-view scale graph, all by factorisation: 29 failed attempts,
   // ~8 s of a 26 s solve; with the back-off 6 attempts and 18 s).
   Factorization& f = *factorization_;
-  if (!f.has_factor || f.refactor_next || !reuse_factorization_ || !f.pcg_back_off.Try()) return false;
+  if (!f.has_factor || f.refactor_next || !f.pcg_back_off.Try()) return false;
   // All right-hand sides iterate together, each with its own step
   // lengths: one triangular solve with k columns streams the factor once
   // (100,000-row grid Laplacian: 3 columns 44 ms, one column 30 ms), so

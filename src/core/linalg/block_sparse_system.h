@@ -71,7 +71,6 @@ class BlockSparseSystem {
   bool InverseDiagonalBlocks(std::vector<Eigen::Matrix3d>* blocks, double max_work = 3e8) const;
   // Single right-hand side.
   bool Solve(double relative_lambda, int max_retries, Eigen::VectorXd* x, double* lambda_used = nullptr);
-  void SetReuseFactorization(bool reuse) { reuse_factorization_ = reuse; }
   // Replaces kBlockSimplicialMaxColumnCount; read when the first
   // factorisation chooses its method.
   void SetBlockCholeskyMaxColumnCount(double count) { block_cholesky_max_column_count_ = count; }
@@ -146,7 +145,6 @@ class BlockSparseSystem {
   std::vector<int> diagonal_positions_;  // value index of each scalar diagonal entry
   std::unique_ptr<Index> index_;
   Eigen::MatrixXd rhs_;
-  bool reuse_factorization_ = true;
   double block_cholesky_max_column_count_ = kBlockSimplicialMaxColumnCount;
   double pcg_tolerance_ = 1e-5;
   int num_factorizations_ = 0;

@@ -9,6 +9,7 @@
 
 #include "core/util/option_check.h"
 #include "frontend/geometry/epipolar.h"
+#include "rotation_averaging/frontend/geometry/camera_model.h"
 #include "rotation_averaging/core/geometry/so3.h"
 
 namespace rotation_averaging {
@@ -791,13 +792,6 @@ int RefineRotationOnInliers(const std::vector<Eigen::Vector2d>& points1, const s
   const int done = GaussNewtonRotation(b1, points2, k2, inliers, max_iterations, rotation, &information, &sum_squares);
   *rotation = ProjectToSO3(*rotation);
   return done;
-}
-
-const char* const kCameraIntrinsicsRule = "finite, positive focal lengths, last row 0 0 1";
-
-bool IsCameraIntrinsics(const Eigen::Matrix3d& k) {
-  return k.allFinite() && k(0, 0) > 0.0 && k(1, 1) > 0.0 && k(2, 0) == 0.0 && k(2, 1) == 0.0 &&
-         std::abs(k(2, 2) - 1.0) <= 1e-9;
 }
 
 std::vector<Eigen::Vector2d> NormalisedPoints(const std::vector<Eigen::Vector2d>& points_px, const Eigen::Matrix3d& k,

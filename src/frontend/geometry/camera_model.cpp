@@ -11,9 +11,15 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/io/text_lines.h"
-#include "rotation_averaging/frontend/estimators/relative_pose.h"
 
 namespace rotation_averaging {
+
+const char* const kCameraIntrinsicsRule = "finite, positive focal lengths, last row 0 0 1";
+
+bool IsCameraIntrinsics(const Eigen::Matrix3d& k) {
+  return k.allFinite() && k(0, 0) > 0.0 && k(1, 1) > 0.0 && k(2, 0) == 0.0 && k(2, 1) == 0.0 &&
+         std::abs(k(2, 2) - 1.0) <= 1e-9;
+}
 namespace {
 
 // A keypoint whose undistortion reprojects further than this from where it

@@ -14,6 +14,7 @@
 #include "core/io/binary_io.h"
 #include "core/io/text_lines.h"
 #include "rotation_averaging/frontend/estimators/relative_pose.h"
+#include "rotation_averaging/frontend/geometry/camera_model.h"
 
 namespace rotation_averaging {
 

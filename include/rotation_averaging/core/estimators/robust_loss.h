@@ -121,10 +121,9 @@ class MagsacLoss : public RobustLoss {
   static constexpr double kChiQuantile = 3.3682;  // sqrt of the 0.99 quantile of chi2(3)
   explicit MagsacLoss(double sigma_max);
   void Evaluate(double s, double rho[3]) const override;
-  double SigmaMax() const { return sigma_max_; }
 
  private:
-  double sigma_max_, two_sigma2_, cutoff_s_, outer_value_;
+  double two_sigma2_, cutoff_s_, outer_value_;
 };
 
 enum class LossType { kSquared, kHuber, kSoftL1, kLHalf, kCauchy, kGemanMcClure, kTukey, kMagsac };

@@ -24,8 +24,6 @@
 
 namespace rotation_averaging {
 
-using ViewOrientations = std::unordered_map<ViewId, Eigen::Matrix3d>;
-
 // How each edge's information W_ij = D_ij D_ij^T is formed.
 //  kNone:       W = I. Residuals in radians.
 //  kInliers:    W = (n_ij / median n) I. Residuals in (about) radians.

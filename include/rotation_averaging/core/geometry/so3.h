@@ -106,16 +106,6 @@ Eigen::Matrix3d RotationFromRollPitchYaw(double roll_rad, double pitch_rad, doub
 // perturbations to a right perturbation of the rotation above.
 Eigen::Matrix3d RollPitchYawToRightTangentJacobian(double roll_rad, double pitch_rad);
 
-// Chordal L2 mean of rotations (projection of the weighted sum onto SO(3)).
-// Returns identity when the list is empty.
-template <typename Container>
-Eigen::Matrix3d ChordalMean(const Container& rotations) {
-  Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
-  for (const Eigen::Matrix3d& r : rotations) sum += r;
-  if (rotations.empty()) return Eigen::Matrix3d::Identity();
-  return ProjectToSO3(sum);
-}
-
 constexpr double kPi = 3.14159265358979323846;
 inline double DegToRad(double deg) { return deg * kPi / 180.0; }
 inline double RadToDeg(double rad) { return rad * 180.0 / kPi; }

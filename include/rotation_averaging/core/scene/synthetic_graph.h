@@ -5,7 +5,6 @@
 
 #include <cstdint>
 
-#include "rotation_averaging/core/estimators/rotation_averaging.h"
 #include "rotation_averaging/core/scene/view_graph.h"
 
 namespace rotation_averaging {

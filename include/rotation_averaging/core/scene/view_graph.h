@@ -30,6 +30,8 @@
 namespace rotation_averaging {
 
 using ViewId = std::uint64_t;
+// One orientation per view (world-to-camera R_i), keyed by view id.
+using ViewOrientations = std::unordered_map<ViewId, Eigen::Matrix3d>;
 
 enum class EdgeSource : std::uint8_t { kRig = 0, kSequential = 1, kLoopClosure = 2, kOther = 3 };
 const char* EdgeSourceName(EdgeSource source);

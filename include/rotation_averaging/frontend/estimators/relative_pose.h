@@ -154,11 +154,6 @@ struct RelativePoseResult {
   Eigen::Matrix3d EdgeRotation() const { return rotation.transpose(); }
 };
 
-// True if k can be a pinhole camera's intrinsics: finite, positive focal
-// lengths, last row 0 0 1 (kCameraIntrinsicsRule, for messages).
-bool IsCameraIntrinsics(const Eigen::Matrix3d& k);
-extern const char* const kCameraIntrinsicsRule;
-
 // The points at the given indices (a pose's inliers) in normalised image
 // coordinates K^-1 x. Every index must be within points_px.
 std::vector<Eigen::Vector2d> NormalisedPoints(const std::vector<Eigen::Vector2d>& points_px, const Eigen::Matrix3d& k,

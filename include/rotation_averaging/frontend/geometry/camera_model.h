@@ -15,6 +15,11 @@
 
 namespace rotation_averaging {
 
+// True if k can be a pinhole camera's intrinsics: finite, positive focal
+// lengths, last row 0 0 1 (kCameraIntrinsicsRule, for messages).
+bool IsCameraIntrinsics(const Eigen::Matrix3d& k);
+extern const char* const kCameraIntrinsicsRule;
+
 // The distortion models of sensor_msgs/CameraInfo (image_geometry's names),
 // in OpenCV's parametrisation.
 enum class DistortionModel {
