@@ -187,6 +187,226 @@ void Assemble(const ComponentProblem& component, const std::vector<Eigen::Vector
   }
 }
 
+// The IRLS / Gauss-Newton iterations of one component on its workspace
+// (SolveComponentIrls).
+class IrlsIterations {
+ public:
+  IrlsIterations(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
+                 ComponentSummary* summary, IrlsWorkspace* ws)
+      : options_(options),
+        loss_(loss),
+        problem_(*problem),
+        summary_(*summary),
+        ws_(*ws),
+        n_(static_cast<int>(problem->view_ids.size())),
+        m_(problem->edges.size()),
+        isotropic_(ws->isotropic),
+        system_(*ws->system),
+        num_free_(system_.NumBlocks()),
+        residuals_(m_),
+        weights_(m_),
+        quaternions_(n_),
+        candidate_(n_),
+        candidate_residuals_(m_),
+        candidate_weights_(m_),
+        extrapolation_(n_),
+        extrapolation_residuals_(m_),
+        extrapolation_weights_(m_) {}
+
+  void Run() {
+    // The residuals a previous solve on this workspace ended with (GNC
+    // stages, the final and auto-scaled solves) are reused when the
+    // rotations are still the same: they do not depend on the loss.
+    double cost = 0.0;
+    if (ws_.residuals.size() == m_ && ws_.residual_rotations == problem_.rotations) {
+      residuals_ = ws_.residuals;
+      cost = CostOf(residuals_, &weights_);
+    } else {
+      cost = Evaluate(problem_.rotations, &residuals_, &weights_);
+    }
+    summary_.initial_cost = cost;
+    summary_.converged = false;
+    summary_.status = "maximum iterations reached";
+    if (!std::isfinite(cost)) {
+      summary_.status = "initial cost is not finite";
+      summary_.final_cost = cost;
+      return;
+    }
+    const bool multigrid =
+        options_.linear.multigrid_min_views > 0 && num_free_ >= options_.linear.multigrid_min_views &&
+        (isotropic_ || MedianAnisotropy(problem_, &ws_) <= options_.linear.block_multigrid_max_anisotropy);
+    system_.SetUseMultigrid(multigrid);
+    system_.SetBlockCholeskyMaxColumnCount(options_.linear.block_cholesky_max_column_count);
+    system_.SetPcgTolerance(multigrid ? std::max(options_.linear.linear_solve_tolerance,
+                                                 options_.linear.multigrid_linear_solve_tolerance)
+                                      : options_.linear.linear_solve_tolerance);
+    int iteration = 0;
+    for (; iteration < options_.max_iterations; ++iteration) {
+      if (!Iterate(&cost)) break;
+      if (summary_.converged) {
+        ++iteration;
+        break;
+      }
+    }
+    // Keep the rotations exactly orthonormal after many small updates.
+    for (Eigen::Matrix3d& r : problem_.rotations) r = ProjectToSO3(r);
+    summary_.iterations += iteration;
+    summary_.factorizations = system_.NumFactorizations();
+    summary_.preconditioned_solves = system_.NumPreconditionedSolves();
+    summary_.multigrid_solves = system_.NumMultigridSolves();
+    summary_.final_cost = Evaluate(problem_.rotations, &residuals_, &weights_);
+    ws_.residuals = residuals_;
+    ws_.residual_rotations = problem_.rotations;
+  }
+
+ private:
+  // |D^T r|^2 of edge k: s |r|^2 for isotropic information (one number per
+  // edge instead of the 3x3 square root: the edge loops stream less memory).
+  double WhitenedSquared(std::size_t k, const Eigen::Vector3d& r) const {
+    return isotropic_ ? ws_.scalar_information[k] * r.squaredNorm()
+                      : (problem_.edges[k].sqrt_information * r).squaredNorm();
+  }
+  // Robust cost of edge k at residual r; its weight rho' into w[k], kept for
+  // the next assembly (the loss is not evaluated twice).
+  double EdgeCost(std::size_t k, const Eigen::Vector3d& r, std::vector<double>* w) const {
+    double rho[3];
+    loss_.Evaluate(WhitenedSquared(k, r), rho);
+    (*w)[k] = rho[1];
+    return 0.5 * rho[0];
+  }
+  double CostOf(const std::vector<Eigen::Vector3d>& res, std::vector<double>* w) const {
+    double cost = 0.0;
+    for (std::size_t k = 0; k < m_; ++k) cost += EdgeCost(k, res[k], w);
+    return cost;
+  }
+  // Residuals, robust weights and cost in one pass over the edges.
+  double Evaluate(const std::vector<Eigen::Matrix3d>& rotations, std::vector<Eigen::Vector3d>* res,
+                  std::vector<double>* w) {
+    // r_ij = Log(conj(m_ij) q_i conj(q_j)): two quaternion products (32
+    // multiplications) instead of two 3x3 matrix products (54), and 32
+    // bytes per measurement streamed instead of 72.
+    for (int v = 0; v < n_; ++v) quaternions_[v] = Eigen::Quaterniond(rotations[v]);
+    double cost = 0.0;
+    for (std::size_t k = 0; k < m_; ++k) {
+      const auto [i, j] = ws_.ends[k];
+      (*res)[k] = LogUnitQuaternion(ws_.measured_conjugate[k] * quaternions_[i] * quaternions_[j].conjugate());
+      cost += EdgeCost(k, (*res)[k], w);
+    }
+    return cost;
+  }
+  // `from` moved by `scale` times the last step, into `to`.
+  void Apply(double scale, const std::vector<Eigen::Matrix3d>& from, std::vector<Eigen::Matrix3d>* to) const {
+    for (int v = 0; v < n_; ++v) {
+      if (ws_.var[v] < 0) {
+        (*to)[v] = from[v];
+      } else if (isotropic_) {
+        (*to)[v] = from[v] * ExpSO3(scale * delta_.row(ws_.var[v]).transpose());
+      } else {
+        (*to)[v] = from[v] * ExpSO3(scale * delta_.col(0).segment<3>(3 * ws_.var[v]));
+      }
+    }
+  }
+
+  // One iteration from the rotations at `cost`. False when it stops the
+  // solve without a step (the linear solve failed, or no step decreases the
+  // cost); a step that converges sets summary_.converged.
+  bool Iterate(double* cost) {
+    Assemble(problem_, residuals_, weights_, &ws_);
+    if (!system_.Solve(1e-12, 6, &delta_)) {
+      summary_.status = "linear solve failed even with regularisation";
+      return false;
+    }
+    // Apply the step, halving it while the robust cost goes up.
+    double step = 1.0, new_cost = *cost;
+    bool accepted = false;
+    for (int attempt = 0; attempt < 5; ++attempt, step *= 0.5) {
+      Apply(step, problem_.rotations, &candidate_);
+      new_cost = Evaluate(candidate_, &candidate_residuals_, &candidate_weights_);
+      if (std::isfinite(new_cost) && new_cost <= *cost * (1.0 + 1e-12) + 1e-300) {
+        accepted = true;
+        break;
+      }
+    }
+    if (!accepted) {
+      summary_.converged = true;
+      summary_.status = "converged: no step decreases the cost";
+      return false;
+    }
+    const double extrapolated = options_.irls_extrapolation ? Extrapolate(step, &new_cost) : 0.0;
+    const double max_step =
+        num_free_ == 0 ? 0.0
+                       : (step + extrapolated) * (isotropic_ ? delta_.rowwise().norm().maxCoeff()
+                                                             : delta_.col(0).reshaped(3, num_free_).colwise().norm().maxCoeff());
+    const double decrease = *cost - new_cost;
+    problem_.rotations.swap(candidate_);
+    residuals_.swap(candidate_residuals_);
+    weights_.swap(candidate_weights_);
+    *cost = new_cost;
+    if (max_step < options_.step_tolerance_rad) {
+      summary_.converged = true;
+      summary_.status = "converged: step below tolerance";
+    } else if (decrease <= options_.function_tolerance * *cost) {
+      summary_.converged = true;
+      summary_.status = "converged: cost decrease below tolerance";
+    }
+    return true;
+  }
+
+  // IRLS converges linearly; with redescending losses a view whose inliers
+  // sit near the cut-off crawls (a fixed fraction closer per iteration,
+  // still far from the minimum when the cost test stops). When two
+  // consecutive full steps point the same way and shrink geometrically, the
+  // rest of the geometric series is tried in one jump and kept only if it
+  // lowers the cost (one extra evaluation). Returns the factor of the step
+  // taken beyond the candidate (0: none); `new_cost` is the candidate's.
+  double Extrapolate(double step, double* new_cost) {
+    double extrapolated = 0.0;
+    const Eigen::Map<const Eigen::VectorXd> flat(delta_.data(), delta_.size());
+    if (previous_update_.size() == flat.size() && step == 1.0) {
+      const double norm = flat.norm(), previous_norm = previous_update_.norm();
+      const double cosine = flat.dot(previous_update_) / std::max(norm * previous_norm, 1e-300);
+      const double ratio = norm / std::max(previous_norm, 1e-300);
+      if (cosine > 0.95 && ratio > 0.3 && ratio < 0.99) {
+        const double factor = std::min(ratio / (1.0 - ratio), 10.0);
+        Apply(factor, candidate_, &extrapolation_);
+        const double extrapolated_cost = Evaluate(extrapolation_, &extrapolation_residuals_, &extrapolation_weights_);
+        if (std::isfinite(extrapolated_cost) && extrapolated_cost < *new_cost) {
+          candidate_.swap(extrapolation_);
+          candidate_residuals_.swap(extrapolation_residuals_);
+          candidate_weights_.swap(extrapolation_weights_);
+          *new_cost = extrapolated_cost;
+          extrapolated = factor;
+          ++summary_.extrapolations;
+        }
+      }
+    }
+    if (extrapolated > 0.0) previous_update_.resize(0); else previous_update_ = step * flat;
+    return extrapolated;
+  }
+
+  const RotationAveragingOptions& options_;
+  const RobustLoss& loss_;
+  ComponentProblem& problem_;
+  ComponentSummary& summary_;
+  IrlsWorkspace& ws_;
+  const int n_;
+  const std::size_t m_;
+  const bool isotropic_;
+  BlockSparseSystem& system_;
+  const int num_free_;
+  std::vector<Eigen::Vector3d> residuals_;
+  std::vector<double> weights_;  // robust weights rho' of each edge at residuals_
+  std::vector<Eigen::Quaterniond> quaternions_;
+  std::vector<Eigen::Matrix3d> candidate_;
+  std::vector<Eigen::Vector3d> candidate_residuals_;
+  std::vector<double> candidate_weights_;
+  std::vector<Eigen::Matrix3d> extrapolation_;
+  std::vector<Eigen::Vector3d> extrapolation_residuals_;
+  std::vector<double> extrapolation_weights_;
+  Eigen::VectorXd previous_update_;
+  Eigen::MatrixXd delta_;
+};
+
 }  // namespace
 
 IrlsWorkspace::IrlsWorkspace() = default;
@@ -194,183 +414,10 @@ IrlsWorkspace::~IrlsWorkspace() = default;
 
 void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
                         ComponentSummary* summary, IrlsWorkspace* workspace) {
-  const int n = static_cast<int>(problem->view_ids.size());
   IrlsWorkspace local;
   IrlsWorkspace& ws = workspace ? *workspace : local;
   PrepareWorkspace(*problem, &ws);
-  const bool isotropic = ws.isotropic;
-  const std::vector<int>& var = ws.var;
-  BlockSparseSystem& system = *ws.system;
-  const int num_free = system.NumBlocks();
-
-  const std::size_t m = problem->edges.size();
-  std::vector<Eigen::Vector3d> residuals(m);
-  // Robust weights rho' of each edge at `residuals`, kept from the cost
-  // evaluation for the next assembly (the loss is not evaluated twice).
-  std::vector<double> weights(m);
-  // |D^T r|^2 of edge k: s |r|^2 for isotropic information (one number per
-  // edge instead of the 3x3 square root: the edge loops stream less memory).
-  const std::vector<double>& scalar_information = ws.scalar_information;
-  auto whitened_squared = [&](std::size_t k, const Eigen::Vector3d& r) {
-    return isotropic ? scalar_information[k] * r.squaredNorm() : (problem->edges[k].sqrt_information * r).squaredNorm();
-  };
-  // Robust cost of edge k at residual r; its weight rho' into w[k].
-  auto edge_cost = [&](std::size_t k, const Eigen::Vector3d& r, std::vector<double>* w) {
-    double rho[3];
-    loss.Evaluate(whitened_squared(k, r), rho);
-    (*w)[k] = rho[1];
-    return 0.5 * rho[0];
-  };
-  auto cost_of = [&](const std::vector<Eigen::Vector3d>& res, std::vector<double>* w) {
-    double cost = 0.0;
-    for (std::size_t k = 0; k < m; ++k) cost += edge_cost(k, res[k], w);
-    return cost;
-  };
-  std::vector<Eigen::Quaterniond> quaternions(n);
-  // Residuals, robust weights and cost in one pass over the edges.
-  auto evaluate = [&](const std::vector<Eigen::Matrix3d>& rotations, std::vector<Eigen::Vector3d>* res,
-                      std::vector<double>* w) {
-    // r_ij = Log(conj(m_ij) q_i conj(q_j)): two quaternion products (32
-    // multiplications) instead of two 3x3 matrix products (54), and 32
-    // bytes per measurement streamed instead of 72.
-    for (int v = 0; v < n; ++v) quaternions[v] = Eigen::Quaterniond(rotations[v]);
-    double cost = 0.0;
-    for (std::size_t k = 0; k < m; ++k) {
-      const auto [i, j] = ws.ends[k];
-      (*res)[k] = LogUnitQuaternion(ws.measured_conjugate[k] * quaternions[i] * quaternions[j].conjugate());
-      cost += edge_cost(k, (*res)[k], w);
-    }
-    return cost;
-  };
-
-  // The residuals a previous solve on this workspace ended with (GNC stages,
-  // the final and auto-scaled solves) are reused when the rotations are
-  // still the same: they do not depend on the loss.
-  double cost = 0.0;
-  if (ws.residuals.size() == m && ws.residual_rotations == problem->rotations) {
-    residuals = ws.residuals;
-    cost = cost_of(residuals, &weights);
-  } else {
-    cost = evaluate(problem->rotations, &residuals, &weights);
-  }
-  summary->initial_cost = cost;
-  summary->converged = false;
-  summary->status = "maximum iterations reached";
-  if (!std::isfinite(cost)) {
-    summary->status = "initial cost is not finite";
-    summary->final_cost = cost;
-    return;
-  }
-
-  std::vector<Eigen::Matrix3d> candidate(n);
-  std::vector<Eigen::Vector3d> candidate_residuals(m);
-  std::vector<double> candidate_weights(m);
-  std::vector<Eigen::Matrix3d> extrapolation(n);
-  std::vector<Eigen::Vector3d> extrapolation_residuals(m);
-  std::vector<double> extrapolation_weights(m);
-  Eigen::VectorXd previous_update;
-  Eigen::MatrixXd delta;
-  int iteration = 0;
-  const bool multigrid = options.linear.multigrid_min_views > 0 && num_free >= options.linear.multigrid_min_views &&
-                         (isotropic || MedianAnisotropy(*problem, &ws) <= options.linear.block_multigrid_max_anisotropy);
-  system.SetUseMultigrid(multigrid);
-  system.SetBlockCholeskyMaxColumnCount(options.linear.block_cholesky_max_column_count);
-  system.SetPcgTolerance(multigrid ? std::max(options.linear.linear_solve_tolerance, options.linear.multigrid_linear_solve_tolerance)
-                                   : options.linear.linear_solve_tolerance);
-  for (; iteration < options.max_iterations; ++iteration) {
-    Assemble(*problem, residuals, weights, &ws);
-    if (!system.Solve(1e-12, 6, &delta)) {
-      summary->status = "linear solve failed even with regularisation";
-      break;
-    }
-    // Apply the step, halving it while the robust cost goes up.
-    auto apply = [&](double scale, const std::vector<Eigen::Matrix3d>& from, std::vector<Eigen::Matrix3d>* to) {
-      for (int v = 0; v < n; ++v) {
-        if (var[v] < 0) {
-          (*to)[v] = from[v];
-        } else if (isotropic) {
-          (*to)[v] = from[v] * ExpSO3(scale * delta.row(var[v]).transpose());
-        } else {
-          (*to)[v] = from[v] * ExpSO3(scale * delta.col(0).segment<3>(3 * var[v]));
-        }
-      }
-    };
-    double step = 1.0, new_cost = cost;
-    bool accepted = false;
-    for (int attempt = 0; attempt < 5; ++attempt, step *= 0.5) {
-      apply(step, problem->rotations, &candidate);
-      new_cost = evaluate(candidate, &candidate_residuals, &candidate_weights);
-      if (std::isfinite(new_cost) && new_cost <= cost * (1.0 + 1e-12) + 1e-300) {
-        accepted = true;
-        break;
-      }
-    }
-    if (!accepted) {
-      summary->converged = true;
-      summary->status = "converged: no step decreases the cost";
-      break;
-    }
-    // IRLS converges linearly; with redescending losses a view whose inliers
-    // sit near the cut-off crawls (a fixed fraction closer per iteration,
-    // still far from the minimum when the cost test stops). When two
-    // consecutive full
-    // steps point the same way and shrink geometrically, the rest of the
-    // geometric series is tried in one jump and kept only if it lowers the
-    // cost (one extra evaluation).
-    double extrapolated = 0.0;
-    if (options.irls_extrapolation) {
-      const Eigen::Map<const Eigen::VectorXd> flat(delta.data(), delta.size());
-      if (previous_update.size() == flat.size() && step == 1.0) {
-        const double norm = flat.norm(), previous_norm = previous_update.norm();
-        const double cosine = flat.dot(previous_update) / std::max(norm * previous_norm, 1e-300);
-        const double ratio = norm / std::max(previous_norm, 1e-300);
-        if (cosine > 0.95 && ratio > 0.3 && ratio < 0.99) {
-          const double factor = std::min(ratio / (1.0 - ratio), 10.0);
-          apply(factor, candidate, &extrapolation);
-          const double extrapolated_cost = evaluate(extrapolation, &extrapolation_residuals, &extrapolation_weights);
-          if (std::isfinite(extrapolated_cost) && extrapolated_cost < new_cost) {
-            candidate.swap(extrapolation);
-            candidate_residuals.swap(extrapolation_residuals);
-            candidate_weights.swap(extrapolation_weights);
-            new_cost = extrapolated_cost;
-            extrapolated = factor;
-            ++summary->extrapolations;
-          }
-        }
-      }
-      if (extrapolated > 0.0) previous_update.resize(0); else previous_update = step * flat;
-    }
-    const double max_step =
-        num_free == 0 ? 0.0
-                      : (step + extrapolated) * (isotropic ? delta.rowwise().norm().maxCoeff()
-                                          : delta.col(0).reshaped(3, num_free).colwise().norm().maxCoeff());
-    const double decrease = cost - new_cost;
-    problem->rotations.swap(candidate);
-    residuals.swap(candidate_residuals);
-    weights.swap(candidate_weights);
-    cost = new_cost;
-    if (max_step < options.step_tolerance_rad) {
-      summary->converged = true;
-      summary->status = "converged: step below tolerance";
-      ++iteration;
-      break;
-    }
-    if (decrease <= options.function_tolerance * cost) {
-      summary->converged = true;
-      summary->status = "converged: cost decrease below tolerance";
-      ++iteration;
-      break;
-    }
-  }
-  // Keep the rotations exactly orthonormal after many small updates.
-  for (Eigen::Matrix3d& r : problem->rotations) r = ProjectToSO3(r);
-  summary->iterations += iteration;
-  summary->factorizations = system.NumFactorizations();
-  summary->preconditioned_solves = system.NumPreconditionedSolves();
-  summary->multigrid_solves = system.NumMultigridSolves();
-  summary->final_cost = evaluate(problem->rotations, &residuals, &weights);
-  ws.residuals = residuals;
-  ws.residual_rotations = problem->rotations;
+  IrlsIterations(options, loss, problem, summary, &ws).Run();
 }
 
 }  // namespace rotation_averaging

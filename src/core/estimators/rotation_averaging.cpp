@@ -344,206 +344,261 @@ void CompareTreeStart(const Solve& solve, const RobustLoss& loss, ComponentProbl
   cs->converged = ended_converged;
 }
 
+// One component's solve, phase by phase (SolveComponent runs them in order).
+class ComponentSolve {
+ public:
+  ComponentSolve(const RotationAveragingOptions& options, double scale, ComponentProblem* problem)
+      : options_(options), scale_(scale), component_scale_(scale), problem_(*problem) {
+    cs_.num_views = problem_.view_ids.size();
+    cs_.num_edges = problem_.edges.size();
+    warm_views_ = WarmViews(problem_);
+    all_warm_ = AllWarm(problem_, warm_views_, options.robust_start.warm_start_min_fraction);
+    InitializeBySpanningTree(&problem_);
+    cs_.gauge_view = problem_.view_ids[problem_.gauge];
+    initial_rotations_ = problem_.rotations;
+    component_loss_ = CreateLoss(options.loss, scale);
+  }
+
+  // The robust start, the solve, self-calibration of the covariance scale,
+  // and the start refined where the robust solve ended above it.
+  void Solve(EdgeWeighting weighting) {
+    if (options_.solver == SolverType::kL1Irls) {
+      SolveComponentL1Irls(options_, &problem_, &cs_);
+      return;
+    }
+    double initial_cost = SolveFromStart();
+    if (weighting == EdgeWeighting::kCovariance &&
+        options_.covariance_normalization == CovarianceNormalization::kStandardDeviations &&
+        options_.auto_scale_threshold > 0.0 && options_.loss_scale <= 0.0) {
+      SelfCalibrate(&initial_cost);
+    }
+    // Both costs are reported under the final loss.
+    cs_.initial_cost = std::isfinite(initial_cost)
+                           ? initial_cost
+                           : ComponentProblem::CostOf(problem_.edges, initial_rotations_, *component_loss_);
+    if (cs_.final_cost > cs_.initial_cost * (1.0 + 1e-9) + 1e-300) RefineStartInstead();
+    if (options_.robust_start.compare_tree_start && !all_warm_ && warm_views_ > 0 && problem_.fixed.empty()) {
+      CompareTreeStart([this](const RobustLoss& l) { SolveWith(options_, l); }, *component_loss_, &problem_, &cs_);
+    }
+  }
+
+  // A solve that produced non-finite numbers keeps the initial
+  // orientations (with a warning in `summary`). Whether it was finite.
+  bool KeepFinite(RotationAveragingSummary* summary) {
+    bool finite = true;
+    for (const Eigen::Matrix3d& r : problem_.rotations) finite = finite && r.allFinite();
+    if (!finite || !std::isfinite(cs_.final_cost)) {
+      problem_.rotations = initial_rotations_;
+      cs_.status = "solve failed (non-finite result); kept the initial orientations: " + cs_.status;
+      cs_.converged = false;
+      cs_.final_cost = problem_.Cost(*component_loss_);
+      summary->warnings.push_back(cs_.status);
+    }
+    return finite;
+  }
+
+  void PosteriorCovariances(RotationAveragingSummary* summary) const {
+    std::vector<Eigen::Matrix3d> view_covariances;
+    if (ComputeViewCovariances(problem_, *component_loss_, &view_covariances)) {
+      for (std::size_t v = 0; v < problem_.view_ids.size(); ++v) {
+        summary->view_covariances[problem_.view_ids[v]] = view_covariances[v];
+      }
+    } else {
+      summary->warnings.push_back("posterior covariances of a component of " +
+                                  std::to_string(problem_.view_ids.size()) +
+                                  " views skipped (normal matrix singular or its factor too dense)");
+    }
+  }
+
+  // Per-edge results under the final loss and the weighting of the options
+  // (the L1-IRLS baseline reports its own unweighted residuals).
+  void EdgeResults(RotationAveragingSummary* summary) {
+    const std::vector<Eigen::Vector3d> residuals = CurrentResiduals(problem_, workspace_);
+    for (std::size_t k = 0; k < problem_.edges.size(); ++k) {
+      const ComponentEdge& e = problem_.edges[k];
+      EdgeResult& er = summary->edges[e.graph_index];
+      const Eigen::Vector3d& r = residuals[k];
+      er.residual_rad = r.norm();
+      er.whitened_squared = (e.sqrt_information * r).squaredNorm();
+      er.robust_weight = options_.solver == SolverType::kL1Irls
+                             ? GemanMcClureLoss(DegToRad(options_.l1_irls.l1_irls_sigma_deg)).Weight(er.whitened_squared)
+                             : component_loss_->Weight(er.whitened_squared);
+      er.solved = true;
+      if (er.robust_weight < 0.01) ++summary->num_outlier_edges;
+    }
+    cs_.loss_scale =
+        options_.solver == SolverType::kL1Irls ? DegToRad(options_.l1_irls.l1_irls_sigma_deg) : component_scale_;
+  }
+
+  const ComponentSummary& Summary() const { return cs_; }
+
+ private:
+  void SolveWith(const RotationAveragingOptions& o, const RobustLoss& l) {
+    if (o.solver == SolverType::kCeres) {
+      SolveComponentCeres(o, l, &problem_, &cs_);
+    } else {
+      SolveComponentIrls(o, l, &problem_, &cs_, &workspace_);
+    }
+  }
+
+  // The robust start and the solve under the final loss, from the
+  // component's start. Returns the start's cost under that loss when the
+  // solve reports it, NaN otherwise.
+  double SolveFromStart() {
+    problem_.rotations = initial_rotations_;
+    // A start that already agrees with (almost) every edge needs neither
+    // the L1 start nor graduated non-convexity.
+    const bool needs_robust_start =
+        !all_warm_ && TreeDisagreement(problem_, scale_) > options_.robust_start.l1_initialization_min_disagreement;
+    if (options_.robust_start.l1_initialization && needs_robust_start) {
+      // Unweighted, so the start does not depend on the covariances and
+      // always takes the scalar-Laplacian path of the IRLS solver.
+      RotationAveragingOptions l1_options = options_;
+      l1_options.max_iterations = options_.robust_start.l1_init_max_iterations;
+      l1_options.function_tolerance = options_.robust_start.l1_init_function_tolerance;
+      l1_options.linear.linear_solve_tolerance = options_.linear.robust_start_linear_solve_tolerance;
+      cs_.iterations += SolveSurrogate(l1_options, SoftL1Loss(options_.robust_start.l1_init_smoothing_rad),
+                                       [](const Eigen::Matrix3d&) { return 1.0; }, &problem_, &workspace_);
+    } else if (!all_warm_ && !needs_robust_start && options_.linear.isotropic_presolve_max_anisotropy > 1.0) {
+      IsotropicPresolve();
+    }
+    // Graduated non-convexity for redescending losses started from a tree.
+    if (IsRedescending(options_.loss) && needs_robust_start && options_.robust_start.gnc_initial_scale_factor > 1.0 &&
+        options_.robust_start.gnc_scale_step > 1.0) {
+      // Intermediate stages only need to move into the right basin: a few
+      // iterations each, not convergence.
+      RotationAveragingOptions stage_options = options_;
+      stage_options.max_iterations = std::min(options_.max_iterations, options_.robust_start.gnc_stage_max_iterations);
+      stage_options.linear.linear_solve_tolerance = options_.linear.robust_start_linear_solve_tolerance;
+      for (double s = scale_ * options_.robust_start.gnc_initial_scale_factor; s > scale_ * 1.0001;
+           s /= options_.robust_start.gnc_scale_step) {
+        SolveWith(stage_options, *CreateLoss(options_.loss, s));
+      }
+    }
+    // The IRLS solve reports the cost of its start under its loss: when
+    // nothing ran before it and the loss stays, that is the start's cost
+    // under the final loss, which the report needs.
+    const bool from_initial = options_.solver == SolverType::kIrls && problem_.rotations == initial_rotations_;
+    SolveWith(options_, *component_loss_);
+    return from_initial ? cs_.initial_cost : std::numeric_limits<double>::quiet_NaN();
+  }
+
+  // Anisotropic information that is not far from isotropic: a first solve
+  // with each edge's information replaced by its mean eigenvalue.
+  void IsotropicPresolve() {
+    // Stops at the first edge beyond the limit.
+    double max_anisotropy = 1.0;
+    for (const ComponentEdge& e : problem_.edges) {
+      max_anisotropy = std::max(max_anisotropy, InformationAnisotropy(e.information));
+      if (max_anisotropy > options_.linear.isotropic_presolve_max_anisotropy) break;
+    }
+    if (max_anisotropy > 1.0 + 1e-9 && max_anisotropy <= options_.linear.isotropic_presolve_max_anisotropy) {
+      RotationAveragingOptions iso_options = options_;
+      iso_options.function_tolerance = options_.linear.isotropic_presolve_function_tolerance;
+      cs_.iterations += SolveSurrogate(iso_options, *component_loss_,
+                                       [](const Eigen::Matrix3d& w) { return w.trace() / 3.0; }, &problem_,
+                                       &workspace_);
+    }
+  }
+
+  // Self-calibration of the covariance scale (see auto_scale_threshold).
+  // `initial_cost`: as SolveFromStart returns it, for the last solve.
+  void SelfCalibrate(double* initial_cost) {
+    cs_.noise_scale = WhitenedResidualScale(problem_, CurrentResiduals(problem_, workspace_));
+    if (options_.self_calibration == CovarianceSelfCalibration::kFloor) EstimateFloor(initial_cost);
+    // Still optimistic (or kLossScale): widen the loss.
+    if (cs_.noise_scale > options_.auto_scale_threshold) {
+      component_scale_ = scale_ * cs_.noise_scale;
+      component_loss_ = CreateLoss(options_.loss, component_scale_);
+      SolveWith(options_, *component_loss_);
+      *initial_cost = std::numeric_limits<double>::quiet_NaN();
+    }
+  }
+
+  // The floor is estimated whatever the residual scale: it is zero when
+  // the residuals fit the covariances. The first residuals come from a
+  // solve that trusted the optimistic covariances (and so rejected
+  // correct edges and leaned on others), which inflates them; as in
+  // Helmert's variance component estimation, each floor is estimated
+  // from the solve weighted by the one before, until it settles.
+  void EstimateFloor(double* initial_cost) {
+    const std::vector<ComponentEdge> unfloored = problem_.edges;
+    int free_views = 0;
+    for (int v = 0; v < static_cast<int>(problem_.view_ids.size()); ++v) free_views += !problem_.IsFixed(v);
+    double variance = 0.0;
+    for (int round = 0; round < kCovarianceFloorRounds; ++round) {
+      const double next = EstimateCovarianceFloor(unfloored, CurrentResiduals(problem_, workspace_), free_views);
+      if (!(next > 0.0) || (variance > 0.0 && std::abs(next - variance) <= kCovarianceFloorSettled * variance)) {
+        break;
+      }
+      variance = next;
+      problem_.edges = WithCovarianceFloor(unfloored, variance);
+      workspace_.median_anisotropy = -1.0;  // of the information it was computed from
+      // Afresh: the first solve's basin was chosen under the optimistic
+      // covariances (an edge they made rigid can have pulled a view off).
+      *initial_cost = SolveFromStart();
+    }
+    if (variance > 0.0) {
+      cs_.covariance_floor_rad = std::sqrt(variance);
+      cs_.noise_scale = WhitenedResidualScale(problem_, CurrentResiduals(problem_, workspace_));
+    }
+  }
+
+  // The robust start (L1, graduated non-convexity from a wider scale, the
+  // re-solve after auto-scaling) can settle in a basin that costs more
+  // under the final loss than the starting point itself: a loop whose
+  // misclosure is either one outlier edge or noise spread over all of
+  // them. Then the start is refined under the final loss as well and the
+  // lower of the two kept, so a solve never ends above its start.
+  void RefineStartInstead() {
+    const std::vector<Eigen::Matrix3d> ended = problem_.rotations;
+    const double ended_cost = cs_.final_cost;
+    const std::string ended_status = cs_.status;
+    const bool ended_converged = cs_.converged;
+    const double start_cost = cs_.initial_cost;
+    problem_.rotations = initial_rotations_;
+    SolveWith(options_, *component_loss_);
+    cs_.initial_cost = start_cost;
+    cs_.refined_start = true;
+    if (!(cs_.final_cost < ended_cost)) {
+      problem_.rotations = ended;
+      cs_.final_cost = ended_cost;
+      cs_.status = ended_status;
+      cs_.converged = ended_converged;
+    }
+    std::ostringstream note;
+    note << std::setprecision(6) << "; the robust solve ended above its start (" << ended_cost << " > "
+         << cs_.initial_cost << " under the final loss): the start refined under it gives " << cs_.final_cost;
+    cs_.status += note.str();
+  }
+
+  const RotationAveragingOptions& options_;
+  const double scale_;
+  double component_scale_;
+  ComponentProblem& problem_;
+  ComponentSummary cs_;
+  std::size_t warm_views_ = 0;
+  bool all_warm_ = false;
+  std::vector<Eigen::Matrix3d> initial_rotations_;
+  std::unique_ptr<RobustLoss> component_loss_;
+  IrlsWorkspace workspace_;
+};
+
 // Initialises one component problem (spanning tree from its warm views) and
 // solves it with the options' robust start, loss and auto-scaling; writes
 // its per-edge results into summary->edges (by graph_index) and, when asked,
 // its posterior covariances.
 ComponentSummary SolveComponent(const RotationAveragingOptions& options, EdgeWeighting weighting, double scale,
-                                bool covariances, ComponentProblem* problem_in, RotationAveragingSummary* summary) {
-  ComponentProblem& problem = *problem_in;
-  ComponentSummary cs;
-  cs.num_views = problem.view_ids.size();
-  cs.num_edges = problem.edges.size();
-  const std::size_t warm_views = WarmViews(problem);
-  const bool all_warm = AllWarm(problem, warm_views, options.robust_start.warm_start_min_fraction);
-  InitializeBySpanningTree(&problem);
-  cs.gauge_view = problem.view_ids[problem.gauge];
-  const std::vector<Eigen::Matrix3d> initial_rotations = problem.rotations;
-  double component_scale = scale;
-  std::unique_ptr<RobustLoss> component_loss = CreateLoss(options.loss, scale);
-
-  IrlsWorkspace workspace;
-  if (options.solver == SolverType::kL1Irls) {
-    SolveComponentL1Irls(options, &problem, &cs);
-  } else {
-    auto solve_with = [&](const RotationAveragingOptions& o, const RobustLoss& l) {
-      if (o.solver == SolverType::kCeres) {
-        SolveComponentCeres(o, l, &problem, &cs);
-      } else {
-        SolveComponentIrls(o, l, &problem, &cs, &workspace);
-      }
-    };
-    auto solve = [&](const RobustLoss& l) { solve_with(options, l); };
-    // The robust start and the solve under the final loss, from the
-    // component's start. Returns the start's cost under that loss when the
-    // solve reports it, NaN otherwise.
-    auto solve_from_start = [&]() {
-      problem.rotations = initial_rotations;
-      // A start that already agrees with (almost) every edge needs neither
-      // the L1 start nor graduated non-convexity.
-      const bool needs_robust_start =
-          !all_warm && TreeDisagreement(problem, scale) > options.robust_start.l1_initialization_min_disagreement;
-      if (options.robust_start.l1_initialization && needs_robust_start) {
-        // Unweighted, so the start does not depend on the covariances and
-        // always takes the scalar-Laplacian path of the IRLS solver.
-        RotationAveragingOptions l1_options = options;
-        l1_options.max_iterations = options.robust_start.l1_init_max_iterations;
-        l1_options.function_tolerance = options.robust_start.l1_init_function_tolerance;
-        l1_options.linear.linear_solve_tolerance = options.linear.robust_start_linear_solve_tolerance;
-        cs.iterations += SolveSurrogate(l1_options, SoftL1Loss(options.robust_start.l1_init_smoothing_rad),
-                                        [](const Eigen::Matrix3d&) { return 1.0; }, &problem, &workspace);
-      } else if (!all_warm && !needs_robust_start && options.linear.isotropic_presolve_max_anisotropy > 1.0) {
-        // Stops at the first edge beyond the limit.
-        double max_anisotropy = 1.0;
-        for (const ComponentEdge& e : problem.edges) {
-          max_anisotropy = std::max(max_anisotropy, InformationAnisotropy(e.information));
-          if (max_anisotropy > options.linear.isotropic_presolve_max_anisotropy) break;
-        }
-        if (max_anisotropy > 1.0 + 1e-9 && max_anisotropy <= options.linear.isotropic_presolve_max_anisotropy) {
-          RotationAveragingOptions iso_options = options;
-          iso_options.function_tolerance = options.linear.isotropic_presolve_function_tolerance;
-          cs.iterations += SolveSurrogate(iso_options, *component_loss,
-                                          [](const Eigen::Matrix3d& w) { return w.trace() / 3.0; }, &problem,
-                                          &workspace);
-        }
-      }
-      // Graduated non-convexity for redescending losses started from a tree.
-      if (IsRedescending(options.loss) && needs_robust_start && options.robust_start.gnc_initial_scale_factor > 1.0 &&
-          options.robust_start.gnc_scale_step > 1.0) {
-        // Intermediate stages only need to move into the right basin: a few
-        // iterations each, not convergence.
-        RotationAveragingOptions stage_options = options;
-        stage_options.max_iterations = std::min(options.max_iterations, options.robust_start.gnc_stage_max_iterations);
-        stage_options.linear.linear_solve_tolerance = options.linear.robust_start_linear_solve_tolerance;
-        for (double s = scale * options.robust_start.gnc_initial_scale_factor; s > scale * 1.0001; s /= options.robust_start.gnc_scale_step) {
-          solve_with(stage_options, *CreateLoss(options.loss, s));
-        }
-      }
-      // The IRLS solve reports the cost of its start under its loss: when
-      // nothing ran before it and the loss stays, that is the start's cost
-      // under the final loss, which the report below needs.
-      const bool from_initial = options.solver == SolverType::kIrls && problem.rotations == initial_rotations;
-      solve(*component_loss);
-      return from_initial ? cs.initial_cost : std::numeric_limits<double>::quiet_NaN();
-    };
-    double initial_cost = solve_from_start();
-    // Self-calibration of the covariance scale (see auto_scale_threshold).
-    if (weighting == EdgeWeighting::kCovariance &&
-        options.covariance_normalization == CovarianceNormalization::kStandardDeviations &&
-        options.auto_scale_threshold > 0.0 && options.loss_scale <= 0.0) {
-      cs.noise_scale = WhitenedResidualScale(problem, CurrentResiduals(problem, workspace));
-      // The floor is estimated whatever the residual scale: it is zero when
-      // the residuals fit the covariances. The first residuals come from a
-      // solve that trusted the optimistic covariances (and so rejected
-      // correct edges and leaned on others), which inflates them; as in
-      // Helmert's variance component estimation, each floor is estimated
-      // from the solve weighted by the one before, until it settles.
-      if (options.self_calibration == CovarianceSelfCalibration::kFloor) {
-        const std::vector<ComponentEdge> unfloored = problem.edges;
-        int free_views = 0;
-        for (int v = 0; v < static_cast<int>(problem.view_ids.size()); ++v) free_views += !problem.IsFixed(v);
-        double variance = 0.0;
-        for (int round = 0; round < kCovarianceFloorRounds; ++round) {
-          const double next = EstimateCovarianceFloor(unfloored, CurrentResiduals(problem, workspace), free_views);
-          if (!(next > 0.0) || (variance > 0.0 && std::abs(next - variance) <= kCovarianceFloorSettled * variance)) {
-            break;
-          }
-          variance = next;
-          problem.edges = WithCovarianceFloor(unfloored, variance);
-          workspace.median_anisotropy = -1.0;  // of the information it was computed from
-          // Afresh: the first solve's basin was chosen under the optimistic
-          // covariances (an edge they made rigid can have pulled a view off).
-          initial_cost = solve_from_start();
-        }
-        if (variance > 0.0) {
-          cs.covariance_floor_rad = std::sqrt(variance);
-          cs.noise_scale = WhitenedResidualScale(problem, CurrentResiduals(problem, workspace));
-        }
-      }
-      // Still optimistic (or kLossScale): widen the loss.
-      if (cs.noise_scale > options.auto_scale_threshold) {
-        component_scale = scale * cs.noise_scale;
-        component_loss = CreateLoss(options.loss, component_scale);
-        solve(*component_loss);
-        initial_cost = std::numeric_limits<double>::quiet_NaN();
-      }
-    }
-    // Both costs are reported under the final loss. The robust start (L1,
-    // graduated non-convexity from a wider scale, the re-solve after
-    // auto-scaling) can settle in a basin that costs more under the final
-    // loss than the starting point itself: a loop whose misclosure is either
-    // one outlier edge or noise spread over all of them. Then the start is
-    // refined under the final loss as well and the lower of the two kept, so
-    // a solve never ends above its start.
-    cs.initial_cost = std::isfinite(initial_cost)
-                          ? initial_cost
-                          : ComponentProblem::CostOf(problem.edges, initial_rotations, *component_loss);
-    if (cs.final_cost > cs.initial_cost * (1.0 + 1e-9) + 1e-300) {
-      const std::vector<Eigen::Matrix3d> ended = problem.rotations;
-      const double ended_cost = cs.final_cost;
-      const std::string ended_status = cs.status;
-      const bool ended_converged = cs.converged;
-      const double start_cost = cs.initial_cost;
-      problem.rotations = initial_rotations;
-      solve(*component_loss);
-      cs.initial_cost = start_cost;
-      cs.refined_start = true;
-      if (!(cs.final_cost < ended_cost)) {
-        problem.rotations = ended;
-        cs.final_cost = ended_cost;
-        cs.status = ended_status;
-        cs.converged = ended_converged;
-      }
-      std::ostringstream note;
-      note << std::setprecision(6) << "; the robust solve ended above its start (" << ended_cost << " > "
-           << cs.initial_cost << " under the final loss): the start refined under it gives " << cs.final_cost;
-      cs.status += note.str();
-    }
-    if (options.robust_start.compare_tree_start && !all_warm && warm_views > 0 && problem.fixed.empty()) {
-      CompareTreeStart(solve, *component_loss, &problem, &cs);
-    }
-  }
-
-  // A solve that produced non-finite numbers keeps the initial orientations.
-  bool finite = true;
-  for (const Eigen::Matrix3d& r : problem.rotations) finite = finite && r.allFinite();
-  if (!finite || !std::isfinite(cs.final_cost)) {
-    problem.rotations = initial_rotations;
-    cs.status = "solve failed (non-finite result); kept the initial orientations: " + cs.status;
-    cs.converged = false;
-    cs.final_cost = problem.Cost(*component_loss);
-    summary->warnings.push_back(cs.status);
-  }
+                                bool covariances, ComponentProblem* problem, RotationAveragingSummary* summary) {
+  ComponentSolve solve(options, scale, problem);
+  solve.Solve(weighting);
+  const bool finite = solve.KeepFinite(summary);
   if (finite && covariances && options.solver != SolverType::kL1Irls && options.posterior_covariance_max_views > 0 &&
-      static_cast<int>(problem.view_ids.size()) <= options.posterior_covariance_max_views) {
-    std::vector<Eigen::Matrix3d> view_covariances;
-    if (ComputeViewCovariances(problem, *component_loss, &view_covariances)) {
-      for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
-        summary->view_covariances[problem.view_ids[v]] = view_covariances[v];
-      }
-    } else {
-      summary->warnings.push_back("posterior covariances of a component of " +
-                                  std::to_string(problem.view_ids.size()) +
-                                  " views skipped (normal matrix singular or its factor too dense)");
-    }
+      static_cast<int>(problem->view_ids.size()) <= options.posterior_covariance_max_views) {
+    solve.PosteriorCovariances(summary);
   }
-  // Per-edge results under the final loss and the weighting of the options
-  // (the L1-IRLS baseline reports its own unweighted residuals).
-  const std::vector<Eigen::Vector3d> residuals = CurrentResiduals(problem, workspace);
-  for (std::size_t k = 0; k < problem.edges.size(); ++k) {
-    const ComponentEdge& e = problem.edges[k];
-    EdgeResult& er = summary->edges[e.graph_index];
-    const Eigen::Vector3d& r = residuals[k];
-    er.residual_rad = r.norm();
-    er.whitened_squared = (e.sqrt_information * r).squaredNorm();
-    er.robust_weight = options.solver == SolverType::kL1Irls
-                           ? GemanMcClureLoss(DegToRad(options.l1_irls.l1_irls_sigma_deg)).Weight(er.whitened_squared)
-                           : component_loss->Weight(er.whitened_squared);
-    er.solved = true;
-    if (er.robust_weight < 0.01) ++summary->num_outlier_edges;
-  }
-  cs.loss_scale = options.solver == SolverType::kL1Irls ? DegToRad(options.l1_irls.l1_irls_sigma_deg) : component_scale;
-  return cs;
+  solve.EdgeResults(summary);
+  return solve.Summary();
 }
 
 }  // namespace
@@ -574,65 +629,79 @@ bool SolveRotationAveraging(const ViewGraph& graph, const RotationAveragingOptio
   return summary->Success();
 }
 
-LocalSolveOutcome SolveRotationAveragingLocally(const ViewGraph& graph, const std::vector<ViewId>& changed,
-                                                const LocalSolveOptions& local,
-                                                const RotationAveragingOptions& options,
-                                                ViewOrientations* orientations, RotationAveragingSummary* summary) {
-  const auto start = std::chrono::steady_clock::now();
-  *summary = RotationAveragingSummary();
-  if (!options.Validate(&summary->error)) return LocalSolveOutcome::kNeedsFullSolve;
-  if (options.solver == SolverType::kL1Irls) return LocalSolveOutcome::kNeedsFullSolve;
-  const std::vector<RelativeRotation>& edges = graph.Edges();
-  // Incident edges per view (ids need not be dense).
+namespace {
+
+// The views' incident edges (ids need not be dense): views by index into
+// graph.Views(), each edge's two ends, and the edges of view v at
+// incident[offsets[v] .. offsets[v + 1]).
+struct Adjacency {
   std::unordered_map<ViewId, int> index;
-  index.reserve(graph.NumViews());
-  for (const View& v : graph.Views()) index.emplace(v.id, static_cast<int>(index.size()));
-  const int n = static_cast<int>(index.size());
-  std::vector<int> offsets(n + 1, 0), incident(2 * edges.size());
-  std::vector<std::pair<int, int>> ends(edges.size());
+  int n = 0;
+  std::vector<int> offsets, incident;
+  std::vector<std::pair<int, int>> ends;
+
+  int Other(int k, int v) const { return ends[k].first == v ? ends[k].second : ends[k].first; }
+};
+
+Adjacency BuildAdjacency(const ViewGraph& graph) {
+  const std::vector<RelativeRotation>& edges = graph.Edges();
+  Adjacency a;
+  a.index.reserve(graph.NumViews());
+  for (const View& v : graph.Views()) a.index.emplace(v.id, static_cast<int>(a.index.size()));
+  a.n = static_cast<int>(a.index.size());
+  a.offsets.assign(a.n + 1, 0);
+  a.incident.resize(2 * edges.size());
+  a.ends.resize(edges.size());
   for (std::size_t k = 0; k < edges.size(); ++k) {
-    ends[k] = {index.at(edges[k].view1), index.at(edges[k].view2)};
-    ++offsets[ends[k].first + 1];
-    ++offsets[ends[k].second + 1];
+    a.ends[k] = {a.index.at(edges[k].view1), a.index.at(edges[k].view2)};
+    ++a.offsets[a.ends[k].first + 1];
+    ++a.offsets[a.ends[k].second + 1];
   }
-  for (int v = 0; v < n; ++v) offsets[v + 1] += offsets[v];
-  {
-    std::vector<int> fill(offsets.begin(), offsets.end() - 1);
-    for (std::size_t k = 0; k < edges.size(); ++k) {
-      incident[fill[ends[k].first]++] = static_cast<int>(k);
-      incident[fill[ends[k].second]++] = static_cast<int>(k);
-    }
+  for (int v = 0; v < a.n; ++v) a.offsets[v + 1] += a.offsets[v];
+  std::vector<int> fill(a.offsets.begin(), a.offsets.end() - 1);
+  for (std::size_t k = 0; k < edges.size(); ++k) {
+    a.incident[fill[a.ends[k].first]++] = static_cast<int>(k);
+    a.incident[fill[a.ends[k].second]++] = static_cast<int>(k);
   }
-  // The region: breadth-first from the changed views, `hops` deep, at most
-  // max_views views (nearest first).
-  std::vector<int> depth(n, -1);
-  std::vector<int> region;
+  return a;
+}
+
+// The region: breadth-first from the changed views, `hops` deep, at most
+// max_views views (nearest first). kSolved when there is one.
+LocalSolveOutcome LocalRegion(const Adjacency& a, const std::vector<ViewId>& changed, const LocalSolveOptions& local,
+                              std::vector<int>* region) {
+  std::vector<int> depth(a.n, -1);
   for (ViewId id : changed) {
-    auto it = index.find(id);
-    if (it == index.end() || depth[it->second] >= 0) continue;
+    auto it = a.index.find(id);
+    if (it == a.index.end() || depth[it->second] >= 0) continue;
     depth[it->second] = 0;
-    region.push_back(it->second);
+    region->push_back(it->second);
   }
-  if (region.empty()) return LocalSolveOutcome::kNothingToSolve;
-  if (region.size() > local.max_views) return LocalSolveOutcome::kNeedsFullSolve;
-  for (std::size_t head = 0; head < region.size() && region.size() < local.max_views; ++head) {
-    const int v = region[head];
+  if (region->empty()) return LocalSolveOutcome::kNothingToSolve;
+  if (region->size() > local.max_views) return LocalSolveOutcome::kNeedsFullSolve;
+  for (std::size_t head = 0; head < region->size() && region->size() < local.max_views; ++head) {
+    const int v = (*region)[head];
     if (depth[v] >= local.hops) break;  // breadth-first: every later view is as deep
-    for (int p = offsets[v]; p < offsets[v + 1] && region.size() < local.max_views; ++p) {
-      const int u = ends[incident[p]].first == v ? ends[incident[p]].second : ends[incident[p]].first;
+    for (int p = a.offsets[v]; p < a.offsets[v + 1] && region->size() < local.max_views; ++p) {
+      const int u = a.Other(a.incident[p], v);
       if (depth[u] < 0) {
         depth[u] = depth[v] + 1;
-        region.push_back(u);
+        region->push_back(u);
       }
     }
   }
-  std::vector<char> in_region(n, 0);
-  for (int v : region) in_region[v] = 1;
-  // The sub-graph: every edge with an end in the region whose other end is in
-  // the region or already oriented (a boundary view, held fixed).
+  return LocalSolveOutcome::kSolved;
+}
+
+// The sub-graph: every edge with an end in the region whose other end is in
+// the region or already oriented (a boundary view, held fixed); the graph's
+// index of each of its edges in `sub_to_graph`.
+ViewGraph LocalSubGraph(const ViewGraph& graph, const Adjacency& a, const std::vector<int>& region,
+                        const std::vector<char>& in_region, const ViewOrientations& orientations,
+                        std::vector<std::size_t>* sub_to_graph) {
+  const std::vector<RelativeRotation>& edges = graph.Edges();
   ViewGraph sub(graph.Validation());
-  std::vector<std::size_t> sub_to_graph;
-  std::vector<char> added(n, 0), taken(edges.size(), 0);
+  std::vector<char> added(a.n, 0), taken(edges.size(), 0);
   const std::vector<View>& views = graph.Views();
   auto add_view = [&](int v) {
     if (!added[v]) {
@@ -641,46 +710,77 @@ LocalSolveOutcome SolveRotationAveragingLocally(const ViewGraph& graph, const st
     }
   };
   for (int v : region) {
-    for (int p = offsets[v]; p < offsets[v + 1]; ++p) {
-      const int k = incident[p];
-      const int u = ends[k].first == v ? ends[k].second : ends[k].first;
-      if (taken[k] || (!in_region[u] && !orientations->count(views[u].id))) continue;
+    for (int p = a.offsets[v]; p < a.offsets[v + 1]; ++p) {
+      const int k = a.incident[p];
+      const int u = a.Other(k, v);
+      if (taken[k] || (!in_region[u] && !orientations.count(views[u].id))) continue;
       taken[k] = 1;
       add_view(v);
       add_view(u);
       if (sub.AddEdge(edges[k], nullptr, DuplicatePolicy::kKeepBoth) != AddEdgeResult::kRejected) {
-        sub_to_graph.push_back(static_cast<std::size_t>(k));
+        sub_to_graph->push_back(static_cast<std::size_t>(k));
       }
     }
   }
+  return sub;
+}
+
+// Holds the views outside the region fixed and maps the problems' edges
+// back to the graph; each problem's component label from the last full
+// solve (-1: none) into `problem_label`. False when a problem joins
+// components solved apart (each in its own gauge): that needs a full solve.
+bool PrepareLocalProblems(const Adjacency& a, const std::vector<char>& in_region,
+                          const std::vector<std::size_t>& sub_to_graph, const std::vector<int>* labels,
+                          std::vector<ComponentProblem>* problems, std::vector<int>* problem_label) {
+  auto label_of = [labels](ViewId id) { return labels && id < labels->size() ? (*labels)[id] : -1; };
+  problem_label->assign(problems->size(), -1);
+  for (std::size_t p = 0; p < problems->size(); ++p) {
+    ComponentProblem& problem = (*problems)[p];
+    problem.fixed.assign(problem.view_ids.size(), false);
+    for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
+      const ViewId id = problem.view_ids[v];
+      problem.fixed[v] = !in_region[a.index.at(id)];
+      const int label = label_of(id);
+      if (label < 0) continue;
+      if ((*problem_label)[p] >= 0 && (*problem_label)[p] != label) return false;
+      (*problem_label)[p] = label;
+    }
+    for (ComponentEdge& e : problem.edges) e.graph_index = sub_to_graph[e.graph_index];
+  }
+  return true;
+}
+
+}  // namespace
+
+LocalSolveOutcome SolveRotationAveragingLocally(const ViewGraph& graph, const std::vector<ViewId>& changed,
+                                                const LocalSolveOptions& local,
+                                                const RotationAveragingOptions& options,
+                                                ViewOrientations* orientations, RotationAveragingSummary* summary) {
+  const auto start = std::chrono::steady_clock::now();
+  *summary = RotationAveragingSummary();
+  if (!options.Validate(&summary->error)) return LocalSolveOutcome::kNeedsFullSolve;
+  if (options.solver == SolverType::kL1Irls) return LocalSolveOutcome::kNeedsFullSolve;
+  const Adjacency adjacency = BuildAdjacency(graph);
+  std::vector<int> region;
+  const LocalSolveOutcome found = LocalRegion(adjacency, changed, local, &region);
+  if (found != LocalSolveOutcome::kSolved) return found;
+  std::vector<char> in_region(adjacency.n, 0);
+  for (int v : region) in_region[v] = 1;
+  std::vector<std::size_t> sub_to_graph;
+  const ViewGraph sub = LocalSubGraph(graph, adjacency, region, in_region, *orientations, &sub_to_graph);
   // Components of the sub-graph; views outside the region are held fixed.
   EdgeWeighting weighting = options.weighting;
   std::vector<ComponentProblem> problems =
       BuildComponentProblems(sub, options, *orientations, &summary->warnings, &weighting);
   std::vector<int>* labels = local.component_labels;
-  auto label_of = [labels](ViewId id) {
-    return labels && id < labels->size() ? (*labels)[id] : -1;
-  };
-  std::vector<int> problem_label(problems.size(), -1);
-  for (std::size_t p = 0; p < problems.size(); ++p) {
-    ComponentProblem& problem = problems[p];
-    problem.fixed.assign(problem.view_ids.size(), false);
-    for (std::size_t v = 0; v < problem.view_ids.size(); ++v) {
-      const ViewId id = problem.view_ids[v];
-      problem.fixed[v] = !in_region[index.at(id)];
-      const int label = label_of(id);
-      if (label < 0) continue;
-      // New edges that join components solved apart (each in its own gauge)
-      // need a full solve of the joined component.
-      if (problem_label[p] >= 0 && problem_label[p] != label) return LocalSolveOutcome::kNeedsFullSolve;
-      problem_label[p] = label;
-    }
-    for (ComponentEdge& e : problem.edges) e.graph_index = sub_to_graph[e.graph_index];
+  std::vector<int> problem_label;
+  if (!PrepareLocalProblems(adjacency, in_region, sub_to_graph, labels, &problems, &problem_label)) {
+    return LocalSolveOutcome::kNeedsFullSolve;
   }
   const double default_scale =
       options.loss_scale > 0.0 ? options.loss_scale : DefaultScaleFor(weighting, options.covariance_normalization);
   summary->loss_scale = default_scale;
-  summary->edges.assign(edges.size(), EdgeResult());
+  summary->edges.assign(graph.Edges().size(), EdgeResult());
   int next_label = 0;
   if (labels) {
     for (int l : *labels) next_label = std::max(next_label, l + 1);

@@ -549,6 +549,44 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     ++stats_.duplicate_keyframes;
     return edges;
   }
+  std::unique_ptr<Keyframe> kf = DescribeKeyframe(key, image, camera);
+  const double pairs_before = stats_.pairs_s;
+  ++stats_.keyframes;
+  if (kf->features.keypoints_px.size() < 20) {
+    keyframes_.push_back(std::move(kf));
+    by_camera_[key.frame_id].push_back(static_cast<int>(keyframes_.size()) - 1);
+    return edges;
+  }
+
+  CompactDue(key.stamp_ns);
+  const std::vector<int>& same = by_camera_[key.frame_id];
+  kf->camera_position = static_cast<int>(same.size());
+  const int window = std::min(std::max(1, options_.covisibility_window), static_cast<int>(same.size()));
+  std::set<int> related;
+  std::vector<PairTask> tasks = ChainAndRigTasks(key, same, window, &related);
+  const std::vector<PairTask> candidates = LoopCandidates(*kf, related, same);
+  std::vector<PairOutcome> outcomes, verified_loops;
+  VerifyKeyframePairs(same, window, candidates, kf.get(), &tasks, &outcomes, &verified_loops);
+  for (std::size_t t = 0; t < tasks.size(); ++t) {
+    if (outcomes[t].success) UseChainOrRigEdge(tasks[t], outcomes[t], camera, same, kf.get(), &edges);
+  }
+  // Loop closures: enough inliers, and consistent with each other.
+  std::vector<std::size_t> accepted;
+  for (const KeyframeRelativeRotation& e : AcceptLoops(candidates, verified_loops, &accepted)) edges.push_back(e);
+  for (std::size_t c : accepted) {
+    CountInliers(candidates[c], verified_loops[c], kf.get());
+    MonitorFocal(verified_loops[c], *kf, camera);
+    HoldPair(candidates[c], verified_loops[c], static_cast<int>(keyframes_.size()), false);
+  }
+  StoreKeyframe(std::move(kf));
+  stats_.last_pairs_s = stats_.pairs_s - pairs_before;
+  if (options_.focal_monitor.enabled || options_.focal_monitor.hold_for_correction) stats_.focal_bytes = FocalBytes();
+  return edges;
+}
+
+std::unique_ptr<KeyframeFrontend::Keyframe> KeyframeFrontend::DescribeKeyframe(const KeyframeKey& key,
+                                                                              const cv::Mat& image,
+                                                                              const CameraIntrinsics& camera) {
   auto kf = std::make_unique<Keyframe>();
   kf->key = key;
   const auto start = Clock::now();
@@ -576,22 +614,15 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     kf->bow = options_.vocabulary->Describe(kf->features.words);
     stats_.last_retrieval_s = Seconds(words_start);
   }
-  const double pairs_before = stats_.pairs_s;
-  ++stats_.keyframes;
-  if (kf->features.keypoints_px.size() < 20) {
-    keyframes_.push_back(std::move(kf));
-    by_camera_[key.frame_id].push_back(static_cast<int>(keyframes_.size()) - 1);
-    return edges;
-  }
+  return kf;
+}
 
-  CompactDue(key.stamp_ns);
-  std::set<int> related;
+std::vector<KeyframeFrontend::PairTask> KeyframeFrontend::ChainAndRigTasks(const KeyframeKey& key,
+                                                                           const std::vector<int>& same, int window,
+                                                                           std::set<int>* related) {
   std::vector<PairTask> tasks;
   // Sequential: the previous keyframe of this camera.
-  const std::vector<int>& same = by_camera_[key.frame_id];
-  kf->camera_position = static_cast<int>(same.size());
-  const int window = std::min(std::max(1, options_.covisibility_window), static_cast<int>(same.size()));
-  for (int r = 1; r <= window; ++r) related.insert(same[same.size() - r]);
+  for (int r = 1; r <= window; ++r) related->insert(same[same.size() - r]);
   if (!same.empty()) tasks.push_back({same.back(), EdgeSource::kSequential});
   // Rig: the other cameras' keyframes of the same capture.
   const std::int64_t tolerance_ns = static_cast<std::int64_t>(options_.rig_stamp_tolerance_s * 1e9);
@@ -606,28 +637,40 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
         } else {
           tasks.push_back({*it, EdgeSource::kRig, key.frame_id < camera});
         }
-        related.insert(*it);
+        related->insert(*it);
       }
       if (other.key.stamp_ns < key.stamp_ns - tolerance_ns) break;  // older captures of that camera
     }
   }
+  return tasks;
+}
+
+std::vector<KeyframeFrontend::PairTask> KeyframeFrontend::LoopCandidates(const Keyframe& kf,
+                                                                         const std::set<int>& related,
+                                                                         const std::vector<int>& same) {
+  std::vector<PairTask> candidates;
+  if (options_.max_loop_candidates <= 0) return candidates;
+  const auto retrieval_start = Clock::now();
+  std::set<int> excluded = related;
+  for (int r = 0; r < options_.loop_exclude_recent && r < static_cast<int>(same.size()); ++r) {
+    excluded.insert(same[same.size() - 1 - r]);
+  }
+  const std::vector<int> retrieved = options_.vocabulary
+                                         ? RetrieveByVocabulary(kf, excluded, same.empty() ? -1 : same.back())
+                                         : RetrieveByVoting(kf, excluded);
+  stats_.last_retrieval_s += Seconds(retrieval_start);
+  stats_.retrieval_s += stats_.last_retrieval_s;
+  for (int c : retrieved) candidates.push_back({c, EdgeSource::kLoopClosure});
+  stats_.loop_candidates_tried += candidates.size();
+  return candidates;
+}
+
+void KeyframeFrontend::VerifyKeyframePairs(const std::vector<int>& same, int window,
+                                           const std::vector<PairTask>& candidates, Keyframe* kf,
+                                           std::vector<PairTask>* tasks, std::vector<PairOutcome>* outcomes,
+                                           std::vector<PairOutcome>* verified_loops) {
   // Loop-closure candidates: retrieval does not depend on this keyframe's
   // pairs, so all of them are verified in one batch on the thread pool.
-  std::vector<PairTask> candidates;
-  if (options_.max_loop_candidates > 0) {
-    const auto retrieval_start = Clock::now();
-    std::set<int> excluded = related;
-    for (int r = 0; r < options_.loop_exclude_recent && r < static_cast<int>(same.size()); ++r) {
-      excluded.insert(same[same.size() - 1 - r]);
-    }
-    const std::vector<int> retrieved = options_.vocabulary
-                                           ? RetrieveByVocabulary(*kf, excluded, same.empty() ? -1 : same.back())
-                                           : RetrieveByVoting(*kf, excluded);
-    stats_.last_retrieval_s += Seconds(retrieval_start);
-    stats_.retrieval_s += stats_.last_retrieval_s;
-    for (int c : retrieved) candidates.push_back({c, EdgeSource::kLoopClosure});
-    stats_.loop_candidates_tried += candidates.size();
-  }
   // Older keyframes of the window bridge a failed previous pair. Failures
   // come in runs (a stretch of pure rotation, a blurred stretch): when the
   // previous keyframe of this camera needed a bridge, they are verified in
@@ -640,15 +683,15 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   }
   // With window_pairs they are verified whatever the previous pair gives.
   const bool speculate = !fallback.empty() && (options_.window_pairs || keyframes_[same.back()]->bridged);
-  std::vector<PairTask> batch = tasks;
+  std::vector<PairTask> batch = *tasks;
   batch.insert(batch.end(), candidates.begin(), candidates.end());
   if (speculate) batch.insert(batch.end(), fallback.begin(), fallback.end());
   const std::vector<PairOutcome> verified_batch = VerifyPairs(batch, *kf);
-  std::vector<PairOutcome> outcomes(verified_batch.begin(), verified_batch.begin() + tasks.size());
-  const std::vector<PairOutcome> verified_loops(verified_batch.begin() + tasks.size(),
-                                                verified_batch.begin() + tasks.size() + candidates.size());
-  for (const PairOutcome& o : outcomes) Count(o);
-  if (!same.empty() && !outcomes[0].success && !fallback.empty()) {
+  outcomes->assign(verified_batch.begin(), verified_batch.begin() + tasks->size());
+  verified_loops->assign(verified_batch.begin() + tasks->size(),
+                         verified_batch.begin() + tasks->size() + candidates.size());
+  for (const PairOutcome& o : *outcomes) Count(o);
+  if (!same.empty() && !(*outcomes)[0].success && !fallback.empty()) {
     // The previous pair failed: the newest older keyframe of the window that
     // verifies keeps the chain whole.
     const std::vector<PairOutcome> verified =
@@ -657,66 +700,70 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     for (const PairOutcome& o : verified) Count(o);
     for (std::size_t f = 0; f < fallback.size(); ++f) {
       if (!verified[f].success) continue;
-      tasks.push_back(fallback[f]);
-      outcomes.push_back(verified[f]);
+      tasks->push_back(fallback[f]);
+      outcomes->push_back(verified[f]);
       ++stats_.chain_bridged;
       kf->bridged = true;
       break;
     }
-  } else if (!same.empty() && outcomes[0].success && options_.window_pairs) {
-    // The previous pair holds: each verified older pair of the window is kept
-    // when it agrees with the chain through the previous keyframe,
-    // R_older,new = R_older,previous R_previous,new, within three standard
-    // deviations of the pair's and the chain's covariances. Unlike a loop
-    // closure's check, no angle is added for the drift of a long chain: over
-    // the window the chain has none beyond its covariance, and wrong pairs
-    // that verify on repeated structure err tenths of a degree to degrees.
+  } else if (!same.empty() && (*outcomes)[0].success && options_.window_pairs) {
     const std::vector<PairOutcome> verified(verified_batch.end() - fallback.size(), verified_batch.end());
-    const KeyframeRelativeRotation& previous = outcomes[0].edge;
-    for (std::size_t f = 0; f < fallback.size(); ++f) {
-      Count(verified[f]);
-      if (!verified[f].success) continue;
-      Eigen::Matrix3d r_op, chain_covariance = previous.covariance;
-      if (!ChainRotation(fallback[f].older, same.back(), &r_op, &chain_covariance)) continue;
-      const KeyframeRelativeRotation& e = verified[f].edge;
-      const double angle = AngularDistanceRad(r_op * previous.rotation, e.rotation);
-      const double spread = std::sqrt((e.covariance + chain_covariance).trace());
-      if (angle > 3.0 * spread) {
-        ++stats_.window_rejected_inconsistent;
-        continue;
-      }
-      tasks.push_back(fallback[f]);
-      outcomes.push_back(verified[f]);
-      ++stats_.window_edges;
-    }
+    KeepConsistentWindowPairs(same.back(), fallback, verified, tasks, outcomes);
   }
-  for (std::size_t t = 0; t < tasks.size(); ++t) {
-    if (!outcomes[t].success) continue;
-    const KeyframeRelativeRotation& e = outcomes[t].edge;
-    edges.push_back(e);
-    CountInliers(tasks[t], outcomes[t], kf.get());
-    MonitorFocal(outcomes[t], *kf, camera);
-    HoldPair(tasks[t], outcomes[t], static_cast<int>(keyframes_.size()),
-             tasks[t].source != EdgeSource::kRig && tasks[t].older == same.back());
-    if (tasks[t].source == EdgeSource::kRig) {
-      ++stats_.rig_edges;
+}
+
+void KeyframeFrontend::KeepConsistentWindowPairs(int previous_index, const std::vector<PairTask>& window_tasks,
+                                                 const std::vector<PairOutcome>& verified,
+                                                 std::vector<PairTask>* tasks, std::vector<PairOutcome>* outcomes) {
+  // The previous pair holds: each verified older pair of the window is kept
+  // when it agrees with the chain through the previous keyframe,
+  // R_older,new = R_older,previous R_previous,new, within three standard
+  // deviations of the pair's and the chain's covariances. Unlike a loop
+  // closure's check, no angle is added for the drift of a long chain: over
+  // the window the chain has none beyond its covariance, and wrong pairs
+  // that verify on repeated structure err tenths of a degree to degrees.
+  const KeyframeRelativeRotation previous = (*outcomes)[0].edge;
+  for (std::size_t f = 0; f < window_tasks.size(); ++f) {
+    Count(verified[f]);
+    if (!verified[f].success) continue;
+    Eigen::Matrix3d r_op, chain_covariance = previous.covariance;
+    if (!ChainRotation(window_tasks[f].older, previous_index, &r_op, &chain_covariance)) continue;
+    const KeyframeRelativeRotation& e = verified[f].edge;
+    const double angle = AngularDistanceRad(r_op * previous.rotation, e.rotation);
+    const double spread = std::sqrt((e.covariance + chain_covariance).trace());
+    if (angle > 3.0 * spread) {
+      ++stats_.window_rejected_inconsistent;
       continue;
     }
-    ++stats_.sequential_edges;
-    if (tasks[t].older == same.back()) {  // the previous keyframe: the chain loop closures are checked along
-      kf->has_sequential = true;
-      kf->sequential_rotation = e.rotation;
-      kf->sequential_covariance = e.covariance;
-    }
+    tasks->push_back(window_tasks[f]);
+    outcomes->push_back(verified[f]);
+    ++stats_.window_edges;
   }
-  // Loop closures: enough inliers, and consistent with each other.
-  std::vector<std::size_t> accepted;
-  for (const KeyframeRelativeRotation& e : AcceptLoops(candidates, verified_loops, &accepted)) edges.push_back(e);
-  for (std::size_t c : accepted) {
-    CountInliers(candidates[c], verified_loops[c], kf.get());
-    MonitorFocal(verified_loops[c], *kf, camera);
-    HoldPair(candidates[c], verified_loops[c], static_cast<int>(keyframes_.size()), false);
+}
+
+void KeyframeFrontend::UseChainOrRigEdge(const PairTask& task, const PairOutcome& outcome,
+                                         const CameraIntrinsics& camera, const std::vector<int>& same, Keyframe* kf,
+                                         std::vector<KeyframeRelativeRotation>* edges) {
+  const KeyframeRelativeRotation& e = outcome.edge;
+  edges->push_back(e);
+  CountInliers(task, outcome, kf);
+  MonitorFocal(outcome, *kf, camera);
+  HoldPair(task, outcome, static_cast<int>(keyframes_.size()),
+           task.source != EdgeSource::kRig && task.older == same.back());
+  if (task.source == EdgeSource::kRig) {
+    ++stats_.rig_edges;
+    return;
   }
+  ++stats_.sequential_edges;
+  if (task.older == same.back()) {  // the previous keyframe: the chain loop closures are checked along
+    kf->has_sequential = true;
+    kf->sequential_rotation = e.rotation;
+    kf->sequential_covariance = e.covariance;
+  }
+}
+
+void KeyframeFrontend::StoreKeyframe(std::unique_ptr<Keyframe> kf) {
+  const KeyframeKey key = kf->key;
   if (inverted_index_) inverted_index_->Add(static_cast<int>(keyframes_.size()), kf->bow);
   stats_.keyframe_bytes += KeyframeBytes(*kf);
   keyframes_.push_back(std::move(kf));
@@ -730,9 +777,6 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   if (options_.vocabulary && static_cast<int>(chain.size()) > recent) {
     due_compaction_.push_back({chain[chain.size() - 1 - recent], key.stamp_ns});
   }
-  stats_.last_pairs_s = stats_.pairs_s - pairs_before;
-  if (options_.focal_monitor.enabled || options_.focal_monitor.hold_for_correction) stats_.focal_bytes = FocalBytes();
-  return edges;
 }
 
 std::vector<KeyframeRelativeRotation> KeyframeFrontend::AcceptLoops(const std::vector<PairTask>& candidates,

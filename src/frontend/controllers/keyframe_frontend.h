@@ -363,6 +363,38 @@ class KeyframeFrontend {
   std::vector<KeyframeRelativeRotation> AcceptLoops(const std::vector<PairTask>& candidates,
                                                     const std::vector<PairOutcome>& verified,
                                                     std::vector<std::size_t>* accepted);
+  // The steps of AddKeyframe, in order. The keyframe of `image`: its
+  // features, undistorted to `camera`'s ideal pinhole, their index and words.
+  std::unique_ptr<Keyframe> DescribeKeyframe(const KeyframeKey& key, const cv::Mat& image,
+                                             const CameraIntrinsics& camera);
+  // The pair with the previous keyframe of the camera (`same`: its
+  // keyframes so far) and those with the other cameras' keyframes of the
+  // same capture; `related` gets them and the camera's last `window`.
+  std::vector<PairTask> ChainAndRigTasks(const KeyframeKey& key, const std::vector<int>& same, int window,
+                                         std::set<int>* related);
+  // Loop-closure candidates of `kf`: retrieved outside `related` and the
+  // camera's loop_exclude_recent last keyframes.
+  std::vector<PairTask> LoopCandidates(const Keyframe& kf, const std::set<int>& related, const std::vector<int>& same);
+  // Verifies `tasks`, the loop `candidates` and the window's older pairs in
+  // one batch: `outcomes` of `tasks`, to which an older pair that bridges a
+  // failed previous pair, or with window_pairs each one that agrees with
+  // the chain, is added; `verified_loops` of `candidates`.
+  void VerifyKeyframePairs(const std::vector<int>& same, int window, const std::vector<PairTask>& candidates,
+                           Keyframe* kf, std::vector<PairTask>* tasks, std::vector<PairOutcome>* outcomes,
+                           std::vector<PairOutcome>* verified_loops);
+  // window_pairs, the previous pair verified (outcomes[0]): adds each of the
+  // `verified` older pairs that agrees with the chain through the previous
+  // keyframe (`previous_index`).
+  void KeepConsistentWindowPairs(int previous_index, const std::vector<PairTask>& window_tasks,
+                                 const std::vector<PairOutcome>& verified, std::vector<PairTask>* tasks,
+                                 std::vector<PairOutcome>* outcomes);
+  // A verified sequential or rig pair of the new keyframe `kf`: its edge, its
+  // inliers counted, held and given to the focal check.
+  void UseChainOrRigEdge(const PairTask& task, const PairOutcome& outcome, const CameraIntrinsics& camera,
+                         const std::vector<int>& same, Keyframe* kf, std::vector<KeyframeRelativeRotation>* edges);
+  // Appends the keyframe to its camera's chain, the retrieval index and
+  // the compaction schedule.
+  void StoreKeyframe(std::unique_ptr<Keyframe> kf);
   // Loop closures from the keyframes at [first_added, end) to those before.
   std::vector<KeyframeRelativeRotation> LinkAddedKeyframes(int first_added);
   void Count(const PairOutcome& outcome);

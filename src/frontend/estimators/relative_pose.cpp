@@ -294,27 +294,28 @@ Eigen::Matrix3d CvToEigen3(const cv::Mat& m) {
   return out;
 }
 
-// One robust estimation (inlier threshold `threshold_px`), refinement and
-// covariance; the inputs are checked by the caller.
-RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& points1,
-                                       const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
-                                       const Eigen::Matrix3d& k2, double threshold_px,
-                                       const RelativePoseOptions& options, EssentialFit* fit = nullptr) {
-  const int n = static_cast<int>(points1.size());
-  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
-  const double focal = 0.25 * (k1(0, 0) + k1(1, 1) + k2(0, 0) + k2(1, 1));
+// The steps of EstimateAtThreshold. Each that can fail returns false with
+// the result to return in `failure`.
 
-  // 1. Robust essential matrix on normalised coordinates, then cheirality.
-  const cv::Mat n1 = ToCv(points1, k1_inv), n2 = ToCv(points2, k2_inv);
+// 1. Robust essential matrix on normalised coordinates `n1`, `n2`, then
+// cheirality: the pose and its inliers.
+bool RobustEssentialPose(const cv::Mat& n1, const cv::Mat& n2, int n, const Eigen::Matrix3d& k1_inv,
+                         const Eigen::Matrix3d& k2_inv, double threshold_normalised, const RelativePoseOptions& options,
+                         EssentialFit* fit, Eigen::Matrix3d* rotation, Eigen::Vector3d* t, std::vector<int>* inliers,
+                         RelativePoseResult* failure) {
   cv::Mat mask;
   cv::Mat essential;
   try {
     essential = cv::findEssentialMat(n1, n2, cv::Mat::eye(3, 3, CV_64F), cv::USAC_MAGSAC, options.ransac_confidence,
-                                     threshold_px / focal, options.ransac_max_iterations, mask);
+                                     threshold_normalised, options.ransac_max_iterations, mask);
   } catch (const cv::Exception& e) {
-    return Fail(TwoViewFailure::kEssentialFailed, std::string("OpenCV: ") + e.what());
+    *failure = Fail(TwoViewFailure::kEssentialFailed, std::string("OpenCV: ") + e.what());
+    return false;
   }
-  if (essential.rows < 3 || essential.cols != 3) return Fail(TwoViewFailure::kEssentialFailed, "no essential matrix");
+  if (essential.rows < 3 || essential.cols != 3) {
+    *failure = Fail(TwoViewFailure::kEssentialFailed, "no essential matrix");
+    return false;
+  }
   essential = essential.rowRange(0, 3).clone();
   if (fit) {
     fit->found = true;
@@ -340,53 +341,50 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
                                  triangulated);
     }
   } catch (const cv::Exception& e) {
-    return Fail(TwoViewFailure::kEssentialFailed, std::string("OpenCV: ") + e.what());
+    *failure = Fail(TwoViewFailure::kEssentialFailed, std::string("OpenCV: ") + e.what());
+    return false;
   }
-  std::vector<int> inliers;
+  inliers->clear();
   for (int i = 0; i < n; ++i)
-    if (mask.at<unsigned char>(i)) inliers.push_back(i);
-  if (in_front < options.min_inliers || static_cast<int>(inliers.size()) < options.min_inliers) {
-    return Fail(TwoViewFailure::kTooFewInliers, std::to_string(inliers.size()) + " inliers");
+    if (mask.at<unsigned char>(i)) inliers->push_back(i);
+  if (in_front < options.min_inliers || static_cast<int>(inliers->size()) < options.min_inliers) {
+    *failure = Fail(TwoViewFailure::kTooFewInliers, std::to_string(inliers->size()) + " inliers");
+    return false;
   }
-  Eigen::Matrix3d rotation;
-  Eigen::Vector3d t;
   for (int r = 0; r < 3; ++r) {
-    t[r] = t_cv.at<double>(r);
-    for (int c = 0; c < 3; ++c) rotation(r, c) = r_cv.at<double>(r, c);
+    (*t)[r] = t_cv.at<double>(r);
+    for (int c = 0; c < 3; ++c) (*rotation)(r, c) = r_cv.at<double>(r, c);
   }
-  rotation = ProjectToSO3(rotation);
-  t.normalize();
+  *rotation = ProjectToSO3(*rotation);
+  t->normalize();
+  return true;
+}
 
-  // Planarity: how many of the inliers a homography explains as well.
-  double homography_ratio = 0.0;
-  {
-    cv::Mat h1(static_cast<int>(inliers.size()), 2, CV_64F), h2(h1.rows, 2, CV_64F);
-    for (int r = 0; r < h1.rows; ++r) {
-      n1.row(inliers[r]).copyTo(h1.row(r));
-      n2.row(inliers[r]).copyTo(h2.row(r));
-    }
-    cv::Mat h_mask;
-    try {
-      // Plain RANSAC on the (already clean) essential-matrix inliers: USAC
-      // MAGSAC here cost 20x the rest of the pair's estimation. Always at the
-      // first threshold, whichever found the inliers: the share describes the
-      // scene and is compared with fixed ratios.
-      const cv::Mat h = cv::findHomography(h1, h2, cv::RANSAC, options.ransac_threshold_px / focal, h_mask,
-                                           kHomographyIterations, 0.999);
-      if (!h.empty()) homography_ratio = static_cast<double>(cv::countNonZero(h_mask)) / h1.rows;
-    } catch (const cv::Exception&) {
-      homography_ratio = 0.0;
-    }
+// Planarity: the share of the inliers a homography explains as well.
+double HomographyInlierRatio(const cv::Mat& n1, const cv::Mat& n2, const std::vector<int>& inliers,
+                             double threshold_normalised) {
+  cv::Mat h1(static_cast<int>(inliers.size()), 2, CV_64F), h2(h1.rows, 2, CV_64F);
+  for (int r = 0; r < h1.rows; ++r) {
+    n1.row(inliers[r]).copyTo(h1.row(r));
+    n2.row(inliers[r]).copyTo(h2.row(r));
   }
-
-  if (homography_ratio > options.max_homography_inlier_ratio) {
-    RelativePoseResult r = Fail(TwoViewFailure::kNearPlanar, "a homography explains " +
-                                                                 std::to_string(100.0 * homography_ratio) + "% of the inliers");
-    r.homography_inlier_ratio = homography_ratio;
-    return r;
+  cv::Mat h_mask;
+  try {
+    // Plain RANSAC on the (already clean) essential-matrix inliers: USAC
+    // MAGSAC here cost 20x the rest of the pair's estimation.
+    const cv::Mat h =
+        cv::findHomography(h1, h2, cv::RANSAC, threshold_normalised, h_mask, kHomographyIterations, 0.999);
+    if (!h.empty()) return static_cast<double>(cv::countNonZero(h_mask)) / h1.rows;
+  } catch (const cv::Exception&) {
   }
+  return 0.0;
+}
 
-  // 2. Parallax: the angle between rotated bearings; ~0 for a pure rotation.
+// 2. Parallax: the median angle between rotated bearings (deg); ~0 for a
+// pure rotation.
+double MedianParallaxDeg(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                         const std::vector<int>& inliers, const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                         const Eigen::Matrix3d& rotation) {
   std::vector<double> parallax;
   parallax.reserve(inliers.size());
   for (int i : inliers) {
@@ -395,7 +393,152 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
     parallax.push_back(std::atan2(b1.cross(b2).norm(), b1.dot(b2)));
   }
   std::nth_element(parallax.begin(), parallax.begin() + parallax.size() / 2, parallax.end());
-  const double median_parallax_deg = RadToDeg(parallax[parallax.size() / 2]);
+  return RadToDeg(parallax[parallax.size() / 2]);
+}
+
+// The Sampson error is the same for t and -t, so the refinement cannot
+// tell them apart; cheirality can. A robust model off along the
+// rotation-translation valley can have its points in front only with the
+// mirrored translation, and the refinement then brings R back and keeps
+// t mirrored: every point behind the cameras. So t takes the sign that
+// puts more of the inliers in front.
+void OrientTranslationByCheirality(const std::vector<Eigen::Vector2d>& points1,
+                                   const std::vector<Eigen::Vector2d>& points2, const std::vector<int>& inliers,
+                                   const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                                   const Eigen::Matrix3d& rotation, Eigen::Vector3d* t) {
+  int in_front_count = 0, behind_count = 0;
+  for (int i : inliers) {
+    const Eigen::Vector3d b1 = k1_inv * points1[i].homogeneous(), b2 = k2_inv * points2[i].homogeneous();
+    if (InFront(rotation, *t, b1, b2)) ++in_front_count;
+    else if (InFront(rotation, -*t, b1, b2)) ++behind_count;
+  }
+  if (behind_count > in_front_count) *t = -*t;
+}
+
+// The correspondences within 3 sigma of the pose (|Sampson|, sigma from the
+// median absolute residual of the current `inliers`) and in front of both
+// cameras.
+std::vector<int> ReselectInliers(const std::vector<Eigen::Vector2d>& points1,
+                                 const std::vector<Eigen::Vector2d>& points2, const std::vector<int>& inliers,
+                                 const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                                 const Eigen::Matrix3d& rotation, const Eigen::Vector3d& t) {
+  const int n = static_cast<int>(points1.size());
+  const Eigen::Matrix3d f = FundamentalPx(k1_inv, k2_inv, rotation, t);
+  std::vector<double> residual(n), absolute;
+  absolute.reserve(n);
+  for (int i = 0; i < n; ++i) {
+    residual[i] = SampsonPx(f, points1[i], points2[i]);
+    absolute.push_back(std::abs(residual[i]));
+  }
+  std::vector<double> inlier_abs;
+  for (int i : inliers) inlier_abs.push_back(absolute[i]);
+  const double sigma = RobustSigma(&inlier_abs);
+  std::vector<int> selected;
+  for (int i = 0; i < n; ++i) {
+    if (absolute[i] > 3.0 * sigma) continue;
+    const Eigen::Vector3d b1 = k1_inv * points1[i].homogeneous(), b2 = k2_inv * points2[i].homogeneous();
+    if (InFront(rotation, t, b1, b2)) selected.push_back(i);
+  }
+  return selected;
+}
+
+// 3. Sampson refinement of (omega, t) over the inliers. The robust
+// estimator's inlier set is cut at its own (less accurate) model, which
+// biases the refinement towards that model and truncates the noise estimate:
+// so after each refinement, inliers are re-selected from all correspondences
+// (ReselectInliers) and the refinement repeated until the set settles.
+bool RefineWithReselection(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                           const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                           const RelativePoseOptions& options, Eigen::Matrix3d* rotation, Eigen::Vector3d* t,
+                           std::vector<int>* inliers, int* refine_iterations, RelativePoseResult* failure) {
+  *refine_iterations = 0;
+  for (int round = 0; round < kMaxReselectionRounds; ++round) {
+    const Eigen::Matrix3d rotation_before = *rotation;
+    *refine_iterations +=
+        RefineSampson(points1, points2, *inliers, k1_inv, k2_inv, options.refine_max_iterations, rotation, t);
+    const double moved = AngularDistanceRad(*rotation, rotation_before);
+    if (!rotation->allFinite() || !t->allFinite() || !(moved <= 0.5)) {
+      *failure = Fail(TwoViewFailure::kRefinementFailed,
+                      "refinement moved the rotation by " + std::to_string(RadToDeg(moved)) + " deg or diverged");
+      return false;
+    }
+    OrientTranslationByCheirality(points1, points2, *inliers, k1_inv, k2_inv, *rotation, t);
+    std::vector<int> selected = ReselectInliers(points1, points2, *inliers, k1_inv, k2_inv, *rotation, *t);
+    if (static_cast<int>(selected.size()) < options.min_inliers) {
+      *failure = Fail(TwoViewFailure::kTooFewInliers, std::to_string(selected.size()) + " inliers after refinement");
+      return false;
+    }
+    const bool settled = selected == *inliers;
+    inliers->swap(selected);
+    if (settled) break;
+  }
+  return true;
+}
+
+// 4. The covariances from the Jacobian at the optimum w.r.t. omega (3) and
+// the tangent of t (2), into `result` (whose pose and inliers are set).
+bool CovarianceAtOptimum(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
+                         const Eigen::Matrix3d& k1_inv, const Eigen::Matrix3d& k2_inv,
+                         const RelativePoseOptions& options, RelativePoseResult* result, RelativePoseResult* failure) {
+  const SampsonSystem at_optimum = BuildSampsonSystem(points1, points2, result->inliers, k1_inv, k2_inv,
+                                                      result->rotation, result->translation,
+                                                      TangentBasis(result->translation));
+  const Matrix5d& jtj = at_optimum.jtj;
+  if (!jtj.allFinite() || !std::isfinite(at_optimum.sum_squares)) {
+    *failure = Fail(TwoViewFailure::kRefinementFailed, "Jacobian is not finite");
+    return false;
+  }
+  const int m = static_cast<int>(result->inliers.size());
+  const double sigma2 = at_optimum.sum_squares / std::max(1, m - 5);
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 5, 5>> eig(jtj);
+  const double min_eig = eig.eigenvalues().minCoeff(), max_eig = eig.eigenvalues().maxCoeff();
+  if (!(min_eig > 0.0) || max_eig / min_eig > options.max_condition_number) {
+    *failure = Fail(TwoViewFailure::kSingularInformation,
+                    "J^T J condition number " + std::to_string(min_eig > 0.0 ? max_eig / min_eig : INFINITY));
+    return false;
+  }
+  const Eigen::Matrix<double, 5, 5> jtj_inv =
+      eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+  result->sigma_px = std::sqrt(sigma2);
+  result->covariance_paper = jtj.topLeftCorner<3, 3>().inverse();
+  result->covariance_conditional = sigma2 * result->covariance_paper;
+  result->covariance_marginal = sigma2 * jtj_inv.topLeftCorner<3, 3>();
+  result->covariance_marginal = 0.5 * (result->covariance_marginal + result->covariance_marginal.transpose()).eval();
+  result->covariance_marginal_pixel = result->covariance_marginal;
+  result->covariance = options.covariance_model == RotationCovarianceModel::kConditional
+                           ? result->covariance_conditional
+                           : result->covariance_marginal;
+  return true;
+}
+
+// One robust estimation (inlier threshold `threshold_px`), refinement and
+// covariance; the inputs are checked by the caller.
+RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& points1,
+                                       const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
+                                       const Eigen::Matrix3d& k2, double threshold_px,
+                                       const RelativePoseOptions& options, EssentialFit* fit = nullptr) {
+  const int n = static_cast<int>(points1.size());
+  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+  const double focal = 0.25 * (k1(0, 0) + k1(1, 1) + k2(0, 0) + k2(1, 1));
+  const cv::Mat n1 = ToCv(points1, k1_inv), n2 = ToCv(points2, k2_inv);
+  RelativePoseResult failure;
+  Eigen::Matrix3d rotation;
+  Eigen::Vector3d t;
+  std::vector<int> inliers;
+  if (!RobustEssentialPose(n1, n2, n, k1_inv, k2_inv, threshold_px / focal, options, fit, &rotation, &t, &inliers,
+                           &failure)) {
+    return failure;
+  }
+  // Always at the first threshold, whichever found the inliers: the share
+  // describes the scene and is compared with fixed ratios.
+  const double homography_ratio = HomographyInlierRatio(n1, n2, inliers, options.ransac_threshold_px / focal);
+  if (homography_ratio > options.max_homography_inlier_ratio) {
+    RelativePoseResult r = Fail(TwoViewFailure::kNearPlanar, "a homography explains " +
+                                                                 std::to_string(100.0 * homography_ratio) + "% of the inliers");
+    r.homography_inlier_ratio = homography_ratio;
+    return r;
+  }
+  const double median_parallax_deg = MedianParallaxDeg(points1, points2, inliers, k1_inv, k2_inv, rotation);
   // Without the rotation model, a pair without parallax is rejected here.
   // With it, model selection decides: a pair the general model still wins has
   // a translation the data show, and its marginal covariance carries how
@@ -405,98 +548,21 @@ RelativePoseResult EstimateAtThreshold(const std::vector<Eigen::Vector2d>& point
     r.median_parallax_deg = median_parallax_deg;
     return r;
   }
-
-  // 3. Sampson refinement of (omega, t) over the inliers. The robust
-  // estimator's inlier set is cut at its own (less accurate) model, which
-  // biases the refinement towards that model and truncates the noise estimate:
-  // so after each refinement, inliers are re-selected from all correspondences
-  // (|Sampson| < 3 sigma, sigma from the median absolute residual, in front of
-  // both cameras) and the refinement repeated until the set settles.
   int refine_iterations = 0;
-  for (int round = 0; round < kMaxReselectionRounds; ++round) {
-    const Eigen::Matrix3d rotation_before = rotation;
-    refine_iterations += RefineSampson(points1, points2, inliers, k1_inv, k2_inv, options.refine_max_iterations,
-                                       &rotation, &t);
-    const double moved = AngularDistanceRad(rotation, rotation_before);
-    if (!rotation.allFinite() || !t.allFinite() || !(moved <= 0.5)) {
-      return Fail(TwoViewFailure::kRefinementFailed,
-                  "refinement moved the rotation by " + std::to_string(RadToDeg(moved)) + " deg or diverged");
-    }
-
-    // The Sampson error is the same for t and -t, so the refinement cannot
-    // tell them apart; cheirality can. A robust model off along the
-    // rotation-translation valley can have its points in front only with the
-    // mirrored translation, and the refinement then brings R back and keeps
-    // t mirrored: every point behind the cameras. So t takes the sign that
-    // puts more of the inliers in front.
-    int in_front_count = 0, behind_count = 0;
-    for (int i : inliers) {
-      const Eigen::Vector3d b1 = k1_inv * points1[i].homogeneous(), b2 = k2_inv * points2[i].homogeneous();
-      if (InFront(rotation, t, b1, b2)) ++in_front_count;
-      else if (InFront(rotation, -t, b1, b2)) ++behind_count;
-    }
-    if (behind_count > in_front_count) t = -t;
-
-    // Re-select.
-    const Eigen::Matrix3d f = FundamentalPx(k1_inv, k2_inv, rotation, t);
-    std::vector<double> residual(n), absolute;
-    absolute.reserve(n);
-    for (int i = 0; i < n; ++i) {
-      residual[i] = SampsonPx(f, points1[i], points2[i]);
-      absolute.push_back(std::abs(residual[i]));
-    }
-    std::vector<double> inlier_abs;
-    for (int i : inliers) inlier_abs.push_back(absolute[i]);
-    const double sigma = RobustSigma(&inlier_abs);
-    std::vector<int> selected;
-    for (int i = 0; i < n; ++i) {
-      if (absolute[i] > 3.0 * sigma) continue;
-      const Eigen::Vector3d b1 = k1_inv * points1[i].homogeneous(), b2 = k2_inv * points2[i].homogeneous();
-      if (InFront(rotation, t, b1, b2)) selected.push_back(i);
-    }
-    if (static_cast<int>(selected.size()) < options.min_inliers) {
-      return Fail(TwoViewFailure::kTooFewInliers, std::to_string(selected.size()) + " inliers after refinement");
-    }
-    const bool settled = selected == inliers;
-    inliers.swap(selected);
-    if (settled) break;
+  if (!RefineWithReselection(points1, points2, k1_inv, k2_inv, options, &rotation, &t, &inliers, &refine_iterations,
+                             &failure)) {
+    return failure;
   }
-
-  // 4. Jacobian at the optimum w.r.t. omega (3) and the tangent of t (2).
-  const SampsonSystem at_optimum =
-      BuildSampsonSystem(points1, points2, inliers, k1_inv, k2_inv, rotation, t, TangentBasis(t));
-  const Matrix5d& jtj = at_optimum.jtj;
-  if (!jtj.allFinite() || !std::isfinite(at_optimum.sum_squares)) {
-    return Fail(TwoViewFailure::kRefinementFailed, "Jacobian is not finite");
-  }
-  const int m = static_cast<int>(inliers.size());
-  const double sigma2 = at_optimum.sum_squares / std::max(1, m - 5);
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 5, 5>> eig(jtj);
-  const double min_eig = eig.eigenvalues().minCoeff(), max_eig = eig.eigenvalues().maxCoeff();
-  if (!(min_eig > 0.0) || max_eig / min_eig > options.max_condition_number) {
-    return Fail(TwoViewFailure::kSingularInformation,
-                "J^T J condition number " + std::to_string(min_eig > 0.0 ? max_eig / min_eig : INFINITY));
-  }
-  const Eigen::Matrix<double, 5, 5> jtj_inv =
-      eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
-
   RelativePoseResult result;
   result.success = true;
   result.rotation = rotation;
   result.translation = t;
   result.inliers = std::move(inliers);
-  result.sigma_px = std::sqrt(sigma2);
   result.median_parallax_deg = median_parallax_deg;
   result.homography_inlier_ratio = homography_ratio;
   result.refine_iterations = refine_iterations;
   result.ransac_threshold_px = threshold_px;
-  result.covariance_paper = jtj.topLeftCorner<3, 3>().inverse();
-  result.covariance_conditional = sigma2 * result.covariance_paper;
-  result.covariance_marginal = sigma2 * jtj_inv.topLeftCorner<3, 3>();
-  result.covariance_marginal = 0.5 * (result.covariance_marginal + result.covariance_marginal.transpose()).eval();
-  result.covariance_marginal_pixel = result.covariance_marginal;
-  result.covariance = options.covariance_model == RotationCovarianceModel::kConditional ? result.covariance_conditional
-                                                                                       : result.covariance_marginal;
+  if (!CovarianceAtOptimum(points1, points2, k1_inv, k2_inv, options, &result, &failure)) return failure;
   return result;
 }
 
