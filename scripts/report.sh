@@ -22,12 +22,13 @@
 #   sessions.md        two 400-capture sessions (other start, other lighting) merged, against one 800-capture run
 # results/README.md is the written summary of these files.
 #
-#   bash scripts/report.sh            about 115 minutes on 2 cores (the COLMAP comparison about 17 of them; 1,000,000 views alone: 3-4, beside the front end)
-#   bash scripts/report.sh --quick    under 3 minutes; small sizes, written to build/report_quick/
+#   bash scripts/report.sh            everything
+#   bash scripts/report.sh --quick    small sizes, written to build/report_quick/
 #                                     (CI runs it so the report code never rots)
 #   bash scripts/report.sh --node     only the files that run the node's pipeline (node_benchmark.md
 #                                     to sessions.md below: what a default of the node or its front
-#                                     end changes), about 80 minutes (over two hours on a slower machine)
+#                                     end changes)
+# How long each takes: results/README.md (its first paragraph).
 # Real data comes from ../shared/data (ROTAVG_DATA_DIR to override); parts that
 # need it say so and are skipped when it is absent.
 source "$(dirname "$0")/common.sh"

@@ -8,10 +8,9 @@
 # with AddressSanitizer and UndefinedBehaviorSanitizer: file readers and the
 # message path through the front end and a solve (scripts/fuzz.sh). With
 # --sanitizers, also the whole suite again in an ASan + UBSan build
-# (scripts/test_sanitizers.sh). That pass is left out of CI: on a slower
-# 2-core machine its build took 23 minutes and its first 25 of 38 tests 19
-# more, the heaviest still to come; beside the rest of CI it left no margin
-# under CI's 90 minutes.
+# (scripts/test_sanitizers.sh). That pass is left out of CI: beside the rest
+# of CI it leaves no margin under CI's 90 minutes (results/README.md,
+# "Checks", has its durations).
 #   bash scripts/test.sh [--sanitizers]
 source "$(dirname "$0")/common.sh"
 SANITIZERS=0

@@ -130,8 +130,8 @@ int Images(int argc, char** argv) {
   }
   // The averaging sees each pair through its two-view summary; the tracks
   // see each point in every view at once, which holds the views that the
-  // summaries of wide-baseline or repetitive pairs mislead
-  // (results/frontend.md: castle-P19 0.073 -> 0.028 deg median).
+  // summaries of wide-baseline or repetitive pairs mislead (results/frontend.md,
+  // "then bundle adjusted" against the averaging alone).
   if (!args.Has("--no-bundle-adjustment")) {
     ra::BundleAdjustmentSummary adjustment;
     ra::RefineRotationsWithBundleAdjustment(ra::CorrespondencesOfEdges(front), ra::BundleAdjustmentOptions(),

@@ -38,9 +38,8 @@ struct KeyframeSelectionOptions {
   // keyframe moved, and the fraction of them still tracked (occlusion,
   // motion blur, a view turning away). Sparser keyframes mean fewer
   // sequential edges whose errors add up along the path, until the pairs
-  // overlap too little to verify well: on a 20 Hz stream the median error
-  // fell with the keyframe count down to about 8 deg / 0.4 and rose beyond
-  // (results/keyframe_selection.md).
+  // overlap too little to verify well (results/keyframe_selection.md: the
+  // accuracy and speed of each threshold on a 20 Hz stream).
   double min_motion_deg = 8.0;
   double min_tracked_fraction = 0.4;
   // A keyframe at least this often (s), even without motion; 0: never.
