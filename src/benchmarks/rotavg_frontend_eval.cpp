@@ -27,7 +27,7 @@
 #include <opencv2/imgproc.hpp>
 #include "rotation_averaging/core/estimators/rotation_averaging.h"
 #include "frontend/eval/error_plot.h"
-#include "frontend/scene/focal_scene.h"
+#include "sim/focal_scene.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"

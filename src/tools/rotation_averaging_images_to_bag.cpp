@@ -44,7 +44,7 @@
 #include "rotation_averaging/frontend/controllers/image_pipeline.h"
 #include "rotation_averaging/frontend/features/features.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "ros/demo_bag.h"
+#include "sim/demo_bag.h"
 #include "ros/msg_conversion.h"
 
 namespace ra = rotation_averaging;

@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "frontend/scene/rig_scene.h"
+#include "sim/rig_scene.h"
 #include "rotation_averaging/frontend/features/features.h"
 #include "rotation_averaging/frontend/features/vocabulary.h"
 

@@ -10,8 +10,8 @@
 
 #include "frontend/controllers/focal_corrector.h"
 #include "frontend/controllers/keyframe_frontend.h"
-#include "frontend/scene/focal_scene.h"
-#include "frontend/scene/rig_scene.h"
+#include "sim/focal_scene.h"
+#include "sim/rig_scene.h"
 #include "rotation_averaging/core/geometry/so3.h"
 
 namespace rotation_averaging {

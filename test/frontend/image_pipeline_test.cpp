@@ -17,7 +17,7 @@
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "core/util/random_draws.h"
-#include "frontend/scene/focal_scene.h"
+#include "sim/focal_scene.h"
 
 namespace rotation_averaging {
 namespace {

@@ -24,7 +24,7 @@
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "core/io/binary_io.h"
-#include "frontend/scene/rig_scene.h"
+#include "sim/rig_scene.h"
 
 namespace rotation_averaging {
 namespace {

@@ -9,7 +9,7 @@
 #include <map>
 #include <set>
 
-#include "frontend/scene/rig_scene.h"
+#include "sim/rig_scene.h"
 #include "rotation_averaging/core/geometry/so3.h"
 
 namespace rotation_averaging {

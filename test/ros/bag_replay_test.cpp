@@ -28,7 +28,7 @@
 #include "rotation_averaging/core/io/graph_io.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "common/test_vocabulary.h"
-#include "ros/demo_bag.h"
+#include "sim/demo_bag.h"
 #include "ros/msg_conversion.h"
 #include "core/util/random_draws.h"
 

@@ -3,7 +3,7 @@
 // written as a rectified camera's, a readout of part of the sensor is what
 // camera_info says, and each camera's camera_info carries its own focal
 // scale.
-#include "ros/demo_bag.h"
+#include "sim/demo_bag.h"
 
 #include <gtest/gtest.h>
 #include <rosbag/bag.h>

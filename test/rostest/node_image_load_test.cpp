@@ -21,7 +21,7 @@
 #include "rotation_averaging/RelativePose.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "ros/msg_conversion.h"
-#include "frontend/scene/rig_scene.h"
+#include "sim/rig_scene.h"
 
 namespace rotation_averaging {
 namespace {

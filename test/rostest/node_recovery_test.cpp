@@ -23,7 +23,7 @@
 
 #include "common/synthetic_rig.h"
 #include "common/test_vocabulary.h"
-#include "frontend/scene/rig_scene.h"
+#include "sim/rig_scene.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"

@@ -19,7 +19,7 @@
 #include "rotation_averaging/core/io/graph_io.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "ros/bag_replay.h"
-#include "ros/demo_bag.h"
+#include "sim/demo_bag.h"
 #include "ros/msg_conversion.h"
 #include "rostest/play_bag.h"
 

@@ -1,4 +1,4 @@
-#include "frontend/scene/focal_scene.h"
+#include "sim/focal_scene.h"
 
 #include <cmath>
 #include <random>

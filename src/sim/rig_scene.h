@@ -9,8 +9,8 @@
 // and roll wobble, and ends where it started, so a front end can close the loop. Each camera
 // (optical frame: z forward, x right, y down) looks along one rig axis:
 // front, left, back, right.
-#ifndef ROTATION_AVERAGING_SRC_FRONTEND_SCENE_RIG_SCENE_H_
-#define ROTATION_AVERAGING_SRC_FRONTEND_SCENE_RIG_SCENE_H_
+#ifndef ROTATION_AVERAGING_SRC_SIM_RIG_SCENE_H_
+#define ROTATION_AVERAGING_SRC_SIM_RIG_SCENE_H_
 
 #include <Eigen/Core>
 #include <cstdint>
@@ -104,4 +104,4 @@ class RigScene {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_FRONTEND_SCENE_RIG_SCENE_H_
+#endif  // ROTATION_AVERAGING_SRC_SIM_RIG_SCENE_H_

@@ -1,4 +1,4 @@
-#include "ros/demo_bag.h"
+#include "sim/demo_bag.h"
 
 #include <rosbag/bag.h>
 #include <rosbag/exceptions.h>
@@ -112,13 +112,14 @@ void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::T
   bag->write("/" + frame + "/image_raw", stamp, m);
 }
 
-bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compressed, NamedOrientations* ground_truth,
-                      std::string* error, const RigSceneBagOptions& bag_options) {
-  const RigSceneOptions& options = scene.Options();
-  const bool progress = bag_options.progress;
-  CameraIntrinsics camera = bag_options.lens;
-  camera.k = scene.Intrinsics();
-  CameraIntrinsics info = camera;  // what camera_info says: the focal lengths may be off
+namespace {
+
+// What camera_info says of each camera of `scene` (`info_off`: other than
+// the scene's camera): the lens, unless the images are rectified, and the
+// focal lengths and principal point as bag_options puts them off.
+bool CameraInfos(const RigScene& scene, const CameraIntrinsics& camera, const RigSceneBagOptions& bag_options,
+                 std::vector<CameraIntrinsics>* infos, bool* info_off, std::string* error) {
+  CameraIntrinsics info = camera;
   if (bag_options.rectify) {
     info.distortion = DistortionModel::kNone;
     info.coefficients.clear();
@@ -135,16 +136,23 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
     }
     focal_scales = bag_options.info_focal_scales;
   }
-  std::vector<CameraIntrinsics> infos(num_cameras, info);
-  bool info_off = false;  // camera_info other than the scene's camera
+  infos->assign(num_cameras, info);
+  *info_off = false;
   for (std::size_t c = 0; c < num_cameras; ++c) {
-    infos[c].k(0, 0) *= focal_scales[c];
-    infos[c].k(1, 1) *= focal_scales[c];
-    infos[c].k(0, 2) += bag_options.info_principal_offset_x;
-    infos[c].k(1, 2) += bag_options.info_principal_offset_y;
-    info_off = info_off || focal_scales[c] != 1.0 || bag_options.info_principal_offset_x != 0.0 ||
-               bag_options.info_principal_offset_y != 0.0;
+    (*infos)[c].k(0, 0) *= focal_scales[c];
+    (*infos)[c].k(1, 1) *= focal_scales[c];
+    (*infos)[c].k(0, 2) += bag_options.info_principal_offset_x;
+    (*infos)[c].k(1, 2) += bag_options.info_principal_offset_y;
+    *info_off = *info_off || focal_scales[c] != 1.0 || bag_options.info_principal_offset_x != 0.0 ||
+                bag_options.info_principal_offset_y != 0.0;
   }
+  return true;
+}
+
+// The readout fits the sensor, and an image folder asks for what it can
+// hold (then it is created).
+bool CheckRigSceneOutputs(const RigSceneOptions& options, const CameraIntrinsics& camera, bool info_off,
+                          const RigSceneBagOptions& bag_options, std::string* error) {
   const SensorReadout& readout = bag_options.readout;
   const cv::Rect sensor_rect(0, 0, options.width, options.height);
   const cv::Rect region = readout.roi.empty() ? sensor_rect : readout.roi;
@@ -159,21 +167,54 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
     return false;
   }
   const std::string& images_dir = bag_options.images_dir;
-  if (!images_dir.empty()) {
-    if (camera.HasDistortion() || info_off || !bag_options.readout.Whole()) {
-      if (error) {
-        *error = "an image folder holds ideal pinhole images with the scene's K: no lens, camera_info as the scene's, "
-                 "the whole sensor";
-      }
-      return false;
+  if (images_dir.empty()) return true;
+  if (camera.HasDistortion() || info_off || !bag_options.readout.Whole()) {
+    if (error) {
+      *error = "an image folder holds ideal pinhole images with the scene's K: no lens, camera_info as the scene's, "
+               "the whole sensor";
     }
-    std::error_code ec;
-    std::filesystem::create_directories(images_dir, ec);
-    if (ec) {
-      if (error) *error = "cannot create " + images_dir + ": " + ec.message();
-      return false;
-    }
+    return false;
   }
+  std::error_code ec;
+  std::filesystem::create_directories(images_dir, ec);
+  if (ec) {
+    if (error) *error = "cannot create " + images_dir + ": " + ec.message();
+    return false;
+  }
+  return true;
+}
+
+// The image folder's K and ground truth, keyed by the images' file names.
+bool WriteImageFolderFiles(const std::string& images_dir, const Eigen::Matrix3d& k, const NamedOrientations& truth,
+                           std::string* error) {
+  std::ofstream k_file(images_dir + "/K.txt");
+  char line[256];
+  for (int r = 0; r < 3; ++r) {
+    std::snprintf(line, sizeof(line), "%.17g %.17g %.17g\n", k(r, 0), k(r, 1), k(r, 2));
+    k_file << line;
+  }
+  if (!k_file.good()) {
+    if (error) *error = "cannot write " + images_dir + "/K.txt";
+    return false;
+  }
+  NamedOrientations by_file;
+  for (const auto& [name, r] : truth) by_file[name + ".png"] = r;
+  return WriteOrientationsCsv(images_dir + "/ground_truth.csv", by_file, error);
+}
+
+}  // namespace
+
+bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compressed, NamedOrientations* ground_truth,
+                      std::string* error, const RigSceneBagOptions& bag_options) {
+  const RigSceneOptions& options = scene.Options();
+  const bool progress = bag_options.progress;
+  CameraIntrinsics camera = bag_options.lens;
+  camera.k = scene.Intrinsics();
+  std::vector<CameraIntrinsics> infos;
+  bool info_off = false;
+  if (!CameraInfos(scene, camera, bag_options, &infos, &info_off, error)) return false;
+  if (!CheckRigSceneOutputs(options, camera, info_off, bag_options, error)) return false;
+  const std::string& images_dir = bag_options.images_dir;
   rosbag::Bag bag;
   try {
     bag.open(path, rosbag::bagmode::Write);
@@ -200,53 +241,37 @@ bool WriteRigSceneBag(const RigScene& scene, const std::string& path, bool compr
   truth.header.frame_id = "map";
   NamedOrientations truth_csv;
   try {
-  for (int capture = 0; capture < options.num_captures; ++capture) {
-    const ros::Time stamp = t0 + ros::Duration(scene.CaptureTime(capture));
-    for (std::size_t c = 0; c < scene.Cameras().size(); ++c) {
-      const std::string& frame = scene.Cameras()[c].frame_id;
-      cv::Mat image = DistortImage(scene.Render(capture, static_cast<int>(c), margin), camera, margin);
-      if (bag_options.rectify) image = UndistortImage(image, camera);
-      const cv::Size sensor = image.size();
-      if (!bag_options.readout.Whole()) image = ReadOut(image, bag_options.readout);
-      WriteKeyframeImage(&bag, frame, stamp, image, infos[c], compressed, sensor, bag_options.readout);
-      const KeyframeKey key{frame, ToNanoseconds(stamp)};
-      const std::string name = OnlineAverager::KeyframeName(key);
-      const Eigen::Matrix3d world_to_camera = scene.WorldToCamera(capture, static_cast<int>(c));
-      if (!images_dir.empty() && !cv::imwrite(images_dir + "/" + name + ".png", image)) {
-        if (error) *error = "cannot write " + images_dir + "/" + name + ".png";
-        return false;
+    for (int capture = 0; capture < options.num_captures; ++capture) {
+      const ros::Time stamp = t0 + ros::Duration(scene.CaptureTime(capture));
+      for (std::size_t c = 0; c < scene.Cameras().size(); ++c) {
+        const std::string& frame = scene.Cameras()[c].frame_id;
+        cv::Mat image = DistortImage(scene.Render(capture, static_cast<int>(c), margin), camera, margin);
+        if (bag_options.rectify) image = UndistortImage(image, camera);
+        const cv::Size sensor = image.size();
+        if (!bag_options.readout.Whole()) image = ReadOut(image, bag_options.readout);
+        WriteKeyframeImage(&bag, frame, stamp, image, infos[c], compressed, sensor, bag_options.readout);
+        const KeyframeKey key{frame, ToNanoseconds(stamp)};
+        const std::string name = OnlineAverager::KeyframeName(key);
+        const Eigen::Matrix3d world_to_camera = scene.WorldToCamera(capture, static_cast<int>(c));
+        if (!images_dir.empty() && !cv::imwrite(images_dir + "/" + name + ".png", image)) {
+          if (error) *error = "cannot write " + images_dir + "/" + name + ".png";
+          return false;
+        }
+        truth.keyframes.push_back(ToMsg(key, world_to_camera, 0));
+        truth_csv[name] = world_to_camera;
       }
-      truth.keyframes.push_back(ToMsg(key, world_to_camera, 0));
-      truth_csv[name] = world_to_camera;
+      if (progress) std::fprintf(stderr, "\rrendered capture %d/%d", capture + 1, options.num_captures);
     }
-    if (progress) std::fprintf(stderr, "\rrendered capture %d/%d", capture + 1, options.num_captures);
-  }
-  if (progress) std::fprintf(stderr, "\n");
-  const ros::Time end = t0 + ros::Duration(scene.CaptureTime(options.num_captures - 1));
-  truth.header.stamp = end;
-  bag.write("/ground_truth/orientations", end, truth);
-  bag.close();
+    if (progress) std::fprintf(stderr, "\n");
+    const ros::Time end = t0 + ros::Duration(scene.CaptureTime(options.num_captures - 1));
+    truth.header.stamp = end;
+    bag.write("/ground_truth/orientations", end, truth);
+    bag.close();
   } catch (const rosbag::BagException& e) {
     if (error) *error = "writing " + path + ": " + e.what();
     return false;
   }
-  if (!images_dir.empty()) {
-    // The folder's K and ground truth, keyed by the images' file names.
-    std::ofstream k_file(images_dir + "/K.txt");
-    const Eigen::Matrix3d& k = camera.k;
-    char line[256];
-    for (int r = 0; r < 3; ++r) {
-      std::snprintf(line, sizeof(line), "%.17g %.17g %.17g\n", k(r, 0), k(r, 1), k(r, 2));
-      k_file << line;
-    }
-    if (!k_file.good()) {
-      if (error) *error = "cannot write " + images_dir + "/K.txt";
-      return false;
-    }
-    NamedOrientations by_file;
-    for (const auto& [name, r] : truth_csv) by_file[name + ".png"] = r;
-    if (!WriteOrientationsCsv(images_dir + "/ground_truth.csv", by_file, error)) return false;
-  }
+  if (!images_dir.empty() && !WriteImageFolderFiles(images_dir, camera.k, truth_csv, error)) return false;
   if (ground_truth) *ground_truth = std::move(truth_csv);
   return true;
 }

@@ -1,4 +1,4 @@
-#include "frontend/scene/rig_scene.h"
+#include "sim/rig_scene.h"
 
 #include <Eigen/Geometry>
 #include <algorithm>
