@@ -26,6 +26,93 @@ ViewGraph Perturbed(const ViewGraph& graph, const std::vector<EdgeParameterDeriv
   return out;
 }
 
+// What is wrong with the inputs ("" when nothing is).
+std::string CheckInputs(const ViewGraph& graph, const std::vector<EdgeParameterDerivative>& derivatives,
+                        const LoopCalibrationOptions& options) {
+  const int n = static_cast<int>(options.prior_center.size());
+  std::string error;
+  if (!options.averaging.Validate(&error)) return error;
+  if (n == 0 || options.prior_sigma.size() != options.prior_center.size()) {
+    return "one prior centre and standard deviation per parameter are needed";
+  }
+  for (int p = 0; p < n; ++p) {
+    if (!(options.prior_sigma[p] > 0.0) || !std::isfinite(options.prior_sigma[p]) ||
+        !std::isfinite(options.prior_center[p])) {
+      return "parameter " + std::to_string(p) + "'s prior is not a finite centre and positive deviation";
+    }
+  }
+  if (!(options.first_step_fraction > 0.0) || !(options.min_step > 0.0) || options.newton_steps < 1) {
+    return "first_step_fraction and min_step must be positive and newton_steps at least 1";
+  }
+  for (const EdgeParameterDerivative& d : derivatives) {
+    if (d.edge >= graph.NumEdges() || d.parameter < 0 || d.parameter >= n || !d.derivative.allFinite()) {
+      return "a derivative names edge " + std::to_string(d.edge) + " and parameter " + std::to_string(d.parameter) +
+             " (or is not finite), which the graph does not have";
+    }
+  }
+  return "";
+}
+
+// The solve at e = 0 (into `start`), which fixes the loss scale and gives
+// every later solve its start; `averaging` gets the options of those solves
+// and `noise_scale` the residual scale to divide their costs by. False when
+// it fails.
+bool SolveAtZero(const ViewGraph& graph, const LoopCalibrationOptions& options, ViewOrientations* start,
+                 RotationAveragingOptions* averaging, double* noise_scale, std::string* error) {
+  *averaging = options.averaging;
+  averaging->posterior_covariance_max_views = 0;
+  RotationAveragingSummary summary;
+  if (!SolveRotationAveraging(graph, *averaging, start, &summary) || !summary.Success()) {
+    *error = "the averaging at the given parameters failed: " + summary.error;
+    return false;
+  }
+  // Two-view covariances are optimistic (results/frontend.md,
+  // "Calibration"): the solve measures by how much (the residual scale
+  // sigma_hat of its largest component), and the cost, in units of the
+  // covariances given, is a log-likelihood only once divided by its square.
+  const ComponentSummary* largest = nullptr;
+  for (const ComponentSummary& c : summary.components) {
+    if (!largest || c.num_views > largest->num_views) largest = &c;
+  }
+  *noise_scale = largest ? std::max(1.0, largest->noise_scale) : 1.0;
+  averaging->loss_scale = summary.loss_scale;
+  averaging->auto_scale_threshold = 0.0;
+  // Each evaluation starts where the solution at e = 0 is: the cost is
+  // compared between solutions of one basin, not between robust starts.
+  averaging->warm_start = true;
+  averaging->robust_start.l1_initialization = false;
+  averaging->robust_start.compare_tree_start = false;
+  averaging->robust_start.warm_start_min_fraction = 0.0;
+  return true;
+}
+
+// The gradient and Hessian of `cost` at `e` (whose cost is `at_e`) by
+// central differences of steps `h`.
+template <typename Cost>
+void FiniteDifferences(const Cost& cost, const Eigen::VectorXd& e, const Eigen::VectorXd& h, double at_e,
+                       Eigen::VectorXd* gradient, Eigen::MatrixXd* hessian) {
+  const int n = static_cast<int>(e.size());
+  Eigen::VectorXd plus(n), minus(n);
+  gradient->resize(n);
+  for (int p = 0; p < n; ++p) {
+    Eigen::VectorXd x = e;
+    x[p] += h[p];
+    plus[p] = cost(x);
+    x[p] = e[p] - h[p];
+    minus[p] = cost(x);
+    (*gradient)[p] = (plus[p] - minus[p]) / (2.0 * h[p]);
+    (*hessian)(p, p) = (plus[p] + minus[p] - 2.0 * at_e) / (h[p] * h[p]);
+  }
+  for (int p = 0; p < n; ++p) {
+    for (int q = p + 1; q < n; ++q) {
+      Eigen::VectorXd x = e;
+      x[p] += h[p];
+      x[q] += h[q];
+      (*hessian)(p, q) = (*hessian)(q, p) = (cost(x) - plus[p] - plus[q] + at_e) / (h[p] * h[q]);
+    }
+  }
+}
+
 }  // namespace
 
 LoopCalibrationResult EstimateParametersFromLoops(const ViewGraph& graph,
@@ -39,55 +126,14 @@ LoopCalibrationResult EstimateParametersFromLoops(const ViewGraph& graph,
     result.message = why;
     return result;
   };
-  std::string error;
-  if (!options.averaging.Validate(&error)) return fail(error);
-  if (n == 0 || options.prior_sigma.size() != options.prior_center.size()) {
-    return fail("one prior centre and standard deviation per parameter are needed");
-  }
-  for (int p = 0; p < n; ++p) {
-    if (!(options.prior_sigma[p] > 0.0) || !std::isfinite(options.prior_sigma[p]) ||
-        !std::isfinite(options.prior_center[p])) {
-      return fail("parameter " + std::to_string(p) + "'s prior is not a finite centre and positive deviation");
-    }
-  }
-  if (!(options.first_step_fraction > 0.0) || !(options.min_step > 0.0) || options.newton_steps < 1) {
-    return fail("first_step_fraction and min_step must be positive and newton_steps at least 1");
-  }
-  for (const EdgeParameterDerivative& d : derivatives) {
-    if (d.edge >= graph.NumEdges() || d.parameter < 0 || d.parameter >= n || !d.derivative.allFinite()) {
-      return fail("a derivative names edge " + std::to_string(d.edge) + " and parameter " +
-                  std::to_string(d.parameter) + " (or is not finite), which the graph does not have");
-    }
-  }
-
-  // The solve at e = 0 fixes the loss scale and gives every later solve its
-  // start.
-  RotationAveragingOptions averaging = options.averaging;
-  averaging.posterior_covariance_max_views = 0;
+  std::string error = CheckInputs(graph, derivatives, options);
+  if (!error.empty()) return fail(error);
+  RotationAveragingOptions averaging;
   ViewOrientations start = orientations;
-  RotationAveragingSummary summary;
-  if (!SolveRotationAveraging(graph, averaging, &start, &summary) || !summary.Success()) {
-    return fail("the averaging at the given parameters failed: " + summary.error);
-  }
+  double noise_scale = 1.0;
+  if (!SolveAtZero(graph, options, &start, &averaging, &noise_scale, &error)) return fail(error);
   ++result.solves;
-  // Two-view covariances are optimistic (results/frontend.md,
-  // "Calibration"): the solve measures by how much (the residual scale
-  // sigma_hat of its largest component), and the cost, in units of the
-  // covariances given, is a log-likelihood only once divided by its square.
-  const ComponentSummary* largest = nullptr;
-  for (const ComponentSummary& c : summary.components) {
-    if (!largest || c.num_views > largest->num_views) largest = &c;
-  }
-  const double noise_scale = largest ? std::max(1.0, largest->noise_scale) : 1.0;
   result.noise_scale = noise_scale;
-  averaging.loss_scale = summary.loss_scale;
-  averaging.auto_scale_threshold = 0.0;
-  // Each evaluation starts where the solution at e = 0 is: the cost is
-  // compared between solutions of one basin, not between robust starts.
-  averaging.warm_start = true;
-  averaging.robust_start.l1_initialization = false;
-  averaging.robust_start.compare_tree_start = false;
-  averaging.robust_start.warm_start_min_fraction = 0.0;
 
   const Eigen::Map<const Eigen::VectorXd> center(options.prior_center.data(), n);
   const Eigen::Map<const Eigen::VectorXd> sigma(options.prior_sigma.data(), n);
@@ -113,24 +159,8 @@ LoopCalibrationResult EstimateParametersFromLoops(const ViewGraph& graph,
   double at_e = result.cost_at_zero;
   Eigen::MatrixXd hessian(n, n);
   for (int step = 0; step < options.newton_steps; ++step) {
-    Eigen::VectorXd gradient(n), plus(n), minus(n);
-    for (int p = 0; p < n; ++p) {
-      Eigen::VectorXd x = e;
-      x[p] += h[p];
-      plus[p] = cost(x);
-      x[p] = e[p] - h[p];
-      minus[p] = cost(x);
-      gradient[p] = (plus[p] - minus[p]) / (2.0 * h[p]);
-      hessian(p, p) = (plus[p] + minus[p] - 2.0 * at_e) / (h[p] * h[p]);
-    }
-    for (int p = 0; p < n; ++p) {
-      for (int q = p + 1; q < n; ++q) {
-        Eigen::VectorXd x = e;
-        x[p] += h[p];
-        x[q] += h[q];
-        hessian(p, q) = hessian(q, p) = (cost(x) - plus[p] - plus[q] + at_e) / (h[p] * h[q]);
-      }
-    }
+    Eigen::VectorXd gradient;
+    FiniteDifferences(cost, e, h, at_e, &gradient, &hessian);
     if (failed) return fail("an averaging solve at perturbed parameters failed");
     const Eigen::LLT<Eigen::MatrixXd> llt(hessian);
     if (llt.info() != Eigen::Success) {

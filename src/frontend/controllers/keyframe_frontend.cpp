@@ -1,4 +1,5 @@
 #include "frontend/controllers/keyframe_frontend.h"
+#include "frontend/controllers/keyframe_frontend_keyframe.h"
 
 #include <algorithm>
 #include <chrono>
@@ -17,40 +18,8 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
 
-// K with its focal lengths times `scale` (a focal-length correction).
-Eigen::Matrix3d FocalScaled(Eigen::Matrix3d k, double scale) {
-  k(0, 0) *= scale;
-  k(1, 1) *= scale;
-  return k;
-}
-
 }  // namespace
 
-struct KeyframeFrontend::Keyframe {
-  KeyframeKey key;
-  int camera_position = 0;               // index in by_camera_[key.frame_id]
-  bool has_sequential = false;           // sequential edge from the previous keyframe of its camera
-  Eigen::Matrix3d sequential_rotation;   // R_prev,this
-  Eigen::Matrix3d sequential_covariance;
-  ImageFeatures features;              // all of them, or the compact set once out of the recent window
-  std::unique_ptr<FeatureIndex> index;  // null once compact
-  bool compact = false;
-  bool bridged = false;                 // its previous pair failed and an older one of the window verified
-  BowVector bow;                        // with a vocabulary
-  // Per feature: inliers of the verified pairs it took part in. Features
-  // seen again from other views are the ones a later revisit will match.
-  std::vector<std::uint16_t> inlier_hits;
-  Eigen::Matrix3d k;  // intrinsics of the (resized) image the features come from
-  // The lens its keypoints were undistorted with (distortion model and
-  // coefficients; `k` is the one above). None for a rectified camera and
-  // for a keyframe loaded from a database.
-  CameraIntrinsics lens;
-  int loaded_chain = -1;  // index into loaded_chains_; -1: a keyframe of this session
-  // Loaded, of the chain a new session continues (LoadDatabase): the camera
-  // may have moved while no keyframe was made, so a pair with a new keyframe
-  // needs a loop closure's evidence.
-  bool resumed = false;
-};
 
 bool KeyframeFrontendOptions::Validate(std::string* error) const {
   std::string relative_pose_error;
@@ -169,45 +138,54 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
       relative_pose.jackknife_grid = std::max(relative_pose.jackknife_grid, options_.loop_jackknife_grid);
     }
     const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, first.k, second.k, relative_pose);
-    PairOutcome& out = outcomes[t];
-    out.newer_first = swap;
-    out.jackknife_grid = relative_pose.jackknife_grid;
-    if (!pose.success) {
-      out.failure = TwoViewFailureName(pose.failure);
-      return;
-    }
-    // The pose maps the first camera to the second; the edge is (first, second).
-    out.success = true;
-    out.rotation_model = pose.model == TwoViewModel::kRotation;
-    out.edge.keyframe1 = first.key;
-    out.edge.keyframe2 = second.key;
-    out.edge.rotation = pose.EdgeRotation();
-    out.edge.has_covariance = true;
-    out.edge.covariance = pose.covariance;
-    out.edge.num_inliers = static_cast<int>(pose.inliers.size());
-    out.inlier_features.reserve(pose.inliers.size());
-    for (int m : pose.inliers) {
-      const auto& [i, j] = matches[m];
-      out.inlier_features.emplace_back(swap ? j : i, swap ? i : j);
-    }
-    out.edge.source = tasks[t].source;
-    if (a.resumed && tasks[t].source == EdgeSource::kSequential && out.edge.num_inliers < LoopInliersNeeded(a)) {
-      out.success = false;
-      out.failure = "resumed_too_few_inliers";
-      return;
-    }
-    const FocalMonitorOptions& focal = options_.focal_monitor;
-    if (focal.enabled && first.key.frame_id == second.key.frame_id && first.k == second.k &&
-        pose.model == TwoViewModel::kEssential && static_cast<int>(pose.inliers.size()) >= focal.focal.min_inliers) {
-      out.focal_sample = MakeFocalSample(pa, pb, pose, focal.max_matches_per_pair);
-    }
-    if (focal.hold_for_correction) {
-      out.points1 = std::make_shared<std::vector<Eigen::Vector2d>>(std::move(pa));
-      out.points2 = std::make_shared<std::vector<Eigen::Vector2d>>(std::move(pb));
-      out.pose = std::make_shared<RelativePoseResult>(pose);
-    }
+    FillOutcome(tasks[t], a, first, second, swap, relative_pose.jackknife_grid, matches, std::move(pa), std::move(pb),
+                pose, &outcomes[t]);
   });
   return outcomes;
+}
+
+void KeyframeFrontend::FillOutcome(const PairTask& task, const Keyframe& a, const Keyframe& first,
+                                   const Keyframe& second, bool swap, int jackknife_grid,
+                                   const std::vector<std::pair<int, int>>& matches, std::vector<Eigen::Vector2d> pa,
+                                   std::vector<Eigen::Vector2d> pb, const RelativePoseResult& pose,
+                                   PairOutcome* outcome) const {
+  PairOutcome& out = *outcome;
+  out.newer_first = swap;
+  out.jackknife_grid = jackknife_grid;
+  if (!pose.success) {
+    out.failure = TwoViewFailureName(pose.failure);
+    return;
+  }
+  // The pose maps the first camera to the second; the edge is (first, second).
+  out.success = true;
+  out.rotation_model = pose.model == TwoViewModel::kRotation;
+  out.edge.keyframe1 = first.key;
+  out.edge.keyframe2 = second.key;
+  out.edge.rotation = pose.EdgeRotation();
+  out.edge.has_covariance = true;
+  out.edge.covariance = pose.covariance;
+  out.edge.num_inliers = static_cast<int>(pose.inliers.size());
+  out.inlier_features.reserve(pose.inliers.size());
+  for (int m : pose.inliers) {
+    const auto& [i, j] = matches[m];
+    out.inlier_features.emplace_back(swap ? j : i, swap ? i : j);
+  }
+  out.edge.source = task.source;
+  if (a.resumed && task.source == EdgeSource::kSequential && out.edge.num_inliers < LoopInliersNeeded(a)) {
+    out.success = false;
+    out.failure = "resumed_too_few_inliers";
+    return;
+  }
+  const FocalMonitorOptions& focal = options_.focal_monitor;
+  if (focal.enabled && first.key.frame_id == second.key.frame_id && first.k == second.k &&
+      pose.model == TwoViewModel::kEssential && static_cast<int>(pose.inliers.size()) >= focal.focal.min_inliers) {
+    out.focal_sample = MakeFocalSample(pa, pb, pose, focal.max_matches_per_pair);
+  }
+  if (focal.hold_for_correction) {
+    out.points1 = std::make_shared<std::vector<Eigen::Vector2d>>(std::move(pa));
+    out.points2 = std::make_shared<std::vector<Eigen::Vector2d>>(std::move(pb));
+    out.pose = std::make_shared<RelativePoseResult>(pose);
+  }
 }
 
 void KeyframeFrontend::CountInliers(const PairTask& task, const PairOutcome& outcome, Keyframe* newer) {
@@ -217,204 +195,6 @@ void KeyframeFrontend::CountInliers(const PairTask& task, const PairOutcome& out
     if (older_full && older.inlier_hits[i] < std::numeric_limits<std::uint16_t>::max()) ++older.inlier_hits[i];
     if (newer->inlier_hits[j] < std::numeric_limits<std::uint16_t>::max()) ++newer->inlier_hits[j];
   }
-}
-
-void KeyframeFrontend::MonitorFocal(const PairOutcome& outcome, const Keyframe& newer, const CameraIntrinsics& camera) {
-  if (!outcome.focal_sample) return;
-  focal_monitor_.Add(newer.key.frame_id, newer.k, camera.k(0, 0), newer.lens, outcome.focal_sample);
-}
-
-void KeyframeFrontend::HoldPair(const PairTask& task, const PairOutcome& outcome, int newer_index, bool chain) {
-  if (!outcome.points1 || !outcome.points2) return;
-  HeldPair held;
-  held.first = outcome.newer_first ? newer_index : task.older;
-  held.second = outcome.newer_first ? task.older : newer_index;
-  held.source = task.source;
-  held.jackknife_grid = outcome.jackknife_grid;
-  held.chain = chain;
-  held.points1 = outcome.points1;
-  held.points2 = outcome.points2;
-  held.pose = outcome.pose;
-  const std::string& older_camera = keyframes_[task.older]->key.frame_id;
-  const std::string& newer_camera = outcome.newer_first ? outcome.edge.keyframe1.frame_id : outcome.edge.keyframe2.frame_id;
-  std::set<std::string> cameras{older_camera, newer_camera};
-  for (const std::string& camera : cameras) {
-    if (held_overflow_.count(camera)) continue;
-    std::vector<HeldPair>& list = held_pairs_[camera];
-    if (static_cast<int>(list.size()) >= options_.focal_monitor.max_correction_pairs) {
-      // Past the cap the camera cannot be corrected: let its pairs go.
-      held_overflow_.insert(camera);
-      list.clear();
-      list.shrink_to_fit();
-      continue;
-    }
-    list.push_back(held);
-  }
-}
-
-double KeyframeFrontend::FocalCorrection(const std::string& camera) const {
-  const auto it = focal_correction_.find(camera);
-  return it == focal_correction_.end() ? 1.0 : it->second;
-}
-
-std::vector<FocalSensitivity> KeyframeFrontend::FocalSensitivities(const std::string& camera, double step) {
-  std::vector<FocalSensitivity> out;
-  const auto held = held_pairs_.find(camera);
-  if (held == held_pairs_.end() || held_overflow_.count(camera) || !(step > 0.0)) return out;
-  std::vector<HeldPair>& pairs = held->second;
-  ParallelFor(static_cast<int>(pairs.size()), ResolveThreadCount(options_.num_threads), [&](int h) {
-    HeldPair& p = pairs[h];
-    if (p.has_derivative || !p.pose) return;
-    const Keyframe& first = *keyframes_[p.first];
-    const Keyframe& second = *keyframes_[p.second];
-    const RelativePoseResult& pose = *p.pose;
-    // Only the camera's own keyframes change focal length, and of those not
-    // the resumed ones, as in ApplyFocalCorrection.
-    auto moves = [&camera](const Keyframe& kf) { return kf.key.frame_id == camera && !kf.resumed; };
-    Eigen::Matrix3d edge[2];
-    for (int side = 0; side < 2; ++side) {
-      const double s = side == 0 ? 1.0 + step : 1.0 - step;
-      std::vector<Eigen::Vector2d> points[2] = {*p.points1, *p.points2};
-      Eigen::Matrix3d k[2] = {first.k, second.k};
-      const Keyframe* ends[2] = {&first, &second};
-      for (int e = 0; e < 2; ++e) {
-        if (!moves(*ends[e])) continue;
-        const Eigen::Matrix3d scaled = FocalScaled(k[e], s);
-        RedoUndistortion(ends[e]->lens, k[e], scaled, &points[e]);
-        k[e] = scaled;
-      }
-      Eigen::Matrix3d rotation = pose.rotation;
-      if (pose.model == TwoViewModel::kEssential) {
-        Eigen::Vector3d translation = pose.translation;
-        RefinePoseOnInliers(points[0], points[1], pose.inliers, k[0], k[1], &rotation, &translation,
-                            options_.relative_pose.refine_max_iterations);
-      } else if (RefineRotationOnInliers(points[0], points[1], pose.inliers, k[0], k[1], &rotation) < 0) {
-        return;
-      }
-      edge[side] = rotation.transpose();
-    }
-    const Eigen::Vector3d derivative = LogSO3(edge[1].transpose() * edge[0]) / (2.0 * step);
-    if (!derivative.allFinite()) return;
-    p.derivative = derivative;
-    p.has_derivative = true;
-  });
-  for (const HeldPair& p : pairs) {
-    if (!p.has_derivative) continue;
-    out.push_back(FocalSensitivity{keyframes_[p.first]->key, keyframes_[p.second]->key, p.source, p.derivative});
-  }
-  return out;
-}
-
-bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double scale,
-                                            std::vector<KeyframeRelativeRotation>* edges, std::string* why,
-                                            bool linearised) {
-  edges->clear();
-  if (!(scale > 0.0) || !std::isfinite(scale)) {
-    if (why) *why = "the correction is not a positive number";
-    return false;
-  }
-  if (held_overflow_.count(camera)) {
-    if (why) {
-      *why = "its pairs outgrew focal_max_correction_pairs (" +
-             std::to_string(options_.focal_monitor.max_correction_pairs) +
-             ") before the check found it out, so they cannot be estimated again: fix camera_info";
-    }
-    return false;
-  }
-  focal_correction_[camera] = FocalCorrection(camera) * scale;
-  const auto corrected = [scale](const Eigen::Matrix3d& k) { return FocalScaled(k, scale); };
-  // A raw image's keypoints were undistorted with the old focal length:
-  // they are undistorted again with the new one, those of the held pairs
-  // (while the keyframes still have the old K) and the keyframes' own, which
-  // later pairs match.
-  std::vector<HeldPair>& held = held_pairs_[camera];
-  for (HeldPair& p : held) {
-    for (const auto& [index, points] : {std::make_pair(p.first, p.points1), std::make_pair(p.second, p.points2)}) {
-      const Keyframe& kf = *keyframes_[index];
-      if (kf.key.frame_id == camera) RedoUndistortion(kf.lens, kf.k, corrected(kf.k), points.get());
-    }
-  }
-  const auto chain = by_camera_.find(camera);
-  if (chain != by_camera_.end()) {
-    for (int i : chain->second) {
-      Keyframe& kf = *keyframes_[i];
-      // A loaded keyframe keeps the K it was saved with, as a loop
-      // closure's old end does: the session that made it may have
-      // corrected it already.
-      if (kf.resumed) continue;
-      RedoUndistortion(kf.lens, kf.k, corrected(kf.k), &kf.features.keypoints_px);
-      kf.k = corrected(kf.k);
-    }
-  }
-  // The pair's new edge, replacing the old one (and the keyframe's
-  // sequential edge, for the chain's predictions).
-  auto replace_edge = [&](const HeldPair& p, const RelativePoseResult& pose) {
-    Keyframe& second = *keyframes_[p.second];
-    KeyframeRelativeRotation e;
-    e.keyframe1 = keyframes_[p.first]->key;
-    e.keyframe2 = second.key;
-    e.rotation = pose.EdgeRotation();
-    e.has_covariance = true;
-    e.covariance = pose.covariance;
-    e.num_inliers = static_cast<int>(pose.inliers.size());
-    e.source = p.source;
-    edges->push_back(e);
-    if (p.chain) {
-      second.sequential_rotation = e.rotation;
-      second.sequential_covariance = e.covariance;
-    }
-  };
-  if (linearised) {
-    for (HeldPair& p : held) {
-      if (!p.has_derivative || !p.pose) continue;  // the old edge stays
-      RelativePoseResult& pose = *p.pose;
-      pose.rotation = (pose.EdgeRotation() * ExpSO3((scale - 1.0) * p.derivative)).transpose();
-      replace_edge(p, pose);
-    }
-    return true;
-  }
-  std::vector<RelativePoseResult> poses(held.size());
-  ParallelFor(static_cast<int>(held.size()), ResolveThreadCount(options_.num_threads), [&](int h) {
-    const HeldPair& p = held[h];
-    RelativePoseOptions relative_pose = options_.relative_pose;
-    relative_pose.jackknife_grid = p.jackknife_grid;
-    poses[h] = EstimateRelativePoseWithCovariance(*p.points1, *p.points2, keyframes_[p.first]->k,
-                                                  keyframes_[p.second]->k, relative_pose);
-  });
-  const FocalMonitorOptions& focal = options_.focal_monitor;
-  const double given = focal_monitor_.GivenFocal(camera) * scale;
-  for (std::size_t h = 0; h < held.size(); ++h) {
-    const HeldPair& p = held[h];
-    const RelativePoseResult& pose = poses[h];
-    if (!pose.success) continue;  // the old edge stays
-    if (held[h].pose) *held[h].pose = pose;
-    held[h].has_derivative = false;  // at the new focal length, when next needed
-    replace_edge(p, pose);
-    const Keyframe& first = *keyframes_[p.first];
-    const Keyframe& second = *keyframes_[p.second];
-    // The check starts again on the corrected focal length, with these pairs.
-    if (focal.enabled && first.key.frame_id == camera && second.key.frame_id == camera && first.k == second.k &&
-        pose.model == TwoViewModel::kEssential && static_cast<int>(pose.inliers.size()) >= focal.focal.min_inliers) {
-      focal_monitor_.Add(camera, first.k, given, focal_monitor_.Lens(camera),
-                         MakeFocalSample(*p.points1, *p.points2, pose, focal.max_matches_per_pair));
-    }
-  }
-  stats_.focal_bytes = FocalBytes();
-  return true;
-}
-
-std::size_t KeyframeFrontend::FocalBytes() const {
-  std::set<const std::vector<Eigen::Vector2d>*> counted;  // a rig pair is held under both cameras
-  std::size_t bytes = focal_monitor_.HeldBytes();
-  for (const auto& [camera, list] : held_pairs_) {
-    for (const HeldPair& p : list) {
-      if (counted.insert(p.points1.get()).second) {
-        bytes += sizeof(HeldPair) + (p.points1->size() + p.points2->size()) * sizeof(Eigen::Vector2d);
-        if (p.pose) bytes += sizeof(RelativePoseResult) + p.pose->inliers.size() * sizeof(int);
-      }
-    }
-  }
-  return bytes;
 }
 
 void KeyframeFrontend::Count(const PairOutcome& outcome) {
@@ -935,152 +715,6 @@ std::vector<int> KeyframeFrontend::RetrieveByVoting(const Keyframe& kf, const st
     out.push_back(votes[c].second);
   }
   return out;
-}
-
-bool KeyframeFrontend::SnapshotDatabase(KeyframeDatabase* database, std::string* error) const {
-  if (!options_.vocabulary) {
-    if (error) *error = "the keyframe database needs a vocabulary (retrieval by voting keeps every feature)";
-    return false;
-  }
-  database->feature_type = options_.features.type;
-  database->num_words = options_.vocabulary->NumWords();
-  database->vocabulary_fingerprint = options_.vocabulary->Fingerprint();
-  database->keyframes.clear();
-  database->keyframes.reserve(keyframes_.size());
-  // Chains are numbered in the file as they come: a loaded chain and this
-  // session's chain of the same camera stay apart.
-  std::map<std::pair<int, std::string>, std::uint32_t> chain_ids;
-  for (const std::unique_ptr<Keyframe>& kf : keyframes_) {
-    StoredKeyframe& stored = database->keyframes.emplace_back();
-    const std::string chain_camera = kf->loaded_chain >= 0 ? std::string() : kf->key.frame_id;
-    stored.chain = chain_ids.emplace(std::make_pair(kf->loaded_chain, chain_camera), chain_ids.size()).first->second;
-    stored.key = kf->key;
-    stored.has_sequential = kf->has_sequential;
-    stored.k = kf->k;
-    if (kf->has_sequential) {
-      stored.sequential_rotation = kf->sequential_rotation;
-      stored.sequential_covariance = kf->sequential_covariance;
-    }
-    // A compact keyframe's descriptors are never changed in place (Compact
-    // replaces them; a focal correction moves keypoints, which are copied):
-    // sharing them with the snapshot is safe.
-    stored.features =
-        kf->compact ? kf->features : CompactFeatures(kf->features, options_.compact_features, kf->inlier_hits);
-    stored.bow = kf->bow;
-  }
-  return true;
-}
-
-bool KeyframeFrontend::SaveDatabase(const std::string& path, std::string* error) const {
-  KeyframeDatabase database;
-  return SnapshotDatabase(&database, error) && WriteKeyframeDatabase(path, database, error);
-}
-
-bool KeyframeFrontend::LoadDatabase(const std::string& path, std::string* error) {
-  return TakeDatabase(path, /*add=*/false, nullptr, error);
-}
-
-bool KeyframeFrontend::AddDatabase(const std::string& path, std::size_t* already_held, std::string* error,
-                                   std::vector<KeyframeRelativeRotation>* links) {
-  const int first_added = static_cast<int>(keyframes_.size());
-  std::size_t shared = 0;
-  if (!TakeDatabase(path, /*add=*/true, &shared, error)) return false;
-  if (already_held) *already_held = shared;
-  if (links) *links = shared == 0 ? LinkAddedKeyframes(first_added) : std::vector<KeyframeRelativeRotation>();
-  return true;
-}
-
-bool KeyframeFrontend::TakeDatabase(const std::string& path, bool add, std::size_t* already_held,
-                                    std::string* error) {
-  if (!options_.vocabulary) {
-    if (error) *error = path + ": a keyframe database needs a vocabulary to load into (vocabulary: none)";
-    return false;
-  }
-  KeyframeDatabase database;
-  if (!ReadKeyframeDatabase(path, options_.vocabulary->Fingerprint(), &database, error)) return false;
-  if (database.feature_type != options_.features.type || database.num_words != options_.vocabulary->NumWords()) {
-    if (error) *error = path + ": keyframes of another feature type or vocabulary size";
-    return false;
-  }
-  // Everything read and checked: now replace what is held, or add to it.
-  if (!add) {
-    keyframes_.clear();
-    by_camera_.clear();
-    held_pairs_.clear();  // their keyframes are gone
-    loaded_chains_.clear();
-    keys_.clear();
-    due_compaction_.clear();
-    inverted_index_ = std::make_unique<InvertedIndex>(options_.vocabulary->NumWords());
-    const std::uint64_t duplicates = stats_.duplicate_keyframes;
-    stats_ = KeyframeFrontendStats();
-    stats_.duplicate_keyframes = duplicates;
-  }
-  // A keyframe already held (added maps share the history they were saved
-  // from) is the same keyframe: skipped. The rest of its chain then starts
-  // a chain of its own, since a sequential rotation relates only neighbours.
-  std::size_t skipped = 0;
-  std::map<std::uint32_t, int> chain_index;  // the file's chain -> loaded_chains_ index
-  for (StoredKeyframe& stored : database.keyframes) {
-    if (keys_.count(stored.key)) {
-      ++skipped;
-      chain_index.erase(stored.chain);
-      continue;
-    }
-    auto kf = std::make_unique<Keyframe>();
-    kf->key = stored.key;
-    kf->k = stored.k;
-    kf->sequential_rotation = stored.sequential_rotation;
-    kf->sequential_covariance = stored.sequential_covariance;
-    kf->features = std::move(stored.features);
-    kf->bow = std::move(stored.bow);
-    kf->compact = true;
-    auto chain = chain_index.find(stored.chain);
-    kf->has_sequential = stored.has_sequential && chain != chain_index.end();
-    if (chain == chain_index.end()) {
-      chain = chain_index.emplace(stored.chain, static_cast<int>(loaded_chains_.size())).first;
-      loaded_chains_.emplace_back();
-    }
-    const int index = static_cast<int>(keyframes_.size());
-    kf->loaded_chain = chain->second;
-    kf->camera_position = static_cast<int>(loaded_chains_[chain->second].size());
-    loaded_chains_[chain->second].push_back(index);
-    inverted_index_->Add(index, kf->bow);
-    keys_.insert(kf->key);
-    stats_.keyframe_bytes += KeyframeBytes(*kf);
-    stats_.compact_bytes += KeyframeBytes(*kf);
-    ++stats_.loaded_keyframes;
-    keyframes_.push_back(std::move(kf));
-  }
-  if (!add) ResumeChains();
-  if (already_held) *already_held = skipped;
-  return true;
-}
-
-void KeyframeFrontend::ResumeChains() {
-  // Each camera's newest loaded chain becomes its chain again. Started
-  // afresh, a camera's next keyframes would find the keyframes just before
-  // the restart only by retrieval: as loop closures, which take the
-  // candidates older places would have had and leave out the window pairs
-  // (results/restart.md).
-  std::map<std::string, int> newest;  // camera -> loaded chain
-  for (int c = 0; c < static_cast<int>(loaded_chains_.size()); ++c) {
-    if (loaded_chains_[c].empty()) continue;
-    const Keyframe& last = *keyframes_[loaded_chains_[c].back()];
-    auto it = newest.find(last.key.frame_id);
-    if (it == newest.end() || keyframes_[loaded_chains_[it->second].back()]->key.stamp_ns < last.key.stamp_ns) {
-      newest[last.key.frame_id] = c;
-    }
-  }
-  for (const auto& [camera, c] : newest) {
-    std::vector<int>& chain = by_camera_[camera];
-    chain = std::move(loaded_chains_[c]);
-    loaded_chains_[c].clear();
-    for (int index : chain) {
-      keyframes_[index]->loaded_chain = -1;
-      keyframes_[index]->resumed = true;
-    }
-    ++stats_.resumed_chains;
-  }
 }
 
 }  // namespace rotation_averaging

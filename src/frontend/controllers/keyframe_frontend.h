@@ -357,6 +357,13 @@ class KeyframeFrontend {
   // The same for tasks of several new keyframes (PairTask::newer), timed by
   // the caller (an added map's links count in stats_.map_link_s).
   std::vector<PairOutcome> VerifyPairs(const std::vector<PairTask>& tasks, const std::vector<const Keyframe*>& newers);
+  // The outcome of one verified pair (`a` the task's older keyframe; the
+  // pose maps `first` to `second`, swapped from (a, new) when `swap`): its
+  // edge and inliers, its focal sample, the matches held for correction.
+  void FillOutcome(const PairTask& task, const Keyframe& a, const Keyframe& first, const Keyframe& second, bool swap,
+                   int jackknife_grid, const std::vector<std::pair<int, int>>& matches,
+                   std::vector<Eigen::Vector2d> pa, std::vector<Eigen::Vector2d> pb, const RelativePoseResult& pose,
+                   PairOutcome* outcome) const;
   // The loop closures of one new keyframe (`verified` of `candidates`) that
   // have enough inliers and agree with each other, with the candidates they
   // came from; counts them and the rejected ones.
