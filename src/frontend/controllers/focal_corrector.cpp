@@ -56,7 +56,8 @@ void FocalCorrector::HoldBack(const std::string& camera, const std::string& reas
 
 std::string FocalCorrector::UncheckedRigCameras(const std::string& camera,
                                                 const std::map<std::string, CameraFocalCheck>& checks,
-                                                const std::map<std::string, double>& corrected) const {
+                                                const std::map<std::string, double>& corrected,
+                                                const RigCameraMap& rig_cameras) const {
   // The cameras of a rig (extrinsics known) share one orientation per
   // capture: correcting one while another stays as wrong makes their edges
   // disagree, which can cost more than an error they share (it did on the
@@ -64,7 +65,6 @@ std::string FocalCorrector::UncheckedRigCameras(const std::string& camera,
   // corrected only when each other camera of its rig is checked as
   // precisely as a correction needs (its deviation within
   // min_correction) and agrees, or disagrees too, or was corrected.
-  const std::map<std::string, std::pair<std::string, Eigen::Matrix3d>> rig_cameras = rig_->RigCameras();
   const auto rig = rig_cameras.find(camera);
   std::string unchecked;
   if (rig == rig_cameras.end()) return unchecked;
@@ -82,6 +82,7 @@ std::string FocalCorrector::UncheckedRigCameras(const std::string& camera,
 void FocalCorrector::ApplyCorrections(std::vector<std::string>* warnings) {
   const std::map<std::string, CameraFocalCheck> checks = checker_->Checks();
   const std::map<std::string, double> corrected = Corrections();
+  const RigCameraMap rig_cameras = rig_->RigCameras();
   for (const auto& [camera, check] : checks) {
     if (!check.disagrees || refused_.count(camera)) continue;
     const auto applied = applied_checks_.find(camera);
@@ -96,7 +97,7 @@ void FocalCorrector::ApplyCorrections(std::vector<std::string>* warnings) {
                        "estimate cannot tell from a focal length error; give the model first");
       continue;
     }
-    const std::string unchecked = UncheckedRigCameras(camera, checks, corrected);
+    const std::string unchecked = UncheckedRigCameras(camera, checks, corrected, rig_cameras);
     if (!unchecked.empty()) {
       // Not decided for good: the other cameras' checks may settle while
       // this estimate stands (the estimates of a rig's cameras arrive one

@@ -85,9 +85,12 @@ class FocalCorrector {
   void HoldBack(const std::string& camera, const std::string& reason);
   // The other cameras of `camera`'s rig that are not checked precisely
   // enough for it to be corrected ("a, b"; "" when there are none), given
-  // the checks and the corrections (`corrected`) as this round began.
+  // the checks, the corrections (`corrected`) and the rig's cameras
+  // (RigModel::RigCameras) as this round began.
+  using RigCameraMap = std::map<std::string, std::pair<std::string, Eigen::Matrix3d>>;
   std::string UncheckedRigCameras(const std::string& camera, const std::map<std::string, CameraFocalCheck>& checks,
-                                  const std::map<std::string, double>& corrected) const;
+                                  const std::map<std::string, double>& corrected,
+                                  const RigCameraMap& rig_cameras) const;
   // Applies one check's correction, with its notice.
   void Correct(const std::string& camera, const CameraFocalCheck& check, std::vector<std::string>* warnings);
   // Each sensitivity's derivative as one of the graph's edges (the rig's
