@@ -21,17 +21,17 @@
 #include <vector>
 
 #include "rotation_averaging/frontend/controllers/image_pipeline.h"
-#include "frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
 #include "rotation_averaging/frontend/estimators/bundle_adjustment.h"
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include "rotation_averaging/core/estimators/rotation_averaging.h"
-#include "frontend/eval/error_plot.h"
-#include "sim/focal_scene.h"
+#include "rotation_averaging/frontend/eval/error_plot.h"
+#include "rotation_averaging/sim/focal_scene.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "core/io/text_lines.h"
+#include "rotation_averaging/util/text_lines.h"
 #include "report.h"
 
 namespace ra = rotation_averaging;

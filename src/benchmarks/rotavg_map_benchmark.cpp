@@ -28,9 +28,9 @@
 #include <string>
 #include <vector>
 
-#include "frontend/io/keyframe_database.h"
-#include "ros/bag_replay.h"
-#include "ros/keyframe_pipeline.h"
+#include "rotation_averaging/frontend/io/keyframe_database.h"
+#include "rotation_averaging/ros/bag_replay.h"
+#include "rotation_averaging/ros/keyframe_pipeline.h"
 #include "tools/cli.h"
 
 namespace ra = rotation_averaging;
@@ -119,6 +119,75 @@ void MakeMap(const ra::KeyframeDatabase& original, std::size_t size, ra::Keyfram
   }
 }
 
+// One row of the table: a map of `size` keyframes made from `original`,
+// written, its database loaded `loads` times into a front end, the whole map
+// `loads` times into a pipeline, then saved `saves` times. False with `error`.
+bool MeasureMapSize(const ra::PipelineConfig& config, const ra::KeyframeDatabase& original, std::size_t size,
+                    const std::string& output_dir, int loads, int saves, std::string* error) {
+  ra::KeyframeDatabase database;
+  ra::ViewGraph graph;
+  MakeMap(original, size, &database, &graph);
+  const std::string map = output_dir + "/map_" + std::to_string(size) + ".txt";
+  if (!ra::WriteRotavgGraph(map, graph, error) ||
+      !ra::WriteKeyframeDatabase(ra::KeyframeDatabasePath(map), database, error)) {
+    return false;
+  }
+  std::error_code ec;
+  fs::remove(ra::RigPath(map), ec);
+  database = ra::KeyframeDatabase();
+  const double bytes = static_cast<double>(fs::file_size(ra::KeyframeDatabasePath(map)));
+
+  // The database alone, into a front end as the node configures it.
+  std::vector<double> database_loads;
+  for (int k = 0; k < loads; ++k) {
+    ra::KeyframeFrontend frontend(config.frontend);
+    const auto start = Clock::now();
+    if (!frontend.LoadDatabase(ra::KeyframeDatabasePath(map), error)) {
+      return false;
+    }
+    database_loads.push_back(SecondsSince(start));
+  }
+  const double database_s = database_loads.front();
+  const double database_again_s = Median({database_loads.begin() + 1, database_loads.end()});
+  // The whole map (the last load's pipeline is kept), then saves of it as
+  // autosave makes them.
+  std::vector<double> map_loads;
+  std::unique_ptr<ra::KeyframePipeline> loaded;
+  for (int k = 0; k < loads; ++k) {
+    loaded.reset();  // one map in memory at a time
+    loaded = std::make_unique<ra::KeyframePipeline>(config);
+    const auto start = Clock::now();
+    if (!loaded->LoadMap(map, error)) {
+      return false;
+    }
+    map_loads.push_back(SecondsSince(start));
+  }
+  const double map_s = map_loads.front();
+  const double map_again_s = Median({map_loads.begin() + 1, map_loads.end()});
+  ra::KeyframePipeline& pipeline = *loaded;
+  std::vector<double> total, graph_lock, frontend_lock;
+  const std::string saved = output_dir + "/saved_" + std::to_string(size) + ".txt";
+  for (int k = 0; k < saves; ++k) {
+    if (!pipeline.SaveMap(saved, error)) {
+      return false;
+    }
+    const ra::MapSaveTiming timing = pipeline.LastSaveTiming();
+    total.push_back(timing.total_s);
+    graph_lock.push_back(timing.graph_lock_s);
+    frontend_lock.push_back(timing.frontend_lock_s);
+  }
+  std::cout << "| " << size << " | " << bytes / 1048576.0 << " | " << bytes / 1024.0 / size << " | "
+            << 1e3 * database_s << " / " << 1e3 * database_again_s << " | " << std::setprecision(3)
+            << 1e3 * database_s / size << std::setprecision(1) << " | " << 1e3 * map_s << " / " << 1e3 * map_again_s
+            << " | " << 1e3 * Median(total) << " | " << 1e3 * Median(graph_lock) << " | "
+            << 1e3 * Median(frontend_lock) << " | " << PeakRssMib() << " |\n"
+            << std::flush;
+  for (const std::string& path : {map, saved}) {
+    for (const std::string& file : {path, ra::KeyframeDatabasePath(path), ra::RigPath(path)}) fs::remove(file, ec);
+  }
+  return true;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -164,70 +233,9 @@ int main(int argc, char** argv) {
                " per keyframe (ms) | load the map (ms): first / again | save the map (ms) | graph held (ms) | front end held (ms) | peak memory (MiB) |\n"
                "|---|---|---|---|---|---|---|---|---|---|\n";
   for (std::size_t size : sizes) {
-    ra::KeyframeDatabase database;
-    ra::ViewGraph graph;
-    MakeMap(original, size, &database, &graph);
-    const std::string map = args.Get("--output-dir") + "/map_" + std::to_string(size) + ".txt";
-    if (!ra::WriteRotavgGraph(map, graph, &error) ||
-        !ra::WriteKeyframeDatabase(ra::KeyframeDatabasePath(map), database, &error)) {
+    if (!MeasureMapSize(config, original, size, args.Get("--output-dir"), loads, saves, &error)) {
       std::cerr << error << "\n";
       return 1;
-    }
-    std::error_code ec;
-    fs::remove(ra::RigPath(map), ec);
-    database = ra::KeyframeDatabase();
-    const double bytes = static_cast<double>(fs::file_size(ra::KeyframeDatabasePath(map)));
-
-    // The database alone, into a front end as the node configures it.
-    std::vector<double> database_loads;
-    for (int k = 0; k < loads; ++k) {
-      ra::KeyframeFrontend frontend(config.frontend);
-      const auto start = Clock::now();
-      if (!frontend.LoadDatabase(ra::KeyframeDatabasePath(map), &error)) {
-        std::cerr << error << "\n";
-        return 1;
-      }
-      database_loads.push_back(SecondsSince(start));
-    }
-    const double database_s = database_loads.front();
-    const double database_again_s = Median({database_loads.begin() + 1, database_loads.end()});
-    // The whole map (the last load's pipeline is kept), then saves of it as
-    // autosave makes them.
-    std::vector<double> map_loads;
-    std::unique_ptr<ra::KeyframePipeline> loaded;
-    for (int k = 0; k < loads; ++k) {
-      loaded.reset();  // one map in memory at a time
-      loaded = std::make_unique<ra::KeyframePipeline>(config);
-      const auto start = Clock::now();
-      if (!loaded->LoadMap(map, &error)) {
-        std::cerr << error << "\n";
-        return 1;
-      }
-      map_loads.push_back(SecondsSince(start));
-    }
-    const double map_s = map_loads.front();
-    const double map_again_s = Median({map_loads.begin() + 1, map_loads.end()});
-    ra::KeyframePipeline& pipeline = *loaded;
-    std::vector<double> total, graph_lock, frontend_lock;
-    const std::string saved = args.Get("--output-dir") + "/saved_" + std::to_string(size) + ".txt";
-    for (int k = 0; k < saves; ++k) {
-      if (!pipeline.SaveMap(saved, &error)) {
-        std::cerr << error << "\n";
-        return 1;
-      }
-      const ra::MapSaveTiming timing = pipeline.LastSaveTiming();
-      total.push_back(timing.total_s);
-      graph_lock.push_back(timing.graph_lock_s);
-      frontend_lock.push_back(timing.frontend_lock_s);
-    }
-    std::cout << "| " << size << " | " << bytes / 1048576.0 << " | " << bytes / 1024.0 / size << " | "
-              << 1e3 * database_s << " / " << 1e3 * database_again_s << " | " << std::setprecision(3)
-              << 1e3 * database_s / size << std::setprecision(1) << " | " << 1e3 * map_s << " / " << 1e3 * map_again_s
-              << " | " << 1e3 * Median(total) << " | " << 1e3 * Median(graph_lock) << " | "
-              << 1e3 * Median(frontend_lock) << " | " << PeakRssMib() << " |\n"
-              << std::flush;
-    for (const std::string& path : {map, saved}) {
-      for (const std::string& file : {path, ra::KeyframeDatabasePath(path), ra::RigPath(path)}) fs::remove(file, ec);
     }
   }
   return 0;

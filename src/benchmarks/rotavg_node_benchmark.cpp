@@ -24,8 +24,8 @@
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/core/geometry/so3.h"
-#include "ros/msg_conversion.h"
-#include "core/util/random_draws.h"
+#include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/util/random_draws.h"
 
 namespace ra = rotation_averaging;
 

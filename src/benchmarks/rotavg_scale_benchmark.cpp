@@ -31,10 +31,10 @@
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "core/io/text_lines.h"
+#include "rotation_averaging/util/text_lines.h"
 #include "rotation_averaging/core/scene/synthetic_graph.h"
 #include "report.h"
-#include "core/util/random_draws.h"
+#include "rotation_averaging/util/random_draws.h"
 
 namespace ra = rotation_averaging;
 using ra::Fixed;
@@ -136,66 +136,33 @@ double GrowthExponent(const std::vector<double>& x, const std::vector<double>& y
   return sxx > 0 ? sxy / sxx : NAN;
 }
 
-std::string ScaleSection(const char* self, const std::vector<int>& sizes, int anisotropic_max_views) {
+struct ScaleSeries {
+  std::vector<double> x, t, m;  // views, solve time, peak memory of the multigrid rows
+};
+
+// The growth exponents of solve time and peak memory, per kind of covariance.
+std::string GrowthExponents(const ScaleSeries series[2]) {
   std::ostringstream md;
-  md << "## Scale\n\nSynthetic graphs: mean degree 10, 10% outlier edges (random rotations carrying an inlier's "
-        "covariance), noise 1 deg x [1/10, 10] per edge with matching covariances, views on a square grid joined to "
-        "views within 3 cells (a city-scale capture's locality; a graph whose edges join random views anywhere has a "
-        "nearly dense Cholesky factor). Covariances **isotropic** (the same standard deviation about every axis: "
-        "every linear system a scalar Laplacian), or **anisotropic** (random principal axes, a factor in [1/10, 10] "
-        "per axis: the paper's full 3x3 covariance weighting, every system of the robust solve 3x3 blocks), same "
-        "graphs otherwise; anisotropic rows up to "
-     << anisotropic_max_views
-     << " views. One solve each: IRLS, MAGSAC, covariance weights, L1 start and graduated non-convexity, "
-        "single-threaded. Peak memory: maximum RSS of the child process that generates the graph and solves it (the "
-        "generator's own data included). Linear systems of 2,000+ views (`multigrid_min_views`) are solved by "
-        "multigrid-preconditioned CG (AggregationAmg: Setup for scalar systems, SetupBlocks for 3x3 blocks), smaller "
-        "ones through the sparse Cholesky factor; the \"factorisation only\" rows solve the same graph with multigrid "
-        "off (`multigrid_min_views = 0`: every system through the sparse Cholesky factor), in the same run. Targets: "
-        "isotropic 100,000 views in under 10 s, 1,000,000 views within 24 GiB; anisotropic 10,000 views in under "
-        "1.5 s and 100,000 in under 15 s, with the median error and views off of the factorisation.\n\n"
-     << "| views | covariances | edges | generate (s) | solve (s) | IRLS iterations | factorisations | multigrid "
-        "solves | peak memory (MiB) | final cost | median error (deg) | views > 10 deg off |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
-  struct Series {
-    std::vector<double> x, t, m;
-  };
-  Series series[2];  // isotropic, anisotropic
-  auto row = [&](int n, bool anisotropic, bool multigrid) {
-    const std::string kind = anisotropic ? "anisotropic" : "isotropic";
-    std::cerr << "scale: " << n << " views, " << kind << (multigrid ? "" : " (factorisation only)") << " ..."
-              << std::flush;
-    const ScaleRun r = RunScale(self, n, multigrid, anisotropic);
-    std::cerr << (r.ok ? " " + Fixed(r.solve_s, 2) + " s, " + Fixed(r.peak_mib, 0) + " MiB\n" : " failed\n");
-    const std::string label = std::to_string(n) + (multigrid ? "" : " (factorisation only)");
-    if (!r.ok) {
-      md << "| " << label << " | " << kind << " | - | - | failed (child process did not finish) | | | | | | | |\n";
-      return r;
-    }
-    md << "| " << label << " | " << kind << " | " << r.edges << " | " << Fixed(r.generate_s, 2) << " | "
-       << Fixed(r.solve_s, 3) << " | " << r.iterations << " | " << r.factorizations << " | " << r.multigrid_solves
-       << " | " << Fixed(r.peak_mib, 0) << " | " << ra::Significant(r.final_cost, 9) << " | " << Fixed(r.median_deg, 3) << " | "
-       << r.views_off << " |\n";
-    return r;
-  };
-  for (int n : sizes) {
-    for (const bool anisotropic : {false, true}) {
-      if (anisotropic && n > anisotropic_max_views) continue;
-      const ScaleRun r = row(n, anisotropic, true);
-      if (!r.ok) continue;
-      Series& s = series[anisotropic];
-      s.x.push_back(n);
-      s.t.push_back(r.solve_s);
-      s.m.push_back(r.peak_mib);
-      // The baseline beside it where multigrid was used, up to 100,000 views
-      // (1,000,000 through the factor took 12 minutes).
-      if (r.multigrid_solves > 0 && n <= 100000) row(n, anisotropic, false);
-    }
+  bool first = true;
+  for (const bool anisotropic : {false, true}) {
+    const ScaleSeries& s = series[anisotropic];
+    if (s.x.size() < 2) continue;
+    const std::size_t k = s.x.size();
+    md << (first ? "\n" : "") << "Growth exponents, " << (anisotropic ? "anisotropic" : "isotropic")
+       << " (least-squares slope of log against log views, multigrid rows): solve time "
+       << Fixed(GrowthExponent(s.x, s.t), 2) << ", peak memory " << Fixed(GrowthExponent(s.x, s.m), 2)
+       << "; between the two largest sizes: time " << Fixed(std::log(s.t[k - 1] / s.t[k - 2]) / std::log(s.x[k - 1] / s.x[k - 2]), 2)
+       << ", memory " << Fixed(std::log(s.m[k - 1] / s.m[k - 2]) / std::log(s.x[k - 1] / s.x[k - 2]), 2) << ".\n";
+    first = false;
   }
-  // The multigrid systems' tolerance against a hundredfold tighter one, on
-  // the same graphs: the justification of multigrid_linear_solve_tolerance.
-  // The default is run again here, beside the tight one, so that the two
-  // times of a pair come from adjacent runs.
+  return md.str();
+}
+
+// The multigrid systems' tolerance against a hundredfold tighter one, on
+// the same graphs: the justification of multigrid_linear_solve_tolerance.
+// The default is run again here, beside the tight one, so that the two
+// times of a pair come from adjacent runs. One table row per run.
+std::vector<std::string> ToleranceRows(const char* self, const std::vector<int>& sizes, int anisotropic_max_views) {
   std::vector<std::string> tolerance_rows;
   const double default_tolerance = ra::RotationAveragingOptions().linear.multigrid_linear_solve_tolerance;
   for (int n : sizes) {
@@ -223,18 +190,64 @@ std::string ScaleSection(const char* self, const std::vector<int>& sizes, int an
       tolerance_rows.push_back(rows.str());
     }
   }
-  bool first = true;
-  for (const bool anisotropic : {false, true}) {
-    const Series& s = series[anisotropic];
-    if (s.x.size() < 2) continue;
-    const std::size_t k = s.x.size();
-    md << (first ? "\n" : "") << "Growth exponents, " << (anisotropic ? "anisotropic" : "isotropic")
-       << " (least-squares slope of log against log views, multigrid rows): solve time "
-       << Fixed(GrowthExponent(s.x, s.t), 2) << ", peak memory " << Fixed(GrowthExponent(s.x, s.m), 2)
-       << "; between the two largest sizes: time " << Fixed(std::log(s.t[k - 1] / s.t[k - 2]) / std::log(s.x[k - 1] / s.x[k - 2]), 2)
-       << ", memory " << Fixed(std::log(s.m[k - 1] / s.m[k - 2]) / std::log(s.x[k - 1] / s.x[k - 2]), 2) << ".\n";
-    first = false;
+  return tolerance_rows;
+}
+
+std::string ScaleSection(const char* self, const std::vector<int>& sizes, int anisotropic_max_views) {
+  std::ostringstream md;
+  md << "## Scale\n\nSynthetic graphs: mean degree 10, 10% outlier edges (random rotations carrying an inlier's "
+        "covariance), noise 1 deg x [1/10, 10] per edge with matching covariances, views on a square grid joined to "
+        "views within 3 cells (a city-scale capture's locality; a graph whose edges join random views anywhere has a "
+        "nearly dense Cholesky factor). Covariances **isotropic** (the same standard deviation about every axis: "
+        "every linear system a scalar Laplacian), or **anisotropic** (random principal axes, a factor in [1/10, 10] "
+        "per axis: the paper's full 3x3 covariance weighting, every system of the robust solve 3x3 blocks), same "
+        "graphs otherwise; anisotropic rows up to "
+     << anisotropic_max_views
+     << " views. One solve each: IRLS, MAGSAC, covariance weights, L1 start and graduated non-convexity, "
+        "single-threaded. Peak memory: maximum RSS of the child process that generates the graph and solves it (the "
+        "generator's own data included). Linear systems of 2,000+ views (`multigrid_min_views`) are solved by "
+        "multigrid-preconditioned CG (AggregationAmg: Setup for scalar systems, SetupBlocks for 3x3 blocks), smaller "
+        "ones through the sparse Cholesky factor; the \"factorisation only\" rows solve the same graph with multigrid "
+        "off (`multigrid_min_views = 0`: every system through the sparse Cholesky factor), in the same run. Targets: "
+        "isotropic 100,000 views in under 10 s, 1,000,000 views within 24 GiB; anisotropic 10,000 views in under "
+        "1.5 s and 100,000 in under 15 s, with the median error and views off of the factorisation.\n\n"
+     << "| views | covariances | edges | generate (s) | solve (s) | IRLS iterations | factorisations | multigrid "
+        "solves | peak memory (MiB) | final cost | median error (deg) | views > 10 deg off |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  ScaleSeries series[2];  // isotropic, anisotropic
+  auto row = [&](int n, bool anisotropic, bool multigrid) {
+    const std::string kind = anisotropic ? "anisotropic" : "isotropic";
+    std::cerr << "scale: " << n << " views, " << kind << (multigrid ? "" : " (factorisation only)") << " ..."
+              << std::flush;
+    const ScaleRun r = RunScale(self, n, multigrid, anisotropic);
+    std::cerr << (r.ok ? " " + Fixed(r.solve_s, 2) + " s, " + Fixed(r.peak_mib, 0) + " MiB\n" : " failed\n");
+    const std::string label = std::to_string(n) + (multigrid ? "" : " (factorisation only)");
+    if (!r.ok) {
+      md << "| " << label << " | " << kind << " | - | - | failed (child process did not finish) | | | | | | | |\n";
+      return r;
+    }
+    md << "| " << label << " | " << kind << " | " << r.edges << " | " << Fixed(r.generate_s, 2) << " | "
+       << Fixed(r.solve_s, 3) << " | " << r.iterations << " | " << r.factorizations << " | " << r.multigrid_solves
+       << " | " << Fixed(r.peak_mib, 0) << " | " << ra::Significant(r.final_cost, 9) << " | " << Fixed(r.median_deg, 3) << " | "
+       << r.views_off << " |\n";
+    return r;
+  };
+  for (int n : sizes) {
+    for (const bool anisotropic : {false, true}) {
+      if (anisotropic && n > anisotropic_max_views) continue;
+      const ScaleRun r = row(n, anisotropic, true);
+      if (!r.ok) continue;
+      ScaleSeries& s = series[anisotropic];
+      s.x.push_back(n);
+      s.t.push_back(r.solve_s);
+      s.m.push_back(r.peak_mib);
+      // The baseline beside it where multigrid was used, up to 100,000 views
+      // (1,000,000 through the factor took 12 minutes).
+      if (r.multigrid_solves > 0 && n <= 100000) row(n, anisotropic, false);
+    }
   }
+  const std::vector<std::string> tolerance_rows = ToleranceRows(self, sizes, anisotropic_max_views);
+  md << GrowthExponents(series);
   if (!tolerance_rows.empty()) {
     md << "\n### Multigrid solve tolerance\n\nEach IRLS step solves its linear system by multigrid-preconditioned CG "
           "only to the relative residual `multigrid_linear_solve_tolerance`: IRLS itself converges linearly, so a "

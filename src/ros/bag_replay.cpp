@@ -1,4 +1,4 @@
-#include "ros/bag_replay.h"
+#include "rotation_averaging/ros/bag_replay.h"
 
 #include <image_transport/camera_common.h>
 #include <ros/serialization.h>
@@ -32,12 +32,12 @@
 #include <stdexcept>
 
 #include "rotation_averaging/RelativePoseArray.h"
-#include "frontend/eval/error_plot.h"
+#include "rotation_averaging/frontend/eval/error_plot.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/graph_io.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "ros/keyframe_pipeline.h"
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/ros/keyframe_pipeline.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {

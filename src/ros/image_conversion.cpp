@@ -1,4 +1,4 @@
-#include "ros/image_conversion.h"
+#include "rotation_averaging/ros/image_conversion.h"
 
 #include <cv_bridge/cv_bridge.h>
 #include <sensor_msgs/image_encodings.h>

@@ -1,4 +1,4 @@
-#include "ros/keyframe_pipeline.h"
+#include "rotation_averaging/ros/keyframe_pipeline.h"
 
 #include <cmath>
 #include <cstdint>
@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "rotation_averaging/core/geometry/so3.h"
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 
 namespace rotation_averaging {
 

@@ -1,4 +1,4 @@
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 
 #include <algorithm>
 #include <cmath>

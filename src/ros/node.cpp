@@ -1,4 +1,4 @@
-#include "ros/node.h"
+#include "rotation_averaging/ros/node.h"
 
 #include <image_transport/camera_common.h>
 #include <tf2_msgs/TFMessage.h>
@@ -6,7 +6,7 @@
 #include <stdexcept>
 #include <utility>
 
-#include "core/util/option_check.h"
+#include "rotation_averaging/util/option_check.h"
 
 namespace rotation_averaging {
 

@@ -1,4 +1,4 @@
-#include "ros/node_diagnostics.h"
+#include "rotation_averaging/ros/node_diagnostics.h"
 
 #include <cstdlib>
 #include <fstream>

@@ -1,9 +1,9 @@
-#include "ros/output_messages.h"
+#include "rotation_averaging/ros/output_messages.h"
 
 #include <algorithm>
 #include <utility>
 
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {

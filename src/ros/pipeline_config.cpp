@@ -1,4 +1,4 @@
-#include "ros/pipeline_config.h"
+#include "rotation_averaging/ros/pipeline_config.h"
 
 #include <algorithm>
 #include <filesystem>
@@ -9,7 +9,7 @@
 #include <utility>
 #include <vector>
 
-#include "core/util/option_check.h"
+#include "rotation_averaging/util/option_check.h"
 
 namespace rotation_averaging {
 namespace {

@@ -1,4 +1,4 @@
-#include "ros/replay_report.h"
+#include "rotation_averaging/ros/replay_report.h"
 
 #include <algorithm>
 #include <cstdio>
@@ -8,7 +8,7 @@
 #include <sstream>
 #include <utility>
 
-#include "frontend/eval/error_plot.h"
+#include "rotation_averaging/frontend/eval/error_plot.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 
 namespace rotation_averaging {

@@ -1,4 +1,4 @@
-#include "sim/demo_bag.h"
+#include "rotation_averaging/sim/demo_bag.h"
 
 #include <rosbag/bag.h>
 #include <rosbag/exceptions.h>
@@ -18,7 +18,7 @@
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {

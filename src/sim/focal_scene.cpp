@@ -1,9 +1,9 @@
-#include "sim/focal_scene.h"
+#include "rotation_averaging/sim/focal_scene.h"
 
 #include <cmath>
 #include <random>
 
-#include "core/util/random_draws.h"
+#include "rotation_averaging/util/random_draws.h"
 #include "rotation_averaging/core/geometry/so3.h"
 
 namespace rotation_averaging {

@@ -1,4 +1,4 @@
-#include "sim/rig_scene.h"
+#include "rotation_averaging/sim/rig_scene.h"
 
 #include <Eigen/Geometry>
 #include <algorithm>
@@ -30,7 +30,7 @@ Eigen::Matrix3d CameraFromRig(const Eigen::Vector3d& forward) {
 // corners and blobs, no repetition. One draw per statement: C++ leaves the
 // order of a call's arguments unspecified, and drawing inside one call made
 // the texture depend on the compiler (the draws follow the order gcc gave
-// those calls, last argument first; core/util/random_draws.h).
+// those calls, last argument first; util/random_draws.h).
 cv::Mat MakeTexture(double width_m, double height_m, std::uint64_t seed) {
   const int w = std::max(8, static_cast<int>(std::lround(width_m / kTexelM)));
   const int h = std::max(8, static_cast<int>(std::lround(height_m / kTexelM)));

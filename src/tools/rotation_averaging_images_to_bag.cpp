@@ -44,8 +44,8 @@
 #include "rotation_averaging/frontend/controllers/image_pipeline.h"
 #include "rotation_averaging/frontend/features/features.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "sim/demo_bag.h"
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/sim/demo_bag.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 
 namespace ra = rotation_averaging;
 

@@ -1,5 +1,5 @@
 // rotation_averaging_make_demo_bag: renders the synthetic rig of
-// src/sim/rig_scene.h into a bag the node and the replay tool can use.
+// sim/rig_scene.h into a bag the node and the replay tool can use.
 //
 //   rotation_averaging_make_demo_bag --output demo.bag [--captures 60] [--cameras 2] [--laps 1]
 //       [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]
@@ -38,7 +38,7 @@
 #include <vector>
 
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "sim/demo_bag.h"
+#include "rotation_averaging/sim/demo_bag.h"
 
 namespace ra = rotation_averaging;
 

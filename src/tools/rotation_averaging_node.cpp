@@ -1,11 +1,11 @@
 // rotation_averaging_node: live covariance-weighted robust rotation averaging
-// (src/ros/node.h; config/rotation_averaging.yaml lists every parameter).
+// (rotation_averaging/ros/node.h; config/rotation_averaging.yaml lists every parameter).
 #include <ros/ros.h>
 
 #include <memory>
 #include <stdexcept>
 
-#include "ros/node.h"
+#include "rotation_averaging/ros/node.h"
 
 int main(int argc, char** argv) {
   ros::init(argc, argv, "rotation_averaging_node");

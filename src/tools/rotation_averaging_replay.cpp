@@ -11,7 +11,7 @@
 #include <iostream>
 #include <string>
 
-#include "ros/bag_replay.h"
+#include "rotation_averaging/ros/bag_replay.h"
 
 namespace {
 

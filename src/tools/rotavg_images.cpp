@@ -44,6 +44,86 @@ const char* kUsage = R"(usage:
       pairs and, when it differs by more than 0.5% and its uncertainty, corrected and the pairs estimated again)
 )";
 
+// The image pipeline's options from the command line; false with `error`.
+bool ParsePipelineOptions(const Args& args, ra::ImagePipelineOptions* pipeline, std::string* error) {
+  if (!ra::ParseFeatureType(args.Get("--features", "sift"), &pipeline->features.type)) {
+    *error = "unknown --features (" + ra::FeatureTypeChoices() + ")";
+    return false;
+  }
+  pipeline->features.downsample = std::atof(args.Get("--downsample", "1").c_str());
+  if (!(pipeline->features.downsample > 0.0 && pipeline->features.downsample <= 1.0)) {
+    *error = "--downsample must be in (0, 1] (0.25 = a quarter of the width)";
+    return false;
+  }
+  pipeline->features.max_features = std::atoi(args.Get("--max-features", "8000").c_str());
+  if (pipeline->features.max_features < 10) {
+    *error = "--max-features must be >= 10";
+    return false;
+  }
+  if (!ra::PairSelection::Parse(args.Get("--pairs", "exhaustive"), &pipeline->pairs, error)) {
+    if (error->empty()) *error = "--pairs must be exhaustive, sequential:N or list:FILE";
+    return false;
+  }
+  if (!ra::ParseRotationCovarianceModel(args.Get("--covariance", "marginal"), &pipeline->relative_pose.covariance_model)) {
+    *error = "unknown --covariance (" + ra::RotationCovarianceModelChoices() + ")";
+    return false;
+  }
+  // Photographs of real scenes: errors shared by regions of an image
+  // (repeated structure) are the rule (results/README.md, "What the far-off
+  // pairs hold").
+  pipeline->relative_pose.jackknife_grid = std::atoi(args.Get("--jackknife-grid", "4").c_str());
+  if (pipeline->relative_pose.jackknife_grid < 0 || pipeline->relative_pose.jackknife_grid > 16) {
+    *error = "--jackknife-grid must be in [0, 16] (0: the pixel model's covariance alone)";
+    return false;
+  }
+  pipeline->relative_pose.rotation_model = !args.Has("--no-rotation-model");
+  // Image folders come with intrinsics of any quality; the correction is
+  // applied only when the pairs clearly ask for it (FocalCalibrationOptions).
+  pipeline->focal.enabled = !args.Has("--no-focal-calibration");
+  return true;
+}
+
+// The pairs' two-view results, the first 20 unless `verbose`.
+void PrintPairs(const ra::ImagePipelineResult& front, bool verbose) {
+  std::cout << "per pair (image1 image2: matches, inliers, sigma px, parallax deg, homography inlier share, ms, model or failure):\n";
+  int shown = 0;
+  for (const ra::PairReport& p : front.pairs) {
+    if (!verbose && shown >= 20) break;
+    ++shown;
+    std::cout << "  " << front.graph.FindView(p.image1)->name << " " << front.graph.FindView(p.image2)->name << ": "
+              << p.matches << ", " << p.pose.inliers.size() << ", " << std::setprecision(3) << p.pose.sigma_px << ", "
+              << p.pose.median_parallax_deg << ", " << p.pose.homography_inlier_ratio << ", " << p.milliseconds << ", "
+              << (p.pose.success ? std::string(ra::TwoViewModelName(p.pose.model)) : std::string(ra::TwoViewFailureName(p.pose.failure)) + " (" + p.pose.message + ")")
+              << "\n";
+  }
+  if (!verbose && front.pairs.size() > 20) std::cout << "  ... " << front.pairs.size() - 20 << " more (--verbose)\n";
+}
+
+// The averaging sees each pair through its two-view summary; the tracks
+// see each point in every view at once, which holds the views that the
+// summaries of wide-baseline or repetitive pairs mislead (results/frontend.md,
+// "then bundle adjusted" against the averaging alone).
+void BundleAdjust(const ra::ImagePipelineResult& front, const ra::RotationAveragingSummary& summary,
+                  ra::ViewOrientations* orientations) {
+  ra::BundleAdjustmentSummary adjustment;
+  ra::RefineRotationsWithBundleAdjustment(ra::CorrespondencesOfEdges(front), ra::BundleAdjustmentOptions(),
+                                          orientations, &adjustment);
+  std::cout << adjustment.Report() << std::endl;
+  // What every pair of a view shares, the averaging cannot see and the
+  // adjustment removes: its size says how far the pairs' covariances
+  // (with the floor) understate their errors against the true poses.
+  const double floor_rad = summary.LargestComponentFloorRad();
+  const double view_rad = ra::ViewTermRad(
+      ra::EvaluateEdgeCovariances(front.graph, ra::NameOrientations(front.graph, *orientations), floor_rad));
+  if (std::isfinite(view_rad)) {
+    std::cout << "view term: " << view_rad * 180.0 / M_PI
+              << " deg per axis (the error all pairs of a view share, from the views' offsets against the "
+                 "bundle adjustment); with the floor, a pair's covariance against the true poses: C + s^2 I, s = "
+              << ra::FloorWithViewTermRad(floor_rad, view_rad) * 180.0 / M_PI << " deg"
+              << std::endl;
+  }
+}
+
 int Images(int argc, char** argv) {
   Args args;
   std::string error;
@@ -57,32 +137,7 @@ int Images(int argc, char** argv) {
   }
   if (!args.Has("--images") || !args.Has("--intrinsics")) return Fail("images needs --images DIR and --intrinsics CAMERA-FILE");
   ra::ImagePipelineOptions pipeline;
-  if (!ra::ParseFeatureType(args.Get("--features", "sift"), &pipeline.features.type)) {
-    return Fail("unknown --features (" + ra::FeatureTypeChoices() + ")");
-  }
-  pipeline.features.downsample = std::atof(args.Get("--downsample", "1").c_str());
-  if (!(pipeline.features.downsample > 0.0 && pipeline.features.downsample <= 1.0)) {
-    return Fail("--downsample must be in (0, 1] (0.25 = a quarter of the width)");
-  }
-  pipeline.features.max_features = std::atoi(args.Get("--max-features", "8000").c_str());
-  if (pipeline.features.max_features < 10) return Fail("--max-features must be >= 10");
-  if (!ra::PairSelection::Parse(args.Get("--pairs", "exhaustive"), &pipeline.pairs, &error)) {
-    return Fail(error.empty() ? "--pairs must be exhaustive, sequential:N or list:FILE" : error);
-  }
-  if (!ra::ParseRotationCovarianceModel(args.Get("--covariance", "marginal"), &pipeline.relative_pose.covariance_model)) {
-    return Fail("unknown --covariance (" + ra::RotationCovarianceModelChoices() + ")");
-  }
-  // Photographs of real scenes: errors shared by regions of an image
-  // (repeated structure) are the rule (results/README.md, "What the far-off
-  // pairs hold").
-  pipeline.relative_pose.jackknife_grid = std::atoi(args.Get("--jackknife-grid", "4").c_str());
-  if (pipeline.relative_pose.jackknife_grid < 0 || pipeline.relative_pose.jackknife_grid > 16) {
-    return Fail("--jackknife-grid must be in [0, 16] (0: the pixel model's covariance alone)");
-  }
-  pipeline.relative_pose.rotation_model = !args.Has("--no-rotation-model");
-  // Image folders come with intrinsics of any quality; the correction is
-  // applied only when the pairs clearly ask for it (FocalCalibrationOptions).
-  pipeline.focal.enabled = !args.Has("--no-focal-calibration");
+  if (!ParsePipelineOptions(args, &pipeline, &error)) return Fail(error);
   ra::RotationAveragingOptions options;
   // Two-view covariances from pixel noise miss the errors that do not
   // shrink with the matches (results/frontend.md, "Calibration").
@@ -101,19 +156,7 @@ int Images(int argc, char** argv) {
 
   const ra::ImagePipelineResult front = ra::BuildViewGraphFromImages(images, k, pipeline);
   std::cout << front.Report() << "\n";
-  const bool verbose = args.Has("--verbose");
-  std::cout << "per pair (image1 image2: matches, inliers, sigma px, parallax deg, homography inlier share, ms, model or failure):\n";
-  int shown = 0;
-  for (const ra::PairReport& p : front.pairs) {
-    if (!verbose && shown >= 20) break;
-    ++shown;
-    std::cout << "  " << front.graph.FindView(p.image1)->name << " " << front.graph.FindView(p.image2)->name << ": "
-              << p.matches << ", " << p.pose.inliers.size() << ", " << std::setprecision(3) << p.pose.sigma_px << ", "
-              << p.pose.median_parallax_deg << ", " << p.pose.homography_inlier_ratio << ", " << p.milliseconds << ", "
-              << (p.pose.success ? std::string(ra::TwoViewModelName(p.pose.model)) : std::string(ra::TwoViewFailureName(p.pose.failure)) + " (" + p.pose.message + ")")
-              << "\n";
-  }
-  if (!verbose && front.pairs.size() > 20) std::cout << "  ... " << front.pairs.size() - 20 << " more (--verbose)\n";
+  PrintPairs(front, args.Has("--verbose"));
   if (args.Has("--graph-out")) {
     if (!ra::WriteRotavgGraph(args.Get("--graph-out"), front.graph, &error)) return Fail(error);
     std::cout << "wrote the view graph to " << args.Get("--graph-out") << "\n";
@@ -128,29 +171,7 @@ int Images(int argc, char** argv) {
                                            &orientations, &refinement);
     std::cout << refinement.Report() << std::endl;
   }
-  // The averaging sees each pair through its two-view summary; the tracks
-  // see each point in every view at once, which holds the views that the
-  // summaries of wide-baseline or repetitive pairs mislead (results/frontend.md,
-  // "then bundle adjusted" against the averaging alone).
-  if (!args.Has("--no-bundle-adjustment")) {
-    ra::BundleAdjustmentSummary adjustment;
-    ra::RefineRotationsWithBundleAdjustment(ra::CorrespondencesOfEdges(front), ra::BundleAdjustmentOptions(),
-                                            &orientations, &adjustment);
-    std::cout << adjustment.Report() << std::endl;
-    // What every pair of a view shares, the averaging cannot see and the
-    // adjustment removes: its size says how far the pairs' covariances
-    // (with the floor) understate their errors against the true poses.
-    const double floor_rad = summary.LargestComponentFloorRad();
-    const double view_rad = ra::ViewTermRad(
-        ra::EvaluateEdgeCovariances(front.graph, ra::NameOrientations(front.graph, orientations), floor_rad));
-    if (std::isfinite(view_rad)) {
-      std::cout << "view term: " << view_rad * 180.0 / M_PI
-                << " deg per axis (the error all pairs of a view share, from the views' offsets against the "
-                   "bundle adjustment); with the floor, a pair's covariance against the true poses: C + s^2 I, s = "
-                << ra::FloorWithViewTermRad(floor_rad, view_rad) * 180.0 / M_PI << " deg"
-                << std::endl;
-    }
-  }
+  if (!args.Has("--no-bundle-adjustment")) BundleAdjust(front, summary, &orientations);
   const int rc = WriteAndScore(args, ra::NameOrientations(front.graph, orientations));
   return rc != 0 ? rc : (ok ? 0 : 1);
 }

@@ -14,7 +14,7 @@
 #include "cli.h"
 #include "rotation_averaging/frontend/features/features.h"
 #include "rotation_averaging/frontend/features/vocabulary.h"
-#include "core/util/parallel_for.h"
+#include "rotation_averaging/util/parallel_for.h"
 
 namespace {
 

@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "sim/rig_scene.h"
+#include "rotation_averaging/sim/rig_scene.h"
 #include "rotation_averaging/frontend/features/features.h"
 #include "rotation_averaging/frontend/features/vocabulary.h"
 

@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "core/linalg/block_sparse_system.h"
-#include "core/util/random_draws.h"
+#include "rotation_averaging/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {

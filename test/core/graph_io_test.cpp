@@ -9,7 +9,7 @@
 
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "core/io/text_lines.h"
+#include "rotation_averaging/util/text_lines.h"
 #include "common/kill_during_writes.h"
 
 namespace rotation_averaging {

@@ -1,4 +1,4 @@
-#include "core/estimators/loop_calibration.h"
+#include "rotation_averaging/core/estimators/loop_calibration.h"
 
 #include <gtest/gtest.h>
 

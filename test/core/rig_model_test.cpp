@@ -1,4 +1,4 @@
-#include "core/controllers/rig_model.h"
+#include "rotation_averaging/core/controllers/rig_model.h"
 
 #include <gtest/gtest.h>
 

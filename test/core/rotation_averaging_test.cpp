@@ -16,7 +16,7 @@
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "rotation_averaging/core/scene/synthetic_graph.h"
-#include "core/util/random_draws.h"
+#include "rotation_averaging/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {

@@ -1,5 +1,5 @@
 #include "rotation_averaging/core/geometry/so3.h"
-#include "core/util/random_draws.h"
+#include "rotation_averaging/util/random_draws.h"
 
 #include <gtest/gtest.h>
 

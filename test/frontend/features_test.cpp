@@ -8,7 +8,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/features2d.hpp>
 
-#include "sim/rig_scene.h"
+#include "rotation_averaging/sim/rig_scene.h"
 
 namespace rotation_averaging {
 namespace {

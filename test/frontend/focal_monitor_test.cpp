@@ -1,4 +1,4 @@
-#include "frontend/controllers/focal_monitor.h"
+#include "rotation_averaging/frontend/controllers/focal_monitor.h"
 
 #include <gtest/gtest.h>
 
@@ -8,10 +8,10 @@
 #include <memory>
 #include <set>
 
-#include "frontend/controllers/focal_corrector.h"
-#include "frontend/controllers/keyframe_frontend.h"
-#include "sim/focal_scene.h"
-#include "sim/rig_scene.h"
+#include "rotation_averaging/frontend/controllers/focal_corrector.h"
+#include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/sim/focal_scene.h"
+#include "rotation_averaging/sim/rig_scene.h"
 #include "rotation_averaging/core/geometry/so3.h"
 
 namespace rotation_averaging {

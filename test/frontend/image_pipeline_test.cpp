@@ -16,8 +16,8 @@
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "core/util/random_draws.h"
-#include "sim/focal_scene.h"
+#include "rotation_averaging/util/random_draws.h"
+#include "rotation_averaging/sim/focal_scene.h"
 
 namespace rotation_averaging {
 namespace {

@@ -1,4 +1,4 @@
-#include "frontend/io/keyframe_database.h"
+#include "rotation_averaging/frontend/io/keyframe_database.h"
 
 #include <gtest/gtest.h>
 

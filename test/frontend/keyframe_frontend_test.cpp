@@ -1,4 +1,4 @@
-#include "frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
 
 #include <gtest/gtest.h>
 #include "common/kill_during_writes.h"
@@ -23,8 +23,8 @@
 #include "rotation_averaging/frontend/features/vocabulary.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "core/io/binary_io.h"
-#include "sim/rig_scene.h"
+#include "rotation_averaging/util/binary_io.h"
+#include "rotation_averaging/sim/rig_scene.h"
 
 namespace rotation_averaging {
 namespace {

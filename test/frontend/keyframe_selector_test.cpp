@@ -1,4 +1,4 @@
-#include "frontend/controllers/keyframe_selector.h"
+#include "rotation_averaging/frontend/controllers/keyframe_selector.h"
 
 #include <gtest/gtest.h>
 
@@ -9,7 +9,7 @@
 #include <map>
 #include <set>
 
-#include "sim/rig_scene.h"
+#include "rotation_averaging/sim/rig_scene.h"
 #include "rotation_averaging/core/geometry/so3.h"
 
 namespace rotation_averaging {

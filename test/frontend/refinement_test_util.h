@@ -12,7 +12,7 @@
 
 #include "rotation_averaging/frontend/estimators/correspondence_refinement.h"
 #include "rotation_averaging/core/geometry/so3.h"
-#include "core/util/random_draws.h"
+#include "rotation_averaging/util/random_draws.h"
 
 namespace rotation_averaging {
 

@@ -11,7 +11,7 @@
 
 #include "frontend/geometry/epipolar.h"
 #include "rotation_averaging/core/geometry/so3.h"
-#include "core/util/random_draws.h"
+#include "rotation_averaging/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {

@@ -1,4 +1,4 @@
-#include "sim/rig_scene.h"
+#include "rotation_averaging/sim/rig_scene.h"
 
 #include <gtest/gtest.h>
 

@@ -14,7 +14,7 @@
 #include <set>
 
 #include "rotation_averaging/frontend/features/features.h"
-#include "sim/rig_scene.h"
+#include "rotation_averaging/sim/rig_scene.h"
 
 namespace rotation_averaging {
 namespace {

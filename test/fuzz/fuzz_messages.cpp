@@ -33,7 +33,7 @@
 #include "rotation_averaging/RelativePose.h"
 #include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/core/geometry/so3.h"
-#include "ros/keyframe_pipeline.h"
+#include "rotation_averaging/ros/keyframe_pipeline.h"
 
 namespace ra = rotation_averaging;
 namespace ser = ros::serialization;

@@ -21,8 +21,8 @@
 
 #include "rotation_averaging/core/io/graph_io.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "core/controllers/rig_model.h"
-#include "frontend/io/keyframe_database.h"
+#include "rotation_averaging/core/controllers/rig_model.h"
+#include "rotation_averaging/frontend/io/keyframe_database.h"
 
 namespace ra = rotation_averaging;
 

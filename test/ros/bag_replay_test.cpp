@@ -2,7 +2,7 @@
 // every kind of bad bag (no ROS master needed).
 #include "rotation_averaging/CameraInfoCheckArray.h"
 #include "rotation_averaging/RelativePoseArray.h"
-#include "ros/bag_replay.h"
+#include "rotation_averaging/ros/bag_replay.h"
 
 #include <gtest/gtest.h>
 #include <rosbag/bag.h>
@@ -28,9 +28,9 @@
 #include "rotation_averaging/core/io/graph_io.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "common/test_vocabulary.h"
-#include "sim/demo_bag.h"
-#include "ros/msg_conversion.h"
-#include "core/util/random_draws.h"
+#include "rotation_averaging/sim/demo_bag.h"
+#include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {

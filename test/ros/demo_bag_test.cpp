@@ -3,7 +3,7 @@
 // written as a rectified camera's, a readout of part of the sensor is what
 // camera_info says, and each camera's camera_info carries its own focal
 // scale.
-#include "sim/demo_bag.h"
+#include "rotation_averaging/sim/demo_bag.h"
 
 #include <gtest/gtest.h>
 #include <rosbag/bag.h>
@@ -20,8 +20,8 @@
 
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "ros/keyframe_pipeline.h"
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/ros/keyframe_pipeline.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {

@@ -1,6 +1,6 @@
 // The node's shared pipeline without a master: bad input of every kind,
 // rig extrinsics through /tf_static messages, and the rviz markers.
-#include "ros/keyframe_pipeline.h"
+#include "rotation_averaging/ros/keyframe_pipeline.h"
 
 #include <gtest/gtest.h>
 #include <ros/time.h>
@@ -13,7 +13,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "rotation_averaging/core/geometry/so3.h"
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {

@@ -1,7 +1,7 @@
 // The node's diagnostics (FillDiagnostics), built from a snapshot of its
 // state without a master: the summary names the first thing wrong, in the
 // order a user must act on it, and every counter is reported under its key.
-#include "ros/node_diagnostics.h"
+#include "rotation_averaging/ros/node_diagnostics.h"
 
 #include <gtest/gtest.h>
 
@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "ros/node.h"
+#include "rotation_averaging/ros/node.h"
 
 namespace rotation_averaging {
 namespace {

@@ -2,7 +2,7 @@
 // field it sets, former names with a deprecation warning, values out of range
 // refused with the parameter's name, and config/rotation_averaging.yaml
 // listing exactly the parameters the node reads, each at its default.
-#include "ros/keyframe_pipeline.h"
+#include "rotation_averaging/ros/keyframe_pipeline.h"
 
 #include <gtest/gtest.h>
 

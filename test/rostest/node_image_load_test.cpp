@@ -20,8 +20,8 @@
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePose.h"
 #include "rotation_averaging/core/geometry/so3.h"
-#include "ros/msg_conversion.h"
-#include "sim/rig_scene.h"
+#include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/sim/rig_scene.h"
 
 namespace rotation_averaging {
 namespace {

@@ -28,8 +28,8 @@
 #include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"
-#include "ros/msg_conversion.h"
-#include "core/util/random_draws.h"
+#include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {

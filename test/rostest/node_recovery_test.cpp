@@ -23,11 +23,11 @@
 
 #include "common/synthetic_rig.h"
 #include "common/test_vocabulary.h"
-#include "sim/rig_scene.h"
+#include "rotation_averaging/sim/rig_scene.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {

@@ -25,7 +25,7 @@
 #include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/SaveGraph.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 
 namespace rotation_averaging {
 namespace {

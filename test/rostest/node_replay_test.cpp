@@ -18,9 +18,9 @@
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/graph_io.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "ros/bag_replay.h"
-#include "sim/demo_bag.h"
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/ros/bag_replay.h"
+#include "rotation_averaging/sim/demo_bag.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 #include "rostest/play_bag.h"
 
 namespace rotation_averaging {

@@ -15,14 +15,14 @@
 #include <mutex>
 
 #include "common/test_data.h"
-#include "frontend/io/euroc_dataset.h"
+#include "rotation_averaging/frontend/io/euroc_dataset.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "ros/bag_replay.h"
-#include "sim/demo_bag.h"
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/ros/bag_replay.h"
+#include "rotation_averaging/sim/demo_bag.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 #include "rostest/play_bag.h"
 
 namespace rotation_averaging {

@@ -22,7 +22,7 @@
 #include "rotation_averaging/core/controllers/online_averager.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
-#include "ros/msg_conversion.h"
+#include "rotation_averaging/ros/msg_conversion.h"
 
 namespace rotation_averaging {
 

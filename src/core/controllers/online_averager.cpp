@@ -7,8 +7,8 @@
 
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/io/graph_io.h"
-#include "core/io/text_lines.h"
-#include "core/util/option_check.h"
+#include "rotation_averaging/util/text_lines.h"
+#include "rotation_averaging/util/option_check.h"
 
 namespace rotation_averaging {
 

@@ -1,4 +1,4 @@
-#include "core/controllers/rig_model.h"
+#include "rotation_averaging/core/controllers/rig_model.h"
 
 #include <algorithm>
 #include <cmath>
@@ -8,7 +8,7 @@
 #include <sstream>
 
 #include "rotation_averaging/core/geometry/so3.h"
-#include "core/io/text_lines.h"
+#include "rotation_averaging/util/text_lines.h"
 
 namespace rotation_averaging {
 

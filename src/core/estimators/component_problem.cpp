@@ -172,12 +172,21 @@ double ComponentProblem::CostOf(const std::vector<ComponentEdge>& edges, const s
 
 double ComponentProblem::Cost(const RobustLoss& loss) const { return CostOf(edges, rotations, loss); }
 
-std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, const RotationAveragingOptions& options,
-                                                     const ViewOrientations& initial, std::vector<std::string>* warnings,
-                                                     EdgeWeighting* effective_weighting) {
-  const std::vector<RelativeRotation>& graph_edges = graph.Edges();
+namespace {
 
-  // Graph-wide statistics for the normalisation of the weightings.
+// The weighting a solve uses (the asked one, or none when no edge carries
+// what it needs) and the graph-wide medians that normalise it.
+struct EdgeWeightingScale {
+  EdgeWeighting weighting = EdgeWeighting::kNone;
+  bool any_inliers = false;
+  double median_inliers = 0.0;
+  double median_trace = 0.0;
+  double median_norm = 0.0;
+  double info_scale = 1.0;  // the paper's covariance scale, or 1
+};
+
+EdgeWeightingScale ScaleOfWeighting(const std::vector<RelativeRotation>& graph_edges,
+                                    const RotationAveragingOptions& options, std::vector<std::string>* warnings) {
   std::vector<double> inliers, traces, norms;
   for (const RelativeRotation& e : graph_edges) {
     if (e.num_inliers > 0) inliers.push_back(e.num_inliers);
@@ -186,66 +195,68 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
       norms.push_back(e.covariance.norm());
     }
   }
-  EdgeWeighting weighting = options.weighting;
-  if ((weighting == EdgeWeighting::kCovariance || weighting == EdgeWeighting::kTrace ||
-       weighting == EdgeWeighting::kFrobenius) &&
+  EdgeWeightingScale scale;
+  scale.weighting = options.weighting;
+  if ((scale.weighting == EdgeWeighting::kCovariance || scale.weighting == EdgeWeighting::kTrace ||
+       scale.weighting == EdgeWeighting::kFrobenius) &&
       traces.empty() && !graph_edges.empty()) {
     if (warnings) {
-      warnings->push_back(std::string("weighting '") + EdgeWeightingName(weighting) +
+      warnings->push_back(std::string("weighting '") + EdgeWeightingName(scale.weighting) +
                           "' needs covariances but no edge has one: using no weighting");
     }
-    weighting = EdgeWeighting::kNone;
+    scale.weighting = EdgeWeighting::kNone;
   }
-  if (weighting == EdgeWeighting::kInliers && inliers.empty() && !graph_edges.empty()) {
+  if (scale.weighting == EdgeWeighting::kInliers && inliers.empty() && !graph_edges.empty()) {
     if (warnings) warnings->push_back("weighting 'inliers' but no edge has an inlier count: using no weighting");
-    weighting = EdgeWeighting::kNone;
+    scale.weighting = EdgeWeighting::kNone;
   }
-  if (effective_weighting) *effective_weighting = weighting;
-  const double median_inliers = Median(inliers);
-  const double median_trace = Median(traces);
-  const double median_norm = Median(norms);
-  std::size_t missing = 0;
-  const double info_scale = options.covariance_normalization == CovarianceNormalization::kPaper
-                                ? 1.0 / options.paper_covariance_scale
-                                : 1.0;
+  scale.any_inliers = !inliers.empty();
+  scale.median_inliers = Median(inliers);
+  scale.median_trace = Median(traces);
+  scale.median_norm = Median(norms);
+  scale.info_scale = options.covariance_normalization == CovarianceNormalization::kPaper
+                         ? 1.0 / options.paper_covariance_scale
+                         : 1.0;
+  return scale;
+}
 
-  SpanningTreeWeight tree_weight = options.robust_start.spanning_tree_weight;
-  if (tree_weight == SpanningTreeWeight::kAuto) {
-    tree_weight = weighting != EdgeWeighting::kNone ? SpanningTreeWeight::kInformation
-                  : !inliers.empty()                ? SpanningTreeWeight::kInliers
-                                                    : SpanningTreeWeight::kUniform;
+// Writes an edge's information and its square root into `ce`; returns false
+// when the edge lacks what the weighting needs (it then gets the median weight).
+bool SetEdgeInformation(const RelativeRotation& e, const EdgeWeightingScale& scale, ComponentEdge* ce) {
+  double scalar = 1.0;
+  bool complete = true;
+  switch (scale.weighting) {
+    case EdgeWeighting::kNone: break;
+    case EdgeWeighting::kInliers:
+      if (e.num_inliers > 0) scalar = e.num_inliers / scale.median_inliers; else complete = false;
+      break;
+    case EdgeWeighting::kTrace:
+      if (e.has_covariance) scalar = scale.median_trace / e.covariance.trace(); else complete = false;
+      break;
+    case EdgeWeighting::kFrobenius:
+      if (e.has_covariance) scalar = scale.median_norm / e.covariance.norm(); else complete = false;
+      break;
+    case EdgeWeighting::kCovariance: break;
   }
-
-  // Edge information and its square root, written straight into the edge.
-  auto set_information = [&](const RelativeRotation& e, ComponentEdge* ce) {
-    double scalar = 1.0;
-    switch (weighting) {
-      case EdgeWeighting::kNone: break;
-      case EdgeWeighting::kInliers:
-        if (e.num_inliers > 0) scalar = e.num_inliers / median_inliers; else ++missing;
-        break;
-      case EdgeWeighting::kTrace:
-        if (e.has_covariance) scalar = median_trace / e.covariance.trace(); else ++missing;
-        break;
-      case EdgeWeighting::kFrobenius:
-        if (e.has_covariance) scalar = median_norm / e.covariance.norm(); else ++missing;
-        break;
-      case EdgeWeighting::kCovariance: break;
+  if (scale.weighting == EdgeWeighting::kCovariance) {
+    if (e.has_covariance) {
+      InformationFromCovariance(e.covariance, scale.info_scale, &ce->information, &ce->sqrt_information);
+      return true;
     }
-    if (weighting == EdgeWeighting::kCovariance) {
-      if (e.has_covariance) {
-        InformationFromCovariance(e.covariance, info_scale, &ce->information, &ce->sqrt_information);
-        return;
-      }
-      ++missing;
-      scalar = (3.0 / median_trace) * info_scale;
-    }
-    ce->information = Eigen::Matrix3d::Identity() * scalar;
-    ce->sqrt_information = Eigen::Matrix3d::Identity() * std::sqrt(scalar);
-  };
+    complete = false;
+    scalar = (3.0 / scale.median_trace) * scale.info_scale;
+  }
+  ce->information = Eigen::Matrix3d::Identity() * scalar;
+  ce->sqrt_information = Eigen::Matrix3d::Identity() * std::sqrt(scalar);
+  return complete;
+}
 
-  // Components.
-  std::unordered_map<ViewId, std::pair<int, int>> where;  // view -> (component, local index)
+// One problem per connected component of two or more views, with its views,
+// their starting rotations (the initial ones where warm-started) and no
+// edges yet; `where` maps a view to (component, local index).
+std::vector<ComponentProblem> ComponentsWithoutEdges(const ViewGraph& graph, const RotationAveragingOptions& options,
+                                                     const ViewOrientations& initial,
+                                                     std::unordered_map<ViewId, std::pair<int, int>>* where) {
   std::vector<ComponentProblem> problems;
   for (const std::vector<ViewId>& component : graph.ConnectedComponents()) {
     if (component.size() < 2) continue;
@@ -254,7 +265,7 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
     p.rotations.assign(component.size(), Eigen::Matrix3d::Identity());
     p.has_initial.assign(component.size(), false);
     for (std::size_t v = 0; v < component.size(); ++v) {
-      where[component[v]] = {static_cast<int>(problems.size()), static_cast<int>(v)};
+      (*where)[component[v]] = {static_cast<int>(problems.size()), static_cast<int>(v)};
       if (options.warm_start) {
         auto it = initial.find(component[v]);
         if (it != initial.end() && IsRotationMatrix(it->second, 1e-6)) {
@@ -265,9 +276,31 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
     }
     problems.push_back(std::move(p));
   }
+  return problems;
+}
+
+}  // namespace
+
+std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, const RotationAveragingOptions& options,
+                                                     const ViewOrientations& initial, std::vector<std::string>* warnings,
+                                                     EdgeWeighting* effective_weighting) {
+  const std::vector<RelativeRotation>& graph_edges = graph.Edges();
+  const EdgeWeightingScale scale = ScaleOfWeighting(graph_edges, options, warnings);
+  if (effective_weighting) *effective_weighting = scale.weighting;
+
+  SpanningTreeWeight tree_weight = options.robust_start.spanning_tree_weight;
+  if (tree_weight == SpanningTreeWeight::kAuto) {
+    tree_weight = scale.weighting != EdgeWeighting::kNone ? SpanningTreeWeight::kInformation
+                  : scale.any_inliers                     ? SpanningTreeWeight::kInliers
+                                                          : SpanningTreeWeight::kUniform;
+  }
+
+  std::unordered_map<ViewId, std::pair<int, int>> where;  // view -> (component, local index)
+  std::vector<ComponentProblem> problems = ComponentsWithoutEdges(graph, options, initial, &where);
   std::vector<std::size_t> edges_of(problems.size(), 0);
   for (const RelativeRotation& e : graph_edges) ++edges_of[where.at(e.view1).first];
   for (std::size_t c = 0; c < problems.size(); ++c) problems[c].edges.reserve(edges_of[c]);
+  std::size_t missing = 0;
   for (std::size_t k = 0; k < graph_edges.size(); ++k) {
     const RelativeRotation& e = graph_edges[k];
     const auto& a = where.at(e.view1);
@@ -276,7 +309,7 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
     ce.i = a.second;
     ce.j = b.second;
     ce.measured = e.rotation;
-    set_information(e, &ce);
+    if (!SetEdgeInformation(e, scale, &ce)) ++missing;
     switch (tree_weight) {
       case SpanningTreeWeight::kInliers: ce.tree_weight = std::max(e.num_inliers, 0); break;
       case SpanningTreeWeight::kInformation: ce.tree_weight = ce.information.trace(); break;
@@ -286,7 +319,7 @@ std::vector<ComponentProblem> BuildComponentProblems(const ViewGraph& graph, con
     problems[a.first].edges.push_back(ce);
   }
   if (missing > 0 && warnings) {
-    warnings->push_back(std::to_string(missing) + " edge(s) lack what weighting '" + EdgeWeightingName(weighting) +
+    warnings->push_back(std::to_string(missing) + " edge(s) lack what weighting '" + EdgeWeightingName(scale.weighting) +
                         "' needs and were given the median weight");
   }
   return problems;

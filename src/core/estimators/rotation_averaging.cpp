@@ -12,7 +12,7 @@
 #include "core/estimators/component_problem.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "core/util/backends.h"
-#include "core/util/option_check.h"
+#include "rotation_averaging/util/option_check.h"
 
 namespace rotation_averaging {
 namespace {

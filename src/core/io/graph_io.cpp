@@ -11,7 +11,7 @@
 #include <unordered_set>
 
 #include "rotation_averaging/core/geometry/so3.h"
-#include "core/io/text_lines.h"
+#include "rotation_averaging/util/text_lines.h"
 
 namespace rotation_averaging {
 namespace {

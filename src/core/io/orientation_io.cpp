@@ -7,7 +7,7 @@
 #include <iomanip>
 
 #include "rotation_averaging/core/geometry/so3.h"
-#include "core/io/text_lines.h"
+#include "rotation_averaging/util/text_lines.h"
 
 namespace rotation_averaging {
 namespace {

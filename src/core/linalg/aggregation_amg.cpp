@@ -267,6 +267,10 @@ struct AggregationAmg::Impl {
 
   bool BuildFinest(const Eigen::SparseMatrix<double>& lower, bool* pattern_changed);
   bool BuildBlocks(const Eigen::SparseMatrix<double>& lower);
+  // BuildBlocks' parts: the block index and the surrogate's pattern of a
+  // matrix with the 3x3 block pattern (HasBlockPattern), then its values.
+  void IndexBlocks(const Eigen::SparseMatrix<double>& lower);
+  bool ReadBlockValues(const double* values);
   bool BuildHierarchy(const AggregationAmg::Options& options, const Eigen::SparseMatrix<double>& lower, bool reuse);
   void IndexEntries(int l);
   bool FactorCoarsest(bool analyse);
@@ -655,90 +659,95 @@ bool AggregationAmg::Setup(const Eigen::SparseMatrix<double>& lower, bool reuse_
   return true;
 }
 
-bool AggregationAmg::Impl::BuildBlocks(const Eigen::SparseMatrix<double>& lower) {
+namespace {
+
+// Whether a lower triangle has the 3x3 block pattern the block mode needs:
+// block column c is three columns holding the same rows, in triples 3r,
+// 3r + 1, 3r + 2 of ascending block rows r >= c, the diagonal block first.
+bool HasBlockPattern(int rows, const int* outer, const int* inner) {
+  if (rows % 3 != 0) return false;
+  for (int c = 0; c < rows / 3; ++c) {
+    const int* rows_of_c = inner + outer[3 * c];
+    const int count = outer[3 * c + 1] - outer[3 * c];
+    if (count % 3 != 0 || count == 0 || rows_of_c[0] != 3 * c) return false;
+    for (int b = 1; b < 3; ++b) {
+      if (outer[3 * c + b + 1] - outer[3 * c + b] != count ||
+          !std::equal(rows_of_c, rows_of_c + count, inner + outer[3 * c + b])) {
+        return false;
+      }
+    }
+    for (int k = 0; k < count; k += 3) {
+      const int first = rows_of_c[k];
+      if (first % 3 != 0 || rows_of_c[k + 1] != first + 1 || rows_of_c[k + 2] != first + 2 ||
+          (k > 0 && first <= rows_of_c[k - 3])) {
+        return false;
+      }
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
+void AggregationAmg::Impl::IndexBlocks(const Eigen::SparseMatrix<double>& lower) {
   const int rows = static_cast<int>(lower.rows());
   const int* outer = lower.outerIndexPtr();
   const int* inner = lower.innerIndexPtr();
-  const double* values = lower.valuePtr();
   const int n = rows / 3;
-  const bool same = block_pattern_n == rows && static_cast<int>(block_pattern_inner.size()) == outer[rows] &&
-                    std::memcmp(block_pattern_outer.data(), outer, sizeof(int) * (rows + 1)) == 0 &&
-                    std::memcmp(block_pattern_inner.data(), inner, sizeof(int) * outer[rows]) == 0;
-  if (!same) {
-    block_pattern_n = -1;
-    if (rows % 3 != 0) return false;
-    // Block column c: three columns holding the same rows, in triples 3r,
-    // 3r + 1, 3r + 2 of ascending block rows r >= c, the diagonal block first.
-    for (int c = 0; c < n; ++c) {
-      const int* rows_of_c = inner + outer[3 * c];
-      const int count = outer[3 * c + 1] - outer[3 * c];
-      if (count % 3 != 0 || count == 0 || rows_of_c[0] != 3 * c) return false;
-      for (int b = 1; b < 3; ++b) {
-        if (outer[3 * c + b + 1] - outer[3 * c + b] != count ||
-            !std::equal(rows_of_c, rows_of_c + count, inner + outer[3 * c + b])) {
-          return false;
-        }
-      }
-      for (int k = 0; k < count; k += 3) {
-        const int first = rows_of_c[k];
-        if (first % 3 != 0 || rows_of_c[k + 1] != first + 1 || rows_of_c[k + 2] != first + 2 ||
-            (k > 0 && first <= rows_of_c[k - 3])) {
-          return false;
-        }
-      }
-    }
-    block = BlockLevel();
-    block.n = n;
-    block.lower_ptr.assign(n + 1, 0);
-    block.diagonal_base.resize(n);
-    block.diagonal_stride.resize(n);
-    for (int c = 0; c < n; ++c) {
-      const int count = outer[3 * c + 1] - outer[3 * c];
-      for (int k = 3; k < count; k += 3) ++block.lower_ptr[inner[outer[3 * c] + k] / 3 + 1];
-    }
-    for (int i = 0; i < n; ++i) block.lower_ptr[i + 1] += block.lower_ptr[i];
-    const int entries = block.lower_ptr[n];
-    block.lower_col.resize(entries);
-    block.base.resize(entries);
-    block.stride.resize(entries);
-    std::vector<int> fill(block.lower_ptr.begin(), block.lower_ptr.end() - 1);
-    // The surrogate: lower triangle of the n x n matrix of the blocks'
-    // traces / 3, in the same order.
-    std::vector<int> surrogate_outer(n + 1, 0), surrogate_inner;
-    surrogate_base.clear();
-    surrogate_stride.clear();
-    for (int c = 0; c < n; ++c) {
-      const int count = outer[3 * c + 1] - outer[3 * c];
-      block.diagonal_base[c] = outer[3 * c];
-      block.diagonal_stride[c] = count;
-      for (int k = 0; k < count; k += 3) {
-        const int r = inner[outer[3 * c] + k] / 3;
-        surrogate_inner.push_back(r);
-        surrogate_base.push_back(outer[3 * c] + k);
-        surrogate_stride.push_back(count);
-        if (r == c) continue;
-        // Block (r, c) below the diagonal, in row r. Block columns are
-        // visited in ascending order, so each row's blocks are in ascending
-        // columns.
-        const int m = fill[r]++;
-        block.lower_col[m] = c;
-        block.base[m] = outer[3 * c] + k;
-        block.stride[m] = count;
-      }
-      surrogate_outer[c + 1] = static_cast<int>(surrogate_inner.size());
-    }
-    surrogate.resize(n, n);
-    surrogate.resizeNonZeros(static_cast<Eigen::Index>(surrogate_inner.size()));
-    std::copy(surrogate_outer.begin(), surrogate_outer.end(), surrogate.outerIndexPtr());
-    std::copy(surrogate_inner.begin(), surrogate_inner.end(), surrogate.innerIndexPtr());
-    block.val.resize(entries);
-    block.val_single.resize(entries);
-    block.diag.resize(n);
-    block.inv_diag.resize(n);
-    block_pattern_outer.assign(outer, outer + rows + 1);
-    block_pattern_inner.assign(inner, inner + outer[rows]);
-    block_pattern_n = rows;
+  block = BlockLevel();
+  block.n = n;
+  block.lower_ptr.assign(n + 1, 0);
+  block.diagonal_base.resize(n);
+  block.diagonal_stride.resize(n);
+  for (int c = 0; c < n; ++c) {
+    const int count = outer[3 * c + 1] - outer[3 * c];
+    for (int k = 3; k < count; k += 3) ++block.lower_ptr[inner[outer[3 * c] + k] / 3 + 1];
   }
+  for (int i = 0; i < n; ++i) block.lower_ptr[i + 1] += block.lower_ptr[i];
+  const int entries = block.lower_ptr[n];
+  block.lower_col.resize(entries);
+  block.base.resize(entries);
+  block.stride.resize(entries);
+  std::vector<int> fill(block.lower_ptr.begin(), block.lower_ptr.end() - 1);
+  // The surrogate: lower triangle of the n x n matrix of the blocks'
+  // traces / 3, in the same order.
+  std::vector<int> surrogate_outer(n + 1, 0), surrogate_inner;
+  surrogate_base.clear();
+  surrogate_stride.clear();
+  for (int c = 0; c < n; ++c) {
+    const int count = outer[3 * c + 1] - outer[3 * c];
+    block.diagonal_base[c] = outer[3 * c];
+    block.diagonal_stride[c] = count;
+    for (int k = 0; k < count; k += 3) {
+      const int r = inner[outer[3 * c] + k] / 3;
+      surrogate_inner.push_back(r);
+      surrogate_base.push_back(outer[3 * c] + k);
+      surrogate_stride.push_back(count);
+      if (r == c) continue;
+      // Block (r, c) below the diagonal, in row r. Block columns are
+      // visited in ascending order, so each row's blocks are in ascending
+      // columns.
+      const int m = fill[r]++;
+      block.lower_col[m] = c;
+      block.base[m] = outer[3 * c] + k;
+      block.stride[m] = count;
+    }
+    surrogate_outer[c + 1] = static_cast<int>(surrogate_inner.size());
+  }
+  surrogate.resize(n, n);
+  surrogate.resizeNonZeros(static_cast<Eigen::Index>(surrogate_inner.size()));
+  std::copy(surrogate_outer.begin(), surrogate_outer.end(), surrogate.outerIndexPtr());
+  std::copy(surrogate_inner.begin(), surrogate_inner.end(), surrogate.innerIndexPtr());
+  block.val.resize(entries);
+  block.val_single.resize(entries);
+  block.diag.resize(n);
+  block.inv_diag.resize(n);
+  block_pattern_outer.assign(outer, outer + rows + 1);
+  block_pattern_inner.assign(inner, inner + outer[rows]);
+  block_pattern_n = rows;
+}
+
+bool AggregationAmg::Impl::ReadBlockValues(const double* values) {
   auto read = [&](int base, int stride) {
     Eigen::Matrix3d m;
     for (int b = 0; b < 3; ++b)
@@ -751,7 +760,7 @@ bool AggregationAmg::Impl::BuildBlocks(const Eigen::SparseMatrix<double>& lower)
     block.val[m] = SymmetricBlock<double>::Of(g);
     block.val_single[m] = SymmetricBlock<float>::Of(g);
   }
-  for (int i = 0; i < n; ++i) {
+  for (int i = 0; i < block.n; ++i) {
     // The input's diagonal blocks hold the full 3x3; symmetrised against rounding.
     const Eigen::Matrix3d d = read(block.diagonal_base[i], block.diagonal_stride[i]);
     block.diag[i] = 0.5 * (d + d.transpose());
@@ -766,6 +775,22 @@ bool AggregationAmg::Impl::BuildBlocks(const Eigen::SparseMatrix<double>& lower)
     surrogate_values[k] = (values[base] + values[base + stride + 1] + values[base + 2 * stride + 2]) / 3.0;
   }
   return true;
+}
+
+bool AggregationAmg::Impl::BuildBlocks(const Eigen::SparseMatrix<double>& lower) {
+  const int rows = static_cast<int>(lower.rows());
+  const int* outer = lower.outerIndexPtr();
+  const int* inner = lower.innerIndexPtr();
+  // The index is rebuilt only when the pattern changed.
+  const bool same = block_pattern_n == rows && static_cast<int>(block_pattern_inner.size()) == outer[rows] &&
+                    std::memcmp(block_pattern_outer.data(), outer, sizeof(int) * (rows + 1)) == 0 &&
+                    std::memcmp(block_pattern_inner.data(), inner, sizeof(int) * outer[rows]) == 0;
+  if (!same) {
+    block_pattern_n = -1;
+    if (!HasBlockPattern(rows, outer, inner)) return false;
+    IndexBlocks(lower);
+  }
+  return ReadBlockValues(lower.valuePtr());
 }
 
 bool AggregationAmg::SetupBlocks(const Eigen::SparseMatrix<double>& lower, bool reuse_aggregates) {

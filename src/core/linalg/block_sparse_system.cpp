@@ -116,8 +116,8 @@ BlockSparseSystem::BlockSparseSystem(int num_blocks, const std::vector<std::pair
 }
 
 // Chosen when a factorisation is first needed: systems that multigrid
-// solves never pay for the prediction (0.2 s on the anisotropic 100,000-view
-// scale graph).
+// solves never pay for the prediction (a noticeable part of a solve on the
+// largest anisotropic graphs of results/scale.md).
 void BlockSparseSystem::ChooseFactorization() const {
   Factorization& f = *factorization_;
   if (f.chosen) return;
@@ -131,9 +131,10 @@ void BlockSparseSystem::ChooseFactorization() const {
   // Scalar Laplacians: simplicial is as fast or faster on the real graphs:
   // their factors are too thin for
   // dense supernodes to pay for CHOLMOD's BLAS and thread overhead. Large
-  // scalar systems are another matter: on 10,000-view grid-like graphs
-  // (rotavg_scale_benchmark) CHOLMOD's supernodal factor with a METIS
-  // ordering solved in 1.6 s against 5.8 s with the simplicial LLT.
+  // scalar systems are another matter: on grid-like graphs of 10,000 views
+  // and more (rotavg_scale_benchmark, results/scale.md) CHOLMOD's supernodal
+  // factor with a METIS ordering is several times faster than the
+  // simplicial LLT.
   Eigen::VectorXi block_order;
   if (block_dim_ == 3 && num_blocks_ > 0) {
     f.use_block_simplicial = PredictFactor(&block_order) <= block_cholesky_max_column_count_;
@@ -282,14 +283,14 @@ bool BlockSparseSystem::TryOldFactor(Eigen::MatrixXd* x) {
   // robust start's early iterations), every attempt fails and costs about
   // half a factorisation (three or more iterations through the old factor):
   // after k failures in a row, the next 2^(k-1) solves factorise directly
-  // (100,000-view scale graph, all by factorisation: 29 failed attempts,
-  // ~8 s of a 26 s solve; with the back-off 6 attempts and 18 s).
+  // (on the large graphs of results/scale.md solved by factorisation alone,
+  // the failed attempts otherwise take a large part of the solve).
   Factorization& f = *factorization_;
   if (!f.has_factor || f.refactor_next || !f.pcg_back_off.Try()) return false;
   // All right-hand sides iterate together, each with its own step
-  // lengths: one triangular solve with k columns streams the factor once
-  // (100,000-row grid Laplacian: 3 columns 44 ms, one column 30 ms), so
-  // the Laplacian's three coordinates cost little more than one.
+  // lengths: one triangular solve with k columns streams the factor once,
+  // so the Laplacian's three coordinates cost little more than one (the
+  // solve is bound by reading the factor, not by the arithmetic).
   const Eigen::Index k = rhs_.cols();
   Eigen::MatrixXd& xs = *x;
   xs = f.ApplyInverse(rhs_);

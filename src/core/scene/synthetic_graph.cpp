@@ -6,7 +6,7 @@
 #include <set>
 
 #include "rotation_averaging/core/geometry/so3.h"
-#include "core/util/random_draws.h"
+#include "rotation_averaging/util/random_draws.h"
 
 namespace rotation_averaging {
 namespace {

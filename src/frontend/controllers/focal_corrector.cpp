@@ -1,4 +1,4 @@
-#include "frontend/controllers/focal_corrector.h"
+#include "rotation_averaging/frontend/controllers/focal_corrector.h"
 
 #include <algorithm>
 #include <cmath>

@@ -1,4 +1,4 @@
-#include "frontend/controllers/focal_monitor.h"
+#include "rotation_averaging/frontend/controllers/focal_monitor.h"
 
 #include <algorithm>
 #include <cmath>
@@ -6,7 +6,7 @@
 #include <sstream>
 #include <utility>
 
-#include "core/util/option_check.h"
+#include "rotation_averaging/util/option_check.h"
 
 namespace rotation_averaging {
 

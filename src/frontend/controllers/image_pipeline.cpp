@@ -13,8 +13,8 @@
 
 #include "frontend/geometry/epipolar.h"
 #include "rotation_averaging/core/geometry/so3.h"
-#include "core/io/text_lines.h"
-#include "core/util/parallel_for.h"
+#include "rotation_averaging/util/text_lines.h"
+#include "rotation_averaging/util/parallel_for.h"
 
 namespace rotation_averaging {
 namespace {

@@ -1,4 +1,4 @@
-#include "frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
 #include "frontend/controllers/keyframe_frontend_keyframe.h"
 
 #include <algorithm>
@@ -9,8 +9,8 @@
 #include <set>
 
 #include "rotation_averaging/core/geometry/so3.h"
-#include "core/util/option_check.h"
-#include "core/util/parallel_for.h"
+#include "rotation_averaging/util/option_check.h"
+#include "rotation_averaging/util/parallel_for.h"
 
 namespace rotation_averaging {
 namespace {

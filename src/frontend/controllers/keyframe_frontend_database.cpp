@@ -4,7 +4,7 @@
 #include <algorithm>
 #include <set>
 
-#include "frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
 #include "frontend/controllers/keyframe_frontend_keyframe.h"
 
 namespace rotation_averaging {

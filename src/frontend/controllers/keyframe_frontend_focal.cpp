@@ -4,9 +4,9 @@
 #include <algorithm>
 #include <cmath>
 
-#include "frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
 #include "frontend/controllers/keyframe_frontend_keyframe.h"
-#include "core/util/parallel_for.h"
+#include "rotation_averaging/util/parallel_for.h"
 #include "rotation_averaging/core/geometry/so3.h"
 
 namespace rotation_averaging {

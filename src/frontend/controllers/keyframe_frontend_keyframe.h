@@ -9,7 +9,7 @@
 #include <memory>
 #include <vector>
 
-#include "frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
 
 namespace rotation_averaging {
 

@@ -1,4 +1,4 @@
-#include "frontend/controllers/keyframe_selector.h"
+#include "rotation_averaging/frontend/controllers/keyframe_selector.h"
 
 #include <algorithm>
 #include <chrono>
@@ -6,7 +6,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
-#include "core/util/option_check.h"
+#include "rotation_averaging/util/option_check.h"
 #include "rotation_averaging/core/geometry/so3.h"
 
 namespace rotation_averaging {

@@ -1,4 +1,4 @@
-#include "frontend/controllers/map_store.h"
+#include "rotation_averaging/frontend/controllers/map_store.h"
 
 #include <chrono>
 #include <filesystem>

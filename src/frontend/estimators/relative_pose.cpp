@@ -7,7 +7,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 
-#include "core/util/option_check.h"
+#include "rotation_averaging/util/option_check.h"
 #include "frontend/estimators/two_view_internal.h"
 #include "frontend/geometry/epipolar.h"
 #include "rotation_averaging/frontend/geometry/camera_model.h"

@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
@@ -75,38 +76,38 @@ int GaussNewtonRotation(const std::vector<Eigen::Vector3d>& b1, const std::vecto
 constexpr double kChi2Radius99 = 3.035;
 constexpr int kRotationRefineIterations = 20;
 
-}  // namespace
+// The bearings of a pair's correspondences, with what deciding a rotation's
+// inliers needs (the second image's points and camera).
+struct RotationPair {
+  int n = 0;
+  std::vector<Eigen::Vector3d> b1, b2;
+  const std::vector<Eigen::Vector2d>* points2 = nullptr;
+  Eigen::Matrix3d k2;
 
-// Stopping at `min_support`: where the camera moved, the rotations explain
-// few correspondences and the sampling would otherwise run to its iteration
-// cap.
-RelativePoseResult EstimateRotationOnly(const std::vector<Eigen::Vector2d>& points1,
-                                        const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
-                                        const Eigen::Matrix3d& k2, const RelativePoseOptions& options,
-                                        int min_support) {
-  const int n = static_cast<int>(points1.size());
-  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
-  std::vector<Eigen::Vector3d> b1(n), b2(n);
-  for (int i = 0; i < n; ++i) {
-    b1[i] = (k1_inv * points1[i].homogeneous()).normalized();
-    b2[i] = (k2_inv * points2[i].homogeneous()).normalized();
-  }
   // The inliers of a rotation; with `beat`, it gives up (returning what it
   // has) as soon as it cannot find more than that many: a hypothesis with
   // no more support than the best so far is discarded anyway.
-  auto inliers_of = [&](const Eigen::Matrix3d& rotation, double radius_px, std::size_t beat = 0) {
+  std::vector<int> InliersOf(const Eigen::Matrix3d& rotation, double radius_px, std::size_t beat = 0) const {
     std::vector<int> in;
     Eigen::Vector2d e;
     for (int i = 0; i < n; ++i) {
       if (beat > 0 && in.size() + static_cast<std::size_t>(n - i) <= beat) break;
-      if (TransferError(k2, rotation, b1[i], points2[i], &e) && e.norm() < radius_px) in.push_back(i);
+      if (TransferError(k2, rotation, b1[i], (*points2)[i], &e) && e.norm() < radius_px) in.push_back(i);
     }
     return in;
-  };
+  }
+};
+
+// Two-point sampling with local optimisation: the rotation with the most
+// inliers (`best`), stopping once `min_support` or the best support found
+// makes more samples unlikely to beat it.
+Eigen::Matrix3d SampleRotation(const RotationPair& pair, const RelativePoseOptions& options, int min_support,
+                               std::vector<int>* best) {
+  const int n = pair.n;
   // A fixed seed: the same pair gives the same model on every run and thread.
   std::mt19937 rng(0x5eedu + static_cast<unsigned>(n));
   std::uniform_int_distribution<int> pick(0, n - 1);
-  std::vector<int> best;
+  best->clear();
   Eigen::Matrix3d best_rotation = Eigen::Matrix3d::Identity();
   const double log_failure = std::log(1.0 - options.ransac_confidence);
   auto iterations_for = [&](std::size_t support) {
@@ -119,52 +120,91 @@ RelativePoseResult EstimateRotationOnly(const std::vector<Eigen::Vector2d>& poin
   for (int it = 0; it < needed && it < options.ransac_max_iterations; ++it) {
     const int i = pick(rng), j = pick(rng);
     // Two bearings nearly along one line do not fix the rotation about it.
-    if (i == j || b1[i].cross(b1[j]).norm() < 1e-3 || b2[i].cross(b2[j]).norm() < 1e-3) continue;
-    Eigen::Matrix3d rotation = FitRotation(b1, b2, {i, j});
-    std::vector<int> in = inliers_of(rotation, options.ransac_threshold_px, best.size());
-    if (in.size() <= best.size()) continue;
+    if (i == j || pair.b1[i].cross(pair.b1[j]).norm() < 1e-3 || pair.b2[i].cross(pair.b2[j]).norm() < 1e-3) continue;
+    Eigen::Matrix3d rotation = FitRotation(pair.b1, pair.b2, {i, j});
+    std::vector<int> in = pair.InliersOf(rotation, options.ransac_threshold_px, best->size());
+    if (in.size() <= best->size()) continue;
     // Local optimisation: refit on the support until it stops growing.
     for (int lo = 0; lo < 3; ++lo) {
-      const Eigen::Matrix3d refit = FitRotation(b1, b2, in);
-      std::vector<int> grown = inliers_of(refit, options.ransac_threshold_px);
+      const Eigen::Matrix3d refit = FitRotation(pair.b1, pair.b2, in);
+      std::vector<int> grown = pair.InliersOf(refit, options.ransac_threshold_px);
       if (grown.size() <= in.size()) break;
       in.swap(grown);
       rotation = refit;
     }
-    best.swap(in);
+    best->swap(in);
     best_rotation = rotation;
-    needed = std::min(needed, iterations_for(best.size()));
+    needed = std::min(needed, iterations_for(best->size()));
   }
-  if (static_cast<int>(best.size()) < options.min_inliers) {
-    return TwoViewFail(TwoViewFailure::kTooFewInliers, std::to_string(best.size()) + " rotation-model inliers");
-  }
+  return best_rotation;
+}
 
-  // Gauss-Newton on omega, R = Exp(omega) R_hat, over the inliers; the
-  // inliers are re-selected from all correspondences after each solve.
-  Eigen::Matrix3d rotation = best_rotation;
-  std::vector<int> inliers = best;
-  Eigen::Matrix3d information = Eigen::Matrix3d::Zero();
-  double sum_squares = 0.0;
-  int iterations = 0;
+// Gauss-Newton on omega, R = Exp(omega) R_hat, over the inliers; the inliers
+// are re-selected from all correspondences after each solve. Fills the
+// rotation, its inliers, J^T J and the sum of squared transfer errors; a
+// failure comes back as a failed result.
+std::optional<RelativePoseResult> RefineRotationModel(const RotationPair& pair, const RelativePoseOptions& options,
+                                                      Eigen::Matrix3d* rotation, std::vector<int>* inliers,
+                                                      Eigen::Matrix3d* information, double* sum_squares,
+                                                      int* iterations) {
+  *information = Eigen::Matrix3d::Zero();
+  *sum_squares = 0.0;
+  *iterations = 0;
   for (int round = 0; round < kMaxReselectionRounds; ++round) {
-    const int done = GaussNewtonRotation(b1, points2, k2, inliers, kRotationRefineIterations, &rotation, &information,
-                                         &sum_squares);
+    const int done = GaussNewtonRotation(pair.b1, *pair.points2, pair.k2, *inliers, kRotationRefineIterations,
+                                         rotation, information, sum_squares);
     if (done < 0) return TwoViewFail(TwoViewFailure::kRefinementFailed, "rotation-model step is not finite");
-    iterations += done;
+    *iterations += done;
     std::vector<double> norms;
-    norms.reserve(inliers.size());
+    norms.reserve(inliers->size());
     Eigen::Vector2d e;
-    for (int i : inliers) norms.push_back(TransferError(k2, rotation, b1[i], points2[i], &e) ? e.norm() : INFINITY);
+    for (int i : *inliers) {
+      norms.push_back(TransferError(pair.k2, *rotation, pair.b1[i], (*pair.points2)[i], &e) ? e.norm() : INFINITY);
+    }
     std::nth_element(norms.begin(), norms.begin() + norms.size() / 2, norms.end());
     // The median norm of a 2-d Gaussian error is sigma sqrt(2 ln 2).
     const double sigma = norms[norms.size() / 2] / std::sqrt(2.0 * std::log(2.0));
-    std::vector<int> selected = inliers_of(rotation, std::max(1e-3, kChi2Radius99 * sigma));
+    std::vector<int> selected = pair.InliersOf(*rotation, std::max(1e-3, kChi2Radius99 * sigma));
     if (static_cast<int>(selected.size()) < options.min_inliers) {
       return TwoViewFail(TwoViewFailure::kTooFewInliers, std::to_string(selected.size()) + " rotation-model inliers after refinement");
     }
-    const bool settled = selected == inliers;
-    inliers.swap(selected);
+    const bool settled = selected == *inliers;
+    inliers->swap(selected);
     if (settled) break;
+  }
+  return std::nullopt;
+}
+
+}  // namespace
+
+// Stopping at `min_support`: where the camera moved, the rotations explain
+// few correspondences and the sampling would otherwise run to its iteration
+// cap.
+RelativePoseResult EstimateRotationOnly(const std::vector<Eigen::Vector2d>& points1,
+                                        const std::vector<Eigen::Vector2d>& points2, const Eigen::Matrix3d& k1,
+                                        const Eigen::Matrix3d& k2, const RelativePoseOptions& options,
+                                        int min_support) {
+  RotationPair pair;
+  pair.n = static_cast<int>(points1.size());
+  pair.points2 = &points2;
+  pair.k2 = k2;
+  const Eigen::Matrix3d k1_inv = k1.inverse(), k2_inv = k2.inverse();
+  pair.b1.resize(pair.n);
+  pair.b2.resize(pair.n);
+  for (int i = 0; i < pair.n; ++i) {
+    pair.b1[i] = (k1_inv * points1[i].homogeneous()).normalized();
+    pair.b2[i] = (k2_inv * points2[i].homogeneous()).normalized();
+  }
+  std::vector<int> inliers;
+  Eigen::Matrix3d rotation = SampleRotation(pair, options, min_support, &inliers);
+  if (static_cast<int>(inliers.size()) < options.min_inliers) {
+    return TwoViewFail(TwoViewFailure::kTooFewInliers, std::to_string(inliers.size()) + " rotation-model inliers");
+  }
+  Eigen::Matrix3d information;
+  double sum_squares = 0.0;
+  int iterations = 0;
+  if (auto failed = RefineRotationModel(pair, options, &rotation, &inliers, &information, &sum_squares, &iterations)) {
+    return *failed;
   }
   const int m = static_cast<int>(inliers.size());
   const double sigma2 = sum_squares / std::max(1, 2 * m - 3);  // per coordinate of the transfer error
@@ -195,7 +235,6 @@ RelativePoseResult EstimateRotationOnly(const std::vector<Eigen::Vector2d>& poin
   result.covariance = result.covariance_marginal;
   return result;
 }
-
 
 int RefineRotationOnInliers(const std::vector<Eigen::Vector2d>& points1, const std::vector<Eigen::Vector2d>& points2,
                             const std::vector<int>& inliers, const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,

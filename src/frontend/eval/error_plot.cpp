@@ -1,4 +1,4 @@
-#include "frontend/eval/error_plot.h"
+#include "rotation_averaging/frontend/eval/error_plot.h"
 
 #include <algorithm>
 #include <cmath>

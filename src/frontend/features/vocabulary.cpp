@@ -9,7 +9,7 @@
 #include <cstring>
 #include <fstream>
 
-#include "core/io/binary_io.h"
+#include "rotation_averaging/util/binary_io.h"
 
 namespace rotation_averaging {
 namespace {

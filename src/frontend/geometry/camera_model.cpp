@@ -10,7 +10,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "core/io/text_lines.h"
+#include "rotation_averaging/util/text_lines.h"
 
 namespace rotation_averaging {
 

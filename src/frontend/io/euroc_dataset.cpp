@@ -1,4 +1,4 @@
-#include "frontend/io/euroc_dataset.h"
+#include "rotation_averaging/frontend/io/euroc_dataset.h"
 
 #include <yaml-cpp/yaml.h>
 
@@ -8,7 +8,7 @@
 #include <filesystem>
 #include <limits>
 
-#include "core/io/text_lines.h"
+#include "rotation_averaging/util/text_lines.h"
 
 namespace rotation_averaging {
 namespace {

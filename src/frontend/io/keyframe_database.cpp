@@ -1,4 +1,4 @@
-#include "frontend/io/keyframe_database.h"
+#include "rotation_averaging/frontend/io/keyframe_database.h"
 
 #include <fcntl.h>
 #include <sys/mman.h>
@@ -11,8 +11,8 @@
 #include <memory>
 #include <set>
 
-#include "core/io/binary_io.h"
-#include "core/io/text_lines.h"
+#include "rotation_averaging/util/binary_io.h"
+#include "rotation_averaging/util/text_lines.h"
 #include "rotation_averaging/frontend/estimators/relative_pose.h"
 #include "rotation_averaging/frontend/geometry/camera_model.h"
 

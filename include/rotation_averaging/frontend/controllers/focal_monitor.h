@@ -1,4 +1,3 @@
-// Internal to the package: may change between versions.
 // Online check of each camera's focal length against the pairs the keyframe
 // front end verifies: the offline estimator (EstimateFocalScale, with its
 // principal-point part of the deviation) run on a camera's own verified
@@ -14,8 +13,8 @@
 // the same estimates; only when they arrive differs. FocalChecker runs them
 // on a thread of its own: an estimate costs seconds (results/frontend.md,
 // "Focal self-calibration"), which the keyframe front end must not wait for.
-#ifndef ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_FOCAL_MONITOR_H_
-#define ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_FOCAL_MONITOR_H_
+#ifndef ROTATION_AVERAGING_FRONTEND_CONTROLLERS_FOCAL_MONITOR_H_
+#define ROTATION_AVERAGING_FRONTEND_CONTROLLERS_FOCAL_MONITOR_H_
 
 #include <Eigen/Core>
 #include <condition_variable>
@@ -189,4 +188,4 @@ class FocalChecker {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_FOCAL_MONITOR_H_
+#endif  // ROTATION_AVERAGING_FRONTEND_CONTROLLERS_FOCAL_MONITOR_H_

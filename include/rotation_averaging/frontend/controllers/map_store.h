@@ -1,4 +1,3 @@
-// Internal to the package: may change between versions.
 // The map on disk: the averager's view graph, beside it the rig model's
 // cameras and captures and, with an image front end that has a vocabulary,
 // its keyframe database, each written atomically. Saves copy each part
@@ -6,8 +5,8 @@
 // wait for the copies, not for the disk. Loads and adds read and check
 // every file before anything held changes. No ROS type: the node and the
 // replay reach it through their keyframe pipeline.
-#ifndef ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_MAP_STORE_H_
-#define ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_MAP_STORE_H_
+#ifndef ROTATION_AVERAGING_FRONTEND_CONTROLLERS_MAP_STORE_H_
+#define ROTATION_AVERAGING_FRONTEND_CONTROLLERS_MAP_STORE_H_
 
 #include <Eigen/Core>
 #include <cstddef>
@@ -16,8 +15,8 @@
 #include <mutex>
 #include <string>
 
-#include "core/controllers/rig_model.h"
-#include "frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/core/controllers/rig_model.h"
+#include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
 #include "rotation_averaging/core/controllers/online_averager.h"
 
 namespace rotation_averaging {
@@ -91,4 +90,4 @@ class MapStore {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_MAP_STORE_H_
+#endif  // ROTATION_AVERAGING_FRONTEND_CONTROLLERS_MAP_STORE_H_

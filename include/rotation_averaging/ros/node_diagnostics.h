@@ -1,10 +1,9 @@
-// Internal to the package: may change between versions.
 // The node's diagnostics (/diagnostics, "rotation averaging"): its health
 // in one line and its counters, built from a snapshot of the node's state.
 // No node handle or master is needed to build them, so tests check them
 // directly.
-#ifndef ROTATION_AVERAGING_SRC_ROS_NODE_DIAGNOSTICS_H_
-#define ROTATION_AVERAGING_SRC_ROS_NODE_DIAGNOSTICS_H_
+#ifndef ROTATION_AVERAGING_ROS_NODE_DIAGNOSTICS_H_
+#define ROTATION_AVERAGING_ROS_NODE_DIAGNOSTICS_H_
 
 #include <diagnostic_updater/DiagnosticStatusWrapper.h>
 
@@ -14,7 +13,7 @@
 #include <map>
 #include <string>
 
-#include "ros/keyframe_pipeline.h"
+#include "rotation_averaging/ros/keyframe_pipeline.h"
 
 namespace rotation_averaging {
 
@@ -62,4 +61,4 @@ void ReadMemoryMiB(double* resident, double* peak);
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_ROS_NODE_DIAGNOSTICS_H_
+#endif  // ROTATION_AVERAGING_ROS_NODE_DIAGNOSTICS_H_

@@ -1,11 +1,10 @@
-// Internal to the package: may change between versions.
 // Line-oriented parsing helpers shared by the text readers: strict number
 // parsing (the whole token must be a number) and "file:line: message" errors.
 // Lines and tokens are views into the reader's buffer: no allocation per line
 // or token, numbers parsed with std::from_chars (the readers of large graphs
 // spend most of their time here).
-#ifndef ROTATION_AVERAGING_SRC_CORE_IO_TEXT_LINES_H_
-#define ROTATION_AVERAGING_SRC_CORE_IO_TEXT_LINES_H_
+#ifndef ROTATION_AVERAGING_UTIL_TEXT_LINES_H_
+#define ROTATION_AVERAGING_UTIL_TEXT_LINES_H_
 
 #include <cstdint>
 #include <cstdio>
@@ -96,4 +95,4 @@ bool WriteFileAtomically(const std::string& path, const std::function<std::strin
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_CORE_IO_TEXT_LINES_H_
+#endif  // ROTATION_AVERAGING_UTIL_TEXT_LINES_H_

@@ -1,4 +1,3 @@
-// Internal to the package: may change between versions.
 // Random vectors and quaternions drawn in a fixed order. C++ leaves the
 // order in which the arguments of one call are evaluated unspecified (gcc
 // evaluates them right to left, clang left to right), so
@@ -7,8 +6,8 @@
 // inputs. These draw one value per statement, the last component first
 // (the order in which gcc evaluates such a call, so that the data stay the
 // ones the package's results were made with).
-#ifndef ROTATION_AVERAGING_SRC_CORE_UTIL_RANDOM_DRAWS_H_
-#define ROTATION_AVERAGING_SRC_CORE_UTIL_RANDOM_DRAWS_H_
+#ifndef ROTATION_AVERAGING_UTIL_RANDOM_DRAWS_H_
+#define ROTATION_AVERAGING_UTIL_RANDOM_DRAWS_H_
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -53,4 +52,4 @@ Eigen::Quaterniond DrawQuaternion(Rng& rng, D& d) {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_CORE_UTIL_RANDOM_DRAWS_H_
+#endif  // ROTATION_AVERAGING_UTIL_RANDOM_DRAWS_H_

@@ -1,4 +1,3 @@
-// Internal to the package: may change between versions.
 // What the live node and the bag replay tool share: messages turned into
 // validated keyframes and relative rotations, keyframe selection, the
 // keyframe front end into the averager, focal calibration, the map on disk
@@ -9,8 +8,8 @@
 // between the node's threads (docs/architecture.md). The node adds
 // subscriptions, threads and publishers around it; the replay tool adds a
 // bag reader and a bag-time solve schedule.
-#ifndef ROTATION_AVERAGING_SRC_ROS_KEYFRAME_PIPELINE_H_
-#define ROTATION_AVERAGING_SRC_ROS_KEYFRAME_PIPELINE_H_
+#ifndef ROTATION_AVERAGING_ROS_KEYFRAME_PIPELINE_H_
+#define ROTATION_AVERAGING_ROS_KEYFRAME_PIPELINE_H_
 
 #include <geometry_msgs/TransformStamped.h>
 #include <ros/time.h>
@@ -29,14 +28,14 @@
 #include <string>
 #include <vector>
 
-#include "core/controllers/rig_model.h"
-#include "frontend/controllers/focal_corrector.h"
-#include "frontend/controllers/keyframe_frontend.h"
-#include "frontend/controllers/keyframe_selector.h"
-#include "frontend/controllers/map_store.h"
-#include "ros/image_conversion.h"
-#include "ros/output_messages.h"
-#include "ros/pipeline_config.h"
+#include "rotation_averaging/core/controllers/rig_model.h"
+#include "rotation_averaging/frontend/controllers/focal_corrector.h"
+#include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/frontend/controllers/keyframe_selector.h"
+#include "rotation_averaging/frontend/controllers/map_store.h"
+#include "rotation_averaging/ros/image_conversion.h"
+#include "rotation_averaging/ros/output_messages.h"
+#include "rotation_averaging/ros/pipeline_config.h"
 #include "rotation_averaging/CameraInfoCheckArray.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePose.h"
@@ -107,7 +106,7 @@ class KeyframePipeline {
 
   // Static transforms (rig extrinsics); transforms from the fixed frame (our
   // own keyframe output) are ignored. Cameras are resolved against them when
-  // their first keyframe arrives (src/core/controllers/rig_model.h).
+  // their first keyframe arrives (core/controllers/rig_model.h).
   void AcceptStaticTransforms(const tf2_msgs::TFMessage& msg);
   const RigModel& Rig() const { return rig_; }
   // After the averager's Reset().
@@ -216,4 +215,4 @@ class KeyframePipeline {
 };
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_ROS_KEYFRAME_PIPELINE_H_
+#endif  // ROTATION_AVERAGING_ROS_KEYFRAME_PIPELINE_H_

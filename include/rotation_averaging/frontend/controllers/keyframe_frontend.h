@@ -1,4 +1,3 @@
-// Internal to the package: may change between versions.
 // Keyframe front end for the live node, free of ROS: each keyframe image is
 // described once and related to
 //  * the previous keyframe of the same camera (sequential edge) or, when that
@@ -21,8 +20,8 @@
 // Pair verification and retrieval run on `num_threads` threads; the edges and
 // their order do not depend on the thread count, nor on the order in which
 // the cameras' images of one capture arrive.
-#ifndef ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_FRONTEND_H_
-#define ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_FRONTEND_H_
+#ifndef ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_FRONTEND_H_
+#define ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_FRONTEND_H_
 
 #include <map>
 #include <set>
@@ -35,8 +34,8 @@
 #include "rotation_averaging/frontend/features/features.h"
 #include "rotation_averaging/frontend/features/vocabulary.h"
 #include "rotation_averaging/frontend/geometry/camera_model.h"
-#include "frontend/controllers/focal_monitor.h"
-#include "frontend/io/keyframe_database.h"
+#include "rotation_averaging/frontend/controllers/focal_monitor.h"
+#include "rotation_averaging/frontend/io/keyframe_database.h"
 
 namespace rotation_averaging {
 
@@ -427,4 +426,4 @@ class KeyframeFrontend {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_FRONTEND_H_
+#endif  // ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_FRONTEND_H_

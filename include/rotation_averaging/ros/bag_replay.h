@@ -1,19 +1,18 @@
-// Internal to the package: may change between versions.
 // Offline replay of recorded bags through the node's pipeline
 // (KeyframePipeline: the same validation, front end and averager), as fast
 // as the CPU allows, deterministic run after run. Solves happen at the bag
 // times at which the live node would solve (every solve_period_s of bag time
 // after the first message, when new input arrived, and at once after a loop
 // closure if solve_early_on_loop_closure), plus once at the end.
-#ifndef ROTATION_AVERAGING_SRC_ROS_BAG_REPLAY_H_
-#define ROTATION_AVERAGING_SRC_ROS_BAG_REPLAY_H_
+#ifndef ROTATION_AVERAGING_ROS_BAG_REPLAY_H_
+#define ROTATION_AVERAGING_ROS_BAG_REPLAY_H_
 
 #include <map>
 #include <string>
 #include <vector>
 
-#include "ros/keyframe_pipeline.h"
-#include "ros/replay_report.h"
+#include "rotation_averaging/ros/keyframe_pipeline.h"
+#include "rotation_averaging/ros/replay_report.h"
 
 namespace rotation_averaging {
 
@@ -44,4 +43,4 @@ bool ReadReplayConfig(const std::string& path, PipelineConfig* config, std::vect
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_ROS_BAG_REPLAY_H_
+#endif  // ROTATION_AVERAGING_ROS_BAG_REPLAY_H_

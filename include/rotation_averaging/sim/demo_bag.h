@@ -1,13 +1,12 @@
-// Internal to the package: may change between versions.
 // Bags of camera streams as drivers record them: a EuRoC-layout dataset
-// (WriteEurocBag), and a rendered rig scene (src/sim/rig_scene.h) as a bag: per camera
+// (WriteEurocBag), and a rendered rig scene (sim/rig_scene.h) as a bag: per camera
 // /<cam>/image_raw (mono8, or /<cam>/image_raw/compressed PNG) and
 // /<cam>/camera_info at every capture, the extrinsics base_link -> cam_* on
 // /tf_static (half a second before the first capture), and the ground truth
 // as one rotation_averaging/Orientations message on /ground_truth/orientations.
 // Captures start at bag time 1000 s.
-#ifndef ROTATION_AVERAGING_SRC_SIM_DEMO_BAG_H_
-#define ROTATION_AVERAGING_SRC_SIM_DEMO_BAG_H_
+#ifndef ROTATION_AVERAGING_SIM_DEMO_BAG_H_
+#define ROTATION_AVERAGING_SIM_DEMO_BAG_H_
 
 #include <rosbag/bag.h>
 
@@ -16,8 +15,8 @@
 #include <vector>
 
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
-#include "frontend/io/euroc_dataset.h"
-#include "sim/rig_scene.h"
+#include "rotation_averaging/frontend/io/euroc_dataset.h"
+#include "rotation_averaging/sim/rig_scene.h"
 #include "rotation_averaging/frontend/geometry/camera_model.h"
 
 namespace rotation_averaging {
@@ -100,4 +99,4 @@ std::size_t WriteEurocBag(const std::vector<EurocCamera>& cameras, const std::st
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_SIM_DEMO_BAG_H_
+#endif  // ROTATION_AVERAGING_SIM_DEMO_BAG_H_

@@ -1,4 +1,4 @@
-#include "core/io/text_lines.h"
+#include "rotation_averaging/util/text_lines.h"
 
 #include <fcntl.h>
 #include <unistd.h>
@@ -10,7 +10,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "core/io/binary_io.h"
+#include "rotation_averaging/util/binary_io.h"
 
 namespace rotation_averaging {
 

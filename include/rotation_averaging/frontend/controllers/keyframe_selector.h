@@ -1,4 +1,3 @@
-// Internal to the package: may change between versions.
 // Keyframe selection for raw camera streams (20-30 Hz), free of ROS: which
 // frames of each camera go to the keyframe front end. Decided from the
 // images alone, as VINS-Mono and ORB-SLAM decide, so that a live node and a
@@ -17,8 +16,8 @@
 //    arrived first (the last `held_frames` frames of each camera are held
 //    for that).
 // A frame that is not a keyframe costs one resize and one KLT.
-#ifndef ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
-#define ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
+#ifndef ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
+#define ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
 
 #include <Eigen/Core>
 #include <cstdint>
@@ -105,4 +104,4 @@ class KeyframeSelector {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
+#endif  // ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_

@@ -1,4 +1,3 @@
-// Internal to the package: may change between versions.
 // The keyframe database file: the keyframes of an image front end as it
 // saves them beside a map (KeyframeFrontend::SaveDatabase), so that a node
 // restarted on the map, or a later session, relates new images to them.
@@ -10,8 +9,8 @@
 // sequential rotation and covariance, compact features, bag of words).
 // Version 2 checksums the contents with XXH3-64 (several GB/s: loading a large
 // map is not held up by it); version 1 files (FNV-1a) are still read.
-#ifndef ROTATION_AVERAGING_SRC_FRONTEND_IO_KEYFRAME_DATABASE_H_
-#define ROTATION_AVERAGING_SRC_FRONTEND_IO_KEYFRAME_DATABASE_H_
+#ifndef ROTATION_AVERAGING_FRONTEND_IO_KEYFRAME_DATABASE_H_
+#define ROTATION_AVERAGING_FRONTEND_IO_KEYFRAME_DATABASE_H_
 
 #include <Eigen/Core>
 #include <cstdint>
@@ -60,4 +59,4 @@ bool ReadKeyframeDatabase(const std::string& path, std::uint64_t vocabulary_fing
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_FRONTEND_IO_KEYFRAME_DATABASE_H_
+#endif  // ROTATION_AVERAGING_FRONTEND_IO_KEYFRAME_DATABASE_H_

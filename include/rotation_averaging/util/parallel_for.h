@@ -1,10 +1,9 @@
-// Internal to the package: may change between versions.
 // Runs independent tasks on a few threads. Each task writes only its own
 // slot of the caller's output and the caller combines the slots in task
 // order, so results do not depend on the number of threads or on which
 // thread ran what.
-#ifndef ROTATION_AVERAGING_SRC_CORE_UTIL_PARALLEL_FOR_H_
-#define ROTATION_AVERAGING_SRC_CORE_UTIL_PARALLEL_FOR_H_
+#ifndef ROTATION_AVERAGING_UTIL_PARALLEL_FOR_H_
+#define ROTATION_AVERAGING_UTIL_PARALLEL_FOR_H_
 
 #include <algorithm>
 #include <atomic>
@@ -56,4 +55,4 @@ void ParallelFor(int count, int num_threads, const Task& task) {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_CORE_UTIL_PARALLEL_FOR_H_
+#endif  // ROTATION_AVERAGING_UTIL_PARALLEL_FOR_H_

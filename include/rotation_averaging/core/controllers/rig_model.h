@@ -1,4 +1,3 @@
-// Internal to the package: may change between versions.
 // Multi-camera rigs with known extrinsic rotations: rotation averaging then
 // solves one orientation per rig capture, and each camera's orientation is
 // derived from it. Free of ROS (the node and the replay tool feed it static
@@ -19,8 +18,8 @@
 // A camera is resolved the first time one of its keyframes is seen: cameras
 // without extrinsics then are solved on their own, even if extrinsics arrive
 // later (changing them mid-run would move keyframes between variables).
-#ifndef ROTATION_AVERAGING_SRC_CORE_CONTROLLERS_RIG_MODEL_H_
-#define ROTATION_AVERAGING_SRC_CORE_CONTROLLERS_RIG_MODEL_H_
+#ifndef ROTATION_AVERAGING_CORE_CONTROLLERS_RIG_MODEL_H_
+#define ROTATION_AVERAGING_CORE_CONTROLLERS_RIG_MODEL_H_
 
 #include <map>
 #include <mutex>
@@ -121,4 +120,4 @@ class RigModel {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_CORE_CONTROLLERS_RIG_MODEL_H_
+#endif  // ROTATION_AVERAGING_CORE_CONTROLLERS_RIG_MODEL_H_

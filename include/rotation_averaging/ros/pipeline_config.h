@@ -1,18 +1,17 @@
-// Internal to the package: may change between versions.
 // The node's parameters: every field of config/rotation_averaging.yaml with
 // its default, where they come from (the parameter server or the replay's
 // YAML file), and the one reader that turns them into a validated config.
 // The node and the replay read them here and nowhere else.
-#ifndef ROTATION_AVERAGING_SRC_ROS_PIPELINE_CONFIG_H_
-#define ROTATION_AVERAGING_SRC_ROS_PIPELINE_CONFIG_H_
+#ifndef ROTATION_AVERAGING_ROS_PIPELINE_CONFIG_H_
+#define ROTATION_AVERAGING_ROS_PIPELINE_CONFIG_H_
 
 #include <cstddef>
 #include <string>
 #include <vector>
 
-#include "core/controllers/rig_model.h"
-#include "frontend/controllers/keyframe_frontend.h"
-#include "frontend/controllers/keyframe_selector.h"
+#include "rotation_averaging/core/controllers/rig_model.h"
+#include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/frontend/controllers/keyframe_selector.h"
 #include "rotation_averaging/core/controllers/online_averager.h"
 
 namespace rotation_averaging {
@@ -122,4 +121,4 @@ std::string DefaultVocabularyPath();
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_ROS_PIPELINE_CONFIG_H_
+#endif  // ROTATION_AVERAGING_ROS_PIPELINE_CONFIG_H_

@@ -1,11 +1,10 @@
-// Internal to the package: may change between versions.
 // Little helpers for the package's binary files (the keyframe database):
 // a byte buffer written field by field, a bounds-checked reader over one, and
 // the 64-bit FNV-1a checksum of the text files (and of version 1 keyframe
 // databases). Values are stored
 // in the machine's byte order (little-endian on every supported platform).
-#ifndef ROTATION_AVERAGING_SRC_CORE_IO_BINARY_IO_H_
-#define ROTATION_AVERAGING_SRC_CORE_IO_BINARY_IO_H_
+#ifndef ROTATION_AVERAGING_UTIL_BINARY_IO_H_
+#define ROTATION_AVERAGING_UTIL_BINARY_IO_H_
 
 #include <cstdint>
 #include <cstring>
@@ -122,4 +121,4 @@ class BinaryReader {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_CORE_IO_BINARY_IO_H_
+#endif  // ROTATION_AVERAGING_UTIL_BINARY_IO_H_

@@ -1,8 +1,7 @@
-// Internal to the package: may change between versions.
 // The one conversion per message type between ROS messages and the core
 // library (the only place that knows both). See msg/*.msg for conventions.
-#ifndef ROTATION_AVERAGING_SRC_ROS_MSG_CONVERSION_H_
-#define ROTATION_AVERAGING_SRC_ROS_MSG_CONVERSION_H_
+#ifndef ROTATION_AVERAGING_ROS_MSG_CONVERSION_H_
+#define ROTATION_AVERAGING_ROS_MSG_CONVERSION_H_
 
 #include <ros/time.h>
 
@@ -35,4 +34,4 @@ KeyframeOrientation ToMsg(const KeyframeKey& key, const Eigen::Matrix3d& world_t
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_ROS_MSG_CONVERSION_H_
+#endif  // ROTATION_AVERAGING_ROS_MSG_CONVERSION_H_

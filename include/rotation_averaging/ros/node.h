@@ -1,4 +1,3 @@
-// Internal to the package: may change between versions.
 // rotation_averaging_node: live covariance-weighted robust rotation averaging.
 //
 // Subscribes to relative poses (single and array), camera images and
@@ -10,8 +9,8 @@
 // select keyframes on a spinner of their own; the front end runs on a
 // worker thread fed by a bounded queue (docs/architecture.md: the threads
 // and their locks). See config/rotation_averaging.yaml for every parameter.
-#ifndef ROTATION_AVERAGING_SRC_ROS_NODE_H_
-#define ROTATION_AVERAGING_SRC_ROS_NODE_H_
+#ifndef ROTATION_AVERAGING_ROS_NODE_H_
+#define ROTATION_AVERAGING_ROS_NODE_H_
 
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <dynamic_reconfigure/server.h>
@@ -31,8 +30,8 @@
 #include <thread>
 #include <vector>
 
-#include "ros/keyframe_pipeline.h"
-#include "ros/node_diagnostics.h"
+#include "rotation_averaging/ros/keyframe_pipeline.h"
+#include "rotation_averaging/ros/node_diagnostics.h"
 #include "rotation_averaging/LoadGraph.h"
 #include "rotation_averaging/RelativePoseArray.h"
 #include "rotation_averaging/RotationAveragingConfig.h"
@@ -150,4 +149,4 @@ class RotationAveragingNode {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_ROS_NODE_H_
+#endif  // ROTATION_AVERAGING_ROS_NODE_H_

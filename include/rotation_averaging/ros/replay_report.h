@@ -1,10 +1,9 @@
-// Internal to the package: may change between versions.
 // What a bag replay (bag_replay.h) reports: every figure of the run in
 // ReplayResult, gathered from the pipeline at the end, and the files and the
 // summary written from it (scores against ground truth, the front end's cost
 // per keyframe, the plots).
-#ifndef ROTATION_AVERAGING_SRC_ROS_REPLAY_REPORT_H_
-#define ROTATION_AVERAGING_SRC_ROS_REPLAY_REPORT_H_
+#ifndef ROTATION_AVERAGING_ROS_REPLAY_REPORT_H_
+#define ROTATION_AVERAGING_ROS_REPLAY_REPORT_H_
 
 #include <cstdint>
 #include <ostream>
@@ -12,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "ros/keyframe_pipeline.h"
+#include "rotation_averaging/ros/keyframe_pipeline.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 
 namespace rotation_averaging {
@@ -128,4 +127,4 @@ bool ScoreAgainstGroundTruth(const NamedOrientations& named, const NamedOrientat
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_ROS_REPLAY_REPORT_H_
+#endif  // ROTATION_AVERAGING_ROS_REPLAY_REPORT_H_

@@ -1,10 +1,9 @@
-// Internal to the package: may change between versions.
 // PNG figure of orientation errors, drawn with OpenCV (no plotting library
 // needed): left, the error of each keyframe against its capture time, one
 // colour per series (camera); right, the cumulative distribution of the
 // errors (fraction of keyframes with error below x), per series and for all.
-#ifndef ROTATION_AVERAGING_SRC_FRONTEND_EVAL_ERROR_PLOT_H_
-#define ROTATION_AVERAGING_SRC_FRONTEND_EVAL_ERROR_PLOT_H_
+#ifndef ROTATION_AVERAGING_FRONTEND_EVAL_ERROR_PLOT_H_
+#define ROTATION_AVERAGING_FRONTEND_EVAL_ERROR_PLOT_H_
 
 #include <string>
 #include <vector>
@@ -44,4 +43,4 @@ bool WriteLinePlot(const std::string& path, const std::string& title, const std:
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_FRONTEND_EVAL_ERROR_PLOT_H_
+#endif  // ROTATION_AVERAGING_FRONTEND_EVAL_ERROR_PLOT_H_

@@ -1,4 +1,3 @@
-// Internal to the package: may change between versions.
 // A synthetic multi-camera rig moving through a textured room, rendered by
 // ray casting: the project's own demo and test data with exact ground truth.
 //
@@ -9,8 +8,8 @@
 // and roll wobble, and ends where it started, so a front end can close the loop. Each camera
 // (optical frame: z forward, x right, y down) looks along one rig axis:
 // front, left, back, right.
-#ifndef ROTATION_AVERAGING_SRC_SIM_RIG_SCENE_H_
-#define ROTATION_AVERAGING_SRC_SIM_RIG_SCENE_H_
+#ifndef ROTATION_AVERAGING_SIM_RIG_SCENE_H_
+#define ROTATION_AVERAGING_SIM_RIG_SCENE_H_
 
 #include <Eigen/Core>
 #include <cstdint>
@@ -104,4 +103,4 @@ class RigScene {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_SIM_RIG_SCENE_H_
+#endif  // ROTATION_AVERAGING_SIM_RIG_SCENE_H_

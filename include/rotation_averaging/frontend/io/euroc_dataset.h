@@ -1,10 +1,9 @@
-// Internal to the package: may change between versions.
 // A camera dataset in EuRoC's ASL layout (the format of the EuRoC MAV and
 // TUM-VI datasets and of Kalibr's bag-to-folder tools): mav0/<cam>/sensor.yaml
 // (intrinsics, distortion, T_BS), mav0/<cam>/data.csv ("#timestamp [ns],
 // filename") and mav0/<cam>/data/<file>.
-#ifndef ROTATION_AVERAGING_SRC_FRONTEND_IO_EUROC_DATASET_H_
-#define ROTATION_AVERAGING_SRC_FRONTEND_IO_EUROC_DATASET_H_
+#ifndef ROTATION_AVERAGING_FRONTEND_IO_EUROC_DATASET_H_
+#define ROTATION_AVERAGING_FRONTEND_IO_EUROC_DATASET_H_
 
 #include <Eigen/Core>
 #include <cstdint>
@@ -35,4 +34,4 @@ bool ReadEurocCameras(const std::string& mav0, std::vector<EurocCamera>* cameras
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_FRONTEND_IO_EUROC_DATASET_H_
+#endif  // ROTATION_AVERAGING_FRONTEND_IO_EUROC_DATASET_H_

@@ -1,10 +1,9 @@
-// Internal to the package: may change between versions.
 // The node's outputs built from a solution: ~orientations, the keyframes'
 // and cameras' transforms for tf, rviz markers and ~camera_info_checks. The
 // node publishes them and the replay writes them to its bag; neither builds
 // a message itself.
-#ifndef ROTATION_AVERAGING_SRC_ROS_OUTPUT_MESSAGES_H_
-#define ROTATION_AVERAGING_SRC_ROS_OUTPUT_MESSAGES_H_
+#ifndef ROTATION_AVERAGING_ROS_OUTPUT_MESSAGES_H_
+#define ROTATION_AVERAGING_ROS_OUTPUT_MESSAGES_H_
 
 #include <geometry_msgs/TransformStamped.h>
 #include <ros/time.h>
@@ -16,9 +15,9 @@
 #include <string>
 #include <vector>
 
-#include "core/controllers/rig_model.h"
-#include "frontend/controllers/focal_monitor.h"
-#include "ros/pipeline_config.h"
+#include "rotation_averaging/core/controllers/rig_model.h"
+#include "rotation_averaging/frontend/controllers/focal_monitor.h"
+#include "rotation_averaging/ros/pipeline_config.h"
 #include "rotation_averaging/CameraInfoCheckArray.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/core/controllers/online_averager.h"
@@ -68,4 +67,4 @@ class OutputMessages {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_ROS_OUTPUT_MESSAGES_H_
+#endif  // ROTATION_AVERAGING_ROS_OUTPUT_MESSAGES_H_

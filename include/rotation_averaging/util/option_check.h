@@ -1,10 +1,9 @@
-// Internal to the package: may change between versions.
 // Checks an options struct field by field and keeps the first value out of
 // its range, as a message naming the field: what every Options::Validate of
 // the package returns, and what the CLI, the Python module, the node's
 // parameters and dynamic_reconfigure report. NaN is never in range.
-#ifndef ROTATION_AVERAGING_SRC_CORE_UTIL_OPTION_CHECK_H_
-#define ROTATION_AVERAGING_SRC_CORE_UTIL_OPTION_CHECK_H_
+#ifndef ROTATION_AVERAGING_UTIL_OPTION_CHECK_H_
+#define ROTATION_AVERAGING_UTIL_OPTION_CHECK_H_
 
 #include <cmath>
 #include <sstream>
@@ -68,4 +67,4 @@ class OptionCheck {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_CORE_UTIL_OPTION_CHECK_H_
+#endif  // ROTATION_AVERAGING_UTIL_OPTION_CHECK_H_

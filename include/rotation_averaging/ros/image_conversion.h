@@ -1,11 +1,10 @@
-// Internal to the package: may change between versions.
 // From image messages to what the front end takes: camera_info to the
 // image's camera (its readout and lens included), and an image message
 // (raw or compressed) to 8-bit grey, each checked against the other. Beside
 // msg_conversion: the one crossing of images and their cameras from ROS into
 // the libraries.
-#ifndef ROTATION_AVERAGING_SRC_ROS_IMAGE_CONVERSION_H_
-#define ROTATION_AVERAGING_SRC_ROS_IMAGE_CONVERSION_H_
+#ifndef ROTATION_AVERAGING_ROS_IMAGE_CONVERSION_H_
+#define ROTATION_AVERAGING_ROS_IMAGE_CONVERSION_H_
 
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/CompressedImage.h>
@@ -16,7 +15,7 @@
 #include <string>
 #include <vector>
 
-#include "ros/pipeline_config.h"
+#include "rotation_averaging/ros/pipeline_config.h"
 #include "rotation_averaging/frontend/geometry/camera_model.h"
 
 namespace rotation_averaging {
@@ -73,4 +72,4 @@ std::string CompressedImageSize(const std::vector<std::uint8_t>& data, std::uint
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_ROS_IMAGE_CONVERSION_H_
+#endif  // ROTATION_AVERAGING_ROS_IMAGE_CONVERSION_H_

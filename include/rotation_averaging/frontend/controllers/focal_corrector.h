@@ -1,4 +1,3 @@
-// Internal to the package: may change between versions.
 // focal_calibration: apply. Corrects a camera's focal length when its
 // focal-length check (FocalChecker) disagrees with camera_info: the camera's
 // pairs are estimated again with the corrected focal length and their edges
@@ -7,8 +6,8 @@
 // (core/estimators/loop_calibration.h). No ROS type: the node and the replay
 // run it through their keyframe pipeline, and anything that holds a
 // KeyframeFrontend, a FocalChecker and an averager can.
-#ifndef ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_FOCAL_CORRECTOR_H_
-#define ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_FOCAL_CORRECTOR_H_
+#ifndef ROTATION_AVERAGING_FRONTEND_CONTROLLERS_FOCAL_CORRECTOR_H_
+#define ROTATION_AVERAGING_FRONTEND_CONTROLLERS_FOCAL_CORRECTOR_H_
 
 #include <cstdint>
 #include <functional>
@@ -19,10 +18,10 @@
 #include <utility>
 #include <vector>
 
-#include "core/controllers/rig_model.h"
-#include "core/estimators/loop_calibration.h"
-#include "frontend/controllers/focal_monitor.h"
-#include "frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/core/controllers/rig_model.h"
+#include "rotation_averaging/core/estimators/loop_calibration.h"
+#include "rotation_averaging/frontend/controllers/focal_monitor.h"
+#include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
 #include "rotation_averaging/core/controllers/online_averager.h"
 
 namespace rotation_averaging {
@@ -131,4 +130,4 @@ class FocalCorrector {
 
 }  // namespace rotation_averaging
 
-#endif  // ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_FOCAL_CORRECTOR_H_
+#endif  // ROTATION_AVERAGING_FRONTEND_CONTROLLERS_FOCAL_CORRECTOR_H_
