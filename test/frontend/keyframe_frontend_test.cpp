@@ -565,10 +565,16 @@ TEST(KeyframeFrontend, ASavedDatabaseLetsTheNextSessionCloseLoopsWithTheFirst) {
   EXPECT_NE(error.find("vocabulary"), std::string::npos) << error;
 
   // A save killed mid-write (the node SIGKILLed during autosave) leaves the
-  // database saved before it whole and readable.
+  // database saved before it whole and readable. The saving child writes
+  // the same snapshot over and over (SaveDatabase is a snapshot, then this
+  // write): a save that is mostly its snapshot would leave kills few chances
+  // to land while the file is open.
+  KeyframeDatabase snapshot;
+  ASSERT_TRUE(ReadKeyframeDatabase(continued, options.vocabulary->Fingerprint(), &snapshot, &error)) << error;
   const std::string autosave = dir + "/autosave.keyframes";
+  ASSERT_TRUE(second.SaveDatabase(autosave, &error)) << error;
   int interrupted = 0;
-  const int killed = KillDuringWrites([&] { return second.SaveDatabase(autosave, nullptr); },
+  const int killed = KillDuringWrites([&] { return WriteKeyframeDatabase(autosave, snapshot, nullptr); },
                                       [&](int round) {
                                         interrupted += fs::exists(autosave + ".tmp");
                                         KeyframeFrontend restarted(options);
