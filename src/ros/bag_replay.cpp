@@ -658,6 +658,7 @@ ReplayResult ReplayBags(const ReplayOptions& options) {
   PipelineConfig config;
   std::string error;
   if (!ReadReplayConfig(options.config_path, &config, &result.warnings, &error)) return fail(error);
+  if (options.num_threads >= 0) config.frontend.num_threads = options.num_threads;
   KeyframePipeline pipeline(config);
   OnlineAverager& averager = pipeline.Averager();
   // As the node: a map saved before (a restart, an earlier session) is what

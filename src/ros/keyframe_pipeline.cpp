@@ -1,5 +1,6 @@
 #include "rotation_averaging/ros/keyframe_pipeline.h"
 
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <string>
@@ -10,6 +11,12 @@
 #include "rotation_averaging/ros/msg_conversion.h"
 
 namespace rotation_averaging {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double SecondsSince(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
+
+}  // namespace
 
 KeyframePipeline::KeyframePipeline(const PipelineConfig& config)
     : config_(config),
@@ -169,25 +176,33 @@ bool KeyframePipeline::Validate(const std::string& frame, const ros::Time& stamp
 
 bool KeyframePipeline::DecodeImage(const sensor_msgs::Image& image, const sensor_msgs::CameraInfo& info,
                                    PendingKeyframe* out, std::string* error, bool rectified) {
+  const auto start = Clock::now();
   cv::Mat grey;
   std::string why;
   if (!DecodeImageMsg(image, &grey, &why)) return Reject(&stats_.rejected_images, why, error);
-  return Validate(image.header.frame_id, image.header.stamp, grey, info, rectified, out, error);
+  const bool ok = Validate(image.header.frame_id, image.header.stamp, grey, info, rectified, out, error);
+  out->decode_s = SecondsSince(start);
+  return ok;
 }
 
 bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage& image,
                                              const sensor_msgs::CameraInfo& info, PendingKeyframe* out,
                                              std::string* error, bool rectified) {
+  const auto start = Clock::now();
   cv::Mat grey;
   std::string why;
   if (!DecodeCompressedImageMsg(image, info, rectified, &grey, &why)) return Reject(&stats_.rejected_images, why, error);
-  return Validate(image.header.frame_id, image.header.stamp, grey, info, rectified, out, error);
+  const bool ok = Validate(image.header.frame_id, image.header.stamp, grey, info, rectified, out, error);
+  out->decode_s = SecondsSince(start);
+  return ok;
 }
 
 std::vector<PendingKeyframe> KeyframePipeline::SelectKeyframes(const PendingKeyframe& image) {
+  const auto start = Clock::now();
   if (config_.keyframe_selection == KeyframeSelectionMode::kAll) {
     std::lock_guard<std::mutex> lock(mutex_);
     ++stats_.frames;
+    stats_.image_times.Add(image.decode_s + SecondsSince(start));
     return {image};
   }
   std::vector<SelectorFrame> selected;
@@ -209,6 +224,7 @@ std::vector<PendingKeyframe> KeyframePipeline::SelectKeyframes(const PendingKeyf
   ++stats_.frames;
   stats_.frames_skipped = selection.skipped;
   stats_.selection_s = selection.tracking_s;
+  stats_.image_times.Add(image.decode_s + SecondsSince(start));
   return keyframes;
 }
 
@@ -221,6 +237,7 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
                                               std::vector<std::string>* warnings) {
   if (loop_closure) *loop_closure = false;
   if (!frontend_) return 0;
+  const auto start = Clock::now();
   if (rig_.IsRigCamera(keyframe.key.frame_id)) frontend_->SetRigCalibrated(keyframe.key.frame_id);
   if (focal_corrector_) {
     focal_corrector_->ApplyCorrections(warnings);
@@ -247,6 +264,7 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   std::lock_guard<std::mutex> lock(mutex_);
   ++stats_.processed_images;
   stats_.edges_from_images += added;
+  stats_.keyframe_times.Add(SecondsSince(start));
   frontend_stats_ = std::move(frontend_stats);
   return added;
 }

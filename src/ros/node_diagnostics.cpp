@@ -49,6 +49,10 @@ void AddFrontend(const NodeStatus& s, diagnostic_updater::DiagnosticStatusWrappe
   status->add("front-end latency per keyframe, mean of the last 50 (ms)", 1e3 * s.latency.Mean());
   status->add("front-end time per keyframe, mean of the last 50 (ms)", 1e3 * s.frontend_time.Mean());
   const KeyframeFrontendStats& f = s.frontend;
+  if (f.pair_times.Count() > 0) {
+    status->add("time per two-view pair, median (ms)", 1e3 * f.pair_times.Median());
+    status->add("time per two-view pair, p95 (ms)", 1e3 * f.pair_times.P95());
+  }
   status->add("loop-closure retrieval", s.retrieval);
   status->add("front-end memory of keyframes (MiB)", f.keyframe_bytes / 1048576.0);
   status->add("loop-closure edges", f.loop_closure_edges);
@@ -102,6 +106,16 @@ void FillDiagnostics(const NodeStatus& s, diagnostic_updater::DiagnosticStatusWr
   status->add("images seen", p.frames);
   status->add("images that were not keyframes (keyframe_selection)", p.frames_skipped);
   if (p.frames > 0) status->add("keyframe selection per image (ms)", 1e3 * p.selection_s / p.frames);
+  // The time budget, over the most recent images, keyframes and pairs
+  // (TimeDistribution's window).
+  if (p.image_times.Count() > 0) {
+    status->add("time per image (decoding, checks, selection), median (ms)", 1e3 * p.image_times.Median());
+    status->add("time per image (decoding, checks, selection), p95 (ms)", 1e3 * p.image_times.P95());
+  }
+  if (p.keyframe_times.Count() > 0) {
+    status->add("time per keyframe (front end), median (ms)", 1e3 * p.keyframe_times.Median());
+    status->add("time per keyframe (front end), p95 (ms)", 1e3 * p.keyframe_times.P95());
+  }
   status->add("keyframe images processed", p.processed_images);
   status->add("edges from images", p.edges_from_images);
   status->add("rig cameras (extrinsics known)", s.rig_cameras);

@@ -28,6 +28,8 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
   result->images_seen = pipeline_stats.frames;
   result->images_skipped = pipeline_stats.frames_skipped;
   result->selection_s = pipeline_stats.selection_s;
+  result->image_times = pipeline_stats.image_times;
+  result->keyframe_times = pipeline_stats.keyframe_times;
   result->keyframe_selection = OptionName(pipeline.Config().keyframe_selection);
   result->rejected_images = pipeline_stats.rejected_images;
   result->rejected_messages = pipeline_stats.rejected_messages;
@@ -35,6 +37,7 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
     result->frontend_features_s = f->Stats().features_s;
     result->frontend_retrieval_s = f->Stats().retrieval_s;
     result->frontend_pairs_s = f->Stats().pairs_s;
+    result->pair_times = f->Stats().pair_times;
     result->frontend_failed_pairs = f->Stats().failed_pairs;
     result->frontend_rotation_model_edges = f->Stats().rotation_model_edges;
     result->frontend_chain_bridged = f->Stats().chain_bridged;
@@ -226,6 +229,13 @@ std::string ReplayResult::Summary() const {
     out << "keyframe selection (" << keyframe_selection << "): " << images_seen << " images, " << keyframe_images
         << " keyframes, " << images_skipped << " not keyframes; " << 1e3 * selection_s / images_seen
         << " ms per image\n";
+  }
+  if (image_times.Count() > 0) {
+    out << "time per image (decoding, checks, keyframe selection): " << image_times.DescribeMs() << "\n";
+  }
+  if (keyframe_times.Count() > 0) {
+    out << "time per keyframe (front end): " << keyframe_times.DescribeMs() << "; per two-view pair: "
+        << pair_times.DescribeMs() << "\n";
   }
   if (keyframe_images > 0) SummariseFrontend(out);
   if (damaged_messages > 0) out << "damaged messages dropped: " << damaged_messages << "\n";

@@ -3,11 +3,12 @@
 //   rosrun rotation_averaging rotation_averaging_replay --bag A.bag [--bag B.bag ...]
 //       [--config config.yaml] [--gt ground_truth.csv|bag] --output-dir DIR
 //       [--relative-pose-topic T] [--relative-poses-topic T] [--gt-topic T]
-//       [--save-after-each-bag] [--no-progress]
+//       [--save-after-each-bag] [--threads N] [--no-progress]
 //
 // Exit status: 0 on success, 1 when the replay failed (message on stderr), 2
 // on a usage error.
 #include <cstdio>
+#include <cstdlib>
 #include <iostream>
 #include <string>
 
@@ -20,12 +21,15 @@ int Usage(const char* why) {
   std::cerr << "usage: rotation_averaging_replay --bag A.bag [--bag B.bag ...] [--config config.yaml]\n"
                "           [--gt ground_truth.csv|ground_truth.bag] --output-dir DIR\n"
                "           [--relative-pose-topic relative_pose] [--relative-poses-topic relative_poses]\n"
-               "           [--gt-topic /ground_truth/orientations] [--save-after-each-bag] [--no-progress]\n"
+               "           [--gt-topic /ground_truth/orientations] [--save-after-each-bag] [--threads N]\n"
+               "           [--no-progress]\n"
                "Replays the bags (merged in time order) through the node's pipeline as fast as the CPU allows\n"
                "and writes DIR/orientations.csv, DIR/graph.txt, DIR/replay.bag and, with --gt, DIR/scores.txt\n"
                "and DIR/errors.png. The config is the node's parameter file (config/rotation_averaging.yaml).\n"
                "--save-after-each-bag: after each bag's last message, the map is solved and saved to\n"
-               "DIR/map_after_bag<N>_<bag name>.txt (+ .rig, .keyframes), loadable with load_graph.\n";
+               "DIR/map_after_bag<N>_<bag name>.txt (+ .rig, .keyframes), loadable with load_graph.\n"
+               "--threads N: the front end's threads (num_threads; 0: every core); the output is the same\n"
+               "for any N.\n";
   return 2;
 }
 
@@ -57,6 +61,11 @@ int main(int argc, char** argv) {
       options.ground_truth_topic = v;
     } else if (a == "--save-after-each-bag") {
       options.save_after_each_bag = true;
+    } else if (a == "--threads" && value(&v)) {
+      char* end = nullptr;
+      const long n = std::strtol(v.c_str(), &end, 10);
+      if (v.empty() || *end != '\0' || n < 0 || n > 1024) return Usage(("--threads takes 0 to 1024, not '" + v + "'").c_str());
+      options.num_threads = static_cast<int>(n);
     } else if (a == "--no-progress") {
       options.progress = false;
     } else if (a == "--help" || a == "-h") {

@@ -98,6 +98,37 @@ def test_keyframe_selection_compares_the_stream_with_the_keyframe_bag_over_seeds
     assert mean[4] == "0.0077 (0.0071 - 0.0083)" and mean[5] == "0.0068 (0.0066 - 0.0070)"
 
 
+def budget_lines(image, keyframe, pair, keyframes, pairs):
+    """The summary's time-budget lines: (median, p95) in ms of each."""
+    return ["time per image (decoding, checks, keyframe selection): median %.2f ms, p95 %.2f ms (of 1200)" % image,
+            "time per keyframe (front end): median %.2f ms, p95 %.2f ms (of %d); per two-view pair: median %.2f ms, "
+            "p95 %.2f ms (of %d)" % (keyframe + (keyframes,) + pair + (pairs,))]
+
+
+def test_budget_rows_hold_each_runs_times_and_the_keyframe_bins(tmp_path):
+    for cameras, keyframes in (("1", 40), ("2", 66)):
+        (tmp_path / ("stream_%scam.txt" % cameras)).write_text(
+            summary(keyframes, 0.0054, images=600 * int(cameras), selection="motion",
+                    extra=budget_lines((2.1, 3.4), (180.0, 260.0), (31.5, 70.2), keyframes, 3 * keyframes)))
+    (tmp_path / "every_image_300.txt").write_text(
+        summary(600, 0.0050, extra=budget_lines((0.1, 0.2), (200.0, 300.0), (30.0, 60.0), 600, 2400)))
+    os.makedirs(tmp_path / "every_image_300")
+    with open(tmp_path / "every_image_300" / "frontend_cost.csv", "w") as f:
+        f.write("keyframe,features_ms,retrieval_ms,pairs_ms,total_ms\n")
+        for k in range(150):
+            f.write("%d,80,5,100,%d\n" % (k + 1, 100 + k))  # 100..249 ms
+    text = run("budget_report.py", tmp_path, "1,2")
+    row = table_row(text, "2")
+    assert row[1:4] == ["1200", "66", "2.95x"]
+    assert row[4:7] == ["2.10 / 3.40", "180.00 / 260.00", "31.50 / 70.20"]
+    assert row[7] == "3.0" and row[8] == "0.0054"
+    assert table_row(text, "1")[2] == "40"
+    # Bins of 100 keyframes by nearest rank: 1-100 hold 100..199 ms, 101-150 hold 200..249 ms.
+    assert table_row(text, "1-100") == ["1-100", "149.0", "194.0"]
+    assert table_row(text, "101-150") == ["101-150", "224.0", "247.0"]
+    assert "600 keyframes; 2.95x real time; per keyframe median 200.00 ms" in text
+
+
 def test_a_missing_run_stops_the_writer_with_its_name(tmp_path):
     (tmp_path / "full.txt").write_text(summary(120, 0.0137))
     with pytest.raises(subprocess.CalledProcessError) as failure:

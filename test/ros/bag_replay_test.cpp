@@ -114,6 +114,7 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
   ReplayOptions o = Options(bag, "rig1");
   o.config_path = config;
   o.ground_truth_path = bag;  // the bag's /ground_truth/orientations
+  o.num_threads = 3;          // the front end's pool (--threads)
   const ReplayResult first = ReplayBags(o);
   ASSERT_TRUE(first.ok) << first.error;
   EXPECT_FALSE(first.truncated);
@@ -146,9 +147,10 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
     rosbag::View orientations(out, rosbag::TopicQuery("/rotation_averaging/orientations"));
     EXPECT_EQ(orientations.size(), first.solves);
   }
-  // Same input, same output, bit for bit.
+  // Same input, same output, bit for bit, on one thread as on three.
   ReplayOptions again = Options(bag, "rig2");
   again.config_path = config;
+  again.num_threads = 1;
   const ReplayResult second = ReplayBags(again);
   ASSERT_TRUE(second.ok) << second.error;
   EXPECT_EQ(ReadAll(first.orientations_csv), ReadAll(second.orientations_csv));
@@ -406,6 +408,14 @@ TEST_F(BagReplay, TheNextSessionContinuesTheSavedMap) {
   ASSERT_TRUE(first.ok) << first.error;
   EXPECT_EQ(first.keyframes, 32u);
   EXPECT_NE(first.map_saved.find("32 keyframes"), std::string::npos) << first.map_saved;
+  // The time budget counts every image offered, every keyframe and every
+  // two-view pair, and the summary reports it.
+  EXPECT_EQ(first.image_times.Count(), first.images_seen);
+  EXPECT_EQ(first.keyframe_times.Count(), first.keyframe_images);
+  EXPECT_GE(first.pair_times.Count(), first.keyframe_images - 2);  // every keyframe but each camera's first has a pair
+  EXPECT_GT(first.keyframe_times.Median(), 0.0);
+  EXPECT_LE(first.keyframe_times.Median(), first.keyframe_times.P95());
+  EXPECT_NE(first.Summary().find("time per keyframe (front end): median "), std::string::npos);
   ASSERT_TRUE(std::filesystem::exists(map + ".keyframes"));
 
   ReplayOptions o2 = Options(second_bag, "session2");

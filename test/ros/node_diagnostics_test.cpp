@@ -111,8 +111,16 @@ TEST(NodeDiagnostics, TheFrontEndsFiguresAreReportedWithIt) {
   s.pipeline.rejected_images = 1;
   s.images_without_info = 2;
   s.focal_corrections["cam_b"] = 1.03;
+  s.frontend.pair_times.Add(0.006);
+  s.frontend.pair_times.Add(0.004);
+  s.pipeline.image_times.Add(0.002);
+  s.pipeline.keyframe_times.Add(0.030);
   const std::map<std::string, std::string> v = Values(Fill(s));
   EXPECT_EQ(v.at("keyframe images per second"), "2.5");
+  EXPECT_EQ(v.at("time per two-view pair, median (ms)"), "4");
+  EXPECT_EQ(v.at("time per two-view pair, p95 (ms)"), "6");
+  EXPECT_EQ(v.at("time per image (decoding, checks, selection), median (ms)"), "2");
+  EXPECT_EQ(v.at("time per keyframe (front end), p95 (ms)"), "30");
   EXPECT_EQ(v.at("image queue (keyframes waiting)"), "3");
   EXPECT_EQ(v.at("image queue capacity"), "8");
   EXPECT_EQ(v.at("front-end latency per keyframe, last (ms)"), "300");
@@ -122,6 +130,14 @@ TEST(NodeDiagnostics, TheFrontEndsFiguresAreReportedWithIt) {
   EXPECT_EQ(v.at("rejected images"), "3");  // the pipeline's and those before any camera_info
   EXPECT_EQ(v.at("focal length of cam_b corrected (x camera_info's)"), "1.03");
   EXPECT_EQ(v.count("window-pair edges (to older keyframes of the window)"), 0u);
+}
+
+TEST(NodeDiagnostics, NoTimeBudgetIsReportedBeforeAnyImage) {
+  NodeStatus s = Healthy();
+  s.has_frontend = true;
+  const std::map<std::string, std::string> v = Values(Fill(s));
+  EXPECT_EQ(v.count("time per image (decoding, checks, selection), median (ms)"), 0u);
+  EXPECT_EQ(v.count("time per two-view pair, median (ms)"), 0u);
 }
 
 TEST(NodeDiagnostics, RecentTimesKeepTheLastFifty) {

@@ -31,6 +31,10 @@ struct ReplayOptions {
   // there would have saved it: one replay of a day's bags leaves the map of
   // every session, each loadable with load_graph.
   bool save_after_each_bag = false;
+  // The front end's threads (the node's num_threads; 0: the machine's
+  // cores), in place of the config's; < 0: the config's. The keyframes, the
+  // edges and the solution do not depend on it.
+  int num_threads = -1;
 };
 
 ReplayResult ReplayBags(const ReplayOptions& options);

@@ -36,6 +36,7 @@
 #include "rotation_averaging/ros/image_conversion.h"
 #include "rotation_averaging/ros/output_messages.h"
 #include "rotation_averaging/ros/pipeline_config.h"
+#include "rotation_averaging/util/time_distribution.h"
 #include "rotation_averaging/CameraInfoCheckArray.h"
 #include "rotation_averaging/Orientations.h"
 #include "rotation_averaging/RelativePose.h"
@@ -48,6 +49,7 @@ struct PendingKeyframe {
   KeyframeKey key;
   cv::Mat image;  // 8-bit grey, as the camera took it
   CameraIntrinsics camera;  // of that image: K and its lens distortion
+  double decode_s = 0.0;    // wall time of its decoding and checks (DecodeImage)
 };
 
 // Counters of the inputs the pipeline turned away (the averager counts its own).
@@ -55,6 +57,10 @@ struct PipelineStats {
   std::uint64_t frames = 0;             // valid images offered to keyframe selection
   std::uint64_t frames_skipped = 0;     // of them, not keyframes (keyframe_selection: motion)
   double selection_s = 0.0;             // wall time of keyframe selection
+  // The time budget: each valid image's decoding, checks and keyframe
+  // selection (what its callback costs), and each keyframe's front end
+  // (ProcessKeyframe: focal corrections, features, retrieval, pairs, edges).
+  TimeDistribution image_times, keyframe_times;
   std::uint64_t rejected_messages = 0;  // relative poses that failed conversion or validation
   std::uint64_t rejected_images = 0;    // do not decode, bad camera_info, stamp not advancing, ...
   std::uint64_t processed_images = 0;   // keyframes through the front end

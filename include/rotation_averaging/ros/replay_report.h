@@ -13,6 +13,7 @@
 
 #include "rotation_averaging/ros/keyframe_pipeline.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "rotation_averaging/util/time_distribution.h"
 
 namespace rotation_averaging {
 
@@ -46,6 +47,10 @@ struct ReplayResult {
   std::size_t images_seen = 0, images_skipped = 0;  // valid images offered to keyframe selection, not keyframes
   std::string keyframe_selection;
   double selection_s = 0.0;  // wall time of keyframe selection
+  // The time budget (PipelineStats, KeyframeFrontendStats): per valid image
+  // (decoding, checks, selection), per keyframe (the front end), per two-view
+  // pair (matching and estimation, on its thread).
+  TimeDistribution image_times, keyframe_times, pair_times;
   double frontend_features_s = 0.0, frontend_retrieval_s = 0.0, frontend_pairs_s = 0.0;
   // Two-view pairs of the front end: failed, edges from the rotation-only
   // model, and failed previous pairs bridged by an older keyframe.

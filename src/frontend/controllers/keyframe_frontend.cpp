@@ -58,6 +58,7 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
   const auto start = Clock::now();
   std::vector<PairOutcome> outcomes = VerifyPairs(tasks, std::vector<const Keyframe*>{&newer});
   stats_.pairs_s += Seconds(start);
+  for (const PairOutcome& outcome : outcomes) stats_.pair_times.Add(outcome.seconds);  // in task order
   return outcomes;
 }
 
@@ -103,6 +104,7 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
     temporary[t] = std::make_unique<FeatureIndex>(matchable[t]);
   }
   ParallelFor(static_cast<int>(tasks.size()), ResolveThreadCount(options_.num_threads), [&](int t) {
+    const auto pair_start = Clock::now();
     const Keyframe& a = *keyframes_[tasks[t].older];
     const int n = tasks[t].newer;
     const Keyframe& newer = *newers[n];
@@ -140,6 +142,7 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
     const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, first.k, second.k, relative_pose);
     FillOutcome(tasks[t], a, first, second, swap, relative_pose.jackknife_grid, matches, std::move(pa), std::move(pb),
                 pose, &outcomes[t]);
+    outcomes[t].seconds = Seconds(pair_start);
   });
   return outcomes;
 }

@@ -36,6 +36,7 @@
 #include "rotation_averaging/frontend/geometry/camera_model.h"
 #include "rotation_averaging/frontend/controllers/focal_monitor.h"
 #include "rotation_averaging/frontend/io/keyframe_database.h"
+#include "rotation_averaging/util/time_distribution.h"
 
 namespace rotation_averaging {
 
@@ -157,6 +158,9 @@ struct KeyframeFrontendStats {
   std::map<std::string, std::uint64_t> failures;  // two-view failure reason -> count
   double features_s = 0.0, retrieval_s = 0.0, pairs_s = 0.0;  // wall time
   double last_features_s = 0.0, last_retrieval_s = 0.0, last_pairs_s = 0.0;  // of the latest keyframe
+  // Each two-view pair of a new keyframe: its matching and estimation, wall
+  // time on the thread that ran it (pairs_s is their span across threads).
+  TimeDistribution pair_times;
   std::uint64_t compacted_keyframes = 0;
   // Features and retrieval data held (bag of words and its postings; not the
   // nearest-neighbour indices of the recent window), and of that, by the
@@ -327,6 +331,7 @@ class KeyframeFrontend {
     std::shared_ptr<RelativePoseResult> pose;
     bool newer_first = false;  // the edge's first keyframe is the new one
     int jackknife_grid = 0;    // that the pair was estimated with
+    double seconds = 0.0;      // wall time of its matching and estimation, on its thread
   };
   // A pair that gave an edge, held for focal_calibration: apply.
   struct HeldPair {
