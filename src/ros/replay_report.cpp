@@ -105,6 +105,13 @@ bool ScoreAgainstGroundTruth(const NamedOrientations& named, const NamedOrientat
                              std::string* error) {
   result->scores = EvaluateOrientations(named, ground_truth);
   result->have_scores = true;
+  {
+    std::map<std::string, Eigen::Matrix3d> covariances;
+    std::map<std::string, int> component;
+    for (const auto& [key, c] : solution.covariance) covariances[OnlineAverager::KeyframeName(key)] = c;
+    for (const auto& [key, index] : solution.component) component[OnlineAverager::KeyframeName(key)] = index;
+    result->posterior = EvaluatePosteriorCovariances(named, covariances, component, ground_truth);
+  }
   result->scores_file = output_dir + "/scores.txt";
   std::ofstream scores(result->scores_file);
   scores << result->scores.ToText() << "\n";
@@ -262,6 +269,7 @@ std::string ReplayResult::Summary() const {
       << "; final cost: " << std::setprecision(6) << final_cost << "\n";
   if (have_scores) {
     out << "scores against ground truth:\n" << scores.ToText() << "\n";
+    out << posterior.Describe() << "\n";
   }
   SummariseMaps(out);
   out << "outputs:\n  " << orientations_csv << "\n  " << graph_file << "\n  " << output_bag;

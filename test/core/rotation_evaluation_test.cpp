@@ -208,5 +208,69 @@ TEST(EdgeCalibration, EdgesWithoutCovarianceOrGroundTruthAreNotScored) {
   EXPECT_TRUE(none.view_offsets.empty());
 }
 
+// Views of one component whose estimate errs from the truth by d_k drawn
+// from N(0, C_k) (a left perturbation relative to the gauge view 0, whose
+// estimate is exact), in a world frame rotated by `world`, each covariance
+// given to the check multiplied by `stated`. View 1 shares the gauge's
+// capture (zero covariance, as a rig camera of it).
+PosteriorCalibration PosteriorCheck(int views, double stated, NamedOrientations* truth_out = nullptr) {
+  std::mt19937 rng(7);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  const Eigen::Matrix3d world = ExpSO3(Eigen::Vector3d(0.3, -1.1, 0.7));  // estimate frame = truth frame * world
+  NamedOrientations truth, estimate;
+  std::map<std::string, Eigen::Matrix3d> covariances;
+  std::map<std::string, int> component;
+  for (int k = 0; k < views; ++k) {
+    const std::string name = "v" + std::to_string(k);
+    truth[name] = ExpSO3(DrawVector3(rng, normal));
+    // An anisotropic covariance with random axes, 0.01-0.1 rad per axis.
+    const Eigen::Matrix3d axes = ExpSO3(DrawVector3(rng, normal));
+    const Eigen::Vector3d sigma(0.01, 0.03, 0.1);
+    const Eigen::Matrix3d c = k < 2 ? Eigen::Matrix3d::Zero()
+                                    : Eigen::Matrix3d(axes * sigma.cwiseAbs2().asDiagonal() * axes.transpose());
+    const Eigen::Vector3d d = axes * sigma.cwiseProduct(DrawVector3(rng, normal));
+    estimate[name] = (k < 2 ? Eigen::Matrix3d::Identity() : ExpSO3(d)) * truth[name] * world;
+    covariances[name] = stated * c;
+    component[name] = 0;
+  }
+  if (truth_out) *truth_out = truth;
+  return EvaluatePosteriorCovariances(estimate, covariances, component, truth);
+}
+
+TEST(PosteriorCalibration, CovariancesThatDescribeTheErrorsGiveChiSquare) {
+  const PosteriorCalibration honest = PosteriorCheck(2002, 1.0);
+  EXPECT_EQ(honest.views_with_covariance, 2002u);
+  EXPECT_EQ(honest.views_scored, 2000u);  // the gauge and the camera of its capture are held
+  EXPECT_EQ(honest.nees.count("v0") + honest.nees.count("v1"), 0u);
+  EXPECT_NEAR(honest.nees_median, 2.37, 0.2);
+  EXPECT_NEAR(honest.nees_mean, 3.0, 0.25);
+  EXPECT_NEAR(honest.within_95, 0.95, 0.015);
+  EXPECT_NE(honest.Describe().find("2000 keyframes"), std::string::npos) << honest.Describe();
+}
+
+TEST(PosteriorCalibration, OverconfidentCovariancesAreFoundOut) {
+  // Stated four times too small: NEES four times chi-square's.
+  const PosteriorCalibration overconfident = PosteriorCheck(2002, 0.25);
+  EXPECT_NEAR(overconfident.nees_median, 4 * 2.37, 0.8);
+  EXPECT_LT(overconfident.within_95, 0.6);
+}
+
+TEST(PosteriorCalibration, NothingIsScoredWithoutTheGaugesTruth) {
+  NamedOrientations truth;
+  PosteriorCheck(10, 1.0, &truth);
+  NamedOrientations estimate = truth;
+  std::map<std::string, Eigen::Matrix3d> covariances;
+  std::map<std::string, int> component;
+  for (const auto& [name, r] : truth) {
+    covariances[name] = name == "v0" ? Eigen::Matrix3d::Zero() : Eigen::Matrix3d(1e-4 * Eigen::Matrix3d::Identity());
+    component[name] = 0;
+  }
+  truth.erase("v0");
+  const PosteriorCalibration none = EvaluatePosteriorCovariances(estimate, covariances, component, truth);
+  EXPECT_EQ(none.views_scored, 0u);
+  EXPECT_TRUE(std::isnan(none.nees_median));
+  EXPECT_NE(none.Describe().find("none scored"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace rotation_averaging

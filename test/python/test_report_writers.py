@@ -129,6 +129,18 @@ def test_budget_rows_hold_each_runs_times_and_the_keyframe_bins(tmp_path):
     assert "600 keyframes; 2.95x real time; per keyframe median 200.00 ms" in text
 
 
+def test_posterior_rows_hold_each_inputs_nees(tmp_path):
+    line = ("posterior covariances against the ground truth: NEES median 4.90 (2.37 if honest), mean 6.29, "
+            "71.2% within chi-square's 95% bound, 118 keyframes")
+    (tmp_path / "demo.txt").write_text(summary(120, 0.0072, extra=[line]))
+    (tmp_path / "castle-P19.txt").write_text(summary(19, 0.1311))
+    text = run("posterior_report.py", tmp_path, "demo,castle-P19")
+    demo = table_row(text, "the demo bag: rendered two-camera rig, 1 Hz, every image a keyframe")
+    assert demo[1:] == ["120", "0.0072", "4.90", "6.29", "71.2", "118"]
+    # A summary without the line shows its NEES as missing, not another run's.
+    assert table_row(text, "castle-P19 as a bag (quarter resolution)")[3:] == ["-", "-", "-", "-"]
+
+
 def test_a_missing_run_stops_the_writer_with_its_name(tmp_path):
     (tmp_path / "full.txt").write_text(summary(120, 0.0137))
     with pytest.raises(subprocess.CalledProcessError) as failure:

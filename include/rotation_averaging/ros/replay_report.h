@@ -80,6 +80,9 @@ struct ReplayResult {
   double final_cost = 0.0;
   bool have_scores = false;
   EvaluationResult scores;
+  // The published posterior covariances (~orientations) of the last
+  // solution against the ground truth (EvaluatePosteriorCovariances).
+  PosteriorCalibration posterior;
   std::string orientations_csv, graph_file, output_bag, scores_file, plot_png;
   // The ground truth of the keyframes scored, under their keyframe names
   // (those of orientations.csv and graph.txt): what `rotavg solve graph.txt

@@ -1,6 +1,7 @@
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 
 #include <Eigen/Sparse>
+#include <Eigen/Cholesky>
 #include <Eigen/SparseCholesky>
 #include <algorithm>
 #include <cmath>
@@ -339,6 +340,71 @@ double ViewTermRad(const EdgeCalibration& against_adjusted) {
 
 double FloorWithViewTermRad(double floor_rad, double view_term_rad) {
   return std::sqrt(floor_rad * floor_rad + 2.0 * view_term_rad * view_term_rad);
+}
+
+PosteriorCalibration EvaluatePosteriorCovariances(const NamedOrientations& estimate,
+                                                  const std::map<std::string, Eigen::Matrix3d>& covariances,
+                                                  const std::map<std::string, int>& component,
+                                                  const NamedOrientations& ground_truth) {
+  PosteriorCalibration out;
+  out.nees_median = out.nees_mean = std::numeric_limits<double>::quiet_NaN();
+  // The views with a covariance, by component.
+  std::map<int, std::vector<std::string>> by_component;
+  for (const auto& [name, c] : covariances) {
+    const auto comp = component.find(name);
+    if (comp == component.end() || !estimate.count(name) || !c.allFinite()) continue;
+    by_component[comp->second].push_back(name);
+    ++out.views_with_covariance;
+  }
+  std::vector<double> values;
+  for (const auto& [index, names] : by_component) {
+    std::vector<double> traces;
+    for (const std::string& name : names) traces.push_back(covariances.at(name).trace());
+    const auto smallest = std::min_element(traces.begin(), traces.end()) - traces.begin();
+    const std::string& gauge = names[smallest];
+    const auto gauge_truth = ground_truth.find(gauge);
+    if (gauge_truth == ground_truth.end()) continue;
+    std::vector<double> sorted = traces;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    const double held = 1e-6 * sorted[sorted.size() / 2];
+    // R_hat_g^T R_g: the estimate's world frame to the truth's, through the gauge.
+    const Eigen::Matrix3d align = estimate.at(gauge).transpose() * gauge_truth->second;
+    for (std::size_t k = 0; k < names.size(); ++k) {
+      if (!(traces[k] > held)) continue;
+      const auto truth = ground_truth.find(names[k]);
+      if (truth == ground_truth.end()) continue;
+      const Eigen::Matrix3d& c = covariances.at(names[k]);
+      const Eigen::LDLT<Eigen::Matrix3d> ldlt(0.5 * (c + c.transpose()));
+      if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 0.0)) continue;
+      const Eigen::Vector3d d = LogSO3(estimate.at(names[k]) * align * truth->second.transpose());
+      const double nees = d.dot(ldlt.solve(d));
+      out.nees[names[k]] = nees;
+      values.push_back(nees);
+    }
+  }
+  out.views_scored = values.size();
+  if (values.empty()) return out;
+  out.nees_mean = std::accumulate(values.begin(), values.end(), 0.0) / static_cast<double>(values.size());
+  out.within_95 = static_cast<double>(std::count_if(values.begin(), values.end(), [](double v) { return v <= 7.81; })) /
+                  static_cast<double>(values.size());
+  std::sort(values.begin(), values.end());
+  const std::size_t n = values.size();
+  out.nees_median = n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+  return out;
+}
+
+std::string PosteriorCalibration::Describe() const {
+  std::ostringstream s;
+  s.setf(std::ios::fixed);
+  if (views_scored == 0) {
+    s << "posterior covariances against the ground truth: none scored (" << views_with_covariance
+      << " keyframes with a covariance)";
+    return s.str();
+  }
+  s << "posterior covariances against the ground truth: NEES median " << std::setprecision(2) << nees_median
+    << " (2.37 if honest), mean " << nees_mean << ", " << std::setprecision(1) << 100.0 * within_95
+    << "% within chi-square's 95% bound, " << views_scored << " keyframes";
+  return s.str();
 }
 
 }  // namespace rotation_averaging
