@@ -31,6 +31,7 @@
 #include "rotation_averaging/frontend/io/keyframe_database.h"
 #include "rotation_averaging/ros/bag_replay.h"
 #include "rotation_averaging/ros/keyframe_pipeline.h"
+#include "rotation_averaging/util/time_distribution.h"
 #include "tools/cli.h"
 
 namespace ra = rotation_averaging;
@@ -39,7 +40,7 @@ namespace fs = std::filesystem;
 namespace {
 
 using Clock = std::chrono::steady_clock;
-double SecondsSince(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+using ra::SecondsSince;
 
 double PeakRssMib() {
   struct rusage usage;

@@ -35,6 +35,7 @@
 #include "rotation_averaging/core/scene/synthetic_graph.h"
 #include "report.h"
 #include "rotation_averaging/util/random_draws.h"
+#include "rotation_averaging/util/time_distribution.h"
 
 namespace ra = rotation_averaging;
 using ra::Fixed;
@@ -43,8 +44,8 @@ using ra::Median;
 namespace {
 
 using Clock = std::chrono::steady_clock;
+using ra::SecondsSince;
 
-double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
 
 ra::SyntheticGraphOptions ScaleGraph(int views, bool anisotropic) {
   ra::SyntheticGraphOptions o;
@@ -75,7 +76,7 @@ struct ScaleRun {
 int RunChild(int views, bool multigrid, bool anisotropic, double multigrid_tolerance) {
   auto start = Clock::now();
   const ra::SyntheticGraph sg = ra::MakeSyntheticGraph(ScaleGraph(views, anisotropic));
-  const double generate_s = Seconds(start);
+  const double generate_s = SecondsSince(start);
   ra::ViewOrientations orientations;
   ra::RotationAveragingSummary summary;
   ra::RotationAveragingOptions options;
@@ -345,7 +346,7 @@ OnlineRun RunOnline(int keyframes, int additions, double rate_hz, const OnlineMo
   OnlineRun run;
   auto start = Clock::now();
   averager.SolveNow();
-  run.cold_s = Seconds(start);
+  run.cold_s = SecondsSince(start);
   // Keyframes arrive at rate_hz (a mapping front end's keyframe rate); the
   // time to each updated solution is measured from the keyframe's arrival.
   auto arrival = Clock::now();
@@ -357,7 +358,7 @@ OnlineRun RunOnline(int keyframes, int additions, double rate_hz, const OnlineMo
     start = Clock::now();
     for (const auto& m : edges) averager.AddRelativeRotation(m);
     averager.SolveNow();
-    run.ms.push_back(1e3 * Seconds(start));
+    run.ms.push_back(1e3 * SecondsSince(start));
     if (Clock::now() > arrival) arrival = Clock::now();  // a slow update delays the next keyframe, not stacks them
   }
   const ra::OnlineAveragerStats stats = averager.Stats();

@@ -9,12 +9,12 @@
 
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/util/time_distribution.h"
 
 namespace rotation_averaging {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-double SecondsSince(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
 
 }  // namespace
 

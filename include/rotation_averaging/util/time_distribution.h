@@ -6,12 +6,18 @@
 #ifndef ROTATION_AVERAGING_UTIL_TIME_DISTRIBUTION_H_
 #define ROTATION_AVERAGING_UTIL_TIME_DISTRIBUTION_H_
 
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
 #include <string>
 #include <vector>
 
 namespace rotation_averaging {
+
+// Wall time since `start` (s), on the steady clock every timing here uses.
+inline double SecondsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
 
 class TimeDistribution {
  public:

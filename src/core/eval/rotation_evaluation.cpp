@@ -23,6 +23,19 @@ double MedianOf(std::vector<double> v) {
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
+// The 95% quantile of chi-square with 3 degrees of freedom.
+constexpr double kChiSquare3Quantile95 = 7.8147;
+
+// The median, the mean and the fraction within chi-square's 95% bound of
+// whitened squared errors (not empty).
+void SummariseNees(const std::vector<double>& nees, double* median, double* mean, double* within_95) {
+  *median = MedianOf(nees);
+  *mean = std::accumulate(nees.begin(), nees.end(), 0.0) / static_cast<double>(nees.size());
+  *within_95 = static_cast<double>(std::count_if(nees.begin(), nees.end(),
+                                                 [](double n) { return n <= kChiSquare3Quantile95; })) /
+               static_cast<double>(nees.size());
+}
+
 // The per-view offsets d (3 per view, stacked) that minimise
 // sum_e sqrt(r_e^T C_e^-1 r_e), r_e = eta_e - (A_e d_1 - d_2), A_e = R_2 R_1^T:
 // iteratively reweighted least squares (weights 1 / whitened |r_e|). Whitened,
@@ -303,14 +316,8 @@ EdgeCalibration EvaluateEdgeCovariances(const ViewGraph& graph, const NamedOrien
   result.median_view_offset_deg = MedianOf(offset_norms);
   result.median_error_after_view_offsets_deg = MedianOf(errors_after);
   result.nees_median_after_view_offsets = MedianOf(nees_after);
-  // The 95% quantile of chi-square with 3 degrees of freedom.
-  constexpr double kChiSquare3Quantile95 = 7.8147;
   result.median_error_deg = MedianOf(errors);
-  result.nees_median = MedianOf(nees);
-  result.nees_mean = std::accumulate(nees.begin(), nees.end(), 0.0) / nees.size();
-  result.within_95 = static_cast<double>(std::count_if(nees.begin(), nees.end(),
-                                                       [](double n) { return n <= kChiSquare3Quantile95; })) /
-                     nees.size();
+  SummariseNees(nees, &result.nees_median, &result.nees_mean, &result.within_95);
   return result;
 }
 
@@ -364,9 +371,7 @@ PosteriorCalibration EvaluatePosteriorCovariances(const NamedOrientations& estim
     const std::string& gauge = names[smallest];
     const auto gauge_truth = ground_truth.find(gauge);
     if (gauge_truth == ground_truth.end()) continue;
-    std::vector<double> sorted = traces;
-    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-    const double held = 1e-6 * sorted[sorted.size() / 2];
+    const double held = 1e-6 * MedianOf(traces);
     // R_hat_g^T R_g: the estimate's world frame to the truth's, through the gauge.
     const Eigen::Matrix3d align = estimate.at(gauge).transpose() * gauge_truth->second;
     for (std::size_t k = 0; k < names.size(); ++k) {
@@ -383,13 +388,7 @@ PosteriorCalibration EvaluatePosteriorCovariances(const NamedOrientations& estim
     }
   }
   out.views_scored = values.size();
-  if (values.empty()) return out;
-  out.nees_mean = std::accumulate(values.begin(), values.end(), 0.0) / static_cast<double>(values.size());
-  out.within_95 = static_cast<double>(std::count_if(values.begin(), values.end(), [](double v) { return v <= 7.81; })) /
-                  static_cast<double>(values.size());
-  std::sort(values.begin(), values.end());
-  const std::size_t n = values.size();
-  out.nees_median = n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+  if (!values.empty()) SummariseNees(values, &out.nees_median, &out.nees_mean, &out.within_95);
   return out;
 }
 

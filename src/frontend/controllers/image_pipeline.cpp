@@ -15,6 +15,7 @@
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/util/text_lines.h"
 #include "rotation_averaging/util/parallel_for.h"
+#include "rotation_averaging/util/time_distribution.h"
 
 namespace rotation_averaging {
 namespace {
@@ -22,7 +23,6 @@ namespace {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
-double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
 
 std::vector<std::pair<int, int>> SelectPairs(int n, const PairSelection& selection,
                                              const std::vector<std::string>& names, std::vector<std::string>* errors) {
@@ -489,14 +489,14 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
   const auto index_start = Clock::now();
   std::vector<std::unique_ptr<FeatureIndex>> indices;
   for (const ImageFeatures& f : features) indices.push_back(std::make_unique<FeatureIndex>(f));
-  result.matching_s += Seconds(index_start);
+  result.matching_s += SecondsSince(index_start);
   // The relative pose of one pair into the graph and the counts.
   auto add_pair = [&](int i, int j, const std::vector<Eigen::Vector2d>& p1, const std::vector<Eigen::Vector2d>& p2,
                       const Eigen::Matrix3d& pair_k, Clock::time_point start) {
     const auto pose_start = Clock::now();
     PairReport report = EstimatePair(i, j, p1, p2, pair_k, options.relative_pose);
-    result.relative_pose_s += Seconds(pose_start);
-    report.milliseconds = 1e3 * Seconds(start);
+    result.relative_pose_s += SecondsSince(pose_start);
+    report.milliseconds = 1e3 * SecondsSince(start);
     if (report.pose.success) {
       if (report.pose.homography_inlier_ratio >= options.relative_pose.near_planar_report_ratio) ++result.near_planar_pairs;
       if (report.pose.model == TwoViewModel::kRotation) ++result.rotation_model_pairs;
@@ -522,7 +522,7 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
     const auto start = Clock::now();
     const std::vector<std::pair<int, int>> matches =
         MatchFeatures(features[i], *indices[i], features[j], *indices[j], options.matching);
-    result.matching_s += Seconds(start);
+    result.matching_s += SecondsSince(start);
     Matched m{i, j, {}, {}};
     m.p1.reserve(matches.size());
     m.p2.reserve(matches.size());
@@ -562,7 +562,7 @@ ImagePipelineResult BuildViewGraphFromFeatures(const std::vector<ImageFeatures>&
       result.rotation_model_pairs = 0;
       for (const Matched& m : matched) add_pair(m.i, m.j, m.p1, m.p2, result.k, Clock::now());
     }
-    result.focal_s = Seconds(focal_start);
+    result.focal_s = SecondsSince(focal_start);
   }
   return result;
 }
@@ -596,7 +596,7 @@ ImagePipelineResult BuildViewGraphFromImages(const std::vector<std::string>& ima
   const auto start = Clock::now();
   const std::vector<ImageFeatures> features =
       ExtractImageFeatures(image_paths, intrinsics, options.features, &names, &errors);
-  const double features_s = Seconds(start);
+  const double features_s = SecondsSince(start);
   ImagePipelineResult result =
       BuildViewGraphFromFeatures(features, names, FeatureIntrinsics(intrinsics, options.features), options, &intrinsics);
   result.features_s = features_s;

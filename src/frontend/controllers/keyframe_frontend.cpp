@@ -11,12 +11,12 @@
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/util/option_check.h"
 #include "rotation_averaging/util/parallel_for.h"
+#include "rotation_averaging/util/time_distribution.h"
 
 namespace rotation_averaging {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-double Seconds(Clock::time_point since) { return std::chrono::duration<double>(Clock::now() - since).count(); }
 
 }  // namespace
 
@@ -57,7 +57,7 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
                                                                          const Keyframe& newer) {
   const auto start = Clock::now();
   std::vector<PairOutcome> outcomes = VerifyPairs(tasks, std::vector<const Keyframe*>{&newer});
-  stats_.pairs_s += Seconds(start);
+  stats_.pairs_s += SecondsSince(start);
   for (const PairOutcome& outcome : outcomes) stats_.pair_times.Add(outcome.seconds);  // in task order
   return outcomes;
 }
@@ -142,7 +142,7 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
     const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, first.k, second.k, relative_pose);
     FillOutcome(tasks[t], a, first, second, swap, relative_pose.jackknife_grid, matches, std::move(pa), std::move(pb),
                 pose, &outcomes[t]);
-    outcomes[t].seconds = Seconds(pair_start);
+    outcomes[t].seconds = SecondsSince(pair_start);
   });
   return outcomes;
 }
@@ -386,7 +386,7 @@ std::unique_ptr<KeyframeFrontend::Keyframe> KeyframeFrontend::DescribeKeyframe(c
   }
   kf->index = std::make_unique<FeatureIndex>(kf->features);
   kf->inlier_hits.assign(kf->features.keypoints_px.size(), 0);
-  stats_.last_features_s = Seconds(start);
+  stats_.last_features_s = SecondsSince(start);
   stats_.features_s += stats_.last_features_s;
   stats_.last_retrieval_s = stats_.last_pairs_s = 0.0;
   if (options_.vocabulary) {
@@ -395,7 +395,7 @@ std::unique_ptr<KeyframeFrontend::Keyframe> KeyframeFrontend::DescribeKeyframe(c
     const auto words_start = Clock::now();
     kf->features.words = options_.vocabulary->Assign(kf->features.descriptors);
     kf->bow = options_.vocabulary->Describe(kf->features.words);
-    stats_.last_retrieval_s = Seconds(words_start);
+    stats_.last_retrieval_s = SecondsSince(words_start);
   }
   return kf;
 }
@@ -441,7 +441,7 @@ std::vector<KeyframeFrontend::PairTask> KeyframeFrontend::LoopCandidates(const K
   const std::vector<int> retrieved = options_.vocabulary
                                          ? RetrieveByVocabulary(kf, excluded, same.empty() ? -1 : same.back())
                                          : RetrieveByVoting(kf, excluded);
-  stats_.last_retrieval_s += Seconds(retrieval_start);
+  stats_.last_retrieval_s += SecondsSince(retrieval_start);
   stats_.retrieval_s += stats_.last_retrieval_s;
   for (int c : retrieved) candidates.push_back({c, EdgeSource::kLoopClosure});
   stats_.loop_candidates_tried += candidates.size();
@@ -635,7 +635,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::LinkAddedKeyframes(int f
     }
   }
   stats_.map_links += links.size();
-  stats_.map_link_s += Seconds(start);
+  stats_.map_link_s += SecondsSince(start);
   return links;
 }
 
