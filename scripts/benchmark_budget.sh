@@ -11,12 +11,12 @@
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
 OUT=build/benchmark_budget
-mkdir -p "$OUT"
+mkdir -p "$OUT" build/demo
 
 CAMERAS=(1 2 4)
 NAMES=(cam_front cam_left cam_back cam_right)  # the renderer's cameras, in the order --cameras adds them
 for cameras in "${CAMERAS[@]}"; do
-  bag="$OUT/stream_${cameras}cam.bag"
+  bag="build/demo/demo_20hz_600_${cameras}cam.bag"  # benchmark_posterior.sh plays the two-camera one too
   [ -f "$bag" ] || "$BIN/rotation_averaging_make_demo_bag" --output "$bag" --captures 600 --period 0.05 \
     --cameras "$cameras" > /dev/null 2>&1
   topics=$(printf '"/%s/image_raw", ' "${NAMES[@]:0:$cameras}")

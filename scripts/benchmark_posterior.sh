@@ -22,27 +22,31 @@ replay() {  # name bag config
 }
 INPUTS=(demo)
 replay demo "$DEMO" config/demo.yaml
-STREAM=$OUT/stream.bag
+STREAM=build/demo/demo_20hz_600_2cam.bag  # benchmark_budget.sh's two-camera stream
 [ -f "$STREAM" ] || "$BIN/rotation_averaging_make_demo_bag" --output "$STREAM" --captures 600 --period 0.05 \
   --cameras 2 > /dev/null 2>&1
 { grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:'; echo "keyframe_selection: motion"; } > "$OUT/stream.yaml"
 INPUTS+=(stream)
 replay stream "$STREAM" "$OUT/stream.yaml"
 
-scene() {  # name images intrinsics ground-truth
-  [ -f "$OUT/$1.bag" ] || "$BIN/rotation_averaging_images_to_bag" --images "$2" --intrinsics "$3" --gt "$4" \
-    --downsample 0.25 --output "$OUT/$1.bag" > /dev/null 2>&1
+scene() {  # name: $OUT/name.bag (made beforehand) replayed with every image a keyframe
   printf 'image_topics: ["/camera/image_raw"]\nkeyframe_selection: all\nfeatures: sift\nmax_features: 4000\n' \
     > "$OUT/$1.yaml"
   replay "$1" "$OUT/$1.bag" "$OUT/$1.yaml"
   INPUTS+=("$1")
 }
 for s in castle-P19 entry-P10 fountain-P11; do
-  [ -d "$DATA/strecha/$s" ] && scene "$s" "$DATA/strecha/$s/images" "$DATA/strecha/$s/images/K.txt" "$DATA/strecha/$s"
+  [ -d "$DATA/strecha/$s" ] || continue
+  [ -f "$OUT/$s.bag" ] || strecha_bag "$DATA/strecha/$s" "$OUT/$s.bag"
+  scene "$s"
 done
 LUND=$DATA/lund_door
-[ -d "$LUND" ] && scene lund_door "$LUND/images" "$LUND/colmap_ground_truth/cameras.txt" \
-  "$LUND/colmap_ground_truth/images.txt"
+if [ -d "$LUND" ]; then
+  [ -f "$OUT/lund_door.bag" ] || "$BIN/rotation_averaging_images_to_bag" --images "$LUND/images" \
+    --intrinsics "$LUND/colmap_ground_truth/cameras.txt" --gt "$LUND/colmap_ground_truth/images.txt" \
+    --downsample 0.25 --output "$OUT/lund_door.bag" > /dev/null 2>&1
+  scene lund_door
+fi
 
 python3 scripts/posterior_report.py "$OUT" "$(IFS=,; echo "${INPUTS[*]}")" > results/posterior.md
 echo "wrote results/posterior.md"
