@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -84,6 +85,60 @@ TEST(Features, SiftKeypointsAreAtTheirPixelCentres) {
 
 TEST(Features, DownsampledSiftKeypointsAreAtTheirPixelCentresToo) {
   EXPECT_NEAR(ExtractedMirrorBiasPx(0.5), 0.0, 0.02);
+}
+
+// SIFT matching is exact: the mutual ratio-test matches of a naive double
+// loop over every pair of descriptors, across more rows than one block of
+// the matrix product (256), with planted correspondences among look-alikes.
+TEST(Features, SiftMatchesAreTheExactMutualRatioMatches) {
+  cv::RNG rng(7);
+  ImageFeatures a, b;
+  a.type = b.type = FeatureType::kSift;
+  a.descriptors.create(700, 128, CV_32F);
+  b.descriptors.create(600, 128, CV_32F);
+  rng.fill(a.descriptors, cv::RNG::UNIFORM, 0.0, 60.0);
+  rng.fill(b.descriptors, cv::RNG::UNIFORM, 0.0, 60.0);
+  // Every third feature of b is one of a's, moved by noise of several sizes
+  // (some fail the ratio test against the random others).
+  for (int j = 0; j < b.descriptors.rows; j += 3) {
+    cv::Mat noise(1, 128, CV_32F);
+    rng.fill(noise, cv::RNG::NORMAL, 0.0, 1.0 + (j % 7) * 2.5);
+    b.descriptors.row(j) = a.descriptors.row(j + 50) + noise;
+  }
+  a.keypoints_px.assign(a.descriptors.rows, Eigen::Vector2d::Zero());
+  b.keypoints_px.assign(b.descriptors.rows, Eigen::Vector2d::Zero());
+  const MatchOptions options;
+  auto nearest_two = [](const cv::Mat& from, int row, const cv::Mat& to, int* index, double* d0, double* d1) {
+    *d0 = *d1 = std::numeric_limits<double>::infinity();
+    for (int k = 0; k < to.rows; ++k) {
+      const double d = cv::norm(from.row(row), to.row(k), cv::NORM_L2SQR);
+      if (d < *d0) {
+        *d1 = *d0;
+        *d0 = d;
+        *index = k;
+      } else if (d < *d1) {
+        *d1 = d;
+      }
+    }
+  };
+  std::vector<std::pair<int, int>> expected;
+  const double r2 = options.ratio * options.ratio;
+  for (int i = 0; i < a.descriptors.rows; ++i) {
+    int j = -1, back = -1;
+    double d0, d1, e0, e1;
+    nearest_two(a.descriptors, i, b.descriptors, &j, &d0, &d1);
+    if (!(d0 < r2 * d1)) continue;
+    nearest_two(b.descriptors, j, a.descriptors, &back, &e0, &e1);
+    if (back == i && e0 < r2 * e1) expected.emplace_back(i, j);
+  }
+  ASSERT_GT(expected.size(), 100u);
+  EXPECT_EQ(MatchFeatures(a, b, options), expected);
+  // The ratio test alone, one direction (as retrieval by voting queries).
+  const FeatureIndex index(b);
+  const std::vector<int> one_way = index.RatioMatches(a.descriptors, options.ratio);
+  int agreeing = 0;
+  for (const auto& [i, j] : expected) agreeing += one_way[i] == j;
+  EXPECT_EQ(agreeing, static_cast<int>(expected.size()));
 }
 
 }  // namespace

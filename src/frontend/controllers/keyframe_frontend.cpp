@@ -65,11 +65,11 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
 std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const std::vector<PairTask>& tasks,
                                                                          const std::vector<const Keyframe*>& newers) {
   std::vector<PairOutcome> outcomes(tasks.size());
-  // A compact keyframe is matched within the vocabulary's branches (no
-  // index to build); without branch matching it gets a temporary index,
-  // built here on one thread: FLANN draws its trees from the global
-  // std::rand, which threads would race for. A new keyframe is compact
-  // only when it comes from an added database (LinkAddedKeyframes).
+  // A compact keyframe is matched within the vocabulary's branches;
+  // without branch matching it gets a temporary index of its unpacked
+  // descriptors, prepared here once for all the pairs it is in. A new
+  // keyframe is compact only when it comes from an added database
+  // (LinkAddedKeyframes).
   auto by_branch = [&](const Keyframe& a, const Keyframe& newer) {
     return a.compact && options_.match_compact_by_vocabulary && options_.vocabulary &&
            a.features.words.size() == a.features.keypoints_px.size() &&

@@ -1,5 +1,6 @@
 #include "rotation_averaging/frontend/features/features.h"
 
+#include <Eigen/Core>
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -8,7 +9,6 @@
 #include <map>
 #include <cstdlib>
 #include <opencv2/features2d.hpp>
-#include <opencv2/flann.hpp>
 #include <opencv2/imgproc.hpp>
 
 namespace rotation_averaging {
@@ -212,32 +212,93 @@ std::size_t FeatureMemoryBytes(const ImageFeatures& features) {
 }
 
 namespace {
-constexpr unsigned kFlannSeed = 20230618;
+
+// Rows of query compared with every row of the index at a time: a block of
+// squared distances stays within a few MiB whatever the feature count, so a
+// pool of threads matching pairs holds little.
+constexpr int kMatchBlockRows = 256;
+
+using RowMajorFloats = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+// The nearest and second-nearest squared distance, and the nearest's index.
+struct NearestTwo {
+  float d0 = std::numeric_limits<float>::infinity(), d1 = std::numeric_limits<float>::infinity();
+  int index = -1;
+  void Add(float d, int i) {
+    if (d < d0) {
+      d1 = d0;
+      d0 = d;
+      index = i;
+    } else if (d < d1) {
+      d1 = d;
+    }
+  }
+  // Lowe's ratio test on squared distances.
+  bool Passes(double ratio) const { return index >= 0 && d0 < ratio * ratio * d1; }
+};
+
+// Exact nearest neighbours by squared L2 distance, |x|^2 + |y|^2 - 2 x.y, the
+// dot products a matrix product (Eigen's GEMM, block by block): for the
+// thousand or few thousand SIFT features of a keyframe this is faster than
+// FLANN's randomised kd-trees with 64 checks (the trees' build and both
+// directions' searches; results/budget.md), finds the true nearest
+// neighbours rather than approximate ones, and one pass gives both
+// directions of the mutual check. Fills best_q (per query row) and, when not
+// null, best_i (per index row).
+void NearestByL2(const cv::Mat& query, const cv::Mat& index, std::vector<NearestTwo>* best_q,
+                 std::vector<NearestTwo>* best_i) {
+  const int nq = query.rows, ni = index.rows, dims = query.cols;
+  best_q->assign(nq, NearestTwo());
+  if (best_i) best_i->assign(ni, NearestTwo());
+  if (nq == 0 || ni == 0 || dims != index.cols) return;
+  CV_Assert(query.type() == CV_32F && index.type() == CV_32F && query.isContinuous() && index.isContinuous());
+  const Eigen::Map<const RowMajorFloats> q(query.ptr<float>(), nq, dims), x(index.ptr<float>(), ni, dims);
+  const Eigen::VectorXf x_norms = x.rowwise().squaredNorm();
+  RowMajorFloats dots(std::min(kMatchBlockRows, nq), ni);
+  for (int r0 = 0; r0 < nq; r0 += kMatchBlockRows) {
+    const int rows = std::min(kMatchBlockRows, nq - r0);
+    dots.topRows(rows).noalias() = q.middleRows(r0, rows) * x.transpose();
+    for (int r = 0; r < rows; ++r) {
+      const float q_norm = q.row(r0 + r).squaredNorm();
+      const float* row = dots.row(r).data();
+      NearestTwo& bq = (*best_q)[r0 + r];
+      for (int j = 0; j < ni; ++j) {
+        const float d = std::max(0.0f, q_norm + x_norms[j] - 2.0f * row[j]);
+        bq.Add(d, j);
+        if (best_i) (*best_i)[j].Add(d, r0 + r);
+      }
+    }
+  }
+}
+
+// SIFT descriptors as continuous CV_32F rows (unpacked when compact).
+cv::Mat FloatRows(const ImageFeatures& features) {
+  cv::Mat floats = features.descriptors.type() == CV_32F && !IsPackedSift(features) ? features.descriptors
+                                                                                      : SiftDescriptorsAsFloat(features);
+  return floats.isContinuous() ? floats : floats.clone();
+}
+
 }  // namespace
 
 struct FeatureIndex::Impl {
   FeatureType type;
-  cv::Mat descriptors;
-  std::unique_ptr<cv::flann::Index> kdtree;  // SIFT
-  cv::Ptr<cv::BFMatcher> hamming;           // ORB
+  cv::Mat descriptors;                // SIFT: continuous CV_32F rows
+  cv::Ptr<cv::BFMatcher> hamming;     // ORB
 };
 
 FeatureIndex::FeatureIndex(const ImageFeatures& features) : impl_(new Impl) {
   impl_->type = features.type;
-  impl_->descriptors = features.descriptors;
-  if (features.descriptors.rows < 2) return;
   if (features.type == FeatureType::kOrb) {
+    impl_->descriptors = features.descriptors;
     impl_->hamming = cv::BFMatcher::create(cv::NORM_HAMMING);
-  } else {
-    // FLANN's randomised kd-trees draw from std::rand and cv::theRNG(): fixed
-    // seeds make the index, and so the matches, the same run after run.
-    std::srand(kFlannSeed);
-    cv::setRNGSeed(static_cast<int>(kFlannSeed));
-    impl_->kdtree = std::make_unique<cv::flann::Index>(features.descriptors, cv::flann::KDTreeIndexParams(4));
+  } else if (features.descriptors.rows > 0) {
+    impl_->descriptors = FloatRows(features);
   }
 }
 
 FeatureIndex::~FeatureIndex() = default;
+
+const cv::Mat& FeatureIndex::Descriptors() const { return impl_->descriptors; }
 
 std::vector<int> FeatureIndex::RatioMatches(const cv::Mat& query, double ratio) const {
   std::vector<int> best(query.rows, -1);
@@ -250,11 +311,13 @@ std::vector<int> FeatureIndex::RatioMatches(const cv::Mat& query, double ratio) 
     }
     return best;
   }
-  cv::Mat indices, distances;  // distances are squared L2
-  impl_->kdtree->knnSearch(query, indices, distances, 2, cv::flann::SearchParams(64));
+  cv::Mat floats = query.type() == CV_32F ? query : cv::Mat();
+  if (floats.empty()) query.convertTo(floats, CV_32F);
+  if (!floats.isContinuous()) floats = floats.clone();
+  std::vector<NearestTwo> nearest;
+  NearestByL2(floats, impl_->descriptors, &nearest, nullptr);
   for (int i = 0; i < query.rows; ++i) {
-    const float d0 = distances.at<float>(i, 0), d1 = distances.at<float>(i, 1);
-    if (d0 < ratio * ratio * d1) best[i] = indices.at<int>(i, 0);
+    if (nearest[i].Passes(ratio)) best[i] = nearest[i].index;
   }
   return best;
 }
@@ -264,6 +327,18 @@ std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const Fea
                                                const MatchOptions& options) {
   std::vector<std::pair<int, int>> matches;
   if (a.descriptors.rows < 2 || b.descriptors.rows < 2 || a.type != b.type) return matches;
+  if (a.type == FeatureType::kSift) {
+    // One pass: each of a's nearest in b and each of b's nearest in a.
+    std::vector<NearestTwo> ab, ba;
+    NearestByL2(index_a.Descriptors(), index_b.Descriptors(), &ab, &ba);
+    for (int i = 0; i < static_cast<int>(ab.size()); ++i) {
+      if (!ab[i].Passes(options.ratio)) continue;
+      const int j = ab[i].index;
+      if (options.mutual && !(ba[j].Passes(options.ratio) && ba[j].index == i)) continue;
+      matches.emplace_back(i, j);
+    }
+    return matches;
+  }
   const std::vector<int> ab = index_b.RatioMatches(a.descriptors, options.ratio);
   std::vector<int> ba;
   if (options.mutual) ba = index_a.RatioMatches(b.descriptors, options.ratio);

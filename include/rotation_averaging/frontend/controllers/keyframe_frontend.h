@@ -74,7 +74,7 @@ struct KeyframeFrontendOptions {
   int compact_features = 1000;
   // Pairs with a compact keyframe (loop closures) match features only within
   // the same first-level branch of the vocabulary tree, as ORB-SLAM matches
-  // by vocabulary, instead of a kd-tree search over all of them.
+  // by vocabulary, instead of comparing every feature with every other.
   bool match_compact_by_vocabulary = true;
   // Candidates must score at least this fraction of the new keyframe's score
   // with its previous keyframe (a view it certainly overlaps).

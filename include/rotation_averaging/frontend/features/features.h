@@ -54,9 +54,10 @@ struct MatchOptions {
   bool mutual = true;          // keep only mutual nearest neighbours
 };
 
-// A nearest-neighbour index over one image's descriptors, built once and
-// reused for every pair the image is in (FLANN kd-trees for SIFT, brute-force
-// Hamming for ORB).
+// What matching needs of one image's descriptors, prepared once and reused
+// for every pair the image is in: SIFT as float rows, compared exhaustively
+// (exact nearest neighbours by L2, a blocked matrix product), ORB by
+// brute-force Hamming.
 class FeatureIndex {
  public:
   explicit FeatureIndex(const ImageFeatures& features);
@@ -64,6 +65,8 @@ class FeatureIndex {
   // For each query row, the nearest neighbour in this index if it passes the
   // ratio test, else -1.
   std::vector<int> RatioMatches(const cv::Mat& query, double ratio) const;
+  // The descriptors as prepared (SIFT: continuous CV_32F rows).
+  const cv::Mat& Descriptors() const;
 
  private:
   struct Impl;
