@@ -7,7 +7,9 @@
 # rendered two-camera rig at 1 Hz, every image a keyframe), the rig as a
 # 20 Hz driver publishes it (600 captures, keyframe_selection: motion), the
 # Strecha scenes and lund_door as bags (quarter resolution, every image a
-# keyframe). EuRoC's excerpt has no ground truth and is not scored.
+# keyframe), each with the defaults and again without the covariance floor
+# (posterior_covariance_floor: false). EuRoC's excerpt has no ground truth and
+# is not scored.
 #   bash scripts/benchmark_posterior.sh
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
@@ -16,9 +18,12 @@ mkdir -p "$OUT" build/demo
 
 DEMO=build/demo/demo_60.bag
 [ -f "$DEMO" ] || "$BIN/rotation_averaging_make_demo_bag" --output "$DEMO" --captures 60 --cameras 2 > /dev/null 2>&1
-replay() {  # name bag config
+replay() {  # name bag config: the defaults, then the posterior scaled by the residual variance factor alone
   "$BIN/rotation_averaging_replay" --bag "$2" --config "$3" --gt "$2" --output-dir "$OUT/$1" --no-progress \
     > "$OUT/$1.txt"
+  { cat "$3"; echo "posterior_covariance_floor: false"; } > "$OUT/$1_no_floor.yaml"
+  "$BIN/rotation_averaging_replay" --bag "$2" --config "$OUT/$1_no_floor.yaml" --gt "$2" \
+    --output-dir "$OUT/$1_no_floor" --no-progress > "$OUT/$1_no_floor.txt"
 }
 INPUTS=(demo)
 replay demo "$DEMO" config/demo.yaml

@@ -1,7 +1,8 @@
 """Writes results/posterior.md from the runs of scripts/benchmark_posterior.sh.
 
 usage: posterior_report.py OUT INPUTS
-  INPUTS: the names of the runs (OUT/<name>.txt, replay summaries), comma separated.
+  INPUTS: the names of the runs (OUT/<name>.txt, replay summaries with the defaults, and
+  OUT/<name>_no_floor.txt, with posterior_covariance_floor: false), comma separated.
 """
 import os
 import sys
@@ -20,16 +21,21 @@ POSTERIOR = r"^posterior covariances against the ground truth: NEES median ([\d.
 AFTER_MEDIAN = r"^posterior covariances against the ground truth: NEES median [\d.]+ \(2.37 if honest\), "
 
 
-def row(name, text):
-    cells = [
-        LABELS.get(name, name),
-        value(text, r"^keyframes: (\d+) ", "-"),
-        value(text, r"^median error: ([\d.]+) deg", "-"),
+def nees(text):
+    """NEES median, mean, % within the bound and keyframes scored of one replay's summary."""
+    return [
         value(text, POSTERIOR, "-"),
         value(text, AFTER_MEDIAN + r"mean ([\d.]+),", "-"),
         value(text, AFTER_MEDIAN + r"mean [\d.]+, ([\d.]+)% within", "-"),
         value(text, AFTER_MEDIAN + r".*, (\d+) keyframes$", "-"),
     ]
+
+
+def row(name, text, no_floor):
+    cells = [LABELS.get(name, name), value(text, r"^keyframes: (\d+) ", "-"),
+             value(text, r"^median error: ([\d.]+) deg", "-")]
+    cells += nees(text)
+    cells += [nees(no_floor)[0], nees(no_floor)[2]]
     return "| " + " | ".join(cells) + " |"
 
 
@@ -46,10 +52,17 @@ Honest covariances give chi-square with 3 degrees of freedom: median 2.37, mean 
 7.81. The target is a NEES median within 1.5-6 and at least 85% within the bound on every input. The
 EuRoC excerpt in ../shared/data has no ground truth and is not scored.
 
-| input | keyframes | median error (deg) | NEES median | NEES mean | within chi-square's 95% bound (%) | keyframes scored |
-|---|---|---|---|---|---|---|""")
+The defaults compute the posterior from edges widened by the covariance floor their residuals show,
+C + s^2 I (`posterior_covariance_floor: true`, `ComputeViewCovariances`); the last two columns are the same
+replay with `posterior_covariance_floor: false`, where the residual variance factor alone scales the
+posterior (the solution is the same). A floor the residuals cannot see, an error all of a view's pairs
+share (results/README.md, "The view term"), is left in neither.
+
+| input | keyframes | median error (deg) | NEES median | NEES mean | within chi-square's 95% bound (%) | keyframes scored | NEES median without the floor | within the bound without the floor (%) |
+|---|---|---|---|---|---|---|---|---|""")
     for name in inputs:
-        print(row(name, open(os.path.join(out, name + ".txt")).read()))
+        text = open(os.path.join(out, name + ".txt")).read()
+        print(row(name, text, open(os.path.join(out, name + "_no_floor.txt")).read()))
 
 
 if __name__ == "__main__":

@@ -179,6 +179,7 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("full_solve_every", &a.full_solve_every);
   r.Read("background_full_solves", &a.background_full_solves);
   r.Read("posterior_covariance_max_views", &o.posterior_covariance_max_views, {"covariance_max_keyframes"});
+  r.Read("posterior_covariance_floor", &o.posterior_covariance_floor);
 
   r.Read("image_topics", &c.image_topics);
   r.ReadOption("image_transport", &c.image_transport);

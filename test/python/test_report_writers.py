@@ -130,15 +130,18 @@ def test_budget_rows_hold_each_runs_times_and_the_keyframe_bins(tmp_path):
 
 
 def test_posterior_rows_hold_each_inputs_nees(tmp_path):
-    line = ("posterior covariances against the ground truth: NEES median 4.90 (2.37 if honest), mean 6.29, "
-            "71.2% within chi-square's 95% bound, 118 keyframes")
-    (tmp_path / "demo.txt").write_text(summary(120, 0.0072, extra=[line]))
+    def line(median, within):
+        return (f"posterior covariances against the ground truth: NEES median {median} (2.37 if honest), "
+                f"mean 6.29, {within}% within chi-square's 95% bound, 118 keyframes")
+    (tmp_path / "demo.txt").write_text(summary(120, 0.0072, extra=[line("2.91", "100.0")]))
+    (tmp_path / "demo_no_floor.txt").write_text(summary(120, 0.0072, extra=[line("6.98", "62.7")]))
     (tmp_path / "castle-P19.txt").write_text(summary(19, 0.1311))
+    (tmp_path / "castle-P19_no_floor.txt").write_text(summary(19, 0.1311))
     text = run("posterior_report.py", tmp_path, "demo,castle-P19")
     demo = table_row(text, "the demo bag: rendered two-camera rig, 1 Hz, every image a keyframe")
-    assert demo[1:] == ["120", "0.0072", "4.90", "6.29", "71.2", "118"]
+    assert demo[1:] == ["120", "0.0072", "2.91", "6.29", "100.0", "118", "6.98", "62.7"]
     # A summary without the line shows its NEES as missing, not another run's.
-    assert table_row(text, "castle-P19 as a bag (quarter resolution)")[3:] == ["-", "-", "-", "-"]
+    assert table_row(text, "castle-P19 as a bag (quarter resolution)")[3:] == ["-"] * 6
 
 
 def test_a_missing_run_stops_the_writer_with_its_name(tmp_path):

@@ -122,11 +122,16 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
 // diagonal 3x3 blocks of the inverse of the IRLS normal matrix (robust
 // weights times information), times the residual variance factor
 // sigma^2 = sum w s / (3 sum w - 3 (n - 1)) when that redundancy is at least
-// 10 (else 1: the information is trusted as given). Perturbation: left, of
-// the world-to-camera rotation, R = Exp(d) R_hat, d in rad; relative to the
-// gauge view, whose covariance is zero. `scale_used` receives sigma^2.
+// 10 (else 1: the information is trusted as given). With `with_floor`, the
+// information is first that of C + s^2 I, with the floor s^2 the residuals
+// show (EstimateCovarianceFloor; none when they fit C): a scale factor alone
+// fits the edges with the most inliers, whose two-view covariances are the
+// least calibrated, and leaves every view supported by them over-confident.
+// Perturbation: left, of the world-to-camera rotation, R = Exp(d) R_hat, d in
+// rad; relative to the gauge view, whose covariance is zero. `scale_used`
+// receives sigma^2, `floor_used` s (rad, 0: none).
 bool ComputeViewCovariances(const ComponentProblem& problem, const RobustLoss& loss, std::vector<Eigen::Matrix3d>* covariances,
-                            double* scale_used = nullptr);
+                            double* scale_used = nullptr, bool with_floor = false, double* floor_used = nullptr);
 void SolveComponentCeres(const RotationAveragingOptions& options, const RobustLoss& loss, ComponentProblem* problem,
                          ComponentSummary* summary);
 // Chatterjee-Govindu L1 refinement (ADMM, world-frame linearisation); returns

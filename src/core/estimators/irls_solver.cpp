@@ -424,18 +424,34 @@ void SolveComponentIrls(const RotationAveragingOptions& options, const RobustLos
 
 namespace rotation_averaging {
 
-bool ComputeViewCovariances(const ComponentProblem& problem, const RobustLoss& loss,
-                            std::vector<Eigen::Matrix3d>* covariances, double* scale_used) {
-  const int n = static_cast<int>(problem.view_ids.size());
+bool ComputeViewCovariances(const ComponentProblem& given, const RobustLoss& loss,
+                            std::vector<Eigen::Matrix3d>* covariances, double* scale_used, bool with_floor,
+                            double* floor_used) {
+  const int n = static_cast<int>(given.view_ids.size());
   covariances->assign(n, Eigen::Matrix3d::Zero());
+  const std::size_t m = given.edges.size();
+  std::vector<Eigen::Vector3d> residuals(m);
+  for (std::size_t k = 0; k < m; ++k) residuals[k] = given.Residual(given.edges[k]);
+  // The floor the residuals show, on a copy of the problem: the solution
+  // stays the one solved under the edges as given.
+  double floor_variance = 0.0;
+  ComponentProblem floored_problem;
+  if (with_floor) {
+    int free_views = 0;
+    for (int v = 0; v < n; ++v) free_views += !given.IsFixed(v);
+    floor_variance = EstimateCovarianceFloor(given.edges, residuals, free_views);
+    if (floor_variance > 0.0) {
+      floored_problem = given;
+      floored_problem.edges = WithCovarianceFloor(given.edges, floor_variance);
+    }
+  }
+  if (floor_used) *floor_used = floor_variance > 0.0 ? std::sqrt(floor_variance) : 0.0;
+  const ComponentProblem& problem = floor_variance > 0.0 ? floored_problem : given;
   IrlsWorkspace ws;
   PrepareWorkspace(problem, &ws);
-  const std::size_t m = problem.edges.size();
-  std::vector<Eigen::Vector3d> residuals(m);
   std::vector<double> weights(m);
   double weighted_sum = 0.0, weight_sum = 0.0, rho[3];
   for (std::size_t k = 0; k < m; ++k) {
-    residuals[k] = problem.Residual(problem.edges[k]);
     const double s = (problem.edges[k].sqrt_information * residuals[k]).squaredNorm();
     loss.Evaluate(s, rho);
     weights[k] = rho[1];

@@ -399,7 +399,8 @@ class ComponentSolve {
 
   void PosteriorCovariances(RotationAveragingSummary* summary) const {
     std::vector<Eigen::Matrix3d> view_covariances;
-    if (ComputeViewCovariances(problem_, *component_loss_, &view_covariances)) {
+    if (ComputeViewCovariances(problem_, *component_loss_, &view_covariances, nullptr,
+                               options_.posterior_covariance_floor)) {
       for (std::size_t v = 0; v < problem_.view_ids.size(); ++v) {
         summary->view_covariances[problem_.view_ids[v]] = view_covariances[v];
       }

@@ -256,6 +256,11 @@ struct RotationAveragingOptions {
   // in the library (an extra output, not part of the solve); the node turns
   // it on (covariance_max_keyframes).
   int posterior_covariance_max_views = 0;
+  // The posterior covariances from edges widened by the covariance floor
+  // their residuals show (ComputeViewCovariances in component_problem.h),
+  // not only scaled by the residual variance factor. The solution is the
+  // same either way.
+  bool posterior_covariance_floor = true;
   // IRLS: jump along a geometrically shrinking step sequence (kept only when
   // it lowers the cost): fewer iterations, to a point closer to the minimum.
   bool irls_extrapolation = true;
