@@ -9,6 +9,7 @@
 #include <map>
 #include <cstdlib>
 #include <opencv2/features2d.hpp>
+#include <opencv2/flann.hpp>
 #include <opencv2/imgproc.hpp>
 
 namespace rotation_averaging {
@@ -217,6 +218,14 @@ namespace {
 // squared distances stays within a few MiB whatever the feature count, so a
 // pool of threads matching pairs holds little.
 constexpr int kMatchBlockRows = 256;
+// SIFT images with more features than this also get FLANN's kd-trees, and
+// two such images are matched by them rather than exhaustively: at this
+// count the exhaustive comparison and two tree searches cost about the same
+// on one core, and beyond it the searches are cheaper.
+constexpr int kTreeMinFeatures = 5000;
+// FLANN's randomised kd-trees draw from std::rand and cv::theRNG(): fixed
+// seeds make the index, and so the matches, the same run after run.
+constexpr unsigned kFlannSeed = 20230618;
 
 using RowMajorFloats = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 
@@ -233,8 +242,9 @@ struct NearestTwo {
       d1 = d;
     }
   }
-  // Lowe's ratio test on squared distances.
-  bool Passes(double ratio) const { return index >= 0 && d0 < ratio * ratio * d1; }
+  // Lowe's ratio test: `ratio` of the values compared (squared for squared
+  // L2 distances).
+  bool Passes(double ratio) const { return index >= 0 && d0 < ratio * d1; }
 };
 
 // Exact nearest neighbours by squared L2 distance, |x|^2 + |y|^2 - 2 x.y, the
@@ -243,8 +253,10 @@ struct NearestTwo {
 // FLANN's randomised kd-trees with 64 checks (the trees' build and both
 // directions' searches; results/budget.md), finds the true nearest
 // neighbours rather than approximate ones, and one pass gives both
-// directions of the mutual check. Fills best_q (per query row) and, when not
-// null, best_i (per index row).
+// directions of the mutual check. Its cost grows with the product of the
+// two feature counts, a tree search's with their sum: images of more than
+// kTreeMinFeatures features each are matched by the trees (FeatureIndex).
+// Fills best_q (per query row) and, when not null, best_i (per index row).
 void NearestByL2(const cv::Mat& query, const cv::Mat& index, std::vector<NearestTwo>* best_q,
                  std::vector<NearestTwo>* best_i) {
   const int nq = query.rows, ni = index.rows, dims = query.cols;
@@ -282,8 +294,9 @@ cv::Mat FloatRows(const ImageFeatures& features) {
 
 struct FeatureIndex::Impl {
   FeatureType type;
-  cv::Mat descriptors;                // SIFT: continuous CV_32F rows
-  cv::Ptr<cv::BFMatcher> hamming;     // ORB
+  cv::Mat descriptors;                        // SIFT: continuous CV_32F rows
+  std::unique_ptr<cv::flann::Index> kdtree;  // SIFT beyond kTreeMinFeatures
+  cv::Ptr<cv::BFMatcher> hamming;             // ORB
 };
 
 FeatureIndex::FeatureIndex(const ImageFeatures& features) : impl_(new Impl) {
@@ -293,12 +306,36 @@ FeatureIndex::FeatureIndex(const ImageFeatures& features) : impl_(new Impl) {
     impl_->hamming = cv::BFMatcher::create(cv::NORM_HAMMING);
   } else if (features.descriptors.rows > 0) {
     impl_->descriptors = FloatRows(features);
+    if (impl_->descriptors.rows > kTreeMinFeatures) {
+      std::srand(kFlannSeed);
+      cv::setRNGSeed(static_cast<int>(kFlannSeed));
+      impl_->kdtree = std::make_unique<cv::flann::Index>(impl_->descriptors, cv::flann::KDTreeIndexParams(4));
+    }
   }
 }
+
+namespace {
+
+// For each query row, its nearest row of `index` if it passes the ratio test
+// (of distances), else -1: a tree search of `kdtree`.
+std::vector<int> TreeRatioMatches(cv::flann::Index& kdtree, const cv::Mat& query, double ratio) {
+  std::vector<int> best(query.rows, -1);
+  cv::Mat indices, distances;  // distances are squared L2
+  kdtree.knnSearch(query, indices, distances, 2, cv::flann::SearchParams(64));
+  for (int i = 0; i < query.rows; ++i) {
+    const float d0 = distances.at<float>(i, 0), d1 = distances.at<float>(i, 1);
+    if (d0 < ratio * ratio * d1) best[i] = indices.at<int>(i, 0);
+  }
+  return best;
+}
+
+}  // namespace
 
 FeatureIndex::~FeatureIndex() = default;
 
 const cv::Mat& FeatureIndex::Descriptors() const { return impl_->descriptors; }
+
+bool FeatureIndex::HasTrees() const { return impl_->kdtree != nullptr; }
 
 std::vector<int> FeatureIndex::RatioMatches(const cv::Mat& query, double ratio) const {
   std::vector<int> best(query.rows, -1);
@@ -314,10 +351,11 @@ std::vector<int> FeatureIndex::RatioMatches(const cv::Mat& query, double ratio) 
   cv::Mat floats = query.type() == CV_32F ? query : cv::Mat();
   if (floats.empty()) query.convertTo(floats, CV_32F);
   if (!floats.isContinuous()) floats = floats.clone();
+  if (impl_->kdtree) return TreeRatioMatches(*impl_->kdtree, floats, ratio);
   std::vector<NearestTwo> nearest;
   NearestByL2(floats, impl_->descriptors, &nearest, nullptr);
   for (int i = 0; i < query.rows; ++i) {
-    if (nearest[i].Passes(ratio)) best[i] = nearest[i].index;
+    if (nearest[i].Passes(ratio * ratio)) best[i] = nearest[i].index;
   }
   return best;
 }
@@ -327,21 +365,23 @@ std::vector<std::pair<int, int>> MatchFeatures(const ImageFeatures& a, const Fea
                                                const MatchOptions& options) {
   std::vector<std::pair<int, int>> matches;
   if (a.descriptors.rows < 2 || b.descriptors.rows < 2 || a.type != b.type) return matches;
-  if (a.type == FeatureType::kSift) {
+  if (a.type == FeatureType::kSift && !(index_a.HasTrees() && index_b.HasTrees())) {
     // One pass: each of a's nearest in b and each of b's nearest in a.
     std::vector<NearestTwo> ab, ba;
     NearestByL2(index_a.Descriptors(), index_b.Descriptors(), &ab, &ba);
+    const double ratio = options.ratio * options.ratio;
     for (int i = 0; i < static_cast<int>(ab.size()); ++i) {
-      if (!ab[i].Passes(options.ratio)) continue;
+      if (!ab[i].Passes(ratio)) continue;
       const int j = ab[i].index;
-      if (options.mutual && !(ba[j].Passes(options.ratio) && ba[j].index == i)) continue;
+      if (options.mutual && !(ba[j].Passes(ratio) && ba[j].index == i)) continue;
       matches.emplace_back(i, j);
     }
     return matches;
   }
-  const std::vector<int> ab = index_b.RatioMatches(a.descriptors, options.ratio);
+  // ORB, or two SIFT images with trees.
+  const std::vector<int> ab = index_b.RatioMatches(index_a.Descriptors(), options.ratio);
   std::vector<int> ba;
-  if (options.mutual) ba = index_a.RatioMatches(b.descriptors, options.ratio);
+  if (options.mutual) ba = index_a.RatioMatches(index_b.Descriptors(), options.ratio);
   for (int i = 0; i < static_cast<int>(ab.size()); ++i) {
     const int j = ab[i];
     if (j < 0) continue;
@@ -379,8 +419,8 @@ std::vector<std::pair<int, int>> MatchFeaturesByGroup(const ImageFeatures& a, co
     }
   }
   const int dims = hamming ? a.descriptors.cols : fa.cols;
-  auto distance = [&](int i, int j) -> double {
-    if (hamming) return cv::norm(a.descriptors.row(i), b.descriptors.row(j), cv::NORM_HAMMING);
+  auto distance = [&](int i, int j) -> float {
+    if (hamming) return static_cast<float>(cv::norm(a.descriptors.row(i), b.descriptors.row(j), cv::NORM_HAMMING));
     const float* x = fa.ptr<float>(i);
     const float* y = fb.ptr<float>(j);
     float sum = 0.0f;
@@ -392,24 +432,11 @@ std::vector<std::pair<int, int>> MatchFeaturesByGroup(const ImageFeatures& a, co
   };
   // Best and second best distance seen by each feature, over every pair
   // compared (a feature of b may be compared in several groups).
-  struct Best {
-    double d0 = std::numeric_limits<double>::infinity(), d1 = std::numeric_limits<double>::infinity();
-    int index = -1;
-    void Add(double d, int i) {
-      if (d < d0) {
-        d1 = d0;
-        d0 = d;
-        index = i;
-      } else if (d < d1) {
-        d1 = d;
-      }
-    }
-  };
-  std::vector<Best> best_a(na), best_b(nb);
+  std::vector<NearestTwo> best_a(na), best_b(nb);
   for (const auto& [group, members] : groups) {
     for (int i : members.first) {
       for (int j : members.second) {
-        const double d = distance(i, j);
+        const float d = distance(i, j);
         best_a[i].Add(d, j);
         best_b[j].Add(d, i);
       }
@@ -417,9 +444,8 @@ std::vector<std::pair<int, int>> MatchFeaturesByGroup(const ImageFeatures& a, co
   }
   // The ratio test on squared distances for L2.
   const double ratio = hamming ? options.ratio : options.ratio * options.ratio;
-  auto passes = [ratio](const Best& b) { return b.index >= 0 && b.d0 < ratio * b.d1; };
   for (int i = 0; i < na; ++i) {
-    if (!passes(best_a[i])) continue;
+    if (!best_a[i].Passes(ratio)) continue;
     const int j = best_a[i].index;
     // The mutual check: i is j's best (j may have had only i to compare with).
     if (options.mutual && best_b[j].index != i) continue;

@@ -56,8 +56,11 @@ struct MatchOptions {
 
 // What matching needs of one image's descriptors, prepared once and reused
 // for every pair the image is in: SIFT as float rows, compared exhaustively
-// (exact nearest neighbours by L2, a blocked matrix product), ORB by
-// brute-force Hamming.
+// (exact nearest neighbours by L2, a blocked matrix product), and for an
+// image of more than 5,000 features FLANN's kd-trees as well (two such
+// images are matched by the trees, whose cost grows with the feature counts'
+// sum where the exhaustive comparison's grows with their product; the trees
+// are seeded: the same matches run after run); ORB by brute-force Hamming.
 class FeatureIndex {
  public:
   explicit FeatureIndex(const ImageFeatures& features);
@@ -67,6 +70,7 @@ class FeatureIndex {
   std::vector<int> RatioMatches(const cv::Mat& query, double ratio) const;
   // The descriptors as prepared (SIFT: continuous CV_32F rows).
   const cv::Mat& Descriptors() const;
+  bool HasTrees() const;  // SIFT beyond 5,000 features: kd-trees built
 
  private:
   struct Impl;
