@@ -307,31 +307,47 @@ TEST(RotationAveraging, PosteriorCovariancesOnATreeAddUpAlongThePath) {
   }
 }
 
+// 30 views, anisotropic edge noise of 0.25-4 deg per axis, its true
+// covariance stored on every edge.
+SyntheticGraph PosteriorTestGraph(std::uint64_t seed) {
+  SyntheticGraphOptions go;
+  go.num_views = 30;
+  go.noise_deg = 1.0;
+  go.noise_spread = 4.0;
+  go.anisotropic = true;
+  go.seed = seed;
+  return MakeSyntheticGraph(go);
+}
+
+// Solves `graph` with covariance weighting and the squared loss and adds the
+// NEES of every view but the gauge's posterior (relative to the gauge, as
+// the node publishes it) against the ground truth to *sum, their count to
+// *count.
+void AddPosteriorNees(const ViewGraph& graph, const ViewOrientations& ground_truth, bool floor, double* sum,
+                      int* count) {
+  ViewOrientations orientations;
+  RotationAveragingSummary summary;
+  RotationAveragingOptions options = With(LossType::kSquared, EdgeWeighting::kCovariance);
+  options.posterior_covariance_max_views = 100;
+  options.posterior_covariance_floor = floor;
+  ASSERT_TRUE(SolveRotationAveraging(graph, options, &orientations, &summary));
+  const ViewId gauge = summary.components[0].gauge_view;
+  // The estimate in the ground truth's frame, fixed at the gauge view.
+  const Eigen::Matrix3d g = orientations.at(gauge).transpose() * ground_truth.at(gauge);
+  for (const auto& [id, r] : orientations) {
+    if (id == gauge) continue;
+    const Eigen::Vector3d d = LogSO3(r * g * ground_truth.at(id).transpose());  // R = Exp(d) R_true
+    *sum += d.dot(summary.view_covariances.at(id).ldlt().solve(d));
+    ++*count;
+  }
+}
+
 TEST(RotationAveraging, PosteriorCovariancesAreCalibrated) {
   double nees_sum = 0.0;
   int count = 0;
   for (std::uint64_t seed = 1; seed <= 20; ++seed) {
-    SyntheticGraphOptions go;
-    go.num_views = 30;
-    go.noise_deg = 1.0;
-    go.noise_spread = 4.0;
-    go.anisotropic = true;
-    go.seed = seed;
-    const SyntheticGraph sg = MakeSyntheticGraph(go);
-    ViewOrientations orientations;
-    RotationAveragingSummary summary;
-    RotationAveragingOptions options = With(LossType::kSquared, EdgeWeighting::kCovariance);
-    options.posterior_covariance_max_views = 100;
-    ASSERT_TRUE(SolveRotationAveraging(sg.graph, options, &orientations, &summary));
-    const ViewId gauge = summary.components[0].gauge_view;
-    // The estimate in the ground truth's frame, fixed at the gauge view.
-    const Eigen::Matrix3d g = orientations.at(gauge).transpose() * sg.ground_truth.at(gauge);
-    for (const auto& [id, r] : orientations) {
-      if (id == gauge) continue;
-      const Eigen::Vector3d d = LogSO3(r * g * sg.ground_truth.at(id).transpose());  // R = Exp(d) R_true
-      nees_sum += d.dot(summary.view_covariances.at(id).ldlt().solve(d));
-      ++count;
-    }
+    const SyntheticGraph sg = PosteriorTestGraph(seed);
+    AddPosteriorNees(sg.graph, sg.ground_truth, true, &nees_sum, &count);
   }
   const double mean_nees = nees_sum / count;
   std::printf("mean NEES of %d views: %.3f (3 is calibrated)\n", count, mean_nees);
@@ -346,45 +362,25 @@ TEST(RotationAveraging, PosteriorCovariancesAreCalibrated) {
 // posteriors that match the errors.
 TEST(RotationAveraging, PosteriorCovariancesWithTheFloorCoverWhatTheEdgesLeaveOut) {
   double nees_floor = 0.0, nees_scale = 0.0;
-  int count = 0;
+  int count_floor = 0, count_scale = 0;
   std::mt19937 rng(11);
   std::normal_distribution<double> normal(0.0, DegToRad(1.0));
   for (std::uint64_t seed = 1; seed <= 20; ++seed) {
-    SyntheticGraphOptions go;
-    go.num_views = 30;
-    go.noise_deg = 1.0;
-    go.noise_spread = 4.0;
-    go.anisotropic = true;
-    go.seed = seed;
-    const SyntheticGraph sg = MakeSyntheticGraph(go);
+    const SyntheticGraph sg = PosteriorTestGraph(seed);
     ViewGraph graph;
     for (const View& v : sg.graph.Views()) graph.AddView(v.id);
     for (RelativeRotation e : sg.graph.Edges()) {
       e.rotation = e.rotation * ExpSO3(Eigen::Vector3d(normal(rng), normal(rng), normal(rng)));
       ASSERT_NE(graph.AddEdge(e), AddEdgeResult::kRejected);
     }
-    for (const bool floor : {true, false}) {
-      ViewOrientations orientations;
-      RotationAveragingSummary summary;
-      RotationAveragingOptions options = With(LossType::kSquared, EdgeWeighting::kCovariance);
-      options.posterior_covariance_max_views = 100;
-      options.posterior_covariance_floor = floor;
-      ASSERT_TRUE(SolveRotationAveraging(graph, options, &orientations, &summary));
-      const ViewId gauge = summary.components[0].gauge_view;
-      const Eigen::Matrix3d g = orientations.at(gauge).transpose() * sg.ground_truth.at(gauge);
-      for (const auto& [id, r] : orientations) {
-        if (id == gauge) continue;
-        const Eigen::Vector3d d = LogSO3(r * g * sg.ground_truth.at(id).transpose());
-        (floor ? nees_floor : nees_scale) += d.dot(summary.view_covariances.at(id).ldlt().solve(d));
-        count += floor;
-      }
-    }
+    AddPosteriorNees(graph, sg.ground_truth, true, &nees_floor, &count_floor);
+    AddPosteriorNees(graph, sg.ground_truth, false, &nees_scale, &count_scale);
   }
   std::printf("mean NEES of %d views: %.3f with the floor, %.3f with the scale factor alone (3 is calibrated)\n",
-              count, nees_floor / count, nees_scale / count);
-  EXPECT_GT(nees_floor / count, 3.0 * 0.75);
-  EXPECT_LT(nees_floor / count, 3.0 * 1.3);
-  EXPECT_GT(nees_scale / count, 3.0 * 1.5);
+              count_floor, nees_floor / count_floor, nees_scale / count_scale);
+  EXPECT_GT(nees_floor / count_floor, 3.0 * 0.75);
+  EXPECT_LT(nees_floor / count_floor, 3.0 * 1.3);
+  EXPECT_GT(nees_scale / count_scale, 3.0 * 1.5);
 }
 
 TEST(RotationAveraging, WarmStartKeepsTheFrameAndConvergesAtOnce) {
