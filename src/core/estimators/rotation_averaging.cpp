@@ -362,14 +362,14 @@ class ComponentSolve {
   // The robust start, the solve, self-calibration of the covariance scale,
   // and the start refined where the robust solve ended above it.
   void Solve(EdgeWeighting weighting) {
+    covariances_in_sigmas_ = weighting == EdgeWeighting::kCovariance &&
+                             options_.covariance_normalization == CovarianceNormalization::kStandardDeviations;
     if (options_.solver == SolverType::kL1Irls) {
       SolveComponentL1Irls(options_, &problem_, &cs_);
       return;
     }
     double initial_cost = SolveFromStart();
-    if (weighting == EdgeWeighting::kCovariance &&
-        options_.covariance_normalization == CovarianceNormalization::kStandardDeviations &&
-        options_.auto_scale_threshold > 0.0 && options_.loss_scale <= 0.0) {
+    if (covariances_in_sigmas_ && options_.auto_scale_threshold > 0.0 && options_.loss_scale <= 0.0) {
       SelfCalibrate(&initial_cost);
     }
     // Both costs are reported under the final loss.
@@ -399,8 +399,10 @@ class ComponentSolve {
 
   void PosteriorCovariances(RotationAveragingSummary* summary) const {
     std::vector<Eigen::Matrix3d> view_covariances;
+    // A floor is a covariance in rad^2: only edges weighted by their
+    // covariances have one to widen.
     if (ComputeViewCovariances(problem_, *component_loss_, &view_covariances, nullptr,
-                               options_.posterior_covariance_floor)) {
+                               options_.posterior_covariance_floor && covariances_in_sigmas_)) {
       for (std::size_t v = 0; v < problem_.view_ids.size(); ++v) {
         summary->view_covariances[problem_.view_ids[v]] = view_covariances[v];
       }
@@ -576,6 +578,9 @@ class ComponentSolve {
   const RotationAveragingOptions& options_;
   const double scale_;
   double component_scale_;
+  // Edges weighted by their covariances, in standard deviations (the
+  // weighting the solve took effect with).
+  bool covariances_in_sigmas_ = false;
   ComponentProblem& problem_;
   ComponentSummary cs_;
   std::size_t warm_views_ = 0;

@@ -258,8 +258,9 @@ struct RotationAveragingOptions {
   int posterior_covariance_max_views = 0;
   // The posterior covariances from edges widened by the covariance floor
   // their residuals show (ComputeViewCovariances in component_problem.h),
-  // not only scaled by the residual variance factor. The solution is the
-  // same either way.
+  // not only scaled by the residual variance factor, with covariance
+  // weighting in standard deviations (other weightings have no covariance
+  // to widen). The solution is the same either way.
   bool posterior_covariance_floor = true;
   // IRLS: jump along a geometrically shrinking step sequence (kept only when
   // it lowers the cost): fewer iterations, to a point closer to the minimum.
