@@ -200,6 +200,8 @@ bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage&
 std::vector<PendingKeyframe> KeyframePipeline::SelectKeyframes(const PendingKeyframe& image) {
   const auto start = Clock::now();
   if (config_.keyframe_selection == KeyframeSelectionMode::kAll) {
+    // Images that are keyframes already (another stack's) are too far
+    // apart for tracks: their pairs are matched by descriptors.
     std::lock_guard<std::mutex> lock(mutex_);
     ++stats_.frames;
     stats_.image_times.Add(image.decode_s + SecondsSince(start));
@@ -218,11 +220,13 @@ std::vector<PendingKeyframe> KeyframePipeline::SelectKeyframes(const PendingKeyf
     k.key = KeyframeKey{f.camera, f.stamp_ns};
     k.image = f.image;
     k.camera = f.intrinsics;
+    k.tracks = std::move(f.tracks);
     keyframes.push_back(std::move(k));
   }
   std::lock_guard<std::mutex> lock(mutex_);
   ++stats_.frames;
   stats_.frames_skipped = selection.skipped;
+  stats_.selection = selection;
   stats_.selection_s = selection.tracking_s;
   stats_.image_times.Add(image.decode_s + SecondsSince(start));
   return keyframes;
@@ -248,7 +252,7 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   KeyframeFrontendStats frontend_stats;
   {
     std::lock_guard<std::mutex> lock(frontend_mutex_);
-    edges = frontend_->AddKeyframe(keyframe.key, keyframe.image, keyframe.camera);
+    edges = frontend_->AddKeyframe(keyframe.key, keyframe.image, keyframe.camera, keyframe.tracks);
     frontend_stats = frontend_->Stats();
     if (focal_checker_) focal_checker_->Submit(frontend_->TakeFocalJobs());
   }

@@ -62,6 +62,10 @@ void AddFrontend(const NodeStatus& s, diagnostic_updater::DiagnosticStatusWrappe
     status->add("window-pair edges (to older keyframes of the window)", f.window_edges);
     status->add("window pairs off the chain (dropped)", f.window_rejected_inconsistent);
   }
+  if (f.track_pairs + f.track_pairs_matched_instead > 0) {
+    status->add("pairs from shared KLT tracks", f.track_pairs);
+    status->add("of them, matched by descriptors instead (tracks did not verify)", f.track_pairs_matched_instead);
+  }
   // Each camera's focal-length check: its line, and the figures alone.
   for (const auto& [camera, check] : s.focal_checks) {
     status->add("focal length check of " + camera, check.Report());

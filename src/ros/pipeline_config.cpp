@@ -195,6 +195,13 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("keyframe_min_motion_deg", &c.selection.min_motion_deg);
   r.Read("keyframe_min_tracked_fraction", &c.selection.min_tracked_fraction);
   r.Read("keyframe_max_interval_s", &c.selection.max_interval_s);
+  r.Read("tracks", &c.selection.tracks);
+  r.Read("max_tracks", &c.selection.tracker.max_tracks);
+  r.Read("track_min_spacing_px", &c.selection.tracker.min_spacing_px);
+  r.Read("track_window_px", &c.selection.tracker.window_px);
+  r.Read("track_forward_backward_px", &c.selection.tracker.forward_backward_px);
+  r.Read("min_track_matches", &f.min_track_matches);
+  f.tracker = c.selection.tracker;
   r.ReadOption("focal_calibration", &c.focal_calibration);
   r.Read("focal_loop_refinement", &c.focal_loop_refinement);
   r.Read("use_rig_extrinsics", &c.rig.enabled);

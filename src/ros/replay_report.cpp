@@ -27,6 +27,7 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
   result->keyframe_images = pipeline_stats.processed_images;
   result->images_seen = pipeline_stats.frames;
   result->images_skipped = pipeline_stats.frames_skipped;
+  result->selection = pipeline_stats.selection;
   result->selection_s = pipeline_stats.selection_s;
   result->image_times = pipeline_stats.image_times;
   result->keyframe_times = pipeline_stats.keyframe_times;
@@ -46,6 +47,8 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
     result->loops_same_place = f->Stats().loops_same_place;
     result->window_edges = f->Stats().window_edges;
     result->window_rejected_inconsistent = f->Stats().window_rejected_inconsistent;
+    result->track_pairs = f->Stats().track_pairs;
+    result->track_pairs_matched_instead = f->Stats().track_pairs_matched_instead;
     result->map_links = f->Stats().map_links;
     result->map_link_s = f->Stats().map_link_s;
     result->frontend_bytes = f->Stats().keyframe_bytes;
@@ -168,6 +171,10 @@ void ReplayResult::SummariseFrontend(std::ostream& out) const {
     out << "window pairs: " << window_edges << " edges to older keyframes of the window, "
         << window_rejected_inconsistent << " verified but off the chain's prediction (window_pairs)\n";
   }
+  if (track_pairs + track_pairs_matched_instead > 0) {
+    out << "tracks: " << track_pairs << " pairs estimated from shared KLT tracks, " << track_pairs_matched_instead
+        << " matched by descriptors when their tracks did not verify\n";
+  }
   out << "loop closures: " << loop_closure_edges << " edges from " << loop_candidates
       << " verified candidates; retrieval: " << retrieval << "\n";
   if (loops_same_place > 0) {
@@ -236,6 +243,11 @@ std::string ReplayResult::Summary() const {
     out << "keyframe selection (" << keyframe_selection << "): " << images_seen << " images, " << keyframe_images
         << " keyframes, " << images_skipped << " not keyframes; " << 1e3 * selection_s / images_seen
         << " ms per image\n";
+    if (selection.keyframes > 0) {
+      out << "  keyframes made: " << selection.first << " first of their camera, " << selection.by_motion
+          << " by motion, " << selection.by_tracking << " by tracks lost, " << selection.by_interval
+          << " by interval, " << selection.by_rig << " with the rig's other cameras\n";
+    }
   }
   if (image_times.Count() > 0) {
     out << "time per image (decoding, checks, keyframe selection): " << image_times.DescribeMs() << "\n";

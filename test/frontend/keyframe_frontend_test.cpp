@@ -19,6 +19,7 @@
 #include <Eigen/Eigenvalues>
 
 #include "rotation_averaging/frontend/controllers/image_pipeline.h"
+#include "rotation_averaging/frontend/controllers/keyframe_selector.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/frontend/features/vocabulary.h"
 #include "rotation_averaging/core/geometry/so3.h"
@@ -637,6 +638,102 @@ TEST(KeyframeFrontend, EdgesDoNotDependOnTheThreadCount) {
       EXPECT_EQ(a.source, b.source);
     }
   }
+}
+
+// One camera of the renderer as a 20 Hz stream, through keyframe selection
+// with tracks: its keyframes with their tracks, and each keyframe's true
+// world-to-camera rotation.
+struct TrackedStream {
+  std::vector<SelectorFrame> keyframes;
+  std::map<std::int64_t, Eigen::Matrix3d> world_to_camera;  // by stamp
+};
+
+TrackedStream RenderTrackedStream(int captures) {
+  RigSceneOptions scene_options;
+  scene_options.num_cameras = 1;
+  scene_options.num_captures = 480;  // 0.75 deg per capture
+  scene_options.capture_period_s = 0.05;
+  scene_options.WithWidth(480);
+  const RigScene scene(scene_options);
+  KeyframeSelectionOptions selection;
+  selection.tracks = true;
+  KeyframeSelector selector(selection);
+  TrackedStream stream;
+  for (int c = 0; c < captures; ++c) {
+    SelectorFrame f;
+    f.camera = "cam";
+    f.stamp_ns = 1'000'000'000LL + c * 50'000'000LL;
+    f.image = scene.Render(c, 0);
+    f.intrinsics.k = scene.Intrinsics();
+    stream.world_to_camera[f.stamp_ns] = scene.WorldToCamera(c, 0);
+    for (SelectorFrame& k : selector.Offer(f)) stream.keyframes.push_back(std::move(k));
+  }
+  return stream;
+}
+
+// Keyframes given with their tracks are related to the earlier keyframes of
+// their window through the tracks they share, as accurately as by
+// descriptors, the same for any thread count; a keyframe without tracks
+// (or sharing too few) is matched by descriptors.
+TEST(KeyframeFrontend, TrackedKeyframesAreRelatedThroughTheirSharedTracks) {
+  const TrackedStream stream = RenderTrackedStream(90);
+  ASSERT_GE(stream.keyframes.size(), 6u);
+  const auto feed = [&](int threads, bool tracks, std::size_t untracked, KeyframeFrontendStats* stats) {
+    KeyframeFrontendOptions options;
+    options.max_loop_candidates = 0;
+    options.num_threads = threads;
+    KeyframeFrontend frontend(options);
+    std::vector<KeyframeRelativeRotation> edges;
+    for (std::size_t i = 0; i < stream.keyframes.size(); ++i) {
+      const SelectorFrame& k = stream.keyframes[i];
+      const std::vector<TrackedPoint> none;
+      for (const KeyframeRelativeRotation& e : frontend.AddKeyframe(KeyframeKey{k.camera, k.stamp_ns}, k.image,
+                                                                    k.intrinsics, tracks && i != untracked ? k.tracks : none)) {
+        edges.push_back(e);
+      }
+    }
+    *stats = frontend.Stats();
+    return edges;
+  };
+  const auto error_deg = [&](const KeyframeRelativeRotation& e) {
+    const Eigen::Matrix3d truth =
+        stream.world_to_camera.at(e.keyframe1.stamp_ns) * stream.world_to_camera.at(e.keyframe2.stamp_ns).transpose();
+    return RadToDeg(AngularDistanceRad(e.rotation, truth));
+  };
+  const auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+  };
+  KeyframeFrontendStats tracked_stats, matched_stats, two_threads_stats, gap_stats;
+  const std::vector<KeyframeRelativeRotation> tracked = feed(1, true, stream.keyframes.size(), &tracked_stats);
+  const std::vector<KeyframeRelativeRotation> matched = feed(1, false, 0, &matched_stats);
+  EXPECT_EQ(matched_stats.track_pairs, 0u);
+  // Every pair of the window comes from the tracks here (a window pair off
+  // the chain's prediction is verified, then dropped).
+  EXPECT_EQ(tracked_stats.track_pairs, tracked.size() + tracked_stats.window_rejected_inconsistent);
+  EXPECT_EQ(tracked_stats.track_pairs_matched_instead, 0u);
+  EXPECT_GE(tracked.size() + 2, matched.size());
+  EXPECT_EQ(tracked_stats.sequential_edges - tracked_stats.window_edges, stream.keyframes.size() - 1) << "the chain";
+  std::vector<double> tracked_deg, matched_deg;
+  for (const KeyframeRelativeRotation& e : tracked) tracked_deg.push_back(error_deg(e));
+  for (const KeyframeRelativeRotation& e : matched) matched_deg.push_back(error_deg(e));
+  std::cout << tracked.size() << " edges of " << stream.keyframes.size() << " keyframes: median error "
+            << median(tracked_deg) << " deg from tracks, " << median(matched_deg) << " deg from descriptors\n";
+  EXPECT_LT(median(tracked_deg), 0.05);
+  EXPECT_LT(median(tracked_deg), 1.5 * median(matched_deg));
+  for (double d : tracked_deg) EXPECT_LT(d, 0.3);
+  const std::vector<KeyframeRelativeRotation> two_threads = feed(2, true, stream.keyframes.size(), &two_threads_stats);
+  ASSERT_EQ(two_threads.size(), tracked.size());
+  for (std::size_t i = 0; i < tracked.size(); ++i) {
+    EXPECT_TRUE(two_threads[i].rotation == tracked[i].rotation) << "edge " << i;
+    EXPECT_TRUE(two_threads[i].covariance == tracked[i].covariance) << "edge " << i;
+  }
+  // The third keyframe without tracks: its own pairs, and the next
+  // keyframes' pairs with it, are matched by descriptors; the chain holds.
+  const std::vector<KeyframeRelativeRotation> gap = feed(1, true, 2, &gap_stats);
+  EXPECT_EQ(gap_stats.sequential_edges - gap_stats.window_edges, stream.keyframes.size() - 1) << "the chain";
+  EXPECT_LT(gap_stats.track_pairs, tracked_stats.track_pairs);
+  EXPECT_GE(tracked_stats.track_pairs - gap_stats.track_pairs, 3u);
 }
 
 // Loop closures and window pairs (a camera's keyframes more than one capture

@@ -56,32 +56,88 @@ TEST(KeyframeSelector, AStillCameraMakesOneKeyframeUnlessAnIntervalIsSet) {
   }
 }
 
+// With tracks (the default) and with the reduced images' KLT alone.
 TEST(KeyframeSelector, KeyframesFollowTheMotionAndCostLittle) {
   const RigScene scene(StreamOptions());
+  for (const bool tracks : {true, false}) {
+    KeyframeSelectionOptions options;
+    options.tracks = tracks;
+    KeyframeSelector selector(options);
+    std::vector<int> keyframe_captures;
+    for (int c = 0; c < 120; ++c) {
+      const std::vector<SelectorFrame> keyframes = selector.Offer(Frame(scene, c, 0));
+      if (keyframes.empty()) continue;
+      keyframe_captures.push_back(c);
+      EXPECT_EQ(keyframes[0].tracks.empty(), !tracks);
+    }
+    const KeyframeSelectionStats& stats = selector.Stats();
+    // The camera turns by 90 deg over these captures: a keyframe every few
+    // degrees, far fewer than the frames.
+    EXPECT_GE(keyframe_captures.size(), 6u) << "tracks " << tracks;
+    EXPECT_LE(keyframe_captures.size(), 40u) << "tracks " << tracks;
+    EXPECT_GT(stats.by_motion + stats.by_tracking, 0u);
+    // Between consecutive keyframes the camera moved at least about the
+    // threshold (image motion includes parallax, so a little less rotation
+    // can trigger one), and never many times it.
+    for (std::size_t k = 1; k < keyframe_captures.size(); ++k) {
+      const double turned = RadToDeg(RotationAngleRad(scene.WorldToCamera(keyframe_captures[k], 0) *
+                                                      scene.WorldToCamera(keyframe_captures[k - 1], 0).transpose()));
+      EXPECT_GT(turned, 0.3 * options.min_motion_deg) << "keyframes at " << keyframe_captures[k - 1] << ", "
+                                                      << keyframe_captures[k] << ", tracks " << tracks;
+      EXPECT_LT(turned, 2.5 * options.min_motion_deg) << "tracks " << tracks;
+    }
+    std::cout << keyframe_captures.size() << " keyframes of 120 frames" << (tracks ? " with tracks" : "")
+              << "; check " << 1e3 * stats.tracking_s / stats.frames << " ms per frame at 256x192\n";
+  }
+}
+
+// With tracks: every keyframe (its own camera's, or a rig capture's held
+// frame) carries its camera's tracks, consecutive keyframes share enough of
+// them to be related through, the keyframes follow the motion as without
+// tracks, and two runs over the same frames give the same keyframes and
+// the same tracks.
+TEST(KeyframeSelector, WithTracksEveryKeyframeCarriesItsTracks) {
+  const RigScene scene(StreamOptions());
   KeyframeSelectionOptions options;
-  KeyframeSelector selector(options);
-  std::vector<int> keyframe_captures;
-  for (int c = 0; c < 120; ++c) {
-    if (!selector.Offer(Frame(scene, c, 0)).empty()) keyframe_captures.push_back(c);
+  ASSERT_TRUE(options.tracks) << "tracks are the default";
+  std::vector<std::vector<SelectorFrame>> runs(2);
+  for (auto& run : runs) {
+    KeyframeSelector selector(options);
+    for (int c = 0; c < 120; ++c) {
+      for (int camera = 0; camera < 2; ++camera) {
+        for (SelectorFrame& k : selector.Offer(Frame(scene, c, camera))) run.push_back(std::move(k));
+      }
+    }
+    const KeyframeSelectionStats& stats = selector.Stats();
+    EXPECT_GT(stats.by_motion + stats.by_tracking, 0u);
+    EXPECT_GT(stats.by_rig, 0u);
+    EXPECT_EQ(stats.keyframes + stats.skipped, 240u);
   }
-  const KeyframeSelectionStats& stats = selector.Stats();
-  // The camera turns by 90 deg over these captures: a keyframe every few
-  // degrees, far fewer than the frames.
-  EXPECT_GE(keyframe_captures.size(), 6u);
-  EXPECT_LE(keyframe_captures.size(), 40u);
-  EXPECT_GT(stats.by_motion + stats.by_tracking, 0u);
-  // Between consecutive keyframes the camera moved at least about the
-  // threshold (image motion includes parallax, so a little less rotation
-  // can trigger one), and never many times it.
-  for (std::size_t k = 1; k < keyframe_captures.size(); ++k) {
-    const double turned = RadToDeg(RotationAngleRad(scene.WorldToCamera(keyframe_captures[k], 0) *
-                                                    scene.WorldToCamera(keyframe_captures[k - 1], 0).transpose()));
-    EXPECT_GT(turned, 0.3 * options.min_motion_deg) << "keyframes at " << keyframe_captures[k - 1] << ", "
-                                                    << keyframe_captures[k];
-    EXPECT_LT(turned, 2.5 * options.min_motion_deg);
+  ASSERT_EQ(runs[0].size(), runs[1].size());
+  std::map<std::string, std::vector<std::size_t>> by_camera;
+  for (std::size_t i = 0; i < runs[0].size(); ++i) {
+    const SelectorFrame& k = runs[0][i];
+    EXPECT_EQ(Name(k), Name(runs[1][i]));
+    ASSERT_EQ(k.tracks.size(), runs[1][i].tracks.size());
+    for (std::size_t t = 0; t < k.tracks.size(); ++t) {
+      EXPECT_EQ(k.tracks[t].id, runs[1][i].tracks[t].id);
+      EXPECT_EQ(k.tracks[t].px, runs[1][i].tracks[t].px);
+    }
+    EXPECT_GE(k.tracks.size(), 50u) << Name(k);
+    for (std::size_t t = 1; t < k.tracks.size(); ++t) EXPECT_LT(k.tracks[t - 1].id, k.tracks[t].id);
+    by_camera[k.camera].push_back(i);
   }
-  std::cout << keyframe_captures.size() << " keyframes of 120 frames; tracking check "
-            << 1e3 * stats.tracking_s / stats.frames << " ms per frame at 256x192\n";
+  ASSERT_EQ(by_camera.size(), 2u);
+  for (const auto& [camera, indices] : by_camera) {
+    // The camera turns by 90 deg over these captures (as without tracks).
+    EXPECT_GE(indices.size(), 6u) << camera;
+    EXPECT_LE(indices.size(), 40u) << camera;
+    for (std::size_t k = 1; k < indices.size(); ++k) {
+      const SelectorFrame& a = runs[0][indices[k - 1]];
+      const SelectorFrame& b = runs[0][indices[k]];
+      EXPECT_GE(SharedTracks(a.tracks, b.tracks).size(), 30u) << Name(a) << " - " << Name(b);
+    }
+  }
 }
 
 // The cameras of one capture become keyframes together, and the keyframes

@@ -49,6 +49,7 @@ struct PendingKeyframe {
   KeyframeKey key;
   cv::Mat image;  // 8-bit grey, as the camera took it
   CameraIntrinsics camera;  // of that image: K and its lens distortion
+  std::vector<TrackedPoint> tracks;  // `tracks`: the camera's KLT tracks in it (keyframe selection's)
   double decode_s = 0.0;    // wall time of its decoding and checks (DecodeImage)
 };
 
@@ -56,6 +57,7 @@ struct PendingKeyframe {
 struct PipelineStats {
   std::uint64_t frames = 0;             // valid images offered to keyframe selection
   std::uint64_t frames_skipped = 0;     // of them, not keyframes (keyframe_selection: motion)
+  KeyframeSelectionStats selection;     // keyframe_selection: motion (why each keyframe was made)
   double selection_s = 0.0;             // wall time of keyframe selection
   // The time budget: each valid image's decoding, checks and keyframe
   // selection (what its callback costs), and each keyframe's front end

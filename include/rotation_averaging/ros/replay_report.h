@@ -44,6 +44,7 @@ struct ReplayResult {
   std::size_t absorbed_by_rig = 0;
   std::map<std::string, std::size_t> edges_by_source;
   std::size_t keyframe_images = 0, rejected_images = 0, rejected_messages = 0;
+  KeyframeSelectionStats selection;  // keyframe_selection: motion
   std::size_t images_seen = 0, images_skipped = 0;  // valid images offered to keyframe selection, not keyframes
   std::string keyframe_selection;
   double selection_s = 0.0;  // wall time of keyframe selection
@@ -62,6 +63,7 @@ struct ReplayResult {
   // window_pairs: edges to older keyframes of the window, and the verified
   // ones dropped for disagreeing with the chain.
   std::uint64_t window_edges = 0, window_rejected_inconsistent = 0;
+  std::uint64_t track_pairs = 0, track_pairs_matched_instead = 0;  // tracks: true
   // Of those, between added maps and the map held (add_maps), and the time
   // matching them took.
   std::uint64_t map_links = 0;

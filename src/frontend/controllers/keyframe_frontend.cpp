@@ -28,6 +28,7 @@ bool KeyframeFrontendOptions::Validate(std::string* error) const {
       .AtLeast("max_features", features.max_features, 1)
       .AtLeast("rig_stamp_tolerance_s", rig_stamp_tolerance_s, 0.0)
       .AtLeast("covisibility_window", covisibility_window, 1)
+      .AtLeast("min_track_matches", min_track_matches, 8)
       .AtLeast("num_threads", num_threads, 0)
       .AtLeast("max_loop_candidates", max_loop_candidates, 0)
       .AtLeast("loop_exclude_recent", loop_exclude_recent, 0)
@@ -114,6 +115,40 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
     // A pair within one capture is estimated in the order of the camera
     // frames, whichever image came first (see PairTask::newer_first).
     const bool swap = tasks[t].newer_first && !a.compact;
+    RelativePoseOptions relative_pose = options_.relative_pose;
+    if (tasks[t].source == EdgeSource::kLoopClosure || tasks[t].wide) {
+      relative_pose.jackknife_grid = std::max(relative_pose.jackknife_grid, options_.loop_jackknife_grid);
+    }
+    bool tracks_failed = false;
+    {
+      std::vector<Eigen::Vector2d> pa, pb;
+      if (!swap && TrackCorrespondences(tasks[t], a, newer, &pa, &pb)) {
+        // KLT's points share a local bias (the window does not deform with
+        // the view), and the Sampson error cannot see its part along the
+        // epipolar lines: the cell jackknife covers it, as for loop closures.
+        RelativePoseOptions track_pose = relative_pose;
+        track_pose.jackknife_grid = std::max(relative_pose.jackknife_grid, options_.loop_jackknife_grid);
+        const RelativePoseResult pose =
+            EstimateRelativePoseWithCovariance(pa, pb, a.track_camera.k, newer.track_camera.k, track_pose);
+        if (pose.success) {
+          FillOutcome(tasks[t], a, a, newer, false, track_pose.jackknife_grid, {}, std::move(pa), std::move(pb),
+                      pose, &outcomes[t]);
+          outcomes[t].from_tracks = true;
+          // The focal-length check and correction hold points in the
+          // features' image: a pair of full-resolution tracks is theirs
+          // only when the features are not downsampled.
+          if (!(a.k == a.track_camera.k && newer.k == newer.track_camera.k)) {
+            outcomes[t].focal_sample.reset();
+            outcomes[t].points1.reset();
+            outcomes[t].points2.reset();
+            outcomes[t].pose.reset();
+          }
+          outcomes[t].seconds = SecondsSince(pair_start);
+          return;
+        }
+        tracks_failed = true;
+      }
+    }
     std::vector<std::pair<int, int>> matches;
     if (swap) {
       matches = MatchFeatures(newer.features, *newer.index, a.features, *a.index, options_.matching);
@@ -135,16 +170,50 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
       pa.push_back(first_features.keypoints_px[i]);
       pb.push_back(second.features.keypoints_px[j]);
     }
-    RelativePoseOptions relative_pose = options_.relative_pose;
-    if (tasks[t].source == EdgeSource::kLoopClosure || tasks[t].wide) {
-      relative_pose.jackknife_grid = std::max(relative_pose.jackknife_grid, options_.loop_jackknife_grid);
-    }
     const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, first.k, second.k, relative_pose);
     FillOutcome(tasks[t], a, first, second, swap, relative_pose.jackknife_grid, matches, std::move(pa), std::move(pb),
                 pose, &outcomes[t]);
+    outcomes[t].tracks_failed = tracks_failed;
     outcomes[t].seconds = SecondsSince(pair_start);
   });
   return outcomes;
+}
+
+bool KeyframeFrontend::TrackCorrespondences(const PairTask& task, const Keyframe& a, const Keyframe& newer,
+                                            std::vector<Eigen::Vector2d>* pa, std::vector<Eigen::Vector2d>* pb) const {
+  // Tracks are followed within one camera's stream only, and loop closures
+  // are between images no track spans.
+  if (task.source == EdgeSource::kLoopClosure || a.compact || newer.compact || a.loaded_chain >= 0 ||
+      a.key.frame_id != newer.key.frame_id || a.tracks.empty() || newer.tracks.empty()) {
+    return false;
+  }
+  std::vector<cv::Point2f> points1, points2;
+  for (const auto& [p, q] : SharedTracks(a.tracks, newer.tracks)) {
+    points1.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
+    points2.emplace_back(static_cast<float>(q.x()), static_cast<float>(q.y()));
+  }
+  if (static_cast<int>(points1.size()) < options_.min_track_matches) return false;
+  std::vector<bool> kept;
+  RetrackBetween(a.track_pyramid, newer.track_pyramid, points1, &points2, &kept, options_.tracker);
+  // Tracks are pixels of the full-resolution image, whatever the features'
+  // downsample: undistorted with the camera's own K, and estimated with it.
+  for (std::size_t i = 0; i < points1.size(); ++i) {
+    if (!kept[i]) continue;
+    pa->emplace_back(points1[i].x, points1[i].y);
+    pb->emplace_back(points2[i].x, points2[i].y);
+  }
+  if (a.track_camera.HasDistortion()) UndistortPixels(a.track_camera, a.track_camera.k, pa);
+  if (newer.track_camera.HasDistortion()) UndistortPixels(newer.track_camera, newer.track_camera.k, pb);
+  std::size_t valid = 0;
+  for (std::size_t i = 0; i < pa->size(); ++i) {
+    if (!(*pa)[i].allFinite() || !(*pb)[i].allFinite()) continue;
+    (*pa)[valid] = (*pa)[i];
+    (*pb)[valid] = (*pb)[i];
+    ++valid;
+  }
+  pa->resize(valid);
+  pb->resize(valid);
+  return static_cast<int>(valid) >= options_.min_track_matches;
 }
 
 void KeyframeFrontend::FillOutcome(const PairTask& task, const Keyframe& a, const Keyframe& first,
@@ -168,10 +237,13 @@ void KeyframeFrontend::FillOutcome(const PairTask& task, const Keyframe& a, cons
   out.edge.has_covariance = true;
   out.edge.covariance = pose.covariance;
   out.edge.num_inliers = static_cast<int>(pose.inliers.size());
-  out.inlier_features.reserve(pose.inliers.size());
-  for (int m : pose.inliers) {
-    const auto& [i, j] = matches[m];
-    out.inlier_features.emplace_back(swap ? j : i, swap ? i : j);
+  // Pairs from tracks (no matches) count no feature's inliers.
+  if (!matches.empty()) {
+    out.inlier_features.reserve(pose.inliers.size());
+    for (int m : pose.inliers) {
+      const auto& [i, j] = matches[m];
+      out.inlier_features.emplace_back(swap ? j : i, swap ? i : j);
+    }
   }
   out.edge.source = task.source;
   if (a.resumed && task.source == EdgeSource::kSequential && out.edge.num_inliers < LoopInliersNeeded(a)) {
@@ -201,6 +273,8 @@ void KeyframeFrontend::CountInliers(const PairTask& task, const PairOutcome& out
 }
 
 void KeyframeFrontend::Count(const PairOutcome& outcome) {
+  stats_.track_pairs += outcome.from_tracks;
+  stats_.track_pairs_matched_instead += outcome.tracks_failed;
   if (outcome.success) {
     stats_.rotation_model_edges += outcome.rotation_model;
   } else {
@@ -317,7 +391,13 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
 }
 
 std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
-                                                                    const CameraIntrinsics& given) {
+                                                                    const CameraIntrinsics& camera) {
+  return AddKeyframe(key, image, camera, {});
+}
+
+std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
+                                                                    const CameraIntrinsics& given,
+                                                                    const std::vector<TrackedPoint>& tracks) {
   std::vector<KeyframeRelativeRotation> edges;
   // A focal length corrected by the check (ApplyFocalCorrection) replaces
   // the given one before anything, undistortion included.
@@ -332,7 +412,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
     ++stats_.duplicate_keyframes;
     return edges;
   }
-  std::unique_ptr<Keyframe> kf = DescribeKeyframe(key, image, camera);
+  std::unique_ptr<Keyframe> kf = DescribeKeyframe(key, image, camera, tracks);
   const double pairs_before = stats_.pairs_s;
   ++stats_.keyframes;
   if (kf->features.keypoints_px.size() < 20) {
@@ -369,7 +449,8 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
 
 std::unique_ptr<KeyframeFrontend::Keyframe> KeyframeFrontend::DescribeKeyframe(const KeyframeKey& key,
                                                                               const cv::Mat& image,
-                                                                              const CameraIntrinsics& camera) {
+                                                                              const CameraIntrinsics& camera,
+                                                                              const std::vector<TrackedPoint>& tracks) {
   auto kf = std::make_unique<Keyframe>();
   kf->key = key;
   const auto start = Clock::now();
@@ -383,6 +464,17 @@ std::unique_ptr<KeyframeFrontend::Keyframe> KeyframeFrontend::DescribeKeyframe(c
   if (camera.HasDistortion()) {
     kf->lens = camera;
     kf->lens.k = kf->k;
+  }
+  if (!tracks.empty()) {
+    // Tracks as FeatureTracker gives them: inside the image, in increasing
+    // id order; any other point is dropped.
+    for (const TrackedPoint& t : tracks) {
+      const bool inside = t.px.allFinite() && t.px.x() >= 0.0 && t.px.y() >= 0.0 && t.px.x() <= image.cols - 1 &&
+                          t.px.y() <= image.rows - 1;
+      if (inside && (kf->tracks.empty() || t.id > kf->tracks.back().id)) kf->tracks.push_back(t);
+    }
+    kf->track_camera = camera;
+    kf->track_pyramid = TrackPyramid(image, options_.tracker, false);
   }
   kf->index = std::make_unique<FeatureIndex>(kf->features);
   kf->inlier_hits.assign(kf->features.keypoints_px.size(), 0);
@@ -557,6 +649,8 @@ void KeyframeFrontend::StoreKeyframe(std::unique_ptr<Keyframe> kf) {
   // is compacted once a later capture arrives, so that every camera's image
   // of this capture sees the same keyframes whatever order they came in.
   const int recent = std::max(1, options_.covisibility_window);
+  // Its tracks and their pyramid served the pairs of the window alone.
+  if (static_cast<int>(chain.size()) > recent) ReleaseTracks(keyframes_[chain[chain.size() - 1 - recent]].get());
   if (options_.vocabulary && static_cast<int>(chain.size()) > recent) {
     due_compaction_.push_back({chain[chain.size() - 1 - recent], key.stamp_ns});
   }
@@ -647,7 +741,10 @@ std::string KeyframeFrontend::RetrievalName() const {
 
 std::size_t KeyframeFrontend::KeyframeBytes(const Keyframe& keyframe) const {
   // The bag of words, and its entries in the inverted index.
-  return FeatureMemoryBytes(keyframe.features) + 2 * keyframe.bow.size() * sizeof(std::pair<int, float>);
+  std::size_t bytes = FeatureMemoryBytes(keyframe.features) + 2 * keyframe.bow.size() * sizeof(std::pair<int, float>) +
+                      keyframe.tracks.size() * sizeof(TrackedPoint);
+  for (const cv::Mat& level : keyframe.track_pyramid) bytes += level.total() * level.elemSize();
+  return bytes;
 }
 
 void KeyframeFrontend::CompactDue(std::int64_t stamp_ns) {
@@ -661,6 +758,15 @@ void KeyframeFrontend::CompactDue(std::int64_t stamp_ns) {
     }
   }
   due_compaction_.swap(later);
+}
+
+void KeyframeFrontend::ReleaseTracks(Keyframe* keyframe) {
+  if (keyframe->tracks.empty() && keyframe->track_pyramid.empty()) return;
+  stats_.keyframe_bytes -= KeyframeBytes(*keyframe);
+  keyframe->tracks.clear();
+  keyframe->tracks.shrink_to_fit();
+  keyframe->track_pyramid.clear();
+  stats_.keyframe_bytes += KeyframeBytes(*keyframe);
 }
 
 void KeyframeFrontend::Compact(Keyframe* keyframe) {

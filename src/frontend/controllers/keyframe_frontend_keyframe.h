@@ -21,6 +21,12 @@ struct KeyframeFrontend::Keyframe {
   Eigen::Matrix3d sequential_covariance;
   ImageFeatures features;              // all of them, or the compact set once out of the recent window
   std::unique_ptr<FeatureIndex> index;  // null once compact
+  // Its KLT tracks (AddKeyframe's: pixels of the image as given, in
+  // increasing id order), the camera they undistort with, and the image's
+  // pyramid to re-track them from; none once out of the window.
+  std::vector<TrackedPoint> tracks;
+  CameraIntrinsics track_camera;
+  std::vector<cv::Mat> track_pyramid;
   bool compact = false;
   bool bridged = false;                 // its previous pair failed and an older one of the window verified
   BowVector bow;                        // with a vocabulary

@@ -25,6 +25,7 @@ constexpr std::size_t kRememberedCaptures = 16;
 }  // namespace
 
 bool KeyframeSelectionOptions::Validate(std::string* error) const {
+  std::string tracker_error;
   return OptionCheck()
       .AtLeast("keyframe_min_motion_deg", min_motion_deg, 0.0)
       .Within("keyframe_min_tracked_fraction", min_tracked_fraction, 0.0, 1.0)
@@ -33,6 +34,7 @@ bool KeyframeSelectionOptions::Validate(std::string* error) const {
       .AtLeast("keyframe_tracking_width", tracking_width, 32)
       .AtLeast("keyframe_corners", corners, static_cast<int>(kMinCorners))
       .AtLeast("keyframe_held_frames", held_frames, 0)
+      .Require(!tracks || tracker.Validate(&tracker_error), tracker_error)
       .Ok(error);
 }
 
@@ -41,6 +43,16 @@ KeyframeSelector::KeyframeSelector(const KeyframeSelectionOptions& options) : op
 void KeyframeSelector::Reset() {
   cameras_.clear();
   keyframe_stamps_.clear();
+  for (auto& [name, tracker] : trackers_) tracker.Reset();
+}
+
+SelectorFrame KeyframeSelector::Track(const SelectorFrame& frame) {
+  SelectorFrame tracked = frame;
+  if (!options_.tracks) return tracked;
+  auto it = trackers_.find(frame.camera);
+  if (it == trackers_.end()) it = trackers_.emplace(frame.camera, FeatureTracker(options_.tracker)).first;
+  tracked.tracks = it->second.Track(frame.image);
+  return tracked;
 }
 
 cv::Mat KeyframeSelector::Reduce(const cv::Mat& image) const {
@@ -56,14 +68,41 @@ bool KeyframeSelector::SameCapture(std::int64_t a, std::int64_t b) const {
 }
 
 void KeyframeSelector::MakeKeyframe(Camera& camera, const SelectorFrame& frame, const cv::Mat& small) {
+  camera.keyframe_stamp_ns = frame.stamp_ns;
+  camera.has_keyframe = true;
+  ++stats_.keyframes;
+  if (options_.tracks) {
+    camera.keyframe_tracks = frame.tracks;
+    camera.keyframe_size = frame.image.size();
+    camera.focal_px = 0.5 * (frame.intrinsics.k(0, 0) + frame.intrinsics.k(1, 1));
+    return;
+  }
   camera.keyframe_small = small;
   camera.scale = static_cast<double>(small.cols) / frame.image.cols;
   camera.focal_px = 0.5 * (frame.intrinsics.k(0, 0) + frame.intrinsics.k(1, 1)) * camera.scale;
   camera.corners.clear();
   cv::goodFeaturesToTrack(small, camera.corners, options_.corners, 0.01, std::max(3.0, small.cols / 40.0));
-  camera.keyframe_stamp_ns = frame.stamp_ns;
-  camera.has_keyframe = true;
-  ++stats_.keyframes;
+}
+
+KeyframeSelector::Reason KeyframeSelector::DecideByTracks(const Camera& camera, const SelectorFrame& frame) const {
+  if (!camera.has_keyframe || frame.image.size() != camera.keyframe_size) return Reason::kFirst;
+  if (options_.max_interval_s > 0.0 &&
+      static_cast<double>(frame.stamp_ns - camera.keyframe_stamp_ns) >= options_.max_interval_s * 1e9) {
+    return Reason::kInterval;
+  }
+  // Nothing to track from (a blank view): the next textured frame takes over.
+  if (camera.keyframe_tracks.size() < kMinCorners) {
+    return frame.tracks.size() >= kMinCorners ? Reason::kTracking : Reason::kNone;
+  }
+  std::vector<double> moved;
+  for (const auto& [from, to] : SharedTracks(camera.keyframe_tracks, frame.tracks)) {
+    moved.push_back(RadToDeg(std::atan((to - from).norm() / camera.focal_px)));
+  }
+  const double tracked = static_cast<double>(moved.size()) / camera.keyframe_tracks.size();
+  if (tracked < options_.min_tracked_fraction) return Reason::kTracking;
+  std::nth_element(moved.begin(), moved.begin() + moved.size() / 2, moved.end());
+  if (!moved.empty() && moved[moved.size() / 2] >= options_.min_motion_deg) return Reason::kMotion;
+  return Reason::kNone;
 }
 
 KeyframeSelector::Reason KeyframeSelector::Decide(Camera& camera, const SelectorFrame& frame, cv::Mat* small) {
@@ -100,8 +139,10 @@ KeyframeSelector::Reason KeyframeSelector::Decide(Camera& camera, const Selector
   return Reason::kNone;
 }
 
-std::vector<SelectorFrame> KeyframeSelector::Offer(const SelectorFrame& frame) {
+std::vector<SelectorFrame> KeyframeSelector::Offer(const SelectorFrame& offered) {
   const auto start = std::chrono::steady_clock::now();
+  // Every frame of a camera is tracked, keyframe or not.
+  const SelectorFrame frame = options_.tracks ? Track(offered) : offered;
   ++stats_.frames;
   std::vector<SelectorFrame> keyframes;
   Camera& camera = cameras_[frame.camera];
@@ -116,12 +157,12 @@ std::vector<SelectorFrame> KeyframeSelector::Offer(const SelectorFrame& frame) {
   if (rig_capture) {
     // Another camera made this capture a keyframe: this camera's frame of it
     // is one too (its own tracking is not needed).
-    small = Reduce(frame.image);
+    if (!options_.tracks) small = Reduce(frame.image);
     ++stats_.by_rig;
     MakeKeyframe(camera, frame, small);
     keyframes.push_back(frame);
   } else {
-    reason = Decide(camera, frame, &small);
+    reason = options_.tracks ? DecideByTracks(camera, frame) : Decide(camera, frame, &small);
   }
   if (reason != Reason::kNone) {
     switch (reason) {
@@ -142,7 +183,7 @@ std::vector<SelectorFrame> KeyframeSelector::Offer(const SelectorFrame& frame) {
         if (!SameCapture(it->stamp_ns, frame.stamp_ns)) continue;
         ++stats_.by_rig;
         --stats_.skipped;
-        MakeKeyframe(other, *it, Reduce(it->image));
+        MakeKeyframe(other, *it, options_.tracks ? cv::Mat() : Reduce(it->image));
         keyframes.push_back(*it);
         // Frames held before it are older than the new keyframe: no longer promotable.
         other.held.erase(other.held.begin(), it + 1);

@@ -31,6 +31,7 @@
 
 #include "rotation_averaging/core/controllers/online_averager.h"
 #include "rotation_averaging/frontend/estimators/relative_pose.h"
+#include "rotation_averaging/frontend/features/feature_tracker.h"
 #include "rotation_averaging/frontend/features/features.h"
 #include "rotation_averaging/frontend/features/vocabulary.h"
 #include "rotation_averaging/frontend/geometry/camera_model.h"
@@ -60,6 +61,15 @@ struct KeyframeFrontendOptions {
   // False: the chain alone, and the older keyframes only when the previous
   // pair fails (docs/decisions.md, "Window pairs").
   bool window_pairs = true;
+  // A keyframe given with its KLT tracks (AddKeyframe's `tracks`) is
+  // related to the earlier keyframes of its camera's window that share at
+  // least this many tracks with it from those correspondences, by the same
+  // estimation and checks as from matched descriptors; a pair that shares
+  // fewer, or whose tracks do not verify, is matched by descriptors.
+  int min_track_matches = 30;
+  // The re-tracking of a pair's shared tracks between its two images
+  // (RetrackBetween): its window, pyramid and forward-backward check.
+  FeatureTrackerOptions tracker;
   int num_threads = 0;                  // pair verification and retrieval; 0: the machine's cores
   int max_loop_candidates = 3;          // verified per keyframe
   int loop_exclude_recent = 5;          // keyframes of the same camera too recent to be loop closures
@@ -142,6 +152,9 @@ struct KeyframeFrontendStats {
   std::uint64_t window_edges = 0;          // window_pairs: edges to the window beyond the previous keyframe
   std::uint64_t window_rejected_inconsistent = 0;  // window_pairs: verified, but off the chain's prediction
   std::uint64_t rotation_model_edges = 0;  // edges from the rotation-only two-view model (no parallax)
+  // Pairs of one camera's keyframes estimated from their shared tracks, and
+  // of them those that did not verify and were matched by descriptors.
+  std::uint64_t track_pairs = 0, track_pairs_matched_instead = 0;
   std::uint64_t loop_candidates_tried = 0;
   std::uint64_t loops_rejected_inconsistent = 0;
   std::uint64_t loops_same_place = 0;  // dropped by one_loop_per_place
@@ -162,7 +175,8 @@ struct KeyframeFrontendStats {
   // time on the thread that ran it (pairs_s is their span across threads).
   TimeDistribution pair_times;
   std::uint64_t compacted_keyframes = 0;
-  // Features and retrieval data held (bag of words and its postings; not the
+  // Features and retrieval data held (bag of words and its postings, and
+  // the recent window's tracks and their image pyramids; not the
   // nearest-neighbour indices of the recent window), and of that, by the
   // compact keyframes.
   std::size_t keyframe_bytes = 0, compact_bytes = 0;
@@ -191,6 +205,13 @@ class KeyframeFrontend {
   // step. Images that yield too few features give no edges.
   std::vector<KeyframeRelativeRotation> AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
                                                     const CameraIntrinsics& camera);
+  // The same with the keyframe's KLT tracks (FeatureTracker on every image
+  // of its camera; pixels of `image`, in increasing id order): its pairs
+  // with earlier keyframes of the camera's window come from the tracks
+  // they share (min_track_matches).
+  std::vector<KeyframeRelativeRotation> AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
+                                                    const CameraIntrinsics& camera,
+                                                    const std::vector<TrackedPoint>& tracks);
   // A pinhole camera without distortion (a rectified image).
   std::vector<KeyframeRelativeRotation> AddKeyframe(const KeyframeKey& key, const cv::Mat& image,
                                                     const Eigen::Matrix3d& k);
@@ -309,6 +330,9 @@ class KeyframeFrontend {
   // Keeps only what loop-closure verification needs of a keyframe that left
   // the recent window.
   void Compact(Keyframe* keyframe);
+  // Lets go of the tracks and their pyramid of a keyframe that left its
+  // camera's window.
+  void ReleaseTracks(Keyframe* keyframe);
   // Compacts the keyframes that left their window in a capture older than
   // `stamp_ns` (beyond the rig tolerance).
   void CompactDue(std::int64_t stamp_ns);
@@ -320,6 +344,8 @@ class KeyframeFrontend {
     bool success = false;
     KeyframeRelativeRotation edge;
     bool rotation_model = false;
+    bool from_tracks = false;       // estimated from shared tracks
+    bool tracks_failed = false;     // the shared tracks did not verify; descriptors were matched
     std::string failure;
     std::vector<std::pair<int, int>> inlier_features;  // (older's feature, newer's feature)
     // A pair of two keyframes of one camera with the essential-matrix model,
@@ -377,7 +403,11 @@ class KeyframeFrontend {
   // The steps of AddKeyframe, in order. The keyframe of `image`: its
   // features, undistorted to `camera`'s ideal pinhole, their index and words.
   std::unique_ptr<Keyframe> DescribeKeyframe(const KeyframeKey& key, const cv::Mat& image,
-                                             const CameraIntrinsics& camera);
+                                             const CameraIntrinsics& camera, const std::vector<TrackedPoint>& tracks);
+  // The correspondences of a pair of one camera's keyframes from the tracks
+  // they share; false if they share fewer than min_track_matches.
+  bool TrackCorrespondences(const PairTask& task, const Keyframe& a, const Keyframe& newer,
+                            std::vector<Eigen::Vector2d>* pa, std::vector<Eigen::Vector2d>* pb) const;
   // The pair with the previous keyframe of the camera (`same`: its
   // keyframes so far) and those with the other cameras' keyframes of the
   // same capture; `related` gets them and the camera's last `window`.

@@ -16,6 +16,12 @@
 //    arrived first (the last `held_frames` frames of each camera are held
 //    for that).
 // A frame that is not a keyframe costs one resize and one KLT.
+// With `tracks`, every frame of a camera is tracked at full resolution
+// instead (frontend/features/feature_tracker.h), each keyframe carries its
+// tracks to the front end (which relates it to the earlier keyframes of its
+// window through the tracks they share), and the motion and the tracked
+// fraction above are those of the tracks the keyframe shares with the
+// camera's last one.
 #ifndef ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
 #define ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
 
@@ -28,6 +34,7 @@
 #include <utility>
 #include <vector>
 
+#include "rotation_averaging/frontend/features/feature_tracker.h"
 #include "rotation_averaging/frontend/geometry/camera_model.h"
 
 namespace rotation_averaging {
@@ -47,6 +54,13 @@ struct KeyframeSelectionOptions {
   int tracking_width = 320;  // px: frames are reduced to at most this width for tracking
   int corners = 150;         // detected per keyframe (Shi-Tomasi, spread out)
   int held_frames = 4;       // per camera, for a rig capture whose other camera decides later
+  // Full-resolution KLT tracks (see above); tracking_width and corners are
+  // then not used. False: the reduced images' KLT decides alone, and every
+  // pair is matched by descriptors (results/tracks.md: the two on the
+  // renderer's streams, and the tracks' points against SIFT's on real
+  // photographs).
+  bool tracks = true;
+  FeatureTrackerOptions tracker;
 
   bool Validate(std::string* error) const;
 };
@@ -65,6 +79,9 @@ struct SelectorFrame {
   std::int64_t stamp_ns = 0;
   cv::Mat image;  // 8-bit grey, full resolution
   CameraIntrinsics intrinsics;
+  // With KeyframeSelectionOptions::tracks: the camera's tracks in `image`
+  // (its pixels as given), in increasing id order.
+  std::vector<TrackedPoint> tracks;
 };
 
 class KeyframeSelector {
@@ -76,6 +93,9 @@ class KeyframeSelector {
   // and/or held frames of other cameras at its capture. Not thread-safe.
   std::vector<SelectorFrame> Offer(const SelectorFrame& frame);
   const KeyframeSelectionStats& Stats() const { return stats_; }
+  // Forgets every camera's keyframe and frames (a gap in the streams).
+  // Track ids are not reused: a later frame shares no track with a
+  // keyframe from before.
   void Reset();
 
  private:
@@ -87,15 +107,22 @@ class KeyframeSelector {
     std::int64_t keyframe_stamp_ns = 0;
     bool has_keyframe = false;
     std::deque<SelectorFrame> held;     // recent frames that were not keyframes
+    std::vector<TrackedPoint> keyframe_tracks;  // with `tracks`: the last keyframe's
+    cv::Size keyframe_size;
   };
   enum class Reason { kNone, kFirst, kMotion, kTracking, kInterval };
   Reason Decide(Camera& camera, const SelectorFrame& frame, cv::Mat* small);
+  Reason DecideByTracks(const Camera& camera, const SelectorFrame& frame) const;
+  // With `tracks`: the frame with its camera's tracks in it, tracked from
+  // the camera's previous frame.
+  SelectorFrame Track(const SelectorFrame& frame);
   void MakeKeyframe(Camera& camera, const SelectorFrame& frame, const cv::Mat& small);
   bool SameCapture(std::int64_t a, std::int64_t b) const;
   cv::Mat Reduce(const cv::Mat& image) const;  // to at most tracking_width
 
   KeyframeSelectionOptions options_;
   std::map<std::string, Camera> cameras_;
+  std::map<std::string, FeatureTracker> trackers_;  // kept by Reset (their ids go on)
   // Recent keyframes (stamp, camera): a frame of another camera within the
   // tolerance of one is a keyframe too.
   std::deque<std::pair<std::int64_t, std::string>> keyframe_stamps_;
