@@ -84,9 +84,10 @@ step "bag replay"
 bash scripts/benchmark_replay.sh > /dev/null
 step "long image runs"
 bash scripts/benchmark_long_run.sh > /dev/null
-step "camera models (lens distortion), keyframe selection, the time budget, posterior covariances and the focal-length check on raw streams"
+step "camera models (lens distortion), keyframe selection, tracks, the time budget, posterior covariances and the focal-length check on raw streams"
 bash scripts/benchmark_camera_models.sh > /dev/null
 bash scripts/benchmark_keyframe_selection.sh > /dev/null
+bash scripts/benchmark_tracks.sh > /dev/null
 bash scripts/benchmark_budget.sh > /dev/null
 bash scripts/benchmark_posterior.sh > /dev/null
 bash scripts/benchmark_focal_check.sh > /dev/null

@@ -149,3 +149,31 @@ def test_a_missing_run_stops_the_writer_with_its_name(tmp_path):
     with pytest.raises(subprocess.CalledProcessError) as failure:
         run("restart_report.py", tmp_path, 15)
     assert "before_15.txt" in failure.value.stderr
+
+
+def test_tracks_rows_hold_each_runs_figures_and_the_seeds_mean(tmp_path):
+    (tmp_path / "precision.md").write_text("| image | images apart |\n|---|---|\n| room | 1 (0.8 deg) |\n")
+    track_line = "tracks: 223 pairs estimated from shared KLT tracks, 0 matched by descriptors when their tracks did not verify"
+    for tracks, keyframes, median, wall in (("true", 94, 0.0080, 14.0), ("false", 128, 0.0066, 20.0)):
+        extra = budget_lines((2.5, 4.9), (90.0, 150.0), (8.8, 25.9), keyframes, 4 * keyframes)
+        if tracks == "true":
+            extra.append(track_line)
+        (tmp_path / ("stream_2cam_tracks_%s.txt" % tracks)).write_text(
+            summary(keyframes, median, images=1200, wall=wall, selection="motion", extra=extra))
+    for seed, medians in (("2", (0.0060, 0.0066)),):
+        for tracks, median in zip(("true", "false"), medians):
+            (tmp_path / ("seed%s_tracks_%s.txt" % (seed, tracks))).write_text(summary(94, median, selection="motion"))
+    text = run("tracks_report.py", tmp_path, tmp_path / "no_euroc", "1,2,3")
+    row = table_row(text, "2 | `true`")
+    assert row[2:4] == ["94", "4.21x"]
+    assert row[4:8] == ["2.50 / 4.90", "90.00 / 150.00", "8.80 / 25.90", "223"]
+    assert row[8] == "0.0080"
+    without = table_row(text, "2 | `false`")
+    assert without[2] == "128" and without[7:9] == ["0", "0.0066"]
+    # Seed 1 is the stream of the camera rows, seed 2 its own runs, seed 3 has none.
+    assert table_row(text, "1")[1:] == ["0.0080", "4.21x", "0.0066", "2.95x"]
+    assert table_row(text, "2 | 0.0060")[1:] == ["0.0060", "2.95x", "0.0066", "2.95x"]
+    assert table_row(text, "3")[1:] == ["-", "-x", "-", "-x"]
+    assert table_row(text, "mean (min - max)")[1] == "0.0070 (0.0060 - 0.0080)"
+    assert "EuRoC" not in text
+    assert "| room | 1 (0.8 deg) |" in text
