@@ -9,7 +9,6 @@
 // test and mutual check), each with its count and its median distance from
 // where the homography puts the point. Writes a markdown table to stdout.
 //   rotavg_track_precision [--step-deg D] [--steps 1,5,10,20] IMAGE|render ...
-#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -23,13 +22,12 @@
 #include "rotation_averaging/frontend/features/feature_tracker.h"
 #include "rotation_averaging/frontend/features/features.h"
 #include "rotation_averaging/sim/rig_scene.h"
+#include "rotation_averaging/sim/turning_view.h"
 
 namespace rotation_averaging {
 namespace {
 
-constexpr int kWidth = 640, kHeight = 480;
-constexpr double kFocalPx = 420.0;  // the renderer's field of view
-constexpr double kNoiseGrey = 2.0;
+constexpr int kWidth = 640, kHeight = 480;  // TurningViewOptions' (f = 420 px: the renderer's field of view)
 constexpr double kSiftOutlierPx = 3.0;  // a SIFT match further than this is a wrong one, not imprecise
 
 double Median(std::vector<double> v) {
@@ -37,47 +35,6 @@ double Median(std::vector<double> v) {
   std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
   return v[v.size() / 2];
 }
-
-class TurningCamera {
- public:
-  TurningCamera(const cv::Mat& base, double step_deg) : base_(base), step_rad_(step_deg * M_PI / 180.0) {
-    k_ << kFocalPx, 0, kWidth / 2.0, 0, kFocalPx, kHeight / 2.0, 0, 0, 1;
-  }
-  Eigen::Matrix3d Homography(int t) const {
-    const double a = t * step_rad_;
-    const Eigen::Matrix3d r =
-        (Eigen::AngleAxisd(a, Eigen::Vector3d::UnitY()) * Eigen::AngleAxisd(0.4 * a, Eigen::Vector3d::UnitX()))
-            .toRotationMatrix();
-    return k_ * r * k_.inverse();
-  }
-  cv::Mat Image(int t) const {
-    Eigen::Matrix3d centre = Eigen::Matrix3d::Identity();  // image 0 is the middle of the photograph
-    centre(0, 2) = (base_.cols - kWidth) / 2.0;
-    centre(1, 2) = (base_.rows - kHeight) / 2.0;
-    const Eigen::Matrix3d m = centre * Homography(t).inverse();
-    cv::Mat mc(3, 3, CV_64F);
-    for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) mc.at<double>(i, j) = m(i, j);
-    }
-    cv::Mat image, grey, noise(kHeight, kWidth, CV_32F);
-    cv::warpPerspective(base_, image, mc, cv::Size(kWidth, kHeight), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
-                        cv::BORDER_REFLECT);
-    cv::RNG rng(1000 + t);
-    rng.fill(noise, cv::RNG::NORMAL, 0.0, kNoiseGrey);
-    image.convertTo(grey, CV_32F);
-    grey += noise;
-    grey.convertTo(image, CV_8U);
-    return image;
-  }
-  double Error(int t, const Eigen::Vector2d& p0, const Eigen::Vector2d& pt) const {
-    return ((Homography(t) * p0.homogeneous()).hnormalized() - pt).norm();
-  }
-
- private:
-  cv::Mat base_;
-  double step_rad_;
-  Eigen::Matrix3d k_;
-};
 
 // The photograph reduced so that the 640x480 view spans most of it.
 cv::Mat LoadBase(const std::string& source) {
@@ -105,15 +62,15 @@ std::string Name(const std::string& source) {
   return source.substr(slash + 1);
 }
 
-void Row(const std::string& source, const TurningCamera& camera, int steps, double step_deg) {
+void Row(const std::string& source, const TurningView& camera, int steps, double step_deg) {
   FeatureTrackerOptions options;
   FeatureTracker tracker(options);
-  const cv::Mat first_image = camera.Image(0);
+  const cv::Mat first_image = camera.View(0);
   const std::vector<TrackedPoint> first = tracker.Track(first_image);
   cv::Mat image = first_image;
   std::vector<TrackedPoint> last = first;
   for (int t = 1; t <= steps; ++t) {
-    image = camera.Image(t);
+    image = camera.View(t);
     last = tracker.Track(image);
   }
   std::vector<cv::Point2f> points1, points2;
@@ -177,7 +134,9 @@ int Main(int argc, char** argv) {
       std::cerr << "rotavg_track_precision: cannot read " << source << " as an image of at least 640x480\n";
       return 1;
     }
-    const TurningCamera camera(base, step_deg);
+    TurningViewOptions options;
+    options.step_deg = step_deg;
+    const TurningView camera(base, options);
     for (int s : steps) Row(source, camera, s, step_deg);
   }
   return 0;

@@ -2,12 +2,13 @@
 
 #include <gtest/gtest.h>
 
-#include <Eigen/Geometry>
 #include <algorithm>
+#include <memory>
 #include <opencv2/imgproc.hpp>
 #include <set>
 
 #include "rotation_averaging/sim/rig_scene.h"
+#include "rotation_averaging/sim/turning_view.h"
 
 namespace rotation_averaging {
 namespace {
@@ -19,55 +20,27 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-// A camera turning on the spot over a rendered view, `step_deg` per image:
-// image t is image 0 moved by the homography K R_t K^-1 (exact for a
-// turning camera), with the renderer's grey-level noise drawn anew.
+// A camera turning on the spot over a rendered view, `step_deg` per image
+// (sim/turning_view.h): image t is image 0 moved by a known homography.
 class TurningCamera {
  public:
-  explicit TurningCamera(double step_deg) : step_rad_(step_deg * M_PI / 180.0) {
-    RigSceneOptions options;
-    options.noise_grey = 0.0;
-    options.WithWidth(480);
-    const RigScene scene(options);
-    base_ = scene.Render(5, 0, kMargin);
-    k_ = scene.Intrinsics();
+  explicit TurningCamera(double step_deg) {
+    RigSceneOptions scene_options;
+    scene_options.noise_grey = 0.0;
+    scene_options.WithWidth(480);
+    const RigScene scene(scene_options);
+    TurningViewOptions options;
+    options.width = 480;
+    options.height = 360;
+    options.focal_px = scene.Intrinsics()(0, 0);
+    options.step_deg = step_deg;
+    view_ = std::make_unique<TurningView>(scene.Render(5, 0, 80), options);
   }
-  Eigen::Matrix3d Homography(int t) const {  // image 0 pixel -> image t pixel
-    const double a = t * step_rad_;
-    const Eigen::Matrix3d r =
-        (Eigen::AngleAxisd(a, Eigen::Vector3d::UnitY()) * Eigen::AngleAxisd(0.4 * a, Eigen::Vector3d::UnitX()))
-            .toRotationMatrix();
-    return k_ * r * k_.inverse();
-  }
-  cv::Mat Image(int t) const {
-    // Pixel of image t -> pixel of the rendered image with its margin.
-    Eigen::Matrix3d shift = Eigen::Matrix3d::Identity();
-    shift(0, 2) = shift(1, 2) = kMargin;
-    const Eigen::Matrix3d m = shift * Homography(t).inverse();
-    cv::Mat mc(3, 3, CV_64F);
-    for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) mc.at<double>(i, j) = m(i, j);
-    }
-    cv::Mat image;
-    cv::warpPerspective(base_, image, mc, cv::Size(480, 360), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP);
-    cv::Mat noise(image.size(), CV_32F), grey;
-    cv::RNG rng(100 + t);
-    rng.fill(noise, cv::RNG::NORMAL, 0.0, 2.0);
-    image.convertTo(grey, CV_32F);
-    grey += noise;
-    grey.convertTo(image, CV_8U);
-    return image;
-  }
-  // Distance (px) of a point of image t from where image 0's point maps.
-  double Error(int t, const Eigen::Vector2d& p0, const Eigen::Vector2d& pt) const {
-    return ((Homography(t) * p0.homogeneous()).hnormalized() - pt).norm();
-  }
+  cv::Mat Image(int t) const { return view_->View(t); }
+  double Error(int t, const Eigen::Vector2d& p0, const Eigen::Vector2d& pt) const { return view_->Error(t, p0, pt); }
 
  private:
-  static constexpr int kMargin = 80;
-  double step_rad_;
-  cv::Mat base_;
-  Eigen::Matrix3d k_;
+  std::unique_ptr<TurningView> view_;
 };
 
 TEST(FeatureTracker, TracksFollowTheImagesAndKeepTheirIds) {
