@@ -6,8 +6,10 @@
 #    (rotavg_track_precision).
 #  * The node on the renderer's rig as a 20 Hz driver publishes it (600
 #    captures, 30 s; one, two and four cameras), `keyframe_selection:
-#    motion`, with `tracks: true` (the default) and `tracks: false`; the
-#    two-camera stream also rendered with four other noise seeds.
+#    motion`, with `tracks: true` and `tracks: false` (the default); the
+#    two-camera stream also rendered with four other noise seeds, and at
+#    half the turn rate (1200 captures, 60 s, results/keyframe_selection.md's
+#    stream), there also with tracks for the keyframe decision alone.
 #  * EuRoC's raw stereo stream (real, distorted; the vehicle stands still):
 #    the solved cam0 -> cam1 rotation against the calibration's.
 #   bash scripts/benchmark_tracks.sh        (about fifteen minutes)
@@ -42,6 +44,15 @@ for cameras in 1 2 4; do
       "tracks: $tracks"
   done
 done
+SLOW=build/demo/demo_20hz_1200.bag  # benchmark_keyframe_selection.sh plays it too
+if [ ! -f "$SLOW" ]; then
+  "$BIN/rotation_averaging_make_demo_bag" --output "$SLOW.tmp" --captures 1200 --period 0.05 --cameras 2 > /dev/null 2>&1
+  mv "$SLOW.tmp" "$SLOW"
+fi
+TWO='image_topics: ["/cam_front/image_raw", "/cam_left/image_raw"]'
+replay slow_tracks_true "$SLOW" "$TWO" "keyframe_selection: motion" "tracks: true"
+replay slow_tracks_false "$SLOW" "$TWO" "keyframe_selection: motion" "tracks: false"
+replay slow_tracks_selection "$SLOW" "$TWO" "keyframe_selection: motion" "tracks: true" "min_track_matches: 1000000"
 SEEDS=(1 2 3 4 5)
 for seed in "${SEEDS[@]:1}"; do
   bag="$OUT/seed$seed.bag"

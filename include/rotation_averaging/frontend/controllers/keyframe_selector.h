@@ -15,13 +15,13 @@
 //    every other camera at that capture a keyframe too, whichever of them
 //    arrived first (the last `held_frames` frames of each camera are held
 //    for that).
-// A frame that is not a keyframe costs one resize and one KLT.
-// With `tracks`, every frame of a camera is tracked at full resolution
-// instead (frontend/features/feature_tracker.h), each keyframe carries its
-// tracks to the front end (which relates it to the earlier keyframes of its
-// window through the tracks they share), and the motion and the tracked
-// fraction above are those of the tracks the keyframe shares with the
-// camera's last one.
+// With `tracks`, every frame of a camera is tracked at full
+// resolution instead (frontend/features/feature_tracker.h), each keyframe
+// carries its tracks to the front end (which relates it to the earlier
+// keyframes of its window through the tracks they share), and the motion and
+// the tracked fraction above are those of the tracks the keyframe shares with
+// the camera's last one. Without, a frame that is not a keyframe costs one
+// resize and one KLT.
 #ifndef ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
 #define ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
 
@@ -56,10 +56,12 @@ struct KeyframeSelectionOptions {
   int held_frames = 4;       // per camera, for a rig capture whose other camera decides later
   // Full-resolution KLT tracks (see above); tracking_width and corners are
   // then not used. False: the reduced images' KLT decides alone, and every
-  // pair is matched by descriptors (results/tracks.md: the two on the
-  // renderer's streams, and the tracks' points against SIFT's on real
-  // photographs).
-  bool tracks = true;
+  // pair is matched by descriptors. Tracks are faster per pair and their
+  // re-tracked points more precise than SIFT's, but on the renderer's
+  // stream at its usual turn rate they make fewer keyframes and less
+  // accurate pairs (results/tracks.md; docs/decisions.md, "Tracks on camera
+  // streams").
+  bool tracks = false;
   FeatureTrackerOptions tracker;
 
   bool Validate(std::string* error) const;
