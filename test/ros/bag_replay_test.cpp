@@ -16,6 +16,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <iterator>
 #include <random>
 #include <set>
@@ -155,6 +156,51 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
   ASSERT_TRUE(second.ok) << second.error;
   EXPECT_EQ(ReadAll(first.orientations_csv), ReadAll(second.orientations_csv));
   EXPECT_EQ(ReadAll(first.graph_file), ReadAll(second.graph_file));
+}
+
+// The rendered rig as a 20 Hz driver publishes it, replayed with tracks:
+// its keyframes' window pairs come from the tracks, the orientations are
+// accurate, and the keyframes, the graph and the orientations are the same
+// on one thread as on three.
+TEST_F(BagReplay, TracksOnARawStreamGiveTheSameGraphOnAnyThreadCount) {
+  RigSceneOptions scene_options;
+  scene_options.num_captures = 240;  // one loop in 12 s: 1.5 deg per image
+  scene_options.capture_period_s = 0.05;
+  scene_options.WithWidth(320);
+  const RigScene scene(scene_options);
+  const std::string bag = TempDir() + "/stream.bag";
+  NamedOrientations truth;
+  std::string error;
+  ASSERT_TRUE(WriteRigSceneBag(scene, bag, /*compressed=*/false, &truth, &error)) << error;
+  const std::string config = TempDir() + "/stream.yaml";
+  WriteText(config,
+            "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
+            "keyframe_selection: motion\ntracks: true\nmax_features: 1000\nmax_loop_candidates: 2\n"
+            "solve_period: 2.0\nfocal_calibration: off\n");
+  ReplayResult runs[2];
+  for (int r = 0; r < 2; ++r) {
+    ReplayOptions o = Options(bag, r == 0 ? "tracks3" : "tracks1");
+    o.config_path = config;
+    o.ground_truth_path = bag;
+    o.num_threads = r == 0 ? 3 : 1;
+    runs[r] = ReplayBags(o);
+    ASSERT_TRUE(runs[r].ok) << runs[r].error;
+  }
+  const ReplayResult& first = runs[0];
+  std::cout << first.keyframes << " keyframes of " << first.images_seen << " images, " << first.track_pairs
+            << " pairs from tracks, median " << first.scores.median_error_deg << " deg\n";
+  EXPECT_EQ(first.images_seen, 480u);
+  EXPECT_GE(first.keyframes, 20u);
+  EXPECT_LE(first.keyframes, 120u);
+  EXPECT_GT(first.selection.by_motion + first.selection.by_tracking, 0u);
+  EXPECT_GE(first.track_pairs, first.keyframes / 2) << "the window pairs come from the tracks";
+  ASSERT_TRUE(first.have_scores);
+  EXPECT_LT(first.scores.median_error_deg, 0.1);
+  EXPECT_EQ(first.components, 1u);
+  EXPECT_EQ(runs[1].keyframes, first.keyframes);
+  EXPECT_EQ(runs[1].track_pairs, first.track_pairs);
+  EXPECT_EQ(ReadAll(first.graph_file), ReadAll(runs[1].graph_file));
+  EXPECT_EQ(ReadAll(first.orientations_csv), ReadAll(runs[1].orientations_csv));
 }
 
 // The rendered rig for the camera_info checks: 24 captures, 480 px wide.
