@@ -102,6 +102,11 @@ TEST(ImagePipeline, FocalLengthIsEstimatedFromThePairs) {
     EXPECT_GT(focal.principal_point_deviation, 0.0);
     EXPECT_LT(focal.standard_deviation, 0.008);
     EXPECT_EQ(ShouldApplyFocalScale(focal, options), given != 1.0) << given;
+    // Nine profiles (the estimate, four jackknife groups, the principal
+    // point moved four ways) of 31 points each, with the jackknife's coarse
+    // scans taken from the estimate's points and the moved principal
+    // point's searched from the estimate's cell.
+    EXPECT_LT(focal.evaluations, 160) << given;
   }
   // Too few pairs: no estimate.
   const FocalScene scene = MakeFocalScene(k, k);

@@ -8,6 +8,7 @@
 #include <functional>
 #include <iomanip>
 #include <limits>
+#include <map>
 #include <opencv2/imgcodecs.hpp>
 #include <sstream>
 
@@ -169,19 +170,17 @@ std::vector<ProfilePair> ProfilePairs(const std::vector<FocalPair>& pairs, int m
 // a lens's undistortion).
 using PointWarp = std::function<std::vector<Eigen::Vector2d>(const std::vector<Eigen::Vector2d>&)>;
 
-// The profile's cost with intrinsics k, over the pairs not in `left_out` (a
-// group of the jackknife; -1: none). Every pair's pose is refined from its
-// estimate on the matches within its threshold, which are selected again
-// at the refined pose (twice), and scored by the truncated squared Sampson
-// error of all its matches in units of its noise. Selecting the inliers
-// anew matters: those the pose kept with the given intrinsics favour them.
-// `pair_costs` (optional) gets each pair's part (0 for those left out).
-double ProfileCost(const std::vector<ProfilePair>& used, const Eigen::Matrix3d& k, const PointWarp* warp,
-                   int left_out, int min_inliers, int threads, std::vector<double>* pair_costs = nullptr) {
+// Each pair's part of the profile's cost with intrinsics k. Every pair's
+// pose is refined from its estimate on the matches within its threshold,
+// which are selected again at the refined pose (twice), and scored by the
+// truncated squared Sampson error of all its matches in units of its noise.
+// Selecting the inliers anew matters: those the pose kept with the given
+// intrinsics favour them.
+std::vector<double> PairCosts(const std::vector<ProfilePair>& used, const Eigen::Matrix3d& k, const PointWarp* warp,
+                              int min_inliers, int threads) {
   std::vector<double> per_pair(used.size(), 0.0);
   const Eigen::Matrix3d k_inv = k.inverse();
   ParallelFor(static_cast<int>(used.size()), threads, [&](int u) {
-    if (u % kFocalJackknifeGroups == left_out) return;
     const FocalPair& p = *used[u].pair;
     std::vector<Eigen::Vector2d> warped1, warped2;
     if (warp) {
@@ -209,11 +208,39 @@ double ProfileCost(const std::vector<ProfilePair>& used, const Eigen::Matrix3d& 
     }
     per_pair[u] = truncated / (used[u].sigma * used[u].sigma);
   });
+  return per_pair;
+}
+
+// The profile's cost: the pairs' parts summed in their order, without the
+// jackknife's group `left_out` (-1: none).
+double SumWithout(const std::vector<double>& per_pair, int left_out) {
   double sum = 0.0;
-  for (double c : per_pair) sum += c;
-  if (pair_costs) *pair_costs = std::move(per_pair);
+  for (std::size_t u = 0; u < per_pair.size(); ++u) {
+    if (static_cast<int>(u % kFocalJackknifeGroups) != left_out) sum += per_pair[u];
+  }
   return sum;
 }
+
+// The pairs' parts of the cost at every point of one estimate's profiles
+// that was evaluated, by the point's parameters. A jackknife's profile
+// without one group is the full profile's sum without that group's parts:
+// its coarse scan visits the full profile's points, whose parts are all
+// here, so it costs only its golden-section steps. A point's parts do not
+// depend on which group is left out, so the sums, and the estimate, are
+// those of evaluating each profile on its own, bit for bit.
+class ProfileMemo {
+ public:
+  template <typename Compute>
+  const std::vector<double>& PairCosts(const std::vector<double>& point, Compute compute) {
+    auto it = parts_.find(point);
+    if (it == parts_.end()) it = parts_.emplace(point, compute()).first;
+    return it->second;
+  }
+  int Evaluations() const { return static_cast<int>(parts_.size()); }
+
+ private:
+  std::map<std::vector<double>, std::vector<double>> parts_;
+};
 
 // Keypoints of the pinhole camera k undistorted by the one-parameter
 // division model.
@@ -245,18 +272,41 @@ PointWarp LensWarp(const CameraIntrinsics& lens, const Eigen::Matrix3d& from_k, 
 
 // The minimum of a profile over [centre - range, centre + range]: a coarse
 // scan in steps of `step`, then golden-section search in the best cell's
-// neighbours. NaN when it lies on the edge of the range.
-double MinimiseProfile(const std::function<double(double)>& cost, double centre, double range, double step) {
+// neighbours. NaN when it lies on the edge of the range. `best_cell`
+// (optional) gets the coarse scan's best cell, -cells..cells.
+//
+// With a `start_cell` (a nearby profile's best cell) the scan walks from it
+// instead: the cell and its neighbours, then downhill until the best cell
+// has a visited cell on either side. A profile moved a little from one
+// whose minimum is known (the principal point moved by its deviation) is
+// found at the same cell as by the whole scan in a fraction of its
+// evaluations, unless it has a second, deeper minimum further than the walk
+// reaches.
+constexpr int kScanAll = std::numeric_limits<int>::min();
+
+double MinimiseProfile(const std::function<double(double)>& cost, double centre, double range, double step,
+                       int start_cell = kScanAll, int* best_cell = nullptr) {
   const int cells = static_cast<int>(std::ceil(range / step));
   int best = -cells;
   double best_cost = std::numeric_limits<double>::infinity();
-  for (int c = -cells; c <= cells; ++c) {
+  auto visit = [&](int c) {
     const double value = cost(centre + c * step);
     if (value < best_cost) {
       best_cost = value;
       best = c;
     }
+  };
+  if (start_cell == kScanAll) {
+    for (int c = -cells; c <= cells; ++c) visit(c);
+  } else {
+    int lo = std::clamp(start_cell - 1, -cells, cells), hi = std::clamp(start_cell + 1, -cells, cells);
+    for (int c = lo; c <= hi; ++c) visit(c);
+    while (std::isfinite(best_cost) && ((best == lo && lo > -cells) || (best == hi && hi < cells))) {
+      if (best == lo) visit(--lo);
+      else visit(++hi);
+    }
   }
+  if (best_cell) *best_cell = best;
   if (!std::isfinite(best_cost) || best == -cells || best == cells) return std::numeric_limits<double>::quiet_NaN();
   double lo = centre + (best - 1) * step, hi = centre + (best + 1) * step;
   const double ratio = 0.5 * (std::sqrt(5.0) - 1.0);
@@ -323,22 +373,28 @@ FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const E
   // the normalised coordinates K gives: each K tried undistorts the raw
   // keypoints again, as the camera would with it.
   const bool redo = lens != nullptr && lens->HasDistortion();
+  ProfileMemo memo;
   auto cost = [&](const Eigen::Matrix3d& base, double a, int left_out) {
-    Eigen::Matrix3d ka = base;
-    ka(0, 0) *= a;
-    ka(1, 1) *= a;
-    if (!redo) return ProfileCost(used, ka, nullptr, left_out, options.min_inliers, threads);
-    const PointWarp warp = LensWarp(*lens, k, ka);
-    return ProfileCost(used, ka, &warp, left_out, options.min_inliers, threads);
+    const std::vector<double>& parts = memo.PairCosts({base(0, 2), base(1, 2), a}, [&] {
+      Eigen::Matrix3d ka = base;
+      ka(0, 0) *= a;
+      ka(1, 1) *= a;
+      if (!redo) return PairCosts(used, ka, nullptr, options.min_inliers, threads);
+      const PointWarp warp = LensWarp(*lens, k, ka);
+      return PairCosts(used, ka, &warp, options.min_inliers, threads);
+    });
+    return SumWithout(parts, left_out);
   };
   const double range = std::clamp(options.search_range, 0.01, 0.5), step = 0.02;
-  auto minimise = [&](const Eigen::Matrix3d& base, int left_out) {
-    return MinimiseProfile([&](double a) { return cost(base, a, left_out); }, 1.0, range, step);
+  auto minimise = [&](const Eigen::Matrix3d& base, int left_out, int start_cell = kScanAll, int* best = nullptr) {
+    return MinimiseProfile([&](double a) { return cost(base, a, left_out); }, 1.0, range, step, start_cell, best);
   };
-  out.scale = minimise(k, -1);
+  int best_cell = 0;
+  out.scale = minimise(k, -1, kScanAll, &best_cell);
   if (!std::isfinite(out.scale)) {
     out.scale = 1.0;
     out.unobservable = true;
+    out.evaluations = memo.Evaluations();
     return out;
   }
   out.matches_deviation = ProfileDeviation([&](double a, int g) { return cost(k, a, g); },
@@ -347,6 +403,7 @@ FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const E
   // both ways: half the change of the estimate is its part of the
   // deviation (FocalCalibrationOptions::principal_point_sigma). An estimate
   // that leaves the search range when it is moved has no useful deviation.
+  // Each moved profile is searched from the estimate's cell.
   const double shift = std::max(0.0, options.principal_point_sigma) * 2.0 * k(0, 2);
   double principal_point = 0.0;
   if (shift > 0.0) {
@@ -354,11 +411,12 @@ FocalCalibration EstimateFocalScale(const std::vector<FocalPair>& pairs, const E
       Eigen::Matrix3d plus = k, minus = k;
       plus(axis, 2) += shift;
       minus(axis, 2) -= shift;
-      const double change = 0.5 * (minimise(plus, -1) - minimise(minus, -1));
+      const double change = 0.5 * (minimise(plus, -1, best_cell) - minimise(minus, -1, best_cell));
       principal_point = std::isfinite(change) ? std::hypot(principal_point, change)
                                               : std::numeric_limits<double>::infinity();
     }
   }
+  out.evaluations = memo.Evaluations();
   out.principal_point_deviation = principal_point;
   out.standard_deviation = std::hypot(out.matches_deviation, principal_point);
   out.estimated = std::isfinite(out.standard_deviation);
@@ -378,10 +436,14 @@ RadialDistortion EstimateRadialDistortion(const std::vector<FocalPair>& pairs, c
   if (out.pairs < std::max(1, options.min_pairs)) return out;
   const int threads = ResolveThreadCount(options.num_threads);
   const Eigen::Matrix3d k_inv = k.inverse();
-  auto cost = [&](double lambda, int left_out) {
-    const PointWarp warp = DivisionWarp(k, lambda);
-    return ProfileCost(used, k, &warp, left_out, options.min_inliers, threads);
+  ProfileMemo memo;
+  auto parts = [&](double lambda) -> const std::vector<double>& {
+    return memo.PairCosts({lambda}, [&] {
+      const PointWarp warp = DivisionWarp(k, lambda);
+      return PairCosts(used, k, &warp, options.min_inliers, threads);
+    });
   };
+  auto cost = [&](double lambda, int left_out) { return SumWithout(parts(lambda), left_out); };
   const double range = std::clamp(options.search_range, 0.05, 1.0), step = 0.04;
   auto minimise = [&](int left_out) {
     return MinimiseProfile([&](double lambda) { return cost(lambda, left_out); }, 0.0, range, step);
@@ -390,18 +452,16 @@ RadialDistortion EstimateRadialDistortion(const std::vector<FocalPair>& pairs, c
   if (!std::isfinite(out.lambda)) {
     out.lambda = 0.0;
     out.unobservable = true;
+    out.evaluations = memo.Evaluations();
     return out;
   }
   // With a focal scale to compare with, each pair's cost at lambda is needed
-  // too: taken from the evaluation the deviation starts from.
+  // too.
   const bool compare = focal != nullptr && focal->estimated;
-  std::vector<double> with_distortion;
-  double at_lambda = std::numeric_limits<double>::quiet_NaN();
-  if (compare) {
-    const PointWarp warp = DivisionWarp(k, out.lambda);
-    at_lambda = ProfileCost(used, k, &warp, -1, options.min_inliers, threads, &with_distortion);
-  }
+  const std::vector<double> with_distortion = parts(out.lambda);
+  const double at_lambda = SumWithout(with_distortion, -1);
   out.standard_deviation = ProfileDeviation(cost, minimise, out.lambda, out.pairs, 2e-3, 0.05, at_lambda);
+  out.evaluations = memo.Evaluations();
   const Eigen::Vector2d corner = (k_inv * Eigen::Vector3d(0.0, 0.0, 1.0)).hnormalized();
   const double r2 = corner.squaredNorm();
   out.corner_shift_px = std::abs(out.lambda * r2 / (1.0 + out.lambda * r2)) * corner.norm() * k(0, 0);
@@ -413,10 +473,10 @@ RadialDistortion EstimateRadialDistortion(const std::vector<FocalPair>& pairs, c
     Eigen::Matrix3d ka = k;
     ka(0, 0) *= focal->scale;
     ka(1, 1) *= focal->scale;
-    std::vector<double> with_focal;
     out.cost = at_lambda;
     out.focal_only_scale = focal->scale;
-    out.focal_only_cost = ProfileCost(used, ka, nullptr, -1, options.min_inliers, threads, &with_focal);
+    const std::vector<double> with_focal = PairCosts(used, ka, nullptr, options.min_inliers, threads);
+    out.focal_only_cost = SumWithout(with_focal, -1);
     // Paired over the pairs: how consistently each pair prefers the
     // distortion. The profile is not smooth (inliers are selected again at
     // every value), so a sum a few units lower is not yet a better

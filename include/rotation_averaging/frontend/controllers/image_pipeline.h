@@ -88,6 +88,9 @@ struct FocalCalibration {
   // the pairs do not determine the focal length.
   bool unobservable = false;
   bool applied = false;            // the pairs were estimated again with the corrected focal length
+  // Points of the profiles evaluated (each refines every pair's pose): what
+  // the estimate cost.
+  int evaluations = 0;
   std::string Report() const;
 };
 
@@ -203,6 +206,7 @@ struct RadialDistortion {
   double corner_shift_px = 0.0;  // how far lambda moves a keypoint in a corner of the image (width 2 cx)
   int pairs = 0;
   bool unobservable = false;  // enough pairs, but lambda left the search range
+  int evaluations = 0;        // points of the profiles evaluated, as FocalCalibration's
   // The other one-parameter explanation of pairs that bend: a wrong focal
   // length. A focal length a few percent off bends the pairs much as a
   // distortion does, and the distortion profile, which runs at the given
