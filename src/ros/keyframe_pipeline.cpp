@@ -57,6 +57,10 @@ std::map<std::string, CameraFocalCheck> KeyframePipeline::FocalChecks() const {
   return focal_checker_ ? focal_checker_->Checks() : std::map<std::string, CameraFocalCheck>();
 }
 
+TimeDistribution KeyframePipeline::FocalCheckTimes() const {
+  return focal_checker_ ? focal_checker_->EstimateTimes() : TimeDistribution();
+}
+
 std::vector<std::pair<std::string, bool>> KeyframePipeline::TakeFocalNotices() {
   std::vector<std::pair<std::string, bool>> out;
   if (focal_checker_) out = focal_checker_->TakeNotices();

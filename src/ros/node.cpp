@@ -440,6 +440,7 @@ NodeStatus RotationAveragingNode::Snapshot() {
   last_received_ = s.averager.received;
   last_images_ = s.pipeline.processed_images;
   s.focal_checks = pipeline_->FocalChecks();
+  s.focal_check_times = pipeline_->FocalCheckTimes();
   if (pipeline_->HasFrontend()) {
     s.has_frontend = true;
     s.frontend = pipeline_->FrontendStats();

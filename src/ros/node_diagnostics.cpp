@@ -76,6 +76,11 @@ void AddFrontend(const NodeStatus& s, diagnostic_updater::DiagnosticStatusWrappe
   for (const auto& [camera, correction] : s.focal_corrections) {
     status->add("focal length of " + camera + " corrected (x camera_info's)", correction);
   }
+  if (s.focal_check_times.Count() > 0) {
+    status->add("focal-length check estimates", s.focal_check_times.Count());
+    status->add("time per focal-length check estimate, median (ms)", 1e3 * s.focal_check_times.Median());
+    status->add("time per focal-length check estimate, p95 (ms)", 1e3 * s.focal_check_times.P95());
+  }
   status->add("front-end memory of the focal-length check (MiB)", f.focal_bytes / 1048576.0);
 }
 

@@ -60,6 +60,7 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
   result->absorbed_by_rig = pipeline_stats.absorbed_by_rig;
   for (const auto& [camera, rig] : pipeline.Rig().RigCameras()) result->rig_cameras.push_back(camera + " in " + rig.first);
   for (const auto& [camera, check] : pipeline.FocalChecks()) result->focal_checks.push_back(check.Report());
+  result->focal_check_times = pipeline.FocalCheckTimes();
   for (const auto& [camera, correction] : pipeline.FocalCorrections()) {
     std::ostringstream line;
     line << camera << ": camera_info's focal length x" << std::setprecision(6) << correction;
@@ -260,6 +261,10 @@ std::string ReplayResult::Summary() const {
   if (damaged_messages > 0) out << "damaged messages dropped: " << damaged_messages << "\n";
   for (const std::string& camera : camera_models) out << "camera " << camera << "\n";
   for (const std::string& check : focal_checks) out << "camera_info check, last estimate: " << check << "\n";
+  if (focal_check_times.Count() > 0) {
+    out << "time per camera_info check estimate (one camera's pairs; the node runs it beside the front end): "
+        << focal_check_times.DescribeMs() << "\n";
+  }
   for (const std::string& c : focal_corrections) out << "focal length corrected (focal_calibration: apply): " << c << "\n";
   for (const std::string& r : focal_loop_refinements) out << "focal length by the loops, last estimate: " << r << "\n";
   if (!rig_cameras.empty()) {

@@ -312,6 +312,11 @@ TEST_F(BagReplay, ACameraInfoWithAWrongFocalLengthIsFoundOut) {
     if (c.rfind("cam_left:", 0) == 0) EXPECT_EQ(c.find("distorted"), std::string::npos) << c;
   }
   EXPECT_NE(result.Summary().find("camera_info check"), std::string::npos);
+  // Each camera's estimates are timed (the replay runs every one that came
+  // due, a camera's first at 20 pairs), and the summary gives their time.
+  EXPECT_GE(result.focal_check_times.Count(), result.focal_checks.size());
+  EXPECT_GT(result.focal_check_times.Median(), 0.0);
+  EXPECT_NE(result.Summary().find("time per camera_info check estimate"), std::string::npos);
   // The last focal-check message says so too, with the estimate.
   rosbag::Bag out(result.output_bag, rosbag::bagmode::Read);
   rosbag::View checks_topic(out, rosbag::TopicQuery("/rotation_averaging/camera_info_checks"));

@@ -115,7 +115,13 @@ TEST(NodeDiagnostics, TheFrontEndsFiguresAreReportedWithIt) {
   s.frontend.pair_times.Add(0.004);
   s.pipeline.image_times.Add(0.002);
   s.pipeline.keyframe_times.Add(0.030);
+  s.focal_check_times.Add(0.250);
+  s.focal_check_times.Add(0.150);
+  s.focal_check_times.Add(0.200);
   const std::map<std::string, std::string> v = Values(Fill(s));
+  EXPECT_EQ(v.at("focal-length check estimates"), "3");
+  EXPECT_EQ(v.at("time per focal-length check estimate, median (ms)"), "200");
+  EXPECT_EQ(v.at("time per focal-length check estimate, p95 (ms)"), "250");
   EXPECT_EQ(v.at("keyframe images per second"), "2.5");
   EXPECT_EQ(v.at("time per two-view pair, median (ms)"), "4");
   EXPECT_EQ(v.at("time per two-view pair, p95 (ms)"), "6");
@@ -138,6 +144,7 @@ TEST(NodeDiagnostics, NoTimeBudgetIsReportedBeforeAnyImage) {
   const std::map<std::string, std::string> v = Values(Fill(s));
   EXPECT_EQ(v.count("time per image (decoding, checks, selection), median (ms)"), 0u);
   EXPECT_EQ(v.count("time per two-view pair, median (ms)"), 0u);
+  EXPECT_EQ(v.count("time per focal-length check estimate, median (ms)"), 0u);
 }
 
 TEST(NodeDiagnostics, RecentTimesKeepTheLastFifty) {

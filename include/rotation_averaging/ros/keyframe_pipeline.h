@@ -174,6 +174,9 @@ class KeyframePipeline {
   // The latest focal-length check of each camera (focal_calibration), by
   // camera; estimates run on a thread of their own.
   std::map<std::string, CameraFocalCheck> FocalChecks() const;
+  // Wall time of each focal-length estimate that ran (FocalChecker); empty
+  // without the check.
+  TimeDistribution FocalCheckTimes() const;
   // Log lines of the checks and corrections since the last call
   // (FocalChecker::TakeNotices, FocalCorrector::TakeNotices), each with
   // whether it is a warning.

@@ -46,6 +46,7 @@ struct NodeStatus {
   std::string retrieval;  // KeyframeFrontend::RetrievalName
   bool window_pairs = false;
   std::map<std::string, CameraFocalCheck> focal_checks;
+  TimeDistribution focal_check_times;  // each focal-length estimate, on the checker's thread
   std::map<std::string, double> focal_corrections;
   double resident_mib = 0.0, peak_resident_mib = 0.0;
 };

@@ -52,6 +52,7 @@ struct ReplayResult {
   // (decoding, checks, selection), per keyframe (the front end), per two-view
   // pair (matching and estimation, on its thread).
   TimeDistribution image_times, keyframe_times, pair_times;
+  TimeDistribution focal_check_times;  // each focal-length estimate (the replay waits for it)
   double frontend_features_s = 0.0, frontend_retrieval_s = 0.0, frontend_pairs_s = 0.0;
   // Two-view pairs of the front end: failed, edges from the rotation-only
   // model, and failed previous pairs bridged by an older keyframe.

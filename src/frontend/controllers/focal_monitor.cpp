@@ -1,6 +1,7 @@
 #include "rotation_averaging/frontend/controllers/focal_monitor.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <iomanip>
 #include <sstream>
@@ -218,6 +219,11 @@ void FocalChecker::ExpectFocal(const std::string& camera, double given_focal_px)
   if (it != checks_.end() && it->second.given_focal_px != given_focal_px) checks_.erase(it);
 }
 
+TimeDistribution FocalChecker::EstimateTimes() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return estimate_times_;
+}
+
 void FocalChecker::Run() {
   while (true) {
     FocalJob job;
@@ -229,9 +235,12 @@ void FocalChecker::Run() {
       queue_.pop_front();
       running_job_ = true;
     }
+    const auto start = std::chrono::steady_clock::now();
     CameraFocalCheck check = RunFocalJob(job, options_);
+    const double seconds = SecondsSince(start);
     {
       std::lock_guard<std::mutex> lock(mutex_);
+      estimate_times_.Add(seconds);
       const auto expected = expected_focal_px_.find(check.camera);
       if (expected != expected_focal_px_.end() && expected->second != check.given_focal_px) {
         running_job_ = false;  // estimated on a focal length no longer used

@@ -29,6 +29,7 @@
 
 #include "rotation_averaging/frontend/controllers/image_pipeline.h"
 #include "rotation_averaging/frontend/estimators/relative_pose.h"
+#include "rotation_averaging/util/time_distribution.h"
 
 namespace rotation_averaging {
 
@@ -172,6 +173,9 @@ class FocalChecker {
   // applied): its check from the former one is dropped, and so are results
   // of jobs still running on it.
   void ExpectFocal(const std::string& camera, double given_focal_px);
+  // Wall time of each estimate that ran (one camera's focal length and lens
+  // check, on the checker's thread): part of the node's time budget.
+  TimeDistribution EstimateTimes() const;
 
  private:
   void Run();
@@ -183,6 +187,7 @@ class FocalChecker {
   std::map<std::string, CameraFocalCheck> checks_;
   std::map<std::string, double> expected_focal_px_;  // ExpectFocal
   std::vector<std::pair<std::string, bool>> notices_;
+  TimeDistribution estimate_times_;
   std::thread worker_;
 };
 
