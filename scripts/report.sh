@@ -16,6 +16,7 @@
 #   long_run.md        the keyframe front end over 800 keyframes and three laps
 #   camera_models.md   lens distortion: EuRoC's real stereo camera, scenes warped through known lenses
 #   keyframe_selection.md  keyframe selection on a rendered 20 Hz stream
+#   keyframe_rotation.md   keyframes by the camera's rotation: photographs as a stream, the 20 Hz streams
 #   focal_check.md     the node's check of camera_info's focal length against the images
 #   restart.md         the demo replayed as a node restarted mid-run: the map saved and loaded
 #   map.md             the saved map at 800 and 10,000 keyframes: size on disk, load and save times
@@ -87,6 +88,7 @@ bash scripts/benchmark_long_run.sh > /dev/null
 step "camera models (lens distortion), keyframe selection, tracks, the time budget, posterior covariances and the focal-length check on raw streams"
 bash scripts/benchmark_camera_models.sh > /dev/null
 bash scripts/benchmark_keyframe_selection.sh > /dev/null
+bash scripts/benchmark_keyframe_rotation.sh > /dev/null
 bash scripts/benchmark_tracks.sh > /dev/null
 bash scripts/benchmark_budget.sh > /dev/null
 bash scripts/benchmark_posterior.sh > /dev/null

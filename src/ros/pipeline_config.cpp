@@ -193,6 +193,7 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   c.selection.rig_stamp_tolerance_s = f.rig_stamp_tolerance_s;
   r.ReadOption("keyframe_selection", &c.keyframe_selection);
   r.Read("keyframe_min_motion_deg", &c.selection.min_motion_deg);
+  r.Read("keyframe_min_rotation_deg", &c.selection.min_rotation_deg);
   r.Read("keyframe_min_tracked_fraction", &c.selection.min_tracked_fraction);
   r.Read("keyframe_max_interval_s", &c.selection.max_interval_s);
   r.Read("tracks", &c.selection.tracks);

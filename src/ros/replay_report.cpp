@@ -246,8 +246,12 @@ std::string ReplayResult::Summary() const {
         << " ms per image\n";
     if (selection.keyframes > 0) {
       out << "  keyframes made: " << selection.first << " first of their camera, " << selection.by_motion
-          << " by motion, " << selection.by_tracking << " by tracks lost, " << selection.by_interval
-          << " by interval, " << selection.by_rig << " with the rig's other cameras\n";
+          << " by motion, " << selection.by_rotation << " by rotation, " << selection.by_tracking
+          << " by tracks lost, " << selection.by_interval << " by interval, " << selection.by_rig << " with the rig's other cameras\n";
+    }
+    if (selection.rotation_checks > 0) {
+      out << "  rotation checks (keyframe_min_rotation_deg): " << selection.rotation_checks << ", "
+          << 1e3 * selection.rotation_s / selection.rotation_checks << " ms each\n";
     }
   }
   if (image_times.Count() > 0) {

@@ -9,8 +9,14 @@
 #include <map>
 #include <set>
 
-#include "rotation_averaging/sim/rig_scene.h"
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "common/test_data.h"
 #include "rotation_averaging/core/geometry/so3.h"
+#include "rotation_averaging/core/io/orientation_io.h"
+#include "rotation_averaging/frontend/features/features.h"
+#include "rotation_averaging/sim/rig_scene.h"
 
 namespace rotation_averaging {
 namespace {
@@ -201,6 +207,68 @@ TEST(KeyframeSelector, ABlankViewWaitsForTexture) {
   EXPECT_EQ(selector.Offer(textured).size(), 1u);
 }
 
+// Real photographs of a camera walking along a facade while turning to keep
+// it in view (Strecha entry-P10, 6-17 deg apart, a quarter of full width,
+// offered one a second): the corners on the facade move less than the camera
+// turns, so the corners' motion alone lets photographs go that turned well
+// past the threshold since their keyframe, and their pairs widen. With
+// keyframe_min_rotation_deg every photograph that turned past it (by more
+// than the estimate's error) is a keyframe.
+TEST(KeyframeSelector, PhotographsCirclingAFacadeAreKeyframesByTheirRotation) {
+  const std::string scene = SharedDataPath("strecha/entry-P10");
+  ROTAVG_REQUIRE_SHARED_DATA(scene);
+  NamedOrientations truth;
+  ASSERT_TRUE(ReadStrechaGroundTruth(scene, &truth).ok());
+  Eigen::Matrix3d k;
+  std::string error;
+  ASSERT_TRUE(ReadIntrinsics(scene + "/images/K.txt", &k, &error)) << error;
+  std::vector<SelectorFrame> frames;
+  std::vector<Eigen::Matrix3d> world_to_camera;
+  for (const auto& [name, rotation] : truth) {
+    const cv::Mat full = cv::imread(scene + "/images/" + name, cv::IMREAD_GRAYSCALE);
+    ASSERT_FALSE(full.empty()) << name;
+    SelectorFrame f;
+    f.camera = "camera";
+    f.stamp_ns = static_cast<std::int64_t>(frames.size() + 1) * 1'000'000'000LL;
+    cv::resize(full, f.image, cv::Size(), 0.25, 0.25, cv::INTER_AREA);
+    f.intrinsics.k = ScaleIntrinsics(k, 0.25);
+    frames.push_back(f);
+    world_to_camera.push_back(rotation);
+  }
+  ASSERT_EQ(frames.size(), 10u);
+  auto turned = [&](std::size_t a, std::size_t b) {
+    return RadToDeg(RotationAngleRad(world_to_camera[b] * world_to_camera[a].transpose()));
+  };
+  constexpr double kThreshold = 6.0, kEstimateError = 2.0;
+  for (const double min_rotation : {0.0, kThreshold}) {
+    KeyframeSelectionOptions options;
+    options.min_rotation_deg = min_rotation;
+    KeyframeSelector selector(options);
+    std::vector<std::size_t> keyframes;
+    for (std::size_t i = 0; i < frames.size(); ++i) {
+      if (!selector.Offer(frames[i]).empty()) keyframes.push_back(i);
+    }
+    // The most a photograph that was let go had turned since its keyframe.
+    double passed_over = 0.0;
+    for (std::size_t i = 0, last = 0; i < frames.size(); ++i) {
+      if (std::find(keyframes.begin(), keyframes.end(), i) != keyframes.end()) {
+        last = i;
+        continue;
+      }
+      passed_over = std::max(passed_over, turned(last, i));
+    }
+    if (min_rotation > 0.0) {
+      EXPECT_GT(selector.Stats().by_rotation, 0u);
+      EXPECT_LT(passed_over, kThreshold + kEstimateError) << keyframes.size() << " keyframes";
+    } else {
+      EXPECT_EQ(selector.Stats().by_rotation, 0u);
+      EXPECT_GT(passed_over, 2.0 * kThreshold) << keyframes.size() << " keyframes";
+    }
+    std::cout << "keyframe_min_rotation_deg " << min_rotation << ": " << keyframes.size()
+              << " keyframes of 10 photographs; the most a photograph let go had turned: " << passed_over << " deg\n";
+  }
+}
+
 TEST(KeyframeSelector, OptionsAreChecked) {
   KeyframeSelectionOptions o;
   std::string error;
@@ -211,6 +279,10 @@ TEST(KeyframeSelector, OptionsAreChecked) {
   o = KeyframeSelectionOptions();
   o.min_motion_deg = std::nan("");
   EXPECT_FALSE(o.Validate(&error));
+  o = KeyframeSelectionOptions();
+  o.min_rotation_deg = -1.0;
+  EXPECT_FALSE(o.Validate(&error));
+  EXPECT_NE(error.find("keyframe_min_rotation_deg"), std::string::npos) << error;
   o = KeyframeSelectionOptions();
   o.corners = 3;
   EXPECT_FALSE(o.Validate(&error));

@@ -177,3 +177,29 @@ def test_tracks_rows_hold_each_runs_figures_and_the_seeds_mean(tmp_path):
     assert table_row(text, "mean (min - max)")[1] == "0.0070 (0.0060 - 0.0080)"
     assert "EuRoC" not in text
     assert "| room | 1 (0.8 deg) |" in text
+
+
+def test_keyframe_rotation_rows_hold_each_runs_keyframes_by_reason(tmp_path):
+    made = "  keyframes made: 1 first of their camera, %d by motion, %d by rotation, %d by tracks lost, 0 by interval, " \
+           "0 with the rig's other cameras"
+    (tmp_path / "door_all.txt").write_text(summary(12, 0.0214))
+    (tmp_path / "door_rot0.txt").write_text(summary(2, 0.0380, images=12, selection="motion",
+                                                   extra=[made % (0, 0, 1)]))
+    (tmp_path / "door_rot6.txt").write_text(summary(6, 0.0226, images=12, selection="motion",
+                                                   extra=[made % (0, 5, 0)]))
+    (tmp_path / "stream600_rot6.txt").write_text(summary(132, 0.0054, images=1200, selection="motion",
+                                                        extra=[made % (2, 26, 39),
+                                                               "  rotation checks (keyframe_min_rotation_deg): 238, "
+                                                               "2.01 ms each"]))
+    text = run("keyframe_rotation_report.py", tmp_path, "door", "600", "0,6", tmp_path / "no_euroc")
+    every = table_row(text, "door | every image (`keyframe_selection: all`)")
+    assert every[2] == "12" and every[10] == "0.0214"
+    alone = table_row(text, "door | 0 (motion and tracking alone)")
+    assert alone[2:6] == ["2", "0", "0", "1"] and alone[8:11] == ["0", "-", "0.0380"]
+    by_rotation = table_row(text, "door | 6 (default)")
+    assert by_rotation[2:6] == ["6", "0", "5", "0"] and by_rotation[10] == "0.0226"
+    stream = table_row(text, "600 captures (30 s) | 6 (default)")
+    assert stream[2:6] == ["132", "2", "26", "39"] and stream[8:11] == ["238", "2.01", "0.0054"]
+    # A run the benchmark did not make has no row; no EuRoC folder, no EuRoC section.
+    assert "600 captures (30 s) | 0 (motion" not in text
+    assert "EuRoC" not in text

@@ -7,9 +7,12 @@
 //    (pyramidal Lucas-Kanade on a reduced grey image, corners detected once
 //    per keyframe) and becomes a keyframe when the tracked corners moved by
 //    a median of `min_motion_deg` (the angle they subtend at the camera:
-//    rotation and parallax alike, independent of the image size), when
-//    fewer than `min_tracked_fraction` of them are still tracked (the view
-//    has left the keyframe's), or when `max_interval_s` has passed;
+//    rotation and parallax alike, independent of the image size), when the
+//    camera turned by `min_rotation_deg` (the rotation the same corners
+//    show, placed again at full resolution: a camera circling what it looks
+//    at turns while the corners on it hardly move), when fewer than
+//    `min_tracked_fraction` of them are still tracked (the view has left the
+//    keyframe's), or when `max_interval_s` has passed;
 //  * rig cameras of one capture (stamps within `rig_stamp_tolerance_s`)
 //    become keyframes together: a keyframe of one camera makes the frame of
 //    every other camera at that capture a keyframe too, whichever of them
@@ -48,6 +51,17 @@ struct KeyframeSelectionOptions {
   // accuracy and speed of each threshold on a 20 Hz stream).
   double min_motion_deg = 8.0;
   double min_tracked_fraction = 0.4;
+  // The camera's rotation from its last keyframe (deg), estimated from the
+  // tracked corners (essential matrix, or the rotation-only model where it
+  // explains them), at which a frame becomes a keyframe even though its
+  // corners moved less than min_motion_deg: a camera circling what it looks
+  // at (an object, a facade, a door) turns while the corners on it hardly
+  // move. 0: not checked. At 6 every photograph of the Strecha scenes and
+  // lund_door that turned 6 deg since its keyframe is one, and the renderer's
+  // 20 Hz streams make the keyframes they made without it, or two more
+  // (results/keyframe_rotation.md; docs/decisions.md, "Keyframes by
+  // rotation").
+  double min_rotation_deg = 6.0;
   // A keyframe at least this often (s), even without motion; 0: never.
   double max_interval_s = 0.0;
   double rig_stamp_tolerance_s = 0.005;  // cameras of one capture: stamps within this
@@ -70,9 +84,11 @@ struct KeyframeSelectionOptions {
 struct KeyframeSelectionStats {
   std::uint64_t frames = 0;            // every frame offered
   std::uint64_t keyframes = 0;         // of them, made keyframes
-  std::uint64_t by_motion = 0, by_tracking = 0, by_interval = 0, first = 0, by_rig = 0;  // why
+  std::uint64_t by_motion = 0, by_rotation = 0, by_tracking = 0, by_interval = 0, first = 0, by_rig = 0;  // why
   std::uint64_t skipped = 0;           // not keyframes
   double tracking_s = 0.0;             // wall time of the checks
+  std::uint64_t rotation_checks = 0;   // rotations estimated (min_rotation_deg)
+  double rotation_s = 0.0;             // their wall time, part of tracking_s
 };
 
 // One frame of a camera as the selector sees it.
@@ -103,6 +119,8 @@ class KeyframeSelector {
  private:
   struct Camera {
     cv::Mat keyframe_small;             // the last keyframe, reduced
+    cv::Mat keyframe_full;              // and at full resolution, with min_rotation_deg
+    std::int64_t rotation_checked_ns = 0;  // stamp of the last rotation check (or keyframe)
     std::vector<cv::Point2f> corners;   // detected in it
     double scale = 1.0;                 // reduced / full resolution
     double focal_px = 1.0;              // of the reduced image
@@ -112,9 +130,17 @@ class KeyframeSelector {
     std::vector<TrackedPoint> keyframe_tracks;  // with `tracks`: the last keyframe's
     cv::Size keyframe_size;
   };
-  enum class Reason { kNone, kFirst, kMotion, kTracking, kInterval };
+  enum class Reason { kNone, kFirst, kMotion, kRotation, kTracking, kInterval };
+  // The rotation from the camera's keyframe to the frame that the corners
+  // tracked between them show (from, to: pixels of the images tracked) is
+  // at least min_rotation_deg.
+  // A rotation check of this frame is due (min_rotation_deg set, and the
+  // camera's last one, or its keyframe, long enough ago); notes it as made.
+  bool RotationCheckDue(Camera& camera, const SelectorFrame& frame) const;
+  bool RotatedEnough(const Camera& camera, const SelectorFrame& frame, std::vector<Eigen::Vector2d>* from,
+                     std::vector<Eigen::Vector2d>* to);
   Reason Decide(Camera& camera, const SelectorFrame& frame, cv::Mat* small);
-  Reason DecideByTracks(const Camera& camera, const SelectorFrame& frame) const;
+  Reason DecideByTracks(Camera& camera, const SelectorFrame& frame);
   // With `tracks`: the frame with its camera's tracks in it, tracked from
   // the camera's previous frame.
   SelectorFrame Track(const SelectorFrame& frame);

@@ -1,0 +1,76 @@
+#!/usr/bin/env bash
+# Regenerates results/keyframe_rotation.md: keyframes made by the camera's
+# rotation (keyframe_min_rotation_deg) as well as by its corners' motion.
+#  * Photographs played as a camera stream (keyframe_selection: motion, one
+#    image a second): the Strecha scenes and lund_door at a quarter of full
+#    width, each camera circling what it looks at, against every image a
+#    keyframe (keyframe_selection: all).
+#  * The demo renderer's two-camera rig as a 20 Hz driver publishes it: one
+#    loop of the room in 30 s and in 60 s.
+#  * EuRoC's raw stereo stream (the vehicle stands still).
+# Each at several rotation thresholds (0: motion and tracking alone).
+#   bash scripts/benchmark_keyframe_rotation.sh        (about fifteen minutes)
+source "$(dirname "$0")/common.sh"
+bash scripts/setup.sh > /dev/null
+OUT=build/benchmark_keyframe_rotation
+mkdir -p "$OUT" build/demo
+ROTATIONS=(0 4 6 8)
+
+replay() {  # name bag config-lines...: $OUT/name.txt (scored against the bag's ground truth if it has one)
+  local name=$1 bag=$2 gt=()
+  shift 2
+  printf '%s\n' "$@" > "$OUT/$name.yaml"
+  [[ "$(/usr/bin/rosbag info "$bag")" == */ground_truth/orientations* ]] && gt=(--gt "$bag")
+  "$BIN/rotation_averaging_replay" --bag "$bag" --config "$OUT/$name.yaml" "${gt[@]}" --output-dir "$OUT/$name" \
+    --no-progress > "$OUT/$name.txt"
+}
+
+PHOTOS=()
+for s in castle-P19 entry-P10 fountain-P11; do
+  [ -d "$DATA/strecha/$s" ] || continue
+  [ -f "$OUT/$s.bag" ] || strecha_bag "$DATA/strecha/$s" "$OUT/$s.bag"
+  PHOTOS+=("$s")
+done
+LUND=$DATA/lund_door
+if [ -d "$LUND" ]; then
+  [ -f "$OUT/lund_door.bag" ] || "$BIN/rotation_averaging_images_to_bag" --images "$LUND/images" \
+    --intrinsics "$LUND/colmap_ground_truth/cameras.txt" --gt "$LUND/colmap_ground_truth/images.txt" \
+    --downsample 0.25 --output "$OUT/lund_door.bag" > /dev/null 2>&1
+  PHOTOS+=(lund_door)
+fi
+PHOTO_CONFIG=('image_topics: ["/camera/image_raw"]' "features: sift" "max_features: 4000")
+for s in "${PHOTOS[@]}"; do
+  replay "${s}_all" "$OUT/$s.bag" "${PHOTO_CONFIG[@]}" "keyframe_selection: all"
+  for r in "${ROTATIONS[@]}"; do
+    replay "${s}_rot$r" "$OUT/$s.bag" "${PHOTO_CONFIG[@]}" "keyframe_selection: motion" "keyframe_min_rotation_deg: $r"
+  done
+done
+
+STREAMS=(600 1200)
+for captures in "${STREAMS[@]}"; do
+  bag="build/demo/demo_20hz_${captures}_2cam.bag"
+  [ "$captures" = 1200 ] && bag=build/demo/demo_20hz_1200.bag  # benchmark_keyframe_selection.sh's
+  if [ ! -f "$bag" ]; then
+    "$BIN/rotation_averaging_make_demo_bag" --output "$bag.tmp" --captures "$captures" --period 0.05 --cameras 2 \
+      > /dev/null 2>&1
+    mv "$bag.tmp" "$bag"
+  fi
+  mapfile -t demo < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:')
+  for r in "${ROTATIONS[@]}"; do
+    replay "stream${captures}_rot$r" "$bag" "${demo[@]}" "keyframe_selection: motion" "keyframe_min_rotation_deg: $r"
+  done
+done
+
+EUROC="$DATA/euroc_v1_01_micro/mav0"
+if [ -d "$EUROC" ]; then
+  [ -f "$OUT/euroc.bag" ] || "$BIN/rotation_averaging_images_to_bag" --euroc "$EUROC" --output "$OUT/euroc.bag" > /dev/null
+  for r in "${ROTATIONS[@]}"; do
+    replay "euroc_rot$r" "$OUT/euroc.bag" 'image_topics: ["/cam0/image_raw", "/cam1/image_raw"]' \
+      "use_rig_extrinsics: false" "keyframe_selection: motion" "keyframe_max_interval_s: 0.5" \
+      "keyframe_min_rotation_deg: $r"
+  done
+fi
+
+python3 scripts/keyframe_rotation_report.py "$OUT" "$(IFS=,; echo "${PHOTOS[*]}")" \
+  "$(IFS=,; echo "${STREAMS[*]}")" "$(IFS=,; echo "${ROTATIONS[*]}")" "$EUROC" > results/keyframe_rotation.md
+echo "wrote results/keyframe_rotation.md"
