@@ -23,6 +23,12 @@ def budget(text):
     return tuple(m.groups() if m else missing for m in (image, keyframe, pair))
 
 
+def focal_check(text):
+    """"count, median / p95 ms" of the camera_info check's estimates; "-" without them."""
+    m = re.search(r"^time per camera_info check estimate .*?: " + TIME, text, re.M)
+    return "%s, %s / %s" % (m.group(3), m.group(1), m.group(2)) if m else "-"
+
+
 def quantile(sorted_values, q):
     """Nearest rank, as TimeDistribution::Quantile."""
     if not sorted_values:
@@ -44,6 +50,7 @@ def stream_row(cameras, text):
         "%s / %s" % (k[0], k[1]),
         "%s / %s" % (p[0], p[1]),
         "%.1f" % (pairs / keyframes) if keyframes else "-",
+        focal_check(text),
         value(text, r"^median error: ([\d.]+) deg", "-"),
     ]
     return "| " + " | ".join(cells) + " |"
@@ -75,10 +82,12 @@ The replay runs the node's pipeline as fast as the CPU allows: speed-up = bag du
 The demo renderer's rig as a 20 Hz driver publishes it (`rotation_averaging_make_demo_bag --captures 600
 --period 0.05 --cameras N`: 30 s, one loop of the room), `keyframe_selection: motion` (config/demo.yaml
 otherwise). A keyframe's pairs: its previous keyframe and the window (`window_pairs`), loop candidates, and
-the cameras of its capture whose extrinsics are not known.
+the cameras of its capture whose extrinsics are not known. The camera_info check (`focal_calibration: warn`)
+estimates each camera's focal length on a thread of its own at 20, 40, 80, ... of its pairs; the replay waits
+for each estimate.
 
-| cameras | images | keyframes | speed-up | per image (ms): median / p95 | per keyframe (ms): median / p95 | per pair (ms): median / p95 | pairs per keyframe | median error (deg) |
-|---|---|---|---|---|---|---|---|---|""")
+| cameras | images | keyframes | speed-up | per image (ms): median / p95 | per keyframe (ms): median / p95 | per pair (ms): median / p95 | pairs per keyframe | camera_info check: estimates, ms median / p95 | median error (deg) |
+|---|---|---|---|---|---|---|---|---|---|""")
     for n in cameras:
         print(stream_row(n, open(os.path.join(out, "stream_%scam.txt" % n)).read()))
     long_text = open(os.path.join(out, "every_image_300.txt")).read()
