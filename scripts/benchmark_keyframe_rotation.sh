@@ -31,11 +31,8 @@ for s in castle-P19 entry-P10 fountain-P11; do
   [ -f "$OUT/$s.bag" ] || strecha_bag "$DATA/strecha/$s" "$OUT/$s.bag"
   PHOTOS+=("$s")
 done
-LUND=$DATA/lund_door
-if [ -d "$LUND" ]; then
-  [ -f "$OUT/lund_door.bag" ] || "$BIN/rotation_averaging_images_to_bag" --images "$LUND/images" \
-    --intrinsics "$LUND/colmap_ground_truth/cameras.txt" --gt "$LUND/colmap_ground_truth/images.txt" \
-    --downsample 0.25 --output "$OUT/lund_door.bag" > /dev/null 2>&1
+if [ -d "$DATA/lund_door" ]; then
+  [ -f "$OUT/lund_door.bag" ] || lund_door_bag "$OUT/lund_door.bag"
   PHOTOS+=(lund_door)
 fi
 PHOTO_CONFIG=('image_topics: ["/camera/image_raw"]' "features: sift" "max_features: 4000")

@@ -47,9 +47,7 @@ for s in castle-P19 entry-P10 fountain-P11; do
 done
 LUND=$DATA/lund_door
 if [ -d "$LUND" ]; then
-  [ -f "$OUT/lund_door.bag" ] || "$BIN/rotation_averaging_images_to_bag" --images "$LUND/images" \
-    --intrinsics "$LUND/colmap_ground_truth/cameras.txt" --gt "$LUND/colmap_ground_truth/images.txt" \
-    --downsample 0.25 --output "$OUT/lund_door.bag" > /dev/null 2>&1
+  [ -f "$OUT/lund_door.bag" ] || lund_door_bag "$OUT/lund_door.bag"
   scene lund_door
 fi
 

@@ -25,3 +25,10 @@ strecha_bag() {
   "$BIN/rotation_averaging_images_to_bag" --images "$scene/images" --intrinsics "$scene/images/K.txt" --gt "$scene" \
     --downsample 0.25 "$@" --output "$bag" > /dev/null 2>&1
 }
+# lund_door (12 photographs, COLMAP's model as the reference) the same way:
+# output bag.
+lund_door_bag() {
+  "$BIN/rotation_averaging_images_to_bag" --images "$DATA/lund_door/images" \
+    --intrinsics "$DATA/lund_door/colmap_ground_truth/cameras.txt" \
+    --gt "$DATA/lund_door/colmap_ground_truth/images.txt" --downsample 0.25 --output "$1" > /dev/null 2>&1
+}
