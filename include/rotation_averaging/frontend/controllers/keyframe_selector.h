@@ -24,7 +24,8 @@
 // keyframes of its window through the tracks they share), and the motion and
 // the tracked fraction above are those of the tracks the keyframe shares with
 // the camera's last one. Without, a frame that is not a keyframe costs one
-// resize and one KLT.
+// resize and one KLT, and every 0.2 s of its camera's stamps a rotation
+// check (one full-resolution KLT pass and an essential matrix).
 #ifndef ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
 #define ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_SELECTOR_H_
 
