@@ -43,8 +43,9 @@ constexpr double kRotationCheckPeriodS = 0.2;
 // resolution, started where the reduced images put them. The reduction
 // gives away the precision a rotation needs: on Strecha entry-P10 at 768 px,
 // tracked at 320 px, a photograph that turned 10.4 deg since its keyframe was
-// estimated at 5.2 deg; at full resolution at 8 deg or more, like the rest
-// within about half a degree. Corners that do not converge are dropped.
+// estimated at 5.2 deg and let go; placed again, every photograph that
+// turned past 6 deg is a keyframe (keyframe_selector_test). Corners that do
+// not converge are dropped.
 void PlaceAtFullResolution(const cv::Mat& keyframe, const cv::Mat& image, double scale,
                            std::vector<Eigen::Vector2d>* from, std::vector<Eigen::Vector2d>* to) {
   std::vector<cv::Point2f> a, b;
@@ -121,9 +122,8 @@ double TrackedRotationDeg(std::vector<Eigen::Vector2d> from, std::vector<Eigen::
   if (cv::recoverPose(e, n1, n2, r, t, 1.0, cv::Point2d(0.0, 0.0), mask) < static_cast<int>(kMinRotationCorners)) {
     return std::numeric_limits<double>::quiet_NaN();
   }
-  // RANSAC's model is a minimal sample's: refined on its inliers (the
-  // Sampson error, as the two-view estimation refines), the rotation of a
-  // camera walking along a facade is a few times closer to the truth.
+  // RANSAC's model is a minimal sample's: refined on its inliers by the
+  // Sampson error, as the two-view estimation refines its poses.
   Eigen::Matrix3d essential_rotation;
   Eigen::Vector3d translation;
   for (int i = 0; i < 3; ++i) {
