@@ -1,9 +1,10 @@
 """Writes results/keyframe_rotation.md from the runs of scripts/benchmark_keyframe_rotation.sh.
 
-usage: keyframe_rotation_report.py OUT PHOTOS STREAMS ROTATIONS [EUROC_MAV0]
+usage: keyframe_rotation_report.py OUT PHOTOS STREAMS ROTATIONS [EUROC_MAV0 [SEEDS]]
   PHOTOS: the photograph scenes, STREAMS: the 20 Hz streams' capture counts, ROTATIONS: the thresholds
   (keyframe_min_rotation_deg) of each row; all comma separated. The default's rows are marked. EUROC_MAV0: the
-  EuRoC excerpt's mav0 folder (its calibration), for the stereo rows.
+  EuRoC excerpt's mav0 folder (its calibration), for the stereo rows. SEEDS: the noise seeds of the one-camera
+  rows, comma separated.
 """
 import os
 import sys
@@ -73,6 +74,33 @@ def euroc_rows(out, rotations, mav0):
     return lines
 
 
+def one_camera_rows(out, seeds):
+    """Keyframes and median per seed without the rotation (0) and with the default, and their means."""
+    runs = [(s, read(out, "one_camera_seed%s_rot0" % s), read(out, "one_camera_seed%s_rot%s" % (s, DEFAULT_ROTATION)))
+            for s in seeds]
+    runs = [r for r in runs if r[1] and r[2]]
+    if not runs:
+        return []
+    lines = ["| noise seed | keyframes, 0 | median (deg), 0 | keyframes, %s (default) | by rotation | median (deg), %s |"
+             % (DEFAULT_ROTATION, DEFAULT_ROTATION), "|---|---|---|---|---|---|"]
+    medians = ([], [])
+    for seed, without, with_rotation in runs:
+        cells = [seed]
+        for i, text in enumerate((without, with_rotation)):
+            cells.append(value(text, r"^keyframes: (\d+) ", "-"))
+            if i == 1:
+                cells.append(made(text, "by rotation"))
+            median = value(text, r"^median error: ([\d.]+) deg", "-")
+            cells.append(median)
+            if median != "-":
+                medians[i].append(float(median))
+        lines.append("| " + " | ".join(cells) + " |")
+    if all(medians):
+        lines.append("| mean | | %.4f | | | %.4f |" % (sum(medians[0]) / len(medians[0]),
+                                                      sum(medians[1]) / len(medians[1])))
+    return lines
+
+
 def main():
     out, photos, streams, rotations = sys.argv[1], sys.argv[2].split(","), sys.argv[3].split(","), \
         sys.argv[4].split(",")
@@ -113,6 +141,16 @@ def main():
         rows += [("stream%s_rot%s" % (s, r), "%s captures (%d s)" % (s, int(s) // 20), label(r)) for r in rotations]
     print(table(out, rows))
     print()
+    seeds = [s for s in (sys.argv[6] if len(sys.argv) > 6 else "").split(",") if s]
+    one_camera = one_camera_rows(out, seeds)
+    if one_camera:
+        print("## One camera, three noise seeds")
+        print()
+        print("The rig's forward camera alone over one loop in 30 s (`--cameras 1 --noise-seed N`), as above. One")
+        print("camera's median moves by a factor of two between noise seeds: compare the means.")
+        print()
+        print("\n".join(one_camera))
+        print()
     mav0 = sys.argv[5] if len(sys.argv) > 5 else ""
     euroc = euroc_rows(out, rotations, mav0) if os.path.isdir(mav0) else []
     if len(euroc) > 2:

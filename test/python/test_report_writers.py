@@ -207,3 +207,13 @@ def test_keyframe_rotation_rows_hold_each_runs_keyframes_by_reason(tmp_path):
     # A run the benchmark did not make has no row; no EuRoC folder, no EuRoC section.
     assert "600 captures (30 s) | 0 (motion" not in text
     assert "EuRoC" not in text
+    assert "One camera" not in text
+    # The one-camera seeds: each seed's runs without and with the rotation, and their means.
+    for seed, medians in (("1", (0.0164, 0.0250)), ("2", (0.0341, 0.0149))):
+        for rotation, median in zip(("0", "6"), medians):
+            (tmp_path / ("one_camera_seed%s_rot%s.txt" % (seed, rotation))).write_text(
+                summary(48 if rotation == "0" else 51, median, images=600, selection="motion",
+                        extra=[made % (0, 30 if rotation == "6" else 0, 37)]))
+    text = run("keyframe_rotation_report.py", tmp_path, "door", "600", "0,6", tmp_path / "no_euroc", "1,2,3")
+    assert table_row(text, "1")[1:] == ["48", "0.0164", "51", "30", "0.0250"]
+    assert table_row(text, "mean")[2] == "0.0253" and table_row(text, "mean")[5] == "0.0200"
