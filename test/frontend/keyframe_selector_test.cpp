@@ -269,6 +269,33 @@ TEST(KeyframeSelector, PhotographsCirclingAFacadeAreKeyframesByTheirRotation) {
   }
 }
 
+// Frames of 640x480 and 641x481 reduce to the same tracking image: the
+// rotation check does not compare a frame with a keyframe of another size at
+// full resolution (OpenCV refuses two sizes), and the selector goes on.
+TEST(KeyframeSelector, AFrameOfAnotherSizeIsNotComparedAtFullResolution) {
+  RigSceneOptions o;
+  o.num_captures = 4;
+  const RigScene scene(o);
+  KeyframeSelectionOptions options;
+  ASSERT_GT(options.min_rotation_deg, 0.0);
+  KeyframeSelector selector(options);
+  SelectorFrame first = Frame(scene, 0, 0);
+  ASSERT_EQ(first.image.cols, 640);
+  ASSERT_EQ(selector.Offer(first).size(), 1u);
+  SelectorFrame other = first;
+  other.stamp_ns += 500'000'000LL;  // past the rotation check's period
+  cv::resize(first.image, other.image, cv::Size(641, 481), 0.0, 0.0, cv::INTER_LINEAR);
+  std::vector<SelectorFrame> keyframes;
+  EXPECT_NO_THROW(keyframes = selector.Offer(other));
+  EXPECT_TRUE(keyframes.empty());  // the same view: no motion, no rotation
+  EXPECT_EQ(selector.Stats().rotation_checks, 0u);
+  // A frame of the keyframe's own size is checked.
+  SelectorFrame same = first;
+  same.stamp_ns += 1'000'000'000LL;
+  EXPECT_TRUE(selector.Offer(same).empty());
+  EXPECT_EQ(selector.Stats().rotation_checks, 1u);
+}
+
 TEST(KeyframeSelector, OptionsAreChecked) {
   KeyframeSelectionOptions o;
   std::string error;

@@ -217,9 +217,19 @@ bool KeyframeSelector::RotatedEnough(const Camera& camera, const SelectorFrame& 
   if (!(options_.min_rotation_deg > 0.0)) return false;
   const auto start = std::chrono::steady_clock::now();
   // Tracks are full-resolution pixels already; the reduced images' corners
-  // are placed again on the full images.
-  if (!options_.tracks) PlaceAtFullResolution(camera.keyframe_full, frame.image, camera.scale, from, to);
-  const double rotation = TrackedRotationDeg(*from, *to, frame.intrinsics, frame.intrinsics.k);
+  // are placed again on the full images. Two sizes can reduce to one: a
+  // frame of another size than its keyframe's is not compared.
+  if (!options_.tracks &&
+      (camera.keyframe_full.size() != frame.image.size() || camera.keyframe_full.type() != frame.image.type())) {
+    return false;
+  }
+  double rotation = std::numeric_limits<double>::quiet_NaN();
+  try {
+    if (!options_.tracks) PlaceAtFullResolution(camera.keyframe_full, frame.image, camera.scale, from, to);
+    rotation = TrackedRotationDeg(*from, *to, frame.intrinsics, frame.intrinsics.k);
+  } catch (const cv::Exception&) {
+    // Degenerate corners OpenCV refuses: no rotation to decide by.
+  }
   ++stats_.rotation_checks;
   stats_.rotation_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return std::isfinite(rotation) && rotation >= options_.min_rotation_deg;
