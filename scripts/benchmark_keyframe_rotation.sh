@@ -10,7 +10,7 @@
 #    loop in 30 s under three noise seeds.
 #  * EuRoC's raw stereo stream (the vehicle stands still).
 # Each at several rotation thresholds (0: motion and tracking alone).
-#   bash scripts/benchmark_keyframe_rotation.sh        (about fifteen minutes)
+#   bash scripts/benchmark_keyframe_rotation.sh        (about ten minutes)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
 OUT=build/benchmark_keyframe_rotation
