@@ -458,7 +458,7 @@ RadialDistortion EstimateRadialDistortion(const std::vector<FocalPair>& pairs, c
   // With a focal scale to compare with, each pair's cost at lambda is needed
   // too.
   const bool compare = focal != nullptr && focal->estimated;
-  const std::vector<double> with_distortion = parts(out.lambda);
+  const std::vector<double>& with_distortion = parts(out.lambda);
   const double at_lambda = SumWithout(with_distortion, -1);
   out.standard_deviation = ProfileDeviation(cost, minimise, out.lambda, out.pairs, 2e-3, 0.05, at_lambda);
   out.evaluations = memo.Evaluations();

@@ -214,7 +214,6 @@ bool KeyframeSelector::RotationCheckDue(Camera& camera, const SelectorFrame& fra
 
 bool KeyframeSelector::RotatedEnough(const Camera& camera, const SelectorFrame& frame,
                                      std::vector<Eigen::Vector2d>* from, std::vector<Eigen::Vector2d>* to) {
-  if (!(options_.min_rotation_deg > 0.0)) return false;
   const auto start = std::chrono::steady_clock::now();
   // Tracks are full-resolution pixels already; the reduced images' corners
   // are placed again on the full images. Two sizes can reduce to one: a
@@ -235,6 +234,18 @@ bool KeyframeSelector::RotatedEnough(const Camera& camera, const SelectorFrame& 
   return std::isfinite(rotation) && rotation >= options_.min_rotation_deg;
 }
 
+KeyframeSelector::Reason KeyframeSelector::DecideByCorners(Camera& camera, const SelectorFrame& frame,
+                                                           std::size_t corners, std::vector<double> moved,
+                                                           std::vector<Eigen::Vector2d>* from,
+                                                           std::vector<Eigen::Vector2d>* to) {
+  const double tracked = static_cast<double>(moved.size()) / corners;
+  if (tracked < options_.min_tracked_fraction) return Reason::kTracking;
+  std::nth_element(moved.begin(), moved.begin() + moved.size() / 2, moved.end());
+  if (!moved.empty() && moved[moved.size() / 2] >= options_.min_motion_deg) return Reason::kMotion;
+  if (RotationCheckDue(camera, frame) && RotatedEnough(camera, frame, from, to)) return Reason::kRotation;
+  return Reason::kNone;
+}
+
 KeyframeSelector::Reason KeyframeSelector::DecideByTracks(Camera& camera, const SelectorFrame& frame) {
   if (!camera.has_keyframe || frame.image.size() != camera.keyframe_size) return Reason::kFirst;
   if (options_.max_interval_s > 0.0 &&
@@ -252,14 +263,7 @@ KeyframeSelector::Reason KeyframeSelector::DecideByTracks(Camera& camera, const 
     from_points.push_back(from);
     to_points.push_back(to);
   }
-  const double tracked = static_cast<double>(moved.size()) / camera.keyframe_tracks.size();
-  if (tracked < options_.min_tracked_fraction) return Reason::kTracking;
-  std::nth_element(moved.begin(), moved.begin() + moved.size() / 2, moved.end());
-  if (!moved.empty() && moved[moved.size() / 2] >= options_.min_motion_deg) return Reason::kMotion;
-  if (RotationCheckDue(camera, frame) && RotatedEnough(camera, frame, &from_points, &to_points)) {
-    return Reason::kRotation;
-  }
-  return Reason::kNone;
+  return DecideByCorners(camera, frame, camera.keyframe_tracks.size(), std::move(moved), &from_points, &to_points);
 }
 
 KeyframeSelector::Reason KeyframeSelector::Decide(Camera& camera, const SelectorFrame& frame, cv::Mat* small) {
@@ -292,14 +296,7 @@ KeyframeSelector::Reason KeyframeSelector::Decide(Camera& camera, const Selector
     from_points.emplace_back(camera.corners[i].x, camera.corners[i].y);
     to_points.emplace_back(next[i].x, next[i].y);
   }
-  const double tracked = static_cast<double>(moved.size()) / camera.corners.size();
-  if (tracked < options_.min_tracked_fraction) return Reason::kTracking;
-  std::nth_element(moved.begin(), moved.begin() + moved.size() / 2, moved.end());
-  if (!moved.empty() && moved[moved.size() / 2] >= options_.min_motion_deg) return Reason::kMotion;
-  if (RotationCheckDue(camera, frame) && RotatedEnough(camera, frame, &from_points, &to_points)) {
-    return Reason::kRotation;
-  }
-  return Reason::kNone;
+  return DecideByCorners(camera, frame, camera.corners.size(), std::move(moved), &from_points, &to_points);
 }
 
 std::vector<SelectorFrame> KeyframeSelector::Offer(const SelectorFrame& offered) {

@@ -132,16 +132,21 @@ class KeyframeSelector {
     cv::Size keyframe_size;
   };
   enum class Reason { kNone, kFirst, kMotion, kRotation, kTracking, kInterval };
-  // The rotation from the camera's keyframe to the frame that the corners
-  // tracked between them show (from, to: pixels of the images tracked) is
-  // at least min_rotation_deg.
   // A rotation check of this frame is due (min_rotation_deg set, and the
   // camera's last one, or its keyframe, long enough ago); notes it as made.
   bool RotationCheckDue(Camera& camera, const SelectorFrame& frame) const;
+  // The rotation from the camera's keyframe to the frame that the corners
+  // tracked between them show (from, to: pixels of the images tracked) is
+  // at least min_rotation_deg. Called when RotationCheckDue.
   bool RotatedEnough(const Camera& camera, const SelectorFrame& frame, std::vector<Eigen::Vector2d>* from,
                      std::vector<Eigen::Vector2d>* to);
   Reason Decide(Camera& camera, const SelectorFrame& frame, cv::Mat* small);
   Reason DecideByTracks(Camera& camera, const SelectorFrame& frame);
+  // What both ways of tracking decide from: of the keyframe's `corners`,
+  // those tracked into the frame moved by `moved` (deg); `from`, `to` are
+  // their pixels in the images tracked, for the rotation check.
+  Reason DecideByCorners(Camera& camera, const SelectorFrame& frame, std::size_t corners, std::vector<double> moved,
+                         std::vector<Eigen::Vector2d>* from, std::vector<Eigen::Vector2d>* to);
   // With `tracks`: the frame with its camera's tracks in it, tracked from
   // the camera's previous frame.
   SelectorFrame Track(const SelectorFrame& frame);
