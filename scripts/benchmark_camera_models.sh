@@ -27,17 +27,6 @@ mkdir -p "$OUT"
 EUROC="$DATA/euroc_v1_01_micro/mav0"
 [ -d "$EUROC" ] || { echo "benchmark_camera_models: $EUROC is missing (see ../shared/data/README.md)" >&2; exit 1; }
 
-replay() {  # name, bag, config lines... (scored against the bag's ground truth if it has one)
-  local name=$1 bag=$2 gt=()
-  shift 2
-  printf '%s\n' "$@" > "$OUT/$name.yaml"
-  local topics
-  topics=$(/usr/bin/rosbag info "$bag")
-  [[ "$topics" == */ground_truth/orientations* ]] && gt=(--gt "$bag")
-  "$BIN/rotation_averaging_replay" --bag "$bag" --config "$OUT/$name.yaml" "${gt[@]}" --output-dir "$OUT/$name" \
-    --no-progress > "$OUT/$name.txt" 2>&1
-}
-
 # EuRoC: the rig's extrinsics are not used, so that each capture's cam0 and
 # cam1 keyframes are solved on their own and their relative rotation is
 # measured, not imposed.
@@ -46,9 +35,9 @@ replay() {  # name, bag, config lines... (scored against the bag's ground truth 
 # Every image is a keyframe (keyframe_selection: all): the vehicle stands
 # still, and each stereo capture is a measurement of the rig.
 STEREO=('image_topics: ["/cam0/image_raw", "/cam1/image_raw"]' "use_rig_extrinsics: false" "keyframe_selection: all")
-replay euroc_model "$OUT/euroc.bag" "${STEREO[@]}"
-replay euroc_ignored "$OUT/euroc.bag" "${STEREO[@]}" "image_type: rectified"
-replay euroc_rectified "$OUT/euroc_rectified.bag" "${STEREO[@]}"
+replay_with euroc_model "$OUT/euroc.bag" "${STEREO[@]}"
+replay_with euroc_ignored "$OUT/euroc.bag" "${STEREO[@]}" "image_type: rectified"
+replay_with euroc_rectified "$OUT/euroc_rectified.bag" "${STEREO[@]}"
 
 # Strecha scenes through a lens; the lens keeps the scene's K.
 PLUMB_BOB=plumb_bob:-0.28,0.07,0.0002,0.00002
@@ -66,14 +55,14 @@ for s in "${SCENES[@]}"; do
     [ "$lens" = plumb_bob ] && flags=(--distortion "$PLUMB_BOB")
     [ "$lens" = equidistant ] && flags=(--distortion "$FISHEYE")
     strecha_bag "$C" "$OUT/${s}_$lens.bag" "${flags[@]}"
-    replay "${s}_${lens}_model" "$OUT/${s}_$lens.bag" "$STRECHA" "keyframe_selection: all" "max_features: 4000"
+    replay_with "${s}_${lens}_model" "$OUT/${s}_$lens.bag" "$STRECHA" "keyframe_selection: all" "max_features: 4000"
     if [ "$lens" != none ]; then
-      replay "${s}_${lens}_ignored" "$OUT/${s}_$lens.bag" "$STRECHA" "keyframe_selection: all" \
+      replay_with "${s}_${lens}_ignored" "$OUT/${s}_$lens.bag" "$STRECHA" "keyframe_selection: all" \
         "max_features: 4000" "image_type: rectified"
       # Through the lens and back (warped, then rectified): what the
       # resampling and the lens's compression of the periphery lose.
       strecha_bag "$C" "$OUT/${s}_${lens}_rectified.bag" "${flags[@]}" --rectify
-      replay "${s}_${lens}_rectified" "$OUT/${s}_${lens}_rectified.bag" "$STRECHA" "keyframe_selection: all" \
+      replay_with "${s}_${lens}_rectified" "$OUT/${s}_${lens}_rectified.bag" "$STRECHA" "keyframe_selection: all" \
         "max_features: 4000"
     fi
   done
@@ -90,11 +79,11 @@ for s in "${SCENES[@]}"; do
   # more inliers (min_loop_inliers, default 40): whether a median above is
   # the input's, or that of which marginal loop closures got in.
   for inliers in 36 44; do
-    replay "${s}_none_model_loops$inliers" "$OUT/${s}_none.bag" "$STRECHA" "keyframe_selection: all" \
+    replay_with "${s}_none_model_loops$inliers" "$OUT/${s}_none.bag" "$STRECHA" "keyframe_selection: all" \
       "max_features: 4000" "min_loop_inliers: $inliers"
-    replay "${s}_plumb_bob_model_loops$inliers" "$OUT/${s}_plumb_bob.bag" "$STRECHA" "keyframe_selection: all" \
+    replay_with "${s}_plumb_bob_model_loops$inliers" "$OUT/${s}_plumb_bob.bag" "$STRECHA" "keyframe_selection: all" \
       "max_features: 4000" "min_loop_inliers: $inliers"
-    replay "${s}_plumb_bob_rectified_loops$inliers" "$OUT/${s}_plumb_bob_rectified.bag" "$STRECHA" \
+    replay_with "${s}_plumb_bob_rectified_loops$inliers" "$OUT/${s}_plumb_bob_rectified.bag" "$STRECHA" \
       "keyframe_selection: all" "max_features: 4000" "min_loop_inliers: $inliers"
   done
 done
@@ -106,17 +95,17 @@ done
 "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_plumb_bob_rectified.bag" --distortion "$PLUMB_BOB" \
   --rectify > /dev/null
 DEMO=$(grep -v '^#' config/demo.yaml | grep .)
-replay demo_none_model "$OUT/demo_none.bag" "$DEMO"
-replay demo_plumb_bob_model "$OUT/demo_plumb_bob.bag" "$DEMO"
-replay demo_plumb_bob_ignored "$OUT/demo_plumb_bob.bag" "$DEMO" "image_type: rectified"
-replay demo_plumb_bob_rectified "$OUT/demo_plumb_bob_rectified.bag" "$DEMO"
+replay_with demo_none_model "$OUT/demo_none.bag" "$DEMO"
+replay_with demo_plumb_bob_model "$OUT/demo_plumb_bob.bag" "$DEMO"
+replay_with demo_plumb_bob_ignored "$OUT/demo_plumb_bob.bag" "$DEMO" "image_type: rectified"
+replay_with demo_plumb_bob_rectified "$OUT/demo_plumb_bob_rectified.bag" "$DEMO"
 # The demo's pairs on their own: the same three inputs without the rig's
 # extrinsics (each keyframe a view), every pair scored against ground truth
 # with its covariance.
 NO_RIG=$(echo "$DEMO" | grep -v '^use_rig_extrinsics:')
 for input in none_model plumb_bob_model plumb_bob_rectified; do
   bag="$OUT/demo_${input%_model}.bag"
-  replay "demo_${input}_pairs" "$bag" "$NO_RIG" "use_rig_extrinsics: false"
+  replay_with "demo_${input}_pairs" "$bag" "$NO_RIG" "use_rig_extrinsics: false"
   "$BIN/rotavg" eval --graph "$OUT/demo_${input}_pairs/graph.txt" --gt "$OUT/demo_${input}_pairs/ground_truth.csv" \
     --per-edge > "$OUT/demo_${input}_pairs_eval.txt"
 done
@@ -131,7 +120,7 @@ readout() {  # name, make_demo_bag flags...
   local name=$1
   shift
   "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_$name.bag" "$@" > /dev/null
-  replay "demo_$name" "$OUT/demo_$name.bag" "$DEMO"
+  replay_with "demo_$name" "$OUT/demo_$name.bag" "$DEMO"
 }
 BIN2=(--width 1280 --height 960 --binning 2)
 ROI=(--width 800 --height 600 --roi 80,60,640,480)

@@ -22,15 +22,6 @@ bash scripts/setup.sh > /dev/null
 OUT=build/benchmark_focal_check
 mkdir -p "$OUT"
 
-replay() {  # name, bag, config lines... (scored against the bag's ground truth if it has one)
-  local name=$1 bag=$2 gt=()
-  shift 2
-  printf '%s\n' "$@" > "$OUT/$name.yaml"
-  [[ "$(/usr/bin/rosbag info "$bag")" == */ground_truth/orientations* ]] && gt=(--gt "$bag")
-  "$BIN/rotation_averaging_replay" --bag "$bag" --config "$OUT/$name.yaml" "${gt[@]}" --output-dir "$OUT/$name" \
-    --no-progress > "$OUT/$name.txt" 2>&1
-}
-
 # The focal lengths a replay with `apply` on a x0.97 bag ended at, of the
 # true ones (0.97 times each correction), for the cameras given in order.
 ended_at() {
@@ -45,9 +36,9 @@ PY
 DEMO=$(grep -v '^#' config/demo.yaml | grep .)
 for scale in 0.97 1 1.03; do
   "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_$scale.bag" --info-focal-scale "$scale" > /dev/null 2>&1
-  replay "demo_${scale}_warn" "$OUT/demo_$scale.bag" "$DEMO"
-  replay "demo_${scale}_off" "$OUT/demo_$scale.bag" "$DEMO" "focal_calibration: off"
-  replay "demo_${scale}_apply" "$OUT/demo_$scale.bag" "$DEMO" "focal_calibration: apply"
+  replay_with "demo_${scale}_warn" "$OUT/demo_$scale.bag" "$DEMO"
+  replay_with "demo_${scale}_off" "$OUT/demo_$scale.bag" "$DEMO" "focal_calibration: off"
+  replay_with "demo_${scale}_apply" "$OUT/demo_$scale.bag" "$DEMO" "focal_calibration: apply"
 done
 
 # A lens camera_info does not describe: the demo through a plumb_bob lens
@@ -56,15 +47,15 @@ done
 # camera_info lacks D would have them.
 PLUMB_BOB=plumb_bob:-0.28,0.07,0.0002,0.00002
 "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_plumb_bob.bag" --distortion "$PLUMB_BOB" > /dev/null 2>&1
-replay demo_plumb_bob_ignored "$OUT/demo_plumb_bob.bag" "$DEMO" "image_type: rectified"
-replay demo_plumb_bob_model "$OUT/demo_plumb_bob.bag" "$DEMO"
+replay_with demo_plumb_bob_ignored "$OUT/demo_plumb_bob.bag" "$DEMO" "image_type: rectified"
+replay_with demo_plumb_bob_model "$OUT/demo_plumb_bob.bag" "$DEMO"
 # The same lens with its model, camera_info's focal lengths 3% short: the
 # check of a raw camera, and its correction.
 "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_plumb_bob_0.97.bag" --distortion "$PLUMB_BOB" \
   --info-focal-scale 0.97 > /dev/null 2>&1
-replay demo_plumb_bob_0.97_warn "$OUT/demo_plumb_bob_0.97.bag" "$DEMO"
-replay demo_plumb_bob_0.97_apply "$OUT/demo_plumb_bob_0.97.bag" "$DEMO" "focal_calibration: apply"
-replay demo_plumb_bob_0.97_check_only "$OUT/demo_plumb_bob_0.97.bag" "$DEMO" "focal_calibration: apply" \
+replay_with demo_plumb_bob_0.97_warn "$OUT/demo_plumb_bob_0.97.bag" "$DEMO"
+replay_with demo_plumb_bob_0.97_apply "$OUT/demo_plumb_bob_0.97.bag" "$DEMO" "focal_calibration: apply"
+replay_with demo_plumb_bob_0.97_check_only "$OUT/demo_plumb_bob_0.97.bag" "$DEMO" "focal_calibration: apply" \
   "focal_loop_refinement: false"
 # The same with one camera (the rig's forward one): no second camera whose
 # pairs relate the same captures.
@@ -73,10 +64,10 @@ replay demo_plumb_bob_0.97_check_only "$OUT/demo_plumb_bob_0.97.bag" "$DEMO" "fo
 "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo1_plumb_bob_0.97.bag" --cameras 1 \
   --distortion "$PLUMB_BOB" --info-focal-scale 0.97 > /dev/null 2>&1
 DEMO1=$(printf '%s\n' "$DEMO" | grep -v '^image_topics:'; echo 'image_topics: ["/cam_front/image_raw"]')
-replay demo1_plumb_bob_model "$OUT/demo1_plumb_bob.bag" "$DEMO1"
-replay demo1_plumb_bob_0.97_warn "$OUT/demo1_plumb_bob_0.97.bag" "$DEMO1"
-replay demo1_plumb_bob_0.97_apply "$OUT/demo1_plumb_bob_0.97.bag" "$DEMO1" "focal_calibration: apply"
-replay demo1_plumb_bob_0.97_check_only "$OUT/demo1_plumb_bob_0.97.bag" "$DEMO1" "focal_calibration: apply" \
+replay_with demo1_plumb_bob_model "$OUT/demo1_plumb_bob.bag" "$DEMO1"
+replay_with demo1_plumb_bob_0.97_warn "$OUT/demo1_plumb_bob_0.97.bag" "$DEMO1"
+replay_with demo1_plumb_bob_0.97_apply "$OUT/demo1_plumb_bob_0.97.bag" "$DEMO1" "focal_calibration: apply"
+replay_with demo1_plumb_bob_0.97_check_only "$OUT/demo1_plumb_bob_0.97.bag" "$DEMO1" "focal_calibration: apply" \
   "focal_loop_refinement: false"
 # The focal lengths apply arrived at, in camera_info from the first image
 # (the true ones times 0.97 times each correction): the best apply can do
@@ -84,30 +75,30 @@ replay demo1_plumb_bob_0.97_check_only "$OUT/demo1_plumb_bob_0.97.bag" "$DEMO1" 
 CORRECTED=$(ended_at "$OUT/demo_plumb_bob_0.97_apply.txt" cam_front cam_left)
 "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_plumb_bob_corrected.bag" --distortion "$PLUMB_BOB" \
   --info-focal-scale "$CORRECTED" > /dev/null 2>&1
-replay demo_plumb_bob_corrected_off "$OUT/demo_plumb_bob_corrected.bag" "$DEMO" "focal_calibration: off"
+replay_with demo_plumb_bob_corrected_off "$OUT/demo_plumb_bob_corrected.bag" "$DEMO" "focal_calibration: off"
 echo "$CORRECTED" > "$OUT/demo_plumb_bob_corrected.scales"
 # How little a focal length may be off: both cameras 0.02% and 0.13% short.
 for scale in 0.9998 0.9987; do
   "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo_plumb_bob_$scale.bag" --distortion "$PLUMB_BOB" \
     --info-focal-scale "$scale" > /dev/null 2>&1
-  replay "demo_plumb_bob_${scale}_off" "$OUT/demo_plumb_bob_$scale.bag" "$DEMO" "focal_calibration: off"
+  replay_with "demo_plumb_bob_${scale}_off" "$OUT/demo_plumb_bob_$scale.bag" "$DEMO" "focal_calibration: off"
 done
 # The same for one camera: where `apply` ended on it, and a few thousandths
 # of a percent short of the true focal length (its loops' own deviation).
 CORRECTED1=$(ended_at "$OUT/demo1_plumb_bob_0.97_apply.txt" cam_front)
 "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo1_plumb_bob_corrected.bag" --cameras 1 \
   --distortion "$PLUMB_BOB" --info-focal-scale "$CORRECTED1" > /dev/null 2>&1
-replay demo1_plumb_bob_corrected_off "$OUT/demo1_plumb_bob_corrected.bag" "$DEMO1" "focal_calibration: off"
+replay_with demo1_plumb_bob_corrected_off "$OUT/demo1_plumb_bob_corrected.bag" "$DEMO1" "focal_calibration: off"
 echo "$CORRECTED1" > "$OUT/demo1_plumb_bob_corrected.scales"
 for scale in 0.99998 0.9999; do
   "$BIN/rotation_averaging_make_demo_bag" --output "$OUT/demo1_plumb_bob_$scale.bag" --cameras 1 \
     --distortion "$PLUMB_BOB" --info-focal-scale "$scale" > /dev/null 2>&1
-  replay "demo1_plumb_bob_${scale}_off" "$OUT/demo1_plumb_bob_$scale.bag" "$DEMO1" "focal_calibration: off"
+  replay_with "demo1_plumb_bob_${scale}_off" "$OUT/demo1_plumb_bob_$scale.bag" "$DEMO1" "focal_calibration: off"
 done
 EUROC="$DATA/euroc_v1_01_micro/mav0"
 if [ -d "$EUROC" ]; then
   "$BIN/rotation_averaging_images_to_bag" --euroc "$EUROC" --output "$OUT/euroc.bag" > /dev/null
-  replay euroc_ignored "$OUT/euroc.bag" 'image_topics: ["/cam0/image_raw", "/cam1/image_raw"]' \
+  replay_with euroc_ignored "$OUT/euroc.bag" 'image_topics: ["/cam0/image_raw", "/cam1/image_raw"]' \
     "keyframe_selection: all" "image_type: rectified"
 fi
 
@@ -118,7 +109,7 @@ done
 for s in "${SCENES[@]}"; do
   C="$DATA/strecha/$s"
   strecha_bag "$C" "$OUT/$s.bag"
-  replay "$s" "$OUT/$s.bag" 'image_topics: ["/camera/image_raw"]' "keyframe_selection: all" "max_features: 4000"
+  replay_with "$s" "$OUT/$s.bag" 'image_topics: ["/camera/image_raw"]' "keyframe_selection: all" "max_features: 4000"
 done
 
 python3 scripts/focal_check_report.py "$OUT" "${SCENES[@]}" > results/focal_check.md

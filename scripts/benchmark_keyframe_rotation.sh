@@ -17,15 +17,6 @@ OUT=build/benchmark_keyframe_rotation
 mkdir -p "$OUT" build/demo
 ROTATIONS=(0 4 6 8)
 
-replay() {  # name bag config-lines...: $OUT/name.txt (scored against the bag's ground truth if it has one)
-  local name=$1 bag=$2 gt=()
-  shift 2
-  printf '%s\n' "$@" > "$OUT/$name.yaml"
-  [[ "$(/usr/bin/rosbag info "$bag")" == */ground_truth/orientations* ]] && gt=(--gt "$bag")
-  "$BIN/rotation_averaging_replay" --bag "$bag" --config "$OUT/$name.yaml" "${gt[@]}" --output-dir "$OUT/$name" \
-    --no-progress > "$OUT/$name.txt"
-}
-
 PHOTOS=()
 for s in castle-P19 entry-P10 fountain-P11; do
   [ -d "$DATA/strecha/$s" ] || continue
@@ -38,9 +29,9 @@ if [ -d "$DATA/lund_door" ]; then
 fi
 PHOTO_CONFIG=('image_topics: ["/camera/image_raw"]' "features: sift" "max_features: 4000")
 for s in "${PHOTOS[@]}"; do
-  replay "${s}_all" "$OUT/$s.bag" "${PHOTO_CONFIG[@]}" "keyframe_selection: all"
+  replay_with "${s}_all" "$OUT/$s.bag" "${PHOTO_CONFIG[@]}" "keyframe_selection: all"
   for r in "${ROTATIONS[@]}"; do
-    replay "${s}_rot$r" "$OUT/$s.bag" "${PHOTO_CONFIG[@]}" "keyframe_selection: motion" "keyframe_min_rotation_deg: $r"
+    replay_with "${s}_rot$r" "$OUT/$s.bag" "${PHOTO_CONFIG[@]}" "keyframe_selection: motion" "keyframe_min_rotation_deg: $r"
   done
 done
 
@@ -55,7 +46,7 @@ for captures in "${STREAMS[@]}"; do
   fi
   mapfile -t demo < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:')
   for r in "${ROTATIONS[@]}"; do
-    replay "stream${captures}_rot$r" "$bag" "${demo[@]}" "keyframe_selection: motion" "keyframe_min_rotation_deg: $r"
+    replay_with "stream${captures}_rot$r" "$bag" "${demo[@]}" "keyframe_selection: motion" "keyframe_min_rotation_deg: $r"
   done
 done
 
@@ -68,7 +59,7 @@ for seed in "${SEEDS[@]}"; do
     --noise-seed "$seed" > /dev/null 2>&1
   mapfile -t demo < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:\|^image_topics:')
   for r in 0 6; do
-    replay "one_camera_seed${seed}_rot$r" "$bag" "${demo[@]}" 'image_topics: ["/cam_front/image_raw"]' \
+    replay_with "one_camera_seed${seed}_rot$r" "$bag" "${demo[@]}" 'image_topics: ["/cam_front/image_raw"]' \
       "keyframe_selection: motion" "keyframe_min_rotation_deg: $r"
   done
 done
@@ -77,7 +68,7 @@ EUROC="$DATA/euroc_v1_01_micro/mav0"
 if [ -d "$EUROC" ]; then
   [ -f "$OUT/euroc.bag" ] || "$BIN/rotation_averaging_images_to_bag" --euroc "$EUROC" --output "$OUT/euroc.bag" > /dev/null
   for r in "${ROTATIONS[@]}"; do
-    replay "euroc_rot$r" "$OUT/euroc.bag" 'image_topics: ["/cam0/image_raw", "/cam1/image_raw"]' \
+    replay_with "euroc_rot$r" "$OUT/euroc.bag" 'image_topics: ["/cam0/image_raw", "/cam1/image_raw"]' \
       "use_rig_extrinsics: false" "keyframe_selection: motion" "keyframe_max_interval_s: 0.5" \
       "keyframe_min_rotation_deg: $r"
   done

@@ -25,6 +25,17 @@ strecha_bag() {
   "$BIN/rotation_averaging_images_to_bag" --images "$scene/images" --intrinsics "$scene/images/K.txt" --gt "$scene" \
     --downsample 0.25 "$@" --output "$bag" > /dev/null 2>&1
 }
+# One replay of a bag with a configuration of the given lines (written to
+# $OUT/NAME.yaml), scored against the bag's ground truth if it has one: its
+# summary in $OUT/NAME.txt, its outputs in $OUT/NAME/. name, bag, lines...
+replay_with() {
+  local name=$1 bag=$2 gt=()
+  shift 2
+  printf '%s\n' "$@" > "$OUT/$name.yaml"
+  [[ "$(/usr/bin/rosbag info "$bag")" == */ground_truth/orientations* ]] && gt=(--gt "$bag")
+  "$BIN/rotation_averaging_replay" --bag "$bag" --config "$OUT/$name.yaml" "${gt[@]}" --output-dir "$OUT/$name" \
+    --no-progress > "$OUT/$name.txt" 2>&1
+}
 # lund_door (12 photographs, COLMAP's model as the reference) the same way:
 # output bag.
 lund_door_bag() {
