@@ -399,6 +399,7 @@ class Replayer {
     bar.Update(result_.messages_read, (last_time - bag_start).toSec(), /*final=*/true);
     result_.bag_duration_s = (last_time - bag_start).toSec();
     Solve(last_time);  // the final solve, at the last message's time
+    RefineFinal(last_time);
     // Bags that ended with the last message (or after damage: what was read).
     while (next_checkpoint < checkpoints_.size()) SaveMap(checkpoints_[next_checkpoint++]);
   }
@@ -487,6 +488,8 @@ class Replayer {
     ++result_.solves;
     const std::shared_ptr<const OnlineSolution> solution = averager.Solution();
     if (loaded_ && !result_.map_merged) MeasureMerge(*solution);
+    // Refinements by bag time, in the solve's thread: the same on every run.
+    if (pipeline_.MaybeRefine(*solution, when.toSec(), false, false)) refined_sequence_ = solution->sequence;
     const OnlineSolution cameras = pipeline_.CameraSolution(*solution);
     out_.write("/rotation_averaging/orientations", when, pipeline_.OrientationsMsg(cameras, when));
     if (pipeline_.HasFrontend() && config_.focal_calibration != FocalCalibrationMode::kOff) {
@@ -499,6 +502,17 @@ class Replayer {
       tf.transforms = pipeline_.LatestTransforms(cameras, when);
       if (!tf.transforms.empty()) out_.write("/tf", when, tf);
     }
+  }
+
+  // The final solution refined, unless the last refinement was of it: what
+  // the node publishes once its refinement has caught up with the input.
+  void RefineFinal(const ros::Time& when) {
+    const std::shared_ptr<const OnlineSolution> solution = pipeline_.Averager().Solution();
+    if (!solution || solution->sequence == refined_sequence_) return;
+    if (!pipeline_.MaybeRefine(*solution, when.toSec(), true, false)) return;
+    refined_sequence_ = solution->sequence;
+    out_.write("/rotation_averaging/orientations", when,
+               pipeline_.OrientationsMsg(pipeline_.CameraSolution(*solution), when));
   }
 
   // The map as the session that ends here leaves it: solved with every
@@ -600,6 +614,7 @@ class Replayer {
   rosbag::Bag& out_;
   ReplayResult& result_;
   bool dirty_ = false;  // input arrived since the last solve
+  std::uint64_t refined_sequence_ = 0;  // the solution the last refinement started from
   std::shared_ptr<const OnlineSolution> loaded_;  // see FollowLoadedMap
   std::vector<Checkpoint> checkpoints_;  // see SaveAt
   std::string error_;  // the first failed save

@@ -29,6 +29,8 @@ KeyframePipeline::KeyframePipeline(const PipelineConfig& config)
   config_.frontend.focal_monitor.focal.num_threads = config_.frontend.num_threads;
   auto add_edge = [this](const KeyframeRelativeRotation& m, std::string* error) { return AddMeasurement(m, error); };
   if (!config_.image_topics.empty()) {
+    config_.frontend.keep_correspondences = config_.refinement;
+    if (config_.refinement) refiner_ = std::make_unique<KeyframeRefiner>(config_.refiner);
     frontend_ = std::make_unique<KeyframeFrontend>(config_.frontend);
     if (config_.frontend.focal_monitor.enabled) {
       focal_checker_ = std::make_unique<FocalChecker>(config_.frontend.focal_monitor.focal);
@@ -248,8 +250,17 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   const auto start = Clock::now();
   if (rig_.IsRigCamera(keyframe.key.frame_id)) frontend_->SetRigCalibrated(keyframe.key.frame_id);
   if (focal_corrector_) {
+    const std::map<std::string, double> before = focal_corrector_->Corrections();
     focal_corrector_->ApplyCorrections(warnings);
     focal_corrector_->RefineByLoops(FrontendStats().loop_closure_edges);
+    // The refinement's held points were normalised with the former focal length.
+    if (refiner_) {
+      for (const auto& [camera, product] : focal_corrector_->Corrections()) {
+        const auto b = before.find(camera);
+        const double previous = b == before.end() ? 1.0 : b->second;
+        if (product != previous) refiner_->ScaleCamera(camera, product / previous);
+      }
+    }
   }
   std::size_t added = 0;
   std::vector<KeyframeRelativeRotation> edges;
@@ -259,6 +270,7 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
     edges = frontend_->AddKeyframe(keyframe.key, keyframe.image, keyframe.camera, keyframe.tracks);
     frontend_stats = frontend_->Stats();
     if (focal_checker_) focal_checker_->Submit(frontend_->TakeFocalJobs());
+    if (refiner_) refiner_->Add(frontend_->TakeCorrespondences());
   }
   for (const KeyframeRelativeRotation& e : edges) {
     std::string error;
@@ -275,6 +287,51 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   stats_.keyframe_times.Add(SecondsSince(start));
   frontend_stats_ = std::move(frontend_stats);
   return added;
+}
+
+OnlineSolution KeyframePipeline::CameraSolution(const OnlineSolution& solution, bool refined) const {
+  OnlineSolution cameras = rig_.ToCameraKeyframes(solution);
+  if (refined && refiner_) refiner_->Apply(&cameras);
+  return cameras;
+}
+
+bool KeyframePipeline::MaybeRefine(const OnlineSolution& solution, double now_s, bool force, bool background,
+                                   std::function<void(bool)> done) {
+  if (!refiner_ || solution.orientations.empty()) return false;
+  {
+    std::lock_guard<std::mutex> lock(refine_mutex_);
+    // The period counts from the first solve: a map of its first few
+    // keyframes has nothing to adjust.
+    if (std::isnan(last_refine_s_)) last_refine_s_ = now_s;
+    if (!force && now_s - last_refine_s_ < config_.refinement_period_s) return false;
+    if (refiner_->Running()) return false;
+    last_refine_s_ = now_s;
+  }
+  auto cameras = std::make_shared<const OnlineSolution>(CameraSolution(solution, false));
+  KeyframeRefiner::RigCaptures rig;
+  const auto rig_cameras = rig_.RigCameras();
+  for (const auto& [key, r] : cameras->orientations) {
+    const auto camera = rig_cameras.find(key.frame_id);
+    if (camera != rig_cameras.end()) rig[key] = {rig_.VariableOfKnown(key), camera->second.second};
+  }
+  if (background) return refiner_->RefineInBackground(std::move(cameras), std::move(rig), std::move(done));
+  const bool ok = refiner_->Refine(*cameras, rig);
+  if (done) done(ok);
+  return true;
+}
+
+void KeyframePipeline::WaitForRefinement() {
+  if (refiner_) refiner_->Wait();
+}
+
+void KeyframePipeline::ResetRefinement() {
+  if (refiner_) refiner_->Reset();
+  std::lock_guard<std::mutex> lock(refine_mutex_);
+  last_refine_s_ = std::numeric_limits<double>::quiet_NaN();
+}
+
+KeyframeRefinerStats KeyframePipeline::RefinerStats() const {
+  return refiner_ ? refiner_->Stats() : KeyframeRefinerStats();
 }
 
 bool KeyframePipeline::SaveMap(const std::string& graph_path, std::string* error, std::string* note) {

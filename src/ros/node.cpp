@@ -46,7 +46,10 @@ RotationAveragingNode::RotationAveragingNode(ros::NodeHandle& nh, ros::NodeHandl
 
   SetUpImages(nh);
   SetUpServices(nh, pnh);
-  averager_->SetSolutionCallback([this](std::shared_ptr<const OnlineSolution> s) { Publish(*s); });
+  averager_->SetSolutionCallback([this](std::shared_ptr<const OnlineSolution> s) {
+    Publish(*s);
+    Refine(*s);
+  });
   LoadMaps();
   SetUpReconfigure();
   averager_->Start();
@@ -76,6 +79,7 @@ RotationAveragingNode::~RotationAveragingNode() {
   image_wake_.notify_all();
   if (image_worker_.joinable()) image_worker_.join();
   averager_->Stop();
+  pipeline_->WaitForRefinement();  // its end publishes: before the publishers go
   const std::string& save = pipeline_->Config().save_on_shutdown;
   if (!save.empty()) {
     std::string error;
@@ -350,6 +354,7 @@ bool RotationAveragingNode::OnSolve(std_srvs::Trigger::Request&, std_srvs::Trigg
 
 bool RotationAveragingNode::OnReset(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
   averager_->Reset();
+  pipeline_->ResetRefinement();
   pipeline_->ResetRig();
   pipeline_->ResetKeyframeSelection();
   pipeline_->ForgetLatestStamps();
@@ -379,7 +384,22 @@ bool RotationAveragingNode::OnAddMap(LoadGraph::Request& req, LoadGraph::Respons
   return true;
 }
 
+void RotationAveragingNode::Refine(const OnlineSolution& solution) {
+  // From the averager's thread, after its solution is out: the refinement
+  // runs on a thread of its own, and its end publishes the latest solution
+  // again with its corrections.
+  pipeline_->MaybeRefine(solution, ros::WallTime::now().toSec(), false, true, [this](bool ok) {
+    const KeyframeRefinerStats r = pipeline_->RefinerStats();
+    if (!ok) ROS_WARN_THROTTLE(30.0, "refinement changed nothing: %s", r.last_report.c_str());
+    if (const std::shared_ptr<const OnlineSolution> latest = averager_->Solution()) {
+      if (ok) Publish(*latest);
+    }
+  });
+}
+
 void RotationAveragingNode::Publish(const OnlineSolution& solution) {
+  // The averager's thread and the refinement's both publish.
+  std::lock_guard<std::mutex> lock(publish_mutex_);
   const ros::Time now = ros::Time::now();
   WarnAboutCaps();
   const OnlineSolution cameras = pipeline_->CameraSolution(solution);  // once per solve
@@ -441,6 +461,8 @@ NodeStatus RotationAveragingNode::Snapshot() {
   last_images_ = s.pipeline.processed_images;
   s.focal_checks = pipeline_->FocalChecks();
   s.focal_check_times = pipeline_->FocalCheckTimes();
+  s.refinement = pipeline_->HasRefiner();
+  s.refinement_stats = pipeline_->RefinerStats();
   if (pipeline_->HasFrontend()) {
     s.has_frontend = true;
     s.frontend = pipeline_->FrontendStats();

@@ -37,6 +37,9 @@ void Summarise(const NodeStatus& s, diagnostic_updater::DiagnosticStatusWrapper*
   } else if (s.dropped_images > 0) {
     status->summary(DiagnosticStatus::WARN,
                     "keyframe images dropped: they come faster than the front end processes them");
+  } else if (s.refinement && s.refinement_stats.runs > 0 && !s.refinement_stats.last_ok) {
+    status->summary(DiagnosticStatus::WARN,
+                    "the latest refinement changed nothing (the averaging's orientations are published)");
   } else {
     status->summary(DiagnosticStatus::OK, "ok");
   }
@@ -75,6 +78,18 @@ void AddFrontend(const NodeStatus& s, diagnostic_updater::DiagnosticStatusWrappe
   }
   for (const auto& [camera, correction] : s.focal_corrections) {
     status->add("focal length of " + camera + " corrected (x camera_info's)", correction);
+  }
+  if (s.refinement) {
+    const KeyframeRefinerStats& r = s.refinement_stats;
+    status->add("refinements run", r.runs);
+    status->add("refinements applied", r.applied);
+    status->add("refinements that changed nothing", r.failed);
+    status->add("keyframes corrected by the refinement", r.corrected_keyframes);
+    status->add("refinement correction, latest median (deg)", r.median_correction_deg);
+    status->add("time per refinement, median (ms)", 1e3 * r.times.Median());
+    status->add("time per refinement, p95 (ms)", 1e3 * r.times.P95());
+    status->add("refinement correspondences held (MiB)", r.bytes / (1024.0 * 1024.0));
+    if (!r.last_report.empty()) status->add("refinement, latest", r.last_report);
   }
   if (s.focal_check_times.Count() > 0) {
     status->add("focal-length check estimates", s.focal_check_times.Count());

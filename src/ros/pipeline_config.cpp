@@ -140,9 +140,11 @@ PipelineConfig::PipelineConfig() {
 }
 
 bool PipelineConfig::Validate(std::string* error) const {
-  std::string averager_error, frontend_error, selection_error;
+  std::string averager_error, frontend_error, selection_error, refiner_error;
   return OptionCheck()
       .Require(selection.Validate(&selection_error), selection_error)
+      .Above("refinement_period_s", refinement_period_s, 0.0)
+      .Require(refiner.Validate(&refiner_error), refiner_error)
       .AtLeast("max_image_queue", static_cast<double>(max_image_queue), 1)
       .Above("marker_spacing_m", marker_spacing_m, 0.0)
       .AtLeast("marker_max_keyframes", marker_max_keyframes, 1)
@@ -205,6 +207,11 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   f.tracker = c.selection.tracker;
   r.ReadOption("focal_calibration", &c.focal_calibration);
   r.Read("focal_loop_refinement", &c.focal_loop_refinement);
+  r.Read("refinement", &c.refinement);
+  r.Read("refinement_period_s", &c.refinement_period_s);
+  r.Read("refinement_max_keyframes", &c.refiner.max_keyframes);
+  r.Read("refinement_max_correction_deg", &c.refiner.max_correction_deg);
+  r.Read("refinement_max_iterations", &c.refiner.adjustment.max_iterations);
   r.Read("use_rig_extrinsics", &c.rig.enabled);
   r.Read("rig_frame", &c.rig.rig_frame);
   r.Read("covisibility_window", &f.covisibility_window);

@@ -67,6 +67,8 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
     result->focal_corrections.push_back(line.str());
   }
   for (const auto& [camera, line] : pipeline.FocalLoopRefinements()) result->focal_loop_refinements.push_back(line);
+  result->refinement = pipeline.HasRefiner();
+  result->refinement_stats = pipeline.RefinerStats();
 }
 
 bool WriteFrontendCost(const std::string& output_dir, ReplayResult* result, std::string* error) {
@@ -271,6 +273,18 @@ std::string ReplayResult::Summary() const {
   }
   for (const std::string& c : focal_corrections) out << "focal length corrected (focal_calibration: apply): " << c << "\n";
   for (const std::string& r : focal_loop_refinements) out << "focal length by the loops, last estimate: " << r << "\n";
+  if (refinement) {
+    const KeyframeRefinerStats& r = refinement_stats;
+    out << "refinement (bundle adjustment of the newest keyframes): " << r.runs << " runs, " << r.applied
+        << " applied, " << r.failed << " changed nothing; " << r.corrected_keyframes << " keyframes corrected";
+    if (r.applied > 0) {
+      out << ", the latest by median " << r.median_correction_deg << " deg, at most " << r.max_correction_deg
+          << " deg (" << r.held_back << " held back)";
+    }
+    out << "; time per refinement: " << r.times.DescribeMs() << "; correspondences held: " << r.edges_held
+        << " edges, " << r.bytes / (1024.0 * 1024.0) << " MiB\n";
+    if (!r.last_report.empty()) out << "refinement, latest: " << r.last_report << "\n";
+  }
   if (!rig_cameras.empty()) {
     out << "rig cameras (one orientation per capture): ";
     for (std::size_t k = 0; k < rig_cameras.size(); ++k) out << (k ? ", " : "") << rig_cameras[k];

@@ -12,59 +12,10 @@
 namespace rotation_averaging {
 namespace {
 
-constexpr double kFocal = 1000.0;  // pixels, for the noise level only
+constexpr double kFocal = kArcSceneFocal;
+using Scene = ArcScene;
 
-// Cameras on an arc around a box of points. Each view
-// sees each point as one keypoint (noise drawn once per view and point), so
-// the pairs' matches share keypoints and link into tracks, as a detector's
-// keypoints do.
-struct Scene {
-  ViewOrientations truth;
-  std::vector<Eigen::Vector3d> centres, points;
-  std::vector<std::vector<Eigen::Vector2d>> keypoints;  // [view][point]
-  std::vector<EdgeCorrespondences> edges;
-};
-
-Scene MakeScene(int views, double noise_px, std::uint32_t seed) {
-  std::mt19937 rng(seed);
-  std::normal_distribution<double> noise(0.0, noise_px / kFocal);
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
-  Scene scene;
-  for (int k = 0; k < 300; ++k) {
-    const Eigen::Vector3d d = DrawVector3(rng, u);
-    scene.points.emplace_back(3.0 * d.x(), 2.0 * d.y(), 6.0 + 2.0 * d.z());
-  }
-  for (int v = 0; v < views; ++v) {
-    const double angle = DegToRad(-20.0 + 40.0 * v / (views - 1));
-    const Eigen::Vector3d centre(6.0 * std::sin(angle), 0.3 * u(rng), 6.0 - 6.0 * std::cos(angle));
-    const Eigen::Vector3d z = (Eigen::Vector3d(0, 0, 6) - centre).normalized();
-    const Eigen::Vector3d x = Eigen::Vector3d::UnitY().cross(z).normalized();
-    Eigen::Matrix3d camera_to_world;
-    camera_to_world << x, z.cross(x), z;
-    const Eigen::Matrix3d r =
-        (camera_to_world * Eigen::AngleAxisd(0.05 * u(rng), Eigen::Vector3d::UnitZ()).toRotationMatrix()).transpose();
-    scene.truth[static_cast<ViewId>(v)] = r;
-    scene.centres.push_back(centre);
-    std::vector<Eigen::Vector2d> seen;
-    for (const Eigen::Vector3d& p : scene.points) {
-      seen.push_back((r * (p - centre)).hnormalized() + DrawVector2(rng, noise));
-    }
-    scene.keypoints.push_back(seen);
-  }
-  for (int i = 0; i < views; ++i) {
-    for (int j = i + 1; j < views; ++j) {
-      EdgeCorrespondences e;
-      e.view1 = static_cast<ViewId>(i);
-      e.view2 = static_cast<ViewId>(j);
-      e.points1 = scene.keypoints[i];
-      e.points2 = scene.keypoints[j];
-      e.translation = (scene.truth[e.view2] * (scene.centres[i] - scene.centres[j])).normalized();
-      e.sigma = std::max(noise_px, 0.05) / kFocal;
-      scene.edges.push_back(std::move(e));
-    }
-  }
-  return scene;
-}
+Scene MakeScene(int views, double noise_px, std::uint32_t seed) { return MakeArcScene(views, noise_px, seed); }
 
 TEST(BundleAdjustment, ExactWithoutNoiseAndCentresUpToScale) {
   const Scene scene = MakeScene(6, 0.0, 1);

@@ -142,11 +142,22 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
     EXPECT_EQ(rescored.views_common, 32u);
     EXPECT_NEAR(rescored.median_error_deg, first.scores.median_error_deg, 1e-9);
   }
-  // The output bag holds an Orientations message per solve.
+  // The background refinement (on by default): the bag is shorter than
+  // refinement_period_s, so only the final solution is refined, the cameras
+  // of each capture with one correction.
+  EXPECT_TRUE(first.refinement);
+  EXPECT_EQ(first.refinement_stats.runs, 1u);
+  EXPECT_TRUE(first.refinement_stats.last_ok) << first.refinement_stats.last_report;
+  EXPECT_EQ(first.refinement_stats.corrected_keyframes, 32u);
+  EXPECT_NE(first.Summary().find("refinement (bundle adjustment of the newest keyframes): 1 runs, 1 applied"),
+            std::string::npos)
+      << first.Summary();
+  // The output bag holds an Orientations message per solve, and the final
+  // solution's again once refined.
   {
     rosbag::Bag out(first.output_bag, rosbag::bagmode::Read);
     rosbag::View orientations(out, rosbag::TopicQuery("/rotation_averaging/orientations"));
-    EXPECT_EQ(orientations.size(), first.solves);
+    EXPECT_EQ(orientations.size(), first.solves + 1);
   }
   // Same input, same output, bit for bit, on one thread as on three.
   ReplayOptions again = Options(bag, "rig2");

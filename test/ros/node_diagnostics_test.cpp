@@ -97,6 +97,39 @@ TEST(NodeDiagnostics, TheSummaryNamesTheFirstProblemInOrder) {
   }
 }
 
+// The background refinement's counters; its latest run that changed
+// nothing is a warning (the averaging's orientations are published), after
+// every problem with the input.
+TEST(NodeDiagnostics, TheRefinementIsReportedAndWarnsWhenItChangedNothing) {
+  NodeStatus s = Healthy();
+  s.has_frontend = true;
+  s.refinement = true;
+  s.refinement_stats.runs = 3;
+  s.refinement_stats.applied = 3;
+  s.refinement_stats.corrected_keyframes = 40;
+  s.refinement_stats.last_ok = true;
+  s.refinement_stats.last_report = "bundle adjustment: 40 views";
+  s.refinement_stats.times.Add(0.25);
+  diagnostic_updater::DiagnosticStatusWrapper status = Fill(s);
+  EXPECT_EQ(status.message, "ok");
+  std::map<std::string, std::string> v = Values(status);
+  EXPECT_EQ(v.at("refinements run"), "3");
+  EXPECT_EQ(v.at("keyframes corrected by the refinement"), "40");
+  EXPECT_EQ(v.at("time per refinement, median (ms)"), "250");
+  EXPECT_EQ(v.at("refinement, latest"), "bundle adjustment: 40 views");
+  s.refinement_stats.runs = 4;
+  s.refinement_stats.failed = 1;
+  s.refinement_stats.last_ok = false;
+  status = Fill(s);
+  EXPECT_EQ(status.level, diagnostic_msgs::DiagnosticStatus::WARN);
+  EXPECT_EQ(status.message, "the latest refinement changed nothing (the averaging's orientations are published)");
+  s.dropped_images = 1;
+  EXPECT_EQ(Fill(s).message, "keyframe images dropped: they come faster than the front end processes them");
+  // Without the refinement, none of its keys.
+  s.refinement = false;
+  EXPECT_EQ(Values(Fill(s)).count("refinements run"), 0u);
+}
+
 TEST(NodeDiagnostics, TheFrontEndsFiguresAreReportedWithIt) {
   NodeStatus s = Healthy();
   s.has_frontend = true;

@@ -74,7 +74,9 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
                     {"posterior_covariance_max_views", "7"}, {"jackknife_grid", "3"}, {"loss", "cauchy"},
                     {"marker_spacing_m", "2"}, {"keyframe_selection", "all"}, {"keyframe_min_motion_deg", "7"},
                     {"keyframe_min_tracked_fraction", "0.3"}, {"keyframe_max_interval_s", "2"},
-                    {"rig_stamp_tolerance_s", "0.01"}, {"image_type", "rectified"}, {"focal_calibration", "off"}},
+                    {"rig_stamp_tolerance_s", "0.01"}, {"image_type", "rectified"}, {"focal_calibration", "off"},
+                    {"refinement", "false"}, {"refinement_period_s", "3"}, {"refinement_max_keyframes", "50"},
+                    {"refinement_max_iterations", "7"}, {"refinement_max_correction_deg", "0.5"}},
                    &c, &warnings, &error))
       << error;
   EXPECT_TRUE(warnings.empty());
@@ -94,6 +96,11 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
   EXPECT_EQ(c.frontend.rig_stamp_tolerance_s, 0.01);
   EXPECT_EQ(c.image_type, ImageType::kRectified);
   EXPECT_EQ(c.focal_calibration, FocalCalibrationMode::kOff);
+  EXPECT_FALSE(c.refinement);
+  EXPECT_EQ(c.refinement_period_s, 3.0);
+  EXPECT_EQ(c.refiner.max_keyframes, 50);
+  EXPECT_EQ(c.refiner.adjustment.max_iterations, 7);
+  EXPECT_EQ(c.refiner.max_correction_deg, 0.5);
 }
 
 TEST(PipelineConfig, FormerNamesAreReadWithADeprecationWarning) {
@@ -131,6 +138,10 @@ TEST(PipelineConfig, ValuesOutOfRangeAndUnknownChoicesAreRefusedByName) {
       {{{"keyframe_min_tracked_fraction", "2"}}, "keyframe_min_tracked_fraction must be in [0, 1]"},
       {{{"keyframe_max_interval_s", "-1"}}, "keyframe_max_interval_s must be at least 0"},
       {{{"image_type", "rect"}}, "image_type 'rect' is not one of auto, raw, rectified"},
+      {{{"refinement_period_s", "0"}}, "refinement_period_s must be above 0"},
+      {{{"refinement_max_keyframes", "1"}}, "refinement_max_keyframes must be at least 3"},
+      {{{"refinement_max_iterations", "0"}}, "refinement_max_iterations must be at least 1"},
+      {{{"refinement_max_correction_deg", "nan"}}, "refinement_max_correction_deg must be above 0"},
   };
   for (const auto& [values, expected] : cases) {
     PipelineConfig c;

@@ -20,6 +20,7 @@
 #include <visualization_msgs/MarkerArray.h>
 
 #include <functional>
+#include <limits>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -31,6 +32,7 @@
 #include "rotation_averaging/core/controllers/rig_model.h"
 #include "rotation_averaging/frontend/controllers/focal_corrector.h"
 #include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/frontend/controllers/keyframe_refiner.h"
 #include "rotation_averaging/frontend/controllers/keyframe_selector.h"
 #include "rotation_averaging/frontend/controllers/map_store.h"
 #include "rotation_averaging/ros/image_conversion.h"
@@ -151,7 +153,24 @@ class KeyframePipeline {
   // The averager solves one variable per rig capture; this expands a
   // solution into one orientation per camera keyframe. Callers expand once
   // per solve and pass the result to the output messages below.
-  OnlineSolution CameraSolution(const OnlineSolution& solution) const { return rig_.ToCameraKeyframes(solution); }
+  // With the background refinement's corrections applied (PipelineConfig::
+  // refinement) unless `refined` is false.
+  OnlineSolution CameraSolution(const OnlineSolution& solution, bool refined = true) const;
+
+  // The background refinement (KeyframeRefiner), with an image front end
+  // and `refinement` on. MaybeRefine starts one on `solution` (the
+  // averager's) when refinement_period_s has passed since the last start at
+  // `now_s` (the node's wall time, the replay's bag time) or `force`, and
+  // none is under way: in the background, then `done`, or with
+  // `background` false in the calling thread (the replay: the same
+  // refinements on every run). True if one ran or started.
+  bool HasRefiner() const { return refiner_ != nullptr; }
+  bool MaybeRefine(const OnlineSolution& solution, double now_s, bool force, bool background,
+                   std::function<void(bool)> done = nullptr);
+  void WaitForRefinement();
+  KeyframeRefinerStats RefinerStats() const;
+  // After the averager's Reset(): the corrections and correspondences held go.
+  void ResetRefinement();
 
   // Output messages for a solution expanded by CameraSolution (OutputMessages).
   Orientations OrientationsMsg(const OnlineSolution& cameras, const ros::Time& stamp) const {
@@ -210,6 +229,9 @@ class KeyframePipeline {
   std::unique_ptr<FocalChecker> focal_checker_;      // with a front end and focal_calibration: warn or apply
   std::unique_ptr<FocalCorrector> focal_corrector_;  // with a front end and focal_calibration: apply
   std::unique_ptr<MapStore> map_store_;
+  std::unique_ptr<KeyframeRefiner> refiner_;  // with a front end and `refinement`
+  std::mutex refine_mutex_;  // last_refine_s_
+  double last_refine_s_ = std::numeric_limits<double>::quiet_NaN();  // the last start (NaN: before the first solve)
   OutputMessages output_;
   // Held while the front end adds a keyframe, and while its database is
   // saved or loaded (the node saves from a timer thread).

@@ -99,6 +99,8 @@ class RotationAveragingNode {
   bool OnAddMap(LoadGraph::Request& req, LoadGraph::Response& res);
   // Called from the averager's worker thread after each successful solve.
   void Publish(const OnlineSolution& solution);
+  // Starts the background refinement of `solution` when it is due.
+  void Refine(const OnlineSolution& solution);
   // Measurements dropped at the view or edge caps are counted when the worker
   // applies them to the graph; say so once per burst, with the caps' names.
   void WarnAboutCaps();
@@ -120,6 +122,7 @@ class RotationAveragingNode {
   diagnostic_updater::Updater diagnostics_;
   ros::Timer diagnostics_timer_;
   ros::WallTimer autosave_timer_;
+  std::mutex publish_mutex_;  // Publish, from the averager's thread and the refinement's
   std::mutex mutex_;  // camera_infos_, the counters and times below
   std::uint64_t dropped_images_ = 0, images_without_info_ = 0;
   ros::WallTime last_rates_time_;  // diagnostics: input rates between updates

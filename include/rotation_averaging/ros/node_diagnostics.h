@@ -47,6 +47,8 @@ struct NodeStatus {
   bool window_pairs = false;
   std::map<std::string, CameraFocalCheck> focal_checks;
   TimeDistribution focal_check_times;  // each focal-length estimate, on the checker's thread
+  bool refinement = false;  // the background refinement (refinement: true, with images)
+  KeyframeRefinerStats refinement_stats;
   std::map<std::string, double> focal_corrections;
   double resident_mib = 0.0, peak_resident_mib = 0.0;
 };

@@ -83,6 +83,14 @@ struct PipelineConfig {
   // further by the loops of the averaging (FocalCorrector::RefineByLoops),
   // as loop closures arrive.
   bool focal_loop_refinement = true;
+  // The background refinement of the newest keyframes by bundle adjustment
+  // on their pairs' inliers (frontend/controllers/keyframe_refiner.h), with
+  // an image front end: after a solve, once `refinement_period_s` (of wall
+  // time in the node, of bag time in the replay) has passed since the last
+  // one started; its corrections are published with every later solution.
+  bool refinement = true;
+  double refinement_period_s = 20.0;
+  KeyframeRefinerOptions refiner;  // refinement_max_keyframes, refinement_max_correction_deg
   KeyframeSelectionOptions selection;  // keyframe_min_motion_deg, ...; its rig tolerance is rig_stamp_tolerance_s
   KeyframeFrontendOptions frontend;    // frontend.vocabulary: loaded from `vocabulary`
   // File of `rotavg vocabulary`; "default": DefaultVocabularyPath(); "" or

@@ -13,6 +13,7 @@
 
 #include "rotation_averaging/ros/keyframe_pipeline.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "rotation_averaging/frontend/controllers/keyframe_refiner.h"
 #include "rotation_averaging/util/time_distribution.h"
 
 namespace rotation_averaging {
@@ -80,6 +81,10 @@ struct ReplayResult {
   std::uint64_t compacted_keyframes = 0;      // keyframes holding only their compact features
   std::string frontend_cost_csv, frontend_cost_png;
   std::size_t solves = 0;
+  // The background refinement (refinement: true): its counts, times and
+  // latest outcome (KeyframeRefinerStats); refinement_runs 0 without it.
+  bool refinement = false;
+  KeyframeRefinerStats refinement_stats;
   double final_cost = 0.0;
   bool have_scores = false;
   EvaluationResult scores;

@@ -132,7 +132,7 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
             EstimateRelativePoseWithCovariance(pa, pb, a.track_camera.k, newer.track_camera.k, track_pose);
         if (pose.success) {
           FillOutcome(tasks[t], a, a, newer, false, track_pose.jackknife_grid, {}, std::move(pa), std::move(pb),
-                      pose, &outcomes[t]);
+                      a.track_camera.k, newer.track_camera.k, pose, &outcomes[t]);
           outcomes[t].from_tracks = true;
           // The focal-length check and correction hold points in the
           // features' image: a pair of full-resolution tracks is theirs
@@ -172,7 +172,7 @@ std::vector<KeyframeFrontend::PairOutcome> KeyframeFrontend::VerifyPairs(const s
     }
     const RelativePoseResult pose = EstimateRelativePoseWithCovariance(pa, pb, first.k, second.k, relative_pose);
     FillOutcome(tasks[t], a, first, second, swap, relative_pose.jackknife_grid, matches, std::move(pa), std::move(pb),
-                pose, &outcomes[t]);
+                first.k, second.k, pose, &outcomes[t]);
     outcomes[t].tracks_failed = tracks_failed;
     outcomes[t].seconds = SecondsSince(pair_start);
   });
@@ -219,7 +219,8 @@ bool KeyframeFrontend::TrackCorrespondences(const PairTask& task, const Keyframe
 void KeyframeFrontend::FillOutcome(const PairTask& task, const Keyframe& a, const Keyframe& first,
                                    const Keyframe& second, bool swap, int jackknife_grid,
                                    const std::vector<std::pair<int, int>>& matches, std::vector<Eigen::Vector2d> pa,
-                                   std::vector<Eigen::Vector2d> pb, const RelativePoseResult& pose,
+                                   std::vector<Eigen::Vector2d> pb, const Eigen::Matrix3d& k1,
+                                   const Eigen::Matrix3d& k2, const RelativePoseResult& pose,
                                    PairOutcome* outcome) const {
   PairOutcome& out = *outcome;
   out.newer_first = swap;
@@ -251,6 +252,20 @@ void KeyframeFrontend::FillOutcome(const PairTask& task, const Keyframe& a, cons
     out.failure = "resumed_too_few_inliers";
     return;
   }
+  if (options_.keep_correspondences) {
+    std::vector<Eigen::Vector2d> n1, n2;
+    n1.reserve(pose.inliers.size());
+    n2.reserve(pose.inliers.size());
+    const Eigen::Matrix3d k1_inverse = k1.inverse(), k2_inverse = k2.inverse();
+    for (int m : pose.inliers) {
+      n1.push_back((k1_inverse * pa[m].homogeneous()).hnormalized());
+      n2.push_back((k2_inverse * pb[m].homogeneous()).hnormalized());
+    }
+    // (The rotation-only model's zero translation: its matches join the
+    // refinement's tracks but give no baseline.)
+    out.correspondences = std::make_shared<const EdgeCorrespondences>(MakeEdgeCorrespondences(
+        0, 1, std::move(n1), std::move(n2), pose.translation, pose.sigma_px, 0.5 * (k1(0, 0) + k1(1, 1))));
+  }
   const FocalMonitorOptions& focal = options_.focal_monitor;
   if (focal.enabled && first.key.frame_id == second.key.frame_id && first.k == second.k &&
       pose.model == TwoViewModel::kEssential && static_cast<int>(pose.inliers.size()) >= focal.focal.min_inliers) {
@@ -261,6 +276,17 @@ void KeyframeFrontend::FillOutcome(const PairTask& task, const Keyframe& a, cons
     out.points2 = std::make_shared<std::vector<Eigen::Vector2d>>(std::move(pb));
     out.pose = std::make_shared<RelativePoseResult>(pose);
   }
+}
+
+void KeyframeFrontend::KeepCorrespondences(const PairOutcome& outcome) {
+  if (!outcome.correspondences) return;
+  correspondences_.push_back({outcome.edge.keyframe1, outcome.edge.keyframe2, *outcome.correspondences});
+}
+
+std::vector<KeyframeCorrespondences> KeyframeFrontend::TakeCorrespondences() {
+  std::vector<KeyframeCorrespondences> out;
+  out.swap(correspondences_);
+  return out;
 }
 
 void KeyframeFrontend::CountInliers(const PairTask& task, const PairOutcome& outcome, Keyframe* newer) {
@@ -439,6 +465,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   for (std::size_t c : accepted) {
     CountInliers(candidates[c], verified_loops[c], kf.get());
     MonitorFocal(verified_loops[c], *kf, camera);
+    KeepCorrespondences(verified_loops[c]);
     HoldPair(candidates[c], verified_loops[c], static_cast<int>(keyframes_.size()), false);
   }
   StoreKeyframe(std::move(kf));
@@ -623,6 +650,7 @@ void KeyframeFrontend::UseChainOrRigEdge(const PairTask& task, const PairOutcome
   edges->push_back(e);
   CountInliers(task, outcome, kf);
   MonitorFocal(outcome, *kf, camera);
+  KeepCorrespondences(outcome);
   HoldPair(task, outcome, static_cast<int>(keyframes_.size()),
            task.source != EdgeSource::kRig && task.older == same.back());
   if (task.source == EdgeSource::kRig) {

@@ -111,6 +111,9 @@ struct SolvedEdge {
 // The latest solution: world-to-camera orientation per keyframe.
 struct OnlineSolution {
   std::uint64_t sequence = 0;  // increases with every successful solve
+  // The background refinement whose corrections the orientations carry
+  // (frontend/controllers/keyframe_refiner.h); 0: the averaging's alone.
+  std::uint64_t refinement_sequence = 0;
   bool local = false;          // a local re-solve: `summary` covers the re-solved region only
   std::map<KeyframeKey, Eigen::Matrix3d> orientations;
   std::map<KeyframeKey, int> component;  // index of the connected component, largest first

@@ -36,6 +36,7 @@
 #include "rotation_averaging/frontend/features/vocabulary.h"
 #include "rotation_averaging/frontend/geometry/camera_model.h"
 #include "rotation_averaging/frontend/controllers/focal_monitor.h"
+#include "rotation_averaging/frontend/controllers/keyframe_refiner.h"
 #include "rotation_averaging/frontend/io/keyframe_database.h"
 #include "rotation_averaging/util/time_distribution.h"
 
@@ -135,6 +136,10 @@ struct KeyframeFrontendOptions {
   // (frontend/controllers/focal_monitor.h). Off here; the node turns it on
   // (focal_calibration: warn). Its memory: KeyframeFrontendStats::focal_bytes.
   FocalMonitorOptions focal_monitor;
+  // Keep each edge's inlier correspondences (normalised coordinates, the
+  // pose's translation and pixel noise) until TakeCorrespondences, for the
+  // background refinement (frontend/controllers/keyframe_refiner.h).
+  bool keep_correspondences = false;
 
   // True if every field (features, relative_pose included) is within its
   // range; otherwise false, with `error` naming the first field that is not.
@@ -263,6 +268,9 @@ class KeyframeFrontend {
   // matching it again would count those pairs twice.
   bool AddDatabase(const std::string& path, std::size_t* already_held, std::string* error,
                    std::vector<KeyframeRelativeRotation>* links = nullptr);
+  // keep_correspondences: the inlier correspondences of the edges made
+  // since the last call, in the order of the edges.
+  std::vector<KeyframeCorrespondences> TakeCorrespondences();
   bool UsesVocabulary() const { return options_.vocabulary != nullptr; }
   // "vocabulary of N words (inverted index)" or "voting over every keyframe (no vocabulary)".
   std::string RetrievalName() const;
@@ -355,6 +363,8 @@ class KeyframeFrontend {
     // the pose they gave (its inliers, for the focal length's derivative).
     std::shared_ptr<std::vector<Eigen::Vector2d>> points1, points2;
     std::shared_ptr<RelativePoseResult> pose;
+    // Its inliers for the refinement (options_.keep_correspondences).
+    std::shared_ptr<const EdgeCorrespondences> correspondences;
     bool newer_first = false;  // the edge's first keyframe is the new one
     int jackknife_grid = 0;    // that the pair was estimated with
     double seconds = 0.0;      // wall time of its matching and estimation, on its thread
@@ -390,10 +400,13 @@ class KeyframeFrontend {
   // The outcome of one verified pair (`a` the task's older keyframe; the
   // pose maps `first` to `second`, swapped from (a, new) when `swap`): its
   // edge and inliers, its focal sample, the matches held for correction.
+  // `k1` and `k2`: the intrinsics of pa's and pb's pixels.
   void FillOutcome(const PairTask& task, const Keyframe& a, const Keyframe& first, const Keyframe& second, bool swap,
                    int jackknife_grid, const std::vector<std::pair<int, int>>& matches,
-                   std::vector<Eigen::Vector2d> pa, std::vector<Eigen::Vector2d> pb, const RelativePoseResult& pose,
-                   PairOutcome* outcome) const;
+                   std::vector<Eigen::Vector2d> pa, std::vector<Eigen::Vector2d> pb, const Eigen::Matrix3d& k1,
+                   const Eigen::Matrix3d& k2, const RelativePoseResult& pose, PairOutcome* outcome) const;
+  // The inliers of a used outcome into correspondences_ (keep_correspondences).
+  void KeepCorrespondences(const PairOutcome& outcome);
   // The loop closures of one new keyframe (`verified` of `candidates`) that
   // have enough inliers and agree with each other, with the candidates they
   // came from; counts them and the rejected ones.
@@ -454,6 +467,7 @@ class KeyframeFrontend {
   // (keyframe, stamp of the capture that pushed it out of its window)
   std::vector<std::pair<int, std::int64_t>> due_compaction_;
   FocalMonitor focal_monitor_;
+  std::vector<KeyframeCorrespondences> correspondences_;  // keep_correspondences, until taken
   std::map<std::string, std::vector<HeldPair>> held_pairs_;  // by camera (a rig pair under both)
   std::set<std::string> held_overflow_;  // cameras whose pairs outgrew max_correction_pairs
   std::map<std::string, double> focal_correction_;  // ApplyFocalCorrection

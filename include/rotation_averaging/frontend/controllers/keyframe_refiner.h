@@ -1,0 +1,160 @@
+// Public header of rotation_averaging::frontend (docs/embedding.md).
+// The live map's refinement: the bundle adjustment that `rotavg images` runs
+// after the averaging (frontend/estimators/bundle_adjustment.h), run over the
+// newest keyframes of a running map, free of ROS.
+//
+// The averaging sees each pair through its two-view summary; what every pair
+// of one view shares (its keypoints' common error, a view tied to the others
+// by wrong matches that fit their own pair) it cannot see. The adjustment
+// ties each view's points to every view that sees them, and offline it takes
+// the averaging's error down on most scenes (results/frontend.md). Here the
+// front end hands over each edge's inlier correspondences as it makes the
+// edge; a refinement takes one averaging solution, adjusts its newest
+// `max_keyframes` keyframes on the edges among them, and keeps, per
+// keyframe, the correction it found:
+//
+//   C_i = R_adjusted_i G R_averaged_i^T
+//
+// with G one rotation per group of keyframes the edges connect, fitted
+// robustly so that the group keeps the averaging's frame (the adjustment
+// holds one view of each group where it was, which would turn the whole
+// group by that one view's error). Later solutions are published with the
+// corrections applied, R_i = C_i R_averaged_i: a correction is the
+// keyframe's own error, in its camera's frame, which the averaging's later
+// changes (a loop closure moving a whole stretch) do not undo. Keyframes
+// newer than the last refinement are published as the averaging has them;
+// those that left the window keep their last correction.
+//
+// A keyframe that a refinement moves further than `max_correction_deg` (a
+// divergence, not a refinement of a good averaging) keeps what it had; a
+// refinement that fails, or that moves more than a quarter of its keyframes
+// that far, changes nothing: the corrections before it stay, and the
+// summary says why.
+#ifndef ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_REFINER_H_
+#define ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_REFINER_H_
+
+#include <Eigen/Core>
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <future>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "rotation_averaging/core/controllers/online_averager.h"
+#include "rotation_averaging/frontend/estimators/bundle_adjustment.h"
+#include "rotation_averaging/frontend/estimators/correspondence_refinement.h"
+#include "rotation_averaging/util/time_distribution.h"
+
+namespace rotation_averaging {
+
+// The inlier correspondences of one edge between two keyframes (view1 and
+// view2 of `points` are not used: the keyframes say which views).
+struct KeyframeCorrespondences {
+  KeyframeKey keyframe1, keyframe2;
+  EdgeCorrespondences points;
+};
+
+struct KeyframeRefinerOptions {
+  // The newest keyframes (by capture stamp) a refinement adjusts, with the
+  // edges among them; the correspondences of edges whose keyframes have
+  // both left it are let go. Bounds a refinement's time and the memory.
+  int max_keyframes = 200;
+  // A keyframe the refinement moves further than this from the averaging
+  // keeps what it had (the bundle adjustment refines a good averaging and
+  // cannot repair a bad one); with more than a quarter of them the
+  // refinement changes nothing.
+  double max_correction_deg = 1.0;
+  // The bundle adjustment's options; the refinement's own defaults in the
+  // constructor.
+  BundleAdjustmentOptions adjustment;
+  KeyframeRefinerOptions();
+
+  bool Validate(std::string* error) const;
+};
+
+struct KeyframeRefinerStats {
+  std::uint64_t runs = 0, applied = 0, failed = 0;
+  std::uint64_t sequence = 0;            // of the latest applied refinement (0: none)
+  std::uint64_t solution_sequence = 0;   // the averaging solution it refined
+  std::size_t corrected_keyframes = 0;   // keyframes with a correction
+  std::size_t edges_held = 0;            // edges whose correspondences are held
+  std::size_t bytes = 0;                 // their memory
+  double median_correction_deg = 0.0;    // of the latest applied refinement
+  double max_correction_deg = 0.0;
+  std::size_t held_back = 0;             // of its keyframes, moved beyond max_correction_deg: not corrected
+  TimeDistribution times;                // wall time of each refinement
+  std::string last_report;               // the adjustment's summary, or why it changed nothing
+  bool last_ok = false;
+};
+
+class KeyframeRefiner {
+ public:
+  explicit KeyframeRefiner(const KeyframeRefinerOptions& options);
+  ~KeyframeRefiner();  // waits for a refinement under way
+  KeyframeRefiner(const KeyframeRefiner&) = delete;
+  KeyframeRefiner& operator=(const KeyframeRefiner&) = delete;
+
+  // The correspondences of new edges; an edge between the same two
+  // keyframes replaces the one held. Edges with too few correspondences or
+  // numbers that are not finite are not held.
+  void Add(std::vector<KeyframeCorrespondences> edges);
+  // A camera's focal length was multiplied by `scale`: its keyframes'
+  // normalised points are divided by it (the principal point stays).
+  void ScaleCamera(const std::string& frame_id, double scale);
+
+  // Camera keyframes of a rig with known extrinsics: the capture (the
+  // averaging's variable) each belongs to and its camera_from_rig rotation
+  // E (R_camera = E R_rig).
+  using RigCaptures = std::map<KeyframeKey, std::pair<KeyframeKey, Eigen::Matrix3d>>;
+  // Refines `cameras` (an averaging solution, one orientation per camera
+  // keyframe) in the calling thread; true if its corrections were taken.
+  // The cameras of one capture of `rig` get one correction, the chordal
+  // mean of theirs in the rig's frame: the averaging holds them as one
+  // orientation, seen by every camera's pairs, and the adjustment, which
+  // knows no extrinsics, sees each only through its own camera's tracks.
+  bool Refine(const OnlineSolution& cameras, const RigCaptures& rig = {});
+  // The same on a thread of its own, then `done` (from that thread). False,
+  // and nothing started, while one is under way.
+  bool RefineInBackground(std::shared_ptr<const OnlineSolution> cameras, RigCaptures rig,
+                          std::function<void(bool)> done);
+  bool Running() const { return running_; }
+  // Waits for a background refinement under way; from the thread that
+  // starts them.
+  void Wait();
+
+  // Lets go of the correspondences and corrections held (the counters stay).
+  void Reset();
+  // `cameras` with the corrections held applied; its refinement_sequence
+  // set to the latest applied refinement's.
+  void Apply(OnlineSolution* cameras) const;
+  KeyframeRefinerStats Stats() const;
+
+ private:
+  struct HeldEdge {
+    KeyframeKey keyframe1, keyframe2;
+    EdgeCorrespondences points;
+  };
+  // The edges among the newest max_keyframes keyframes of `cameras`, with
+  // view ids, and the keyframe of each id.
+  void SelectWindow(const OnlineSolution& cameras, std::vector<EdgeCorrespondences>* edges,
+                    std::vector<KeyframeKey>* keys) const;
+  static std::size_t EdgeBytes(const EdgeCorrespondences& e);
+
+  const KeyframeRefinerOptions options_;
+  mutable std::mutex mutex_;  // edges_, corrections_, stats_
+  std::map<std::pair<KeyframeKey, KeyframeKey>, HeldEdge> edges_;
+  std::map<KeyframeKey, Eigen::Matrix3d> corrections_;
+  KeyframeRefinerStats stats_;
+  std::mutex run_mutex_;  // one refinement at a time
+  std::atomic<bool> running_{false};
+  std::future<void> background_;  // of the thread that starts them
+};
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_FRONTEND_CONTROLLERS_KEYFRAME_REFINER_H_

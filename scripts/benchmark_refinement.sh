@@ -1,0 +1,68 @@
+#!/usr/bin/env bash
+# Regenerates results/refinement.md: the node's background refinement (the
+# bundle adjustment of its newest keyframes on their pairs' inliers,
+# `refinement`) on and off, on every input with ground truth:
+#  * the Strecha scenes and lund_door at a quarter of full width as bags,
+#    every photograph a keyframe, against `rotavg images` (every pair, the
+#    averaging, focal self-calibration and the bundle adjustment) on the same
+#    images;
+#  * the demo bag (two cameras, rig extrinsics known, one capture a second);
+#  * the demo renderer's rig as a 20 Hz driver publishes it (one loop in
+#    30 s), and its forward camera alone;
+#  * EuRoC's raw stereo stream.
+# Replays refine by bag time (refinement_period_s), in the solve's thread:
+# the same refinements on every run, and their time is in the wall time.
+#   bash scripts/benchmark_refinement.sh        (about fifteen minutes)
+source "$(dirname "$0")/common.sh"
+bash scripts/setup.sh > /dev/null
+OUT=build/benchmark_refinement
+mkdir -p "$OUT" build/demo
+
+PHOTOS=()
+for s in castle-P19 entry-P10 fountain-P11; do
+  [ -d "$DATA/strecha/$s" ] || continue
+  [ -f "$OUT/$s.bag" ] || strecha_bag "$DATA/strecha/$s" "$OUT/$s.bag"
+  "$BIN/rotavg" images --images "$DATA/strecha/$s/images" --intrinsics "$DATA/strecha/$s/images/K.txt" \
+    --downsample 0.25 --pairs exhaustive --gt "$DATA/strecha/$s" > "$OUT/${s}_offline.txt"
+  PHOTOS+=("$s")
+done
+if [ -d "$DATA/lund_door" ]; then
+  [ -f "$OUT/lund_door.bag" ] || lund_door_bag "$OUT/lund_door.bag"
+  "$BIN/rotavg" images --images "$DATA/lund_door/images" --intrinsics "$DATA/lund_door/colmap_ground_truth/cameras.txt" \
+    --downsample 0.25 --pairs exhaustive --gt "$DATA/lund_door/colmap_ground_truth/images.txt" \
+    > "$OUT/lund_door_offline.txt"
+  PHOTOS+=(lund_door)
+fi
+PHOTO_CONFIG=('image_topics: ["/camera/image_raw"]' "features: sift" "max_features: 4000" "keyframe_selection: all")
+for s in "${PHOTOS[@]}"; do
+  for r in false true; do replay_with "${s}_$r" "$OUT/$s.bag" "${PHOTO_CONFIG[@]}" "refinement: $r"; done
+done
+
+DEMO=build/demo/demo_60.bag
+[ -f "$DEMO" ] || "$BIN/rotation_averaging_make_demo_bag" --output "$DEMO" --captures 60 --cameras 2 > /dev/null
+STREAM=build/demo/demo_20hz_600_2cam.bag
+if [ ! -f "$STREAM" ]; then
+  "$BIN/rotation_averaging_make_demo_bag" --output "$STREAM.tmp" --captures 600 --period 0.05 --cameras 2 > /dev/null
+  mv "$STREAM.tmp" "$STREAM"
+fi
+mapfile -t demo < <(grep -v '^#' config/demo.yaml)
+mapfile -t stream < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:')
+mapfile -t one < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:\|^image_topics:')
+for r in false true; do
+  replay_with "demo_$r" "$DEMO" "${demo[@]}" "refinement: $r"
+  replay_with "stream_$r" "$STREAM" "${stream[@]}" "keyframe_selection: motion" "refinement: $r"
+  replay_with "one_camera_$r" "$STREAM" "${one[@]}" 'image_topics: ["/cam_front/image_raw"]' \
+    "keyframe_selection: motion" "refinement: $r"
+done
+
+EUROC="$DATA/euroc_v1_01_micro/mav0"
+if [ -d "$EUROC" ]; then
+  [ -f "$OUT/euroc.bag" ] || "$BIN/rotation_averaging_images_to_bag" --euroc "$EUROC" --output "$OUT/euroc.bag" > /dev/null
+  for r in false true; do
+    replay_with "euroc_$r" "$OUT/euroc.bag" 'image_topics: ["/cam0/image_raw", "/cam1/image_raw"]' \
+      "use_rig_extrinsics: false" "keyframe_selection: motion" "keyframe_max_interval_s: 0.5" "refinement: $r"
+  done
+fi
+
+python3 scripts/refinement_report.py "$OUT" "$(IFS=,; echo "${PHOTOS[*]}")" "$EUROC" > results/refinement.md
+echo "wrote results/refinement.md"

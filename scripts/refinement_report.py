@@ -1,0 +1,114 @@
+"""Writes results/refinement.md from the runs of scripts/benchmark_refinement.sh.
+
+usage: refinement_report.py OUT PHOTOS [EUROC_MAV0]
+  PHOTOS: the photograph scenes replayed as bags, comma separated (each with its `rotavg images` run,
+  OUT/<scene>_offline.txt). EUROC_MAV0: the EuRoC excerpt's mav0 folder (its calibration), for the stereo rows.
+"""
+import os
+import sys
+
+import numpy as np
+
+from camera_models_report import body_from_camera, stereo_errors
+from report_common import reproduce_line, value
+
+MEDIAN = r"^median error: ([\d.]+) deg"
+NEES = r"^posterior covariances against the ground truth: NEES median ([\d.]+) \(2.37 if honest\), "
+WITHIN = r"^posterior covariances against the ground truth: .*, ([\d.]+)% within"
+REFINEMENT = r"^refinement \(bundle adjustment of the newest keyframes\): "
+LABELS = {
+    "castle-P19": "castle-P19 (19 photographs)",
+    "entry-P10": "entry-P10 (10 photographs)",
+    "fountain-P11": "fountain-P11 (11 photographs)",
+    "lund_door": "lund_door (12 photographs; COLMAP's model as ground truth)",
+    "demo": "demo bag (two cameras, rig, one capture a second)",
+    "stream": "20 Hz two-camera stream, one loop in 30 s",
+    "one_camera": "20 Hz stream, forward camera alone",
+    "euroc": "EuRoC stereo, raw (cam0 -> cam1 error)",
+}
+
+
+def read(out, name):
+    path = os.path.join(out, name + ".txt")
+    return open(path).read() if os.path.exists(path) else ""
+
+
+def refinements(text):
+    runs = value(text, REFINEMENT + r"(\d+) runs", "")
+    if not runs:
+        return "-", "-"
+    applied = value(text, REFINEMENT + r"\d+ runs, (\d+) applied", "-")
+    times = value(text, REFINEMENT + r".*time per refinement: median ([\d.]+) ms, p95 ([\d.]+) ms", "-")
+    p95 = value(text, REFINEMENT + r".*time per refinement: median [\d.]+ ms, p95 ([\d.]+) ms", "-")
+    return "%s / %s" % (applied, runs), "%s / %s" % (times, p95)
+
+
+def row(out, name, refinement, offline=None, error=None):
+    """One table row of a replay; `error`: a median error of its own (EuRoC's stereo), else the summary's."""
+    text = read(out, "%s_%s" % (name, refinement))
+    if not text:
+        return None
+    median = error if error is not None else value(text, MEDIAN, "-")
+    applied, times = refinements(text)
+    cells = [LABELS.get(name, name), "on" if refinement == "true" else "off",
+             value(text, r"^keyframes: (\d+) ", "-"), median, value(text, r"^AUC@2: ([\d.]+) %", "-"),
+             value(text, NEES, "-"), value(text, WITHIN, "-"), applied, times,
+             value(text, r"\(([\d.]+)x real time\)", "-") + "x", value(text, r"CPU time: ([\d.]+) s", "-")]
+    if offline is not None:
+        offline_median = value(offline, MEDIAN, "")
+        ratio = "%.2f" % (float(median) / float(offline_median)) if offline_median and median != "-" else "-"
+        cells += [offline_median or "-", ratio]
+    else:
+        cells += ["-", "-"]
+    return "| " + " | ".join(cells) + " |"
+
+
+def main():
+    out, photos = sys.argv[1], [p for p in sys.argv[2].split(",") if p]
+    mav0 = sys.argv[3] if len(sys.argv) > 3 else ""
+    print("# Background refinement in the node\n")
+    print(reproduce_line("bash scripts/benchmark_refinement.sh"))
+    print("""
+The node bundle adjusts its newest keyframes (`refinement_max_keyframes`) on their pairs' inliers in the
+background (`refinement: true`, docs/node.md "Background refinement"): the adjustment `rotavg images` runs after
+the averaging, started from the node's averaged orientations. Each keyframe keeps the correction it found, in its
+camera's frame, and every later solution is published with it; the cameras of a rig capture share one correction.
+Here each bag is replayed with the refinement off and on (the defaults otherwise); the replay refines every
+`refinement_period_s` of bag time in the solve's thread, and the final solution once more, so the refinements'
+time is in the wall and CPU time. Errors of the final solution against the ground truth, in degrees; NEES: the
+published posterior covariances (the averaging's) against the errors of the published orientations, with the
+share of keyframes within chi-square's 95% bound; refinements: applied / run; time per refinement: median / p95
+(ms). `rotavg images`: the same images, every pair tried, with focal self-calibration and the bundle adjustment
+(`--downsample 0.25 --pairs exhaustive`); ratio: the node's median over it (the target is 1.5 or less).
+""")
+    print("| input | refinement | keyframes | median | AUC@2 (%) | NEES median | within bound (%) | refinements "
+          "| time per refinement (ms) | speed-up | CPU (s) | rotavg images: median | ratio |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for s in photos:
+        offline = read(out, s + "_offline")
+        for r in ("false", "true"):
+            line = row(out, s, r, offline)
+            if line:
+                print(line)
+    for name in ("demo", "stream", "one_camera"):
+        for r in ("false", "true"):
+            line = row(out, name, r)
+            if line:
+                print(line)
+    if mav0 and os.path.isdir(mav0):
+        r10 = body_from_camera(os.path.join(mav0, "cam1/sensor.yaml")).T @ body_from_camera(
+            os.path.join(mav0, "cam0/sensor.yaml"))
+        for r in ("false", "true"):
+            orientations = os.path.join(out, "euroc_" + r, "orientations.csv")
+            if os.path.exists(orientations):
+                errors = stereo_errors(orientations, r10)
+                line = row(out, "euroc", r, error="%.4f" % float(np.median(errors)))
+                if line:
+                    print(line)
+    print("""
+The replays' summaries (`refinement, latest:` gives the last adjustment's report) are in
+build/benchmark_refinement/*.txt.""")
+
+
+if __name__ == "__main__":
+    main()

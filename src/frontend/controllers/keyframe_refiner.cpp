@@ -1,0 +1,280 @@
+#include "rotation_averaging/frontend/controllers/keyframe_refiner.h"
+
+#include <algorithm>
+#include <numeric>
+#include <sstream>
+
+#include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "rotation_averaging/core/geometry/so3.h"
+#include "rotation_averaging/util/option_check.h"
+
+namespace rotation_averaging {
+namespace {
+
+int Root(std::vector<int>* parent, int i) {
+  while ((*parent)[i] != i) i = (*parent)[i] = (*parent)[(*parent)[i]];
+  return i;
+}
+
+// Newest first: by stamp, then by frame (keyframes of one capture).
+bool Newer(const KeyframeKey& a, const KeyframeKey& b) {
+  return a.stamp_ns != b.stamp_ns ? a.stamp_ns > b.stamp_ns : a.frame_id < b.frame_id;
+}
+
+}  // namespace
+
+KeyframeRefinerOptions::KeyframeRefinerOptions() {
+  adjustment.max_iterations = 20;
+}
+
+bool KeyframeRefinerOptions::Validate(std::string* error) const {
+  return OptionCheck()
+      .AtLeast("refinement_max_keyframes", max_keyframes, 3)
+      .Above("refinement_max_correction_deg", max_correction_deg, 0.0)
+      .AtLeast("refinement min_correspondences", adjustment.min_correspondences, 5)
+      .AtLeast("refinement_max_iterations", adjustment.max_iterations, 1)
+      .Ok(error);
+}
+
+KeyframeRefiner::KeyframeRefiner(const KeyframeRefinerOptions& options) : options_(options) {}
+
+KeyframeRefiner::~KeyframeRefiner() { Wait(); }
+
+std::size_t KeyframeRefiner::EdgeBytes(const EdgeCorrespondences& e) {
+  return sizeof(HeldEdge) + (e.points1.capacity() + e.points2.capacity()) * sizeof(Eigen::Vector2d);
+}
+
+void KeyframeRefiner::Add(std::vector<KeyframeCorrespondences> edges) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (KeyframeCorrespondences& e : edges) {
+    if (e.keyframe1.frame_id == e.keyframe2.frame_id && e.keyframe1.stamp_ns == e.keyframe2.stamp_ns) continue;
+    if (static_cast<int>(e.points.points1.size()) < options_.adjustment.min_correspondences ||
+        e.points.points1.size() != e.points.points2.size() || !CorrespondencesAreFinite(e.points, true)) {
+      continue;
+    }
+    e.points.points1.shrink_to_fit();
+    e.points.points2.shrink_to_fit();
+    HeldEdge& held = edges_[{e.keyframe1, e.keyframe2}];
+    if (!held.points.points1.empty()) stats_.bytes -= EdgeBytes(held.points);
+    held.keyframe1 = std::move(e.keyframe1);
+    held.keyframe2 = std::move(e.keyframe2);
+    held.points = std::move(e.points);
+    stats_.bytes += EdgeBytes(held.points);
+  }
+  stats_.edges_held = edges_.size();
+}
+
+void KeyframeRefiner::ScaleCamera(const std::string& frame_id, double scale) {
+  if (!(scale > 0.0) || !std::isfinite(scale)) return;
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (auto& [key, held] : edges_) {
+    const bool first = held.keyframe1.frame_id == frame_id, second = held.keyframe2.frame_id == frame_id;
+    if (first) {
+      for (Eigen::Vector2d& p : held.points.points1) p /= scale;
+    }
+    if (second) {
+      for (Eigen::Vector2d& p : held.points.points2) p /= scale;
+    }
+  }
+}
+
+void KeyframeRefiner::SelectWindow(const OnlineSolution& cameras, std::vector<EdgeCorrespondences>* edges,
+                                   std::vector<KeyframeKey>* keys) const {
+  std::vector<KeyframeKey> newest;
+  newest.reserve(cameras.orientations.size());
+  for (const auto& [key, r] : cameras.orientations) newest.push_back(key);
+  const std::size_t window = std::min(newest.size(), static_cast<std::size_t>(options_.max_keyframes));
+  std::partial_sort(newest.begin(), newest.begin() + window, newest.end(), Newer);
+  newest.resize(window);
+  std::map<KeyframeKey, ViewId> ids;
+  for (const auto& [key, held] : edges_) {
+    const auto in_window = [&](const KeyframeKey& k) {
+      return std::binary_search(newest.begin(), newest.end(), k, Newer);
+    };
+    if (!in_window(held.keyframe1) || !in_window(held.keyframe2)) continue;
+    EdgeCorrespondences e = held.points;
+    for (const KeyframeKey* k : {&held.keyframe1, &held.keyframe2}) {
+      if (ids.count(*k) == 0) {
+        ids.emplace(*k, static_cast<ViewId>(keys->size()));
+        keys->push_back(*k);
+      }
+    }
+    e.view1 = ids.at(held.keyframe1);
+    e.view2 = ids.at(held.keyframe2);
+    edges->push_back(std::move(e));
+  }
+}
+
+bool KeyframeRefiner::Refine(const OnlineSolution& cameras, const RigCaptures& rig) {
+  std::lock_guard<std::mutex> run(run_mutex_);
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<EdgeCorrespondences> edges;
+  std::vector<KeyframeKey> keys;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    SelectWindow(cameras, &edges, &keys);
+  }
+  ViewOrientations averaged;
+  for (std::size_t v = 0; v < keys.size(); ++v) averaged[static_cast<ViewId>(v)] = cameras.orientations.at(keys[v]);
+  ViewOrientations adjusted = averaged;
+  BundleAdjustmentSummary summary;
+  bool ok = !edges.empty() && RefineRotationsWithBundleAdjustment(edges, options_.adjustment, &adjusted, &summary);
+  std::string report = edges.empty() ? "no edge with correspondences among the solved keyframes" : summary.Report();
+
+  // Each group of keyframes the edges connect keeps the averaging's frame.
+  std::vector<int> group(keys.size());
+  std::iota(group.begin(), group.end(), 0);
+  for (const EdgeCorrespondences& e : edges) group[Root(&group, e.view1)] = Root(&group, e.view2);
+  std::map<ViewId, Eigen::Matrix3d> corrections;
+  if (ok) {
+    std::map<int, std::vector<ViewId>> members;
+    for (const auto& [id, r] : adjusted) members[Root(&group, static_cast<int>(id))].push_back(id);
+    for (const auto& [g, ids] : members) {
+      std::vector<Eigen::Matrix3d> from, to;
+      for (ViewId id : ids) {
+        from.push_back(adjusted.at(id));
+        to.push_back(averaged.at(id));
+      }
+      const Eigen::Matrix3d align = AlignRotations(from, to);  // adjusted * align ~ averaged
+      for (ViewId id : ids) {
+        const Eigen::Matrix3d c = ProjectToSO3(adjusted.at(id) * align * averaged.at(id).transpose());
+        if (!c.allFinite()) {
+          ok = false;
+          report += "; a correction is not finite";
+          break;
+        }
+        corrections[id] = c;
+      }
+      if (!ok) break;
+    }
+  }
+  if (ok && !rig.empty()) {
+    std::map<KeyframeKey, std::vector<ViewId>> by_capture;
+    for (const auto& [id, c] : corrections) {
+      const auto it = rig.find(keys[id]);
+      if (it != rig.end()) by_capture[it->second.first].push_back(id);
+    }
+    for (const auto& [capture, ids] : by_capture) {
+      Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
+      for (ViewId id : ids) {
+        const Eigen::Matrix3d& e = rig.at(keys[id]).second;
+        sum += e.transpose() * corrections.at(id) * e;
+      }
+      const Eigen::Matrix3d mean = ProjectToSO3(sum);
+      for (ViewId id : ids) {
+        const Eigen::Matrix3d& e = rig.at(keys[id]).second;
+        corrections[id] = e * mean * e.transpose();
+      }
+    }
+  }
+  // A keyframe the adjustment moved too far (a view its tracks hardly
+  // hold, pulled by a few wrong ones) keeps what it had; more than a
+  // quarter of them is a divergence, and nothing changes.
+  std::size_t held_back = 0;
+  double largest = 0.0;
+  std::vector<double> moved_deg;
+  for (auto it = corrections.begin(); ok && it != corrections.end();) {
+    const double moved = RadToDeg(RotationAngleRad(it->second));
+    if (moved > options_.max_correction_deg) {
+      ++held_back;
+      it = corrections.erase(it);
+      continue;
+    }
+    largest = std::max(largest, moved);
+    moved_deg.push_back(moved);
+    ++it;
+  }
+  if (ok && held_back > 0) {
+    std::ostringstream why;
+    why << "; " << held_back << " of " << held_back + corrections.size() << " keyframes moved beyond "
+        << options_.max_correction_deg << " deg (refinement_max_correction_deg)";
+    if (4 * held_back > held_back + corrections.size()) {
+      ok = false;
+      why << ": the averaging's orientations kept";
+    } else {
+      why << ": those keep what they had";
+    }
+    report += why.str();
+  }
+
+  std::lock_guard<std::mutex> lock(mutex_);
+  ++stats_.runs;
+  stats_.times.Add(SecondsSince(start));
+  stats_.last_ok = ok;
+  stats_.last_report = report;
+  if (!ok) {
+    ++stats_.failed;
+    return false;
+  }
+  for (const auto& [id, c] : corrections) corrections_[keys[id]] = c;
+  ++stats_.applied;
+  stats_.sequence = stats_.applied;
+  stats_.solution_sequence = cameras.sequence;
+  stats_.corrected_keyframes = corrections_.size();
+  std::nth_element(moved_deg.begin(), moved_deg.begin() + moved_deg.size() / 2, moved_deg.end());
+  stats_.median_correction_deg = moved_deg.empty() ? 0.0 : moved_deg[moved_deg.size() / 2];
+  stats_.max_correction_deg = largest;
+  stats_.held_back = held_back;
+  // Edges both of whose keyframes are older than the window will not be
+  // refined again: let them go.
+  if (static_cast<int>(cameras.orientations.size()) > options_.max_keyframes) {
+    std::vector<KeyframeKey> all;
+    for (const auto& [key, r] : cameras.orientations) all.push_back(key);
+    std::nth_element(all.begin(), all.begin() + (options_.max_keyframes - 1), all.end(), Newer);
+    const KeyframeKey oldest_kept = all[options_.max_keyframes - 1];
+    for (auto it = edges_.begin(); it != edges_.end();) {
+      if (Newer(oldest_kept, it->second.keyframe1) && Newer(oldest_kept, it->second.keyframe2)) {
+        stats_.bytes -= EdgeBytes(it->second.points);
+        it = edges_.erase(it);
+      } else {
+        ++it;
+      }
+    }
+    stats_.edges_held = edges_.size();
+  }
+  return true;
+}
+
+bool KeyframeRefiner::RefineInBackground(std::shared_ptr<const OnlineSolution> cameras, RigCaptures rig,
+                                         std::function<void(bool)> done) {
+  if (running_.exchange(true)) return false;
+  if (background_.valid()) background_.get();  // finished: running_ was false
+  background_ = std::async(std::launch::async, [this, cameras = std::move(cameras), rig = std::move(rig),
+                                                done = std::move(done)] {
+    const bool ok = Refine(*cameras, rig);
+    // Before running_ falls: a refinement started from `done`, or waiting
+    // in the starting thread for this one's end, would deadlock.
+    if (done) done(ok);
+    running_ = false;
+  });
+  return true;
+}
+
+void KeyframeRefiner::Wait() {
+  if (background_.valid()) background_.get();
+}
+
+void KeyframeRefiner::Reset() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  edges_.clear();
+  corrections_.clear();
+  stats_.edges_held = 0;
+  stats_.bytes = 0;
+  stats_.corrected_keyframes = 0;
+}
+
+void KeyframeRefiner::Apply(OnlineSolution* cameras) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (auto& [key, r] : cameras->orientations) {
+    const auto c = corrections_.find(key);
+    if (c != corrections_.end()) r = c->second * r;
+  }
+  cameras->refinement_sequence = stats_.sequence;
+}
+
+KeyframeRefinerStats KeyframeRefiner::Stats() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return stats_;
+}
+
+}  // namespace rotation_averaging

@@ -1,0 +1,238 @@
+#include "rotation_averaging/frontend/controllers/keyframe_refiner.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <atomic>
+#include <string>
+#include <vector>
+
+#include "frontend/refinement_test_util.h"
+#include "rotation_averaging/core/eval/rotation_evaluation.h"
+#include "rotation_averaging/core/geometry/so3.h"
+
+namespace rotation_averaging {
+namespace {
+
+KeyframeKey Key(const std::string& camera, int view) { return {camera, 1000000000LL * (view + 1)}; }
+
+// The scene's edges as one camera's keyframe pairs; `e` turns the camera
+// (camera_from_rig: the rays of each keypoint and the translations rotate
+// with it).
+std::vector<KeyframeCorrespondences> Edges(const ArcScene& scene, const std::string& camera,
+                                           const Eigen::Matrix3d& e = Eigen::Matrix3d::Identity()) {
+  std::vector<KeyframeCorrespondences> out;
+  for (const EdgeCorrespondences& edge : scene.edges) {
+    KeyframeCorrespondences k{Key(camera, static_cast<int>(edge.view1)), Key(camera, static_cast<int>(edge.view2)),
+                              edge};
+    for (Eigen::Vector2d& p : k.points.points1) p = (e * p.homogeneous()).hnormalized();
+    for (Eigen::Vector2d& p : k.points.points2) p = (e * p.homogeneous()).hnormalized();
+    k.points.translation = e * edge.translation;
+    out.push_back(std::move(k));
+  }
+  return out;
+}
+
+// An averaging solution: the truth perturbed by about `degrees` per keyframe.
+OnlineSolution Averaged(const ArcScene& scene, const std::string& camera, double degrees, std::uint32_t seed,
+                        const Eigen::Matrix3d& e = Eigen::Matrix3d::Identity()) {
+  OnlineSolution solution;
+  solution.sequence = 1;
+  for (const auto& [id, r] : Perturbed(scene.truth, degrees, seed)) solution.orientations[Key(camera, id)] = e * r;
+  return solution;
+}
+
+ViewOrientations ById(const OnlineSolution& solution, const std::string& camera, int views) {
+  ViewOrientations out;
+  for (int v = 0; v < views; ++v) out[v] = solution.orientations.at(Key(camera, v));
+  return out;
+}
+
+TEST(KeyframeRefiner, CorrectionsTakeTheAveragingToTheTracksInItsFrame) {
+  const ArcScene scene = MakeArcScene(8, 0.5, 3);
+  const OnlineSolution averaged = Averaged(scene, "cam", 0.3, 4);
+  KeyframeRefiner refiner{KeyframeRefinerOptions()};
+  refiner.Add(Edges(scene, "cam"));
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  OnlineSolution published = averaged;
+  refiner.Apply(&published);
+  EXPECT_EQ(published.refinement_sequence, 1u);
+  const double before = MaxErrorDeg(ById(averaged, "cam", 8), scene.truth);
+  const double after = MaxErrorDeg(ById(published, "cam", 8), scene.truth);
+  EXPECT_GT(before, 0.2);
+  EXPECT_LT(after, 0.25 * before) << before << " -> " << after;
+  // The keyframes as a whole stay in the averaging's frame.
+  std::vector<Eigen::Matrix3d> corrected, as_averaged;
+  for (const auto& [key, r] : published.orientations) {
+    corrected.push_back(r);
+    as_averaged.push_back(averaged.orientations.at(key));
+  }
+  EXPECT_LT(RadToDeg(RotationAngleRad(AlignRotations(corrected, as_averaged))), 0.05);
+  const KeyframeRefinerStats stats = refiner.Stats();
+  EXPECT_EQ(stats.runs, 1u);
+  EXPECT_EQ(stats.applied, 1u);
+  EXPECT_EQ(stats.corrected_keyframes, 8u);
+  EXPECT_EQ(stats.held_back, 0u);
+  EXPECT_TRUE(stats.last_ok);
+  EXPECT_GT(stats.median_correction_deg, 0.0);
+  EXPECT_EQ(stats.times.Count(), 1u);
+}
+
+TEST(KeyframeRefiner, LaterSolutionsCarryTheCorrections) {
+  const ArcScene scene = MakeArcScene(8, 0.5, 5);
+  const OnlineSolution averaged = Averaged(scene, "cam", 0.3, 6);
+  KeyframeRefiner refiner{KeyframeRefinerOptions()};
+  refiner.Add(Edges(scene, "cam"));
+  ASSERT_TRUE(refiner.Refine(averaged));
+  // A later solve moved the whole map (a loop closure turning the world
+  // frame) and added a keyframe the refinement has not seen.
+  const Eigen::Matrix3d turn = ExpSO3(Eigen::Vector3d(0.02, -0.01, 0.03));
+  OnlineSolution later;
+  later.sequence = 2;
+  for (const auto& [key, r] : averaged.orientations) later.orientations[key] = r * turn;
+  const Eigen::Matrix3d newest = ExpSO3(Eigen::Vector3d(0.1, 0.2, 0.3));
+  later.orientations[Key("cam", 8)] = newest;
+  refiner.Apply(&later);
+  EXPECT_TRUE(later.orientations.at(Key("cam", 8)).isApprox(newest, 1e-12));
+  EXPECT_LT(MaxErrorDeg(ById(later, "cam", 8), scene.truth),
+            0.25 * MaxErrorDeg(ById(averaged, "cam", 8), scene.truth));
+}
+
+TEST(KeyframeRefiner, TheCamerasOfARigCaptureShareOneCorrection) {
+  const ArcScene scene = MakeArcScene(8, 0.5, 7);
+  const Eigen::Matrix3d e = ExpSO3(Eigen::Vector3d(0.0, DegToRad(10.0), 0.0));
+  OnlineSolution averaged = Averaged(scene, "front", 0.3, 8);
+  const OnlineSolution side = Averaged(scene, "side", 0.3, 9, e);
+  averaged.orientations.insert(side.orientations.begin(), side.orientations.end());
+  KeyframeRefiner::RigCaptures rig;
+  for (int v = 0; v < 8; ++v) {
+    const KeyframeKey capture{"rig", Key("front", v).stamp_ns};
+    rig[Key("front", v)] = {capture, Eigen::Matrix3d::Identity()};
+    rig[Key("side", v)] = {capture, e};
+  }
+  KeyframeRefiner refiner{KeyframeRefinerOptions()};
+  refiner.Add(Edges(scene, "front"));
+  refiner.Add(Edges(scene, "side", e));
+  ASSERT_TRUE(refiner.Refine(averaged, rig)) << refiner.Stats().last_report;
+  OnlineSolution published = averaged;
+  refiner.Apply(&published);
+  for (int v = 0; v < 8; ++v) {
+    // C_side = E C_front E^T: one correction of the rig, R_rig' = D R_rig.
+    const Eigen::Matrix3d c_front =
+        published.orientations.at(Key("front", v)) * averaged.orientations.at(Key("front", v)).transpose();
+    const Eigen::Matrix3d c_side =
+        published.orientations.at(Key("side", v)) * averaged.orientations.at(Key("side", v)).transpose();
+    EXPECT_LT(RadToDeg(AngularDistanceRad(c_side, e * c_front * e.transpose())), 1e-9) << v;
+  }
+  EXPECT_EQ(refiner.Stats().corrected_keyframes, 16u);
+}
+
+TEST(KeyframeRefiner, ARefinementThatMovesTooManyKeyframesTooFarChangesNothing) {
+  const ArcScene scene = MakeArcScene(8, 0.5, 11);
+  const OnlineSolution averaged = Averaged(scene, "cam", 0.3, 12);
+  KeyframeRefinerOptions options;
+  options.max_correction_deg = 0.01;
+  KeyframeRefiner refiner(options);
+  refiner.Add(Edges(scene, "cam"));
+  EXPECT_FALSE(refiner.Refine(averaged));
+  OnlineSolution published = averaged;
+  refiner.Apply(&published);
+  EXPECT_EQ(published.refinement_sequence, 0u);
+  for (const auto& [key, r] : averaged.orientations) EXPECT_TRUE(published.orientations.at(key).isApprox(r, 0.0));
+  const KeyframeRefinerStats stats = refiner.Stats();
+  EXPECT_EQ(stats.failed, 1u);
+  EXPECT_FALSE(stats.last_ok);
+  EXPECT_NE(stats.last_report.find("the averaging's orientations kept"), std::string::npos) << stats.last_report;
+}
+
+TEST(KeyframeRefiner, AKeyframeMovedTooFarKeepsWhatItHad) {
+  const ArcScene scene = MakeArcScene(8, 0.5, 13);
+  OnlineSolution averaged = Averaged(scene, "cam", 0.05, 14);
+  // One keyframe far off: the adjustment moves it by about 0.8 deg.
+  averaged.orientations[Key("cam", 5)] = ExpSO3(Eigen::Vector3d(0.0, DegToRad(0.8), 0.0)) * scene.truth.at(5);
+  KeyframeRefinerOptions options;
+  options.max_correction_deg = 0.4;
+  KeyframeRefiner refiner(options);
+  refiner.Add(Edges(scene, "cam"));
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  OnlineSolution published = averaged;
+  refiner.Apply(&published);
+  EXPECT_TRUE(published.orientations.at(Key("cam", 5)).isApprox(averaged.orientations.at(Key("cam", 5)), 0.0));
+  const KeyframeRefinerStats stats = refiner.Stats();
+  EXPECT_EQ(stats.held_back, 1u);
+  EXPECT_EQ(stats.corrected_keyframes, 7u);
+  EXPECT_LE(stats.max_correction_deg, 0.4);
+}
+
+TEST(KeyframeRefiner, BadCorrespondencesAreNotHeld) {
+  const ArcScene scene = MakeArcScene(6, 0.5, 15);
+  std::vector<KeyframeCorrespondences> bad;
+  for (EdgeCorrespondences& e : BadEdgeCorrespondences(scene.edges)) {
+    bad.push_back({Key("cam", static_cast<int>(e.view1)), Key("cam", static_cast<int>(e.view2)), std::move(e)});
+  }
+  KeyframeRefiner refiner{KeyframeRefinerOptions()};
+  refiner.Add(bad);
+  // Only the edge to an unknown keyframe is well formed (the solution does
+  // not have that keyframe: nothing to adjust).
+  EXPECT_EQ(refiner.Stats().edges_held, 1u);
+  EXPECT_FALSE(refiner.Refine(Averaged(scene, "cam", 0.3, 16)));
+  EXPECT_EQ(refiner.Stats().corrected_keyframes, 0u);
+}
+
+TEST(KeyframeRefiner, TheWindowLetsGoOfEdgesOlderThanIt) {
+  const ArcScene scene = MakeArcScene(8, 0.5, 17);
+  KeyframeRefinerOptions options;
+  options.max_keyframes = 4;
+  KeyframeRefiner refiner(options);
+  refiner.Add(Edges(scene, "cam"));
+  EXPECT_EQ(refiner.Stats().edges_held, 28u);
+  const std::size_t bytes = refiner.Stats().bytes;
+  const OnlineSolution averaged = Averaged(scene, "cam", 0.3, 18);
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  const KeyframeRefinerStats stats = refiner.Stats();
+  EXPECT_EQ(stats.corrected_keyframes, 4u);  // the newest four
+  EXPECT_EQ(stats.edges_held, 28u - 6u);     // the pairs among the oldest four are let go
+  EXPECT_LT(stats.bytes, bytes);
+  OnlineSolution published = averaged;
+  refiner.Apply(&published);
+  EXPECT_TRUE(published.orientations.at(Key("cam", 0)).isApprox(averaged.orientations.at(Key("cam", 0)), 0.0));
+  refiner.Reset();
+  EXPECT_EQ(refiner.Stats().edges_held, 0u);
+  EXPECT_EQ(refiner.Stats().bytes, 0u);
+}
+
+TEST(KeyframeRefiner, BackgroundRefinementCallsBackAndApplies) {
+  const ArcScene scene = MakeArcScene(8, 0.5, 19);
+  auto averaged = std::make_shared<const OnlineSolution>(Averaged(scene, "cam", 0.3, 20));
+  KeyframeRefiner refiner{KeyframeRefinerOptions()};
+  refiner.Add(Edges(scene, "cam"));
+  std::atomic<int> called{0};
+  std::atomic<bool> result{false};
+  ASSERT_TRUE(refiner.RefineInBackground(averaged, {}, [&](bool ok) {
+    result = ok;
+    ++called;
+  }));
+  refiner.Wait();
+  EXPECT_EQ(called.load(), 1);
+  EXPECT_TRUE(result.load());
+  EXPECT_FALSE(refiner.Running());
+  OnlineSolution published = *averaged;
+  refiner.Apply(&published);
+  EXPECT_EQ(published.refinement_sequence, 1u);
+}
+
+TEST(KeyframeRefiner, OptionsAreValidated) {
+  std::string error;
+  EXPECT_TRUE(KeyframeRefinerOptions().Validate(&error)) << error;
+  KeyframeRefinerOptions options;
+  options.max_keyframes = 2;
+  EXPECT_FALSE(options.Validate(&error));
+  EXPECT_NE(error.find("refinement_max_keyframes"), std::string::npos);
+  options = KeyframeRefinerOptions();
+  options.max_correction_deg = std::nan("");
+  EXPECT_FALSE(options.Validate(&error));
+  EXPECT_NE(error.find("refinement_max_correction_deg"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace rotation_averaging
