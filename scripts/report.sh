@@ -18,6 +18,7 @@
 #   keyframe_selection.md  keyframe selection on a rendered 20 Hz stream
 #   keyframe_rotation.md   keyframes by the camera's rotation: photographs as a stream, the 20 Hz streams
 #   focal_check.md     the node's check of camera_info's focal length against the images
+#   refinement.md      the node's background bundle adjustment on and off, on every input with ground truth
 #   restart.md         the demo replayed as a node restarted mid-run: the map saved and loaded
 #   map.md             the saved map at 800 and 10,000 keyframes: size on disk, load and save times
 #   sessions.md        two 400-capture sessions (other start, other lighting) merged, against one 800-capture run
@@ -85,7 +86,7 @@ step "bag replay"
 bash scripts/benchmark_replay.sh > /dev/null
 step "long image runs"
 bash scripts/benchmark_long_run.sh > /dev/null
-step "camera models (lens distortion), keyframe selection, tracks, the time budget, posterior covariances and the focal-length check on raw streams"
+step "camera models (lens distortion), keyframe selection, tracks, the time budget, posterior covariances, the focal-length check and the background refinement on raw streams"
 bash scripts/benchmark_camera_models.sh > /dev/null
 bash scripts/benchmark_keyframe_selection.sh > /dev/null
 bash scripts/benchmark_keyframe_rotation.sh > /dev/null
@@ -93,6 +94,7 @@ bash scripts/benchmark_tracks.sh > /dev/null
 bash scripts/benchmark_budget.sh > /dev/null
 bash scripts/benchmark_posterior.sh > /dev/null
 bash scripts/benchmark_focal_check.sh > /dev/null
+bash scripts/benchmark_refinement.sh > /dev/null
 step "restarts: the map saved and loaded"
 bash scripts/benchmark_restart.sh > /dev/null
 bash scripts/benchmark_map.sh > /dev/null

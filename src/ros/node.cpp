@@ -47,8 +47,9 @@ RotationAveragingNode::RotationAveragingNode(ros::NodeHandle& nh, ros::NodeHandl
   SetUpImages(nh);
   SetUpServices(nh, pnh);
   averager_->SetSolutionCallback([this](std::shared_ptr<const OnlineSolution> s) {
+    last_solution_wall_s_ = ros::WallTime::now().toSec();
     Publish(*s);
-    Refine(*s);
+    Refine(*s, false);
   });
   LoadMaps();
   SetUpReconfigure();
@@ -79,6 +80,7 @@ RotationAveragingNode::~RotationAveragingNode() {
   image_wake_.notify_all();
   if (image_worker_.joinable()) image_worker_.join();
   averager_->Stop();
+  refine_timer_.stop();
   pipeline_->WaitForRefinement();  // its end publishes: before the publishers go
   const std::string& save = pipeline_->Config().save_on_shutdown;
   if (!save.empty()) {
@@ -128,6 +130,17 @@ void RotationAveragingNode::SetUpServices(ros::NodeHandle& nh, ros::NodeHandle& 
       if (!pipeline_->SaveMap(pipeline_->Config().autosave_path, &error)) {
         ROS_WARN_THROTTLE(60.0, "autosave to %s failed: %s", pipeline_->Config().autosave_path.c_str(), error.c_str());
       }
+    });
+  }
+  // Input gone quiet (the robot stopped, the bag ended): the latest solution
+  // is refined without waiting for refinement_period_s, as the replay
+  // refines its final one.
+  if (pipeline_->HasRefiner()) {
+    refine_timer_ = pnh.createWallTimer(ros::WallDuration(1.0), [this](const ros::WallTimerEvent&) {
+      const std::shared_ptr<const OnlineSolution> latest = averager_->Solution();
+      if (!latest || latest->sequence == refined_sequence_) return;
+      if (ros::WallTime::now().toSec() - last_solution_wall_s_ < kRefineWhenQuietS) return;
+      Refine(*latest, true);
     });
   }
 }
@@ -384,17 +397,18 @@ bool RotationAveragingNode::OnAddMap(LoadGraph::Request& req, LoadGraph::Respons
   return true;
 }
 
-void RotationAveragingNode::Refine(const OnlineSolution& solution) {
-  // From the averager's thread, after its solution is out: the refinement
-  // runs on a thread of its own, and its end publishes the latest solution
-  // again with its corrections.
-  pipeline_->MaybeRefine(solution, ros::WallTime::now().toSec(), false, true, [this](bool ok) {
+void RotationAveragingNode::Refine(const OnlineSolution& solution, bool now) {
+  // From the averager's thread, after its solution is out, or from the
+  // quiet-input timer: the refinement runs on a thread of its own, and its
+  // end publishes the latest solution again with its corrections.
+  const bool started = pipeline_->MaybeRefine(solution, ros::WallTime::now().toSec(), now, true, [this](bool ok) {
     const KeyframeRefinerStats r = pipeline_->RefinerStats();
     if (!ok) ROS_WARN_THROTTLE(30.0, "refinement changed nothing: %s", r.last_report.c_str());
     if (const std::shared_ptr<const OnlineSolution> latest = averager_->Solution()) {
       if (ok) Publish(*latest);
     }
   });
+  if (started) refined_sequence_ = solution.sequence;
 }
 
 void RotationAveragingNode::Publish(const OnlineSolution& solution) {

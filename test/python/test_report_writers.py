@@ -217,3 +217,29 @@ def test_keyframe_rotation_rows_hold_each_runs_keyframes_by_reason(tmp_path):
     text = run("keyframe_rotation_report.py", tmp_path, "door", "600", "0,6", tmp_path / "no_euroc", "1,2,3")
     assert table_row(text, "1")[1:] == ["48", "0.0164", "51", "30", "0.0250"]
     assert table_row(text, "mean")[2] == "0.0253" and table_row(text, "mean")[5] == "0.0200"
+
+
+def test_refinement_rows_hold_each_runs_figures_and_the_ratio_to_offline(tmp_path):
+    refined = ("refinement (bundle adjustment of the newest keyframes): 3 runs, 2 applied, 1 changed nothing; "
+               "19 keyframes corrected, the latest by median 0.21 deg, at most 0.59 deg (0 held back); time per "
+               "refinement: median 241.00 ms, p95 300.50 ms (of 3); correspondences held: 46 edges, 0.26 MiB")
+    nees = ("posterior covariances against the ground truth: NEES median 0.83 (2.37 if honest), mean 1.10, "
+            "100.0% within chi-square's 95% bound, 19 keyframes")
+    (tmp_path / "door_false.txt").write_text(summary(12, 0.0214))
+    (tmp_path / "door_true.txt").write_text(summary(12, 0.0048, extra=[refined, nees]))
+    (tmp_path / "door_offline.txt").write_text("median error: 0.0053 deg\n")
+    (tmp_path / "stream_true.txt").write_text(summary(128, 0.0065, extra=[refined]))
+    text = run("refinement_report.py", tmp_path, "door", tmp_path / "no_euroc")
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in text.splitlines()
+            if line.startswith("| door |")]
+    assert [r[1] for r in rows] == ["off", "on"]
+    off, on = rows
+    assert off[2:5] == ["12", "0.0214", "99.18"] and off[5:9] == ["-", "-", "-", "-"]
+    assert off[11:] == ["0.0053", "4.04"]
+    assert on[3] == "0.0048" and on[5:9] == ["0.83", "100.0", "2 / 3", "241.00 / 300.50"]
+    assert on[11:] == ["0.0053", "0.91"]
+    # A run the benchmark did not make has no row; no offline run, no ratio.
+    assert "| 20 Hz two-camera stream, one loop in 30 s | off |" not in text
+    stream = table_row(text, "20 Hz two-camera stream, one loop in 30 s")
+    assert stream[1] == "on" and stream[11:] == ["-", "-"]
+    assert "EuRoC" not in text

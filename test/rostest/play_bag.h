@@ -28,33 +28,37 @@ namespace rotation_averaging {
 
 // Plays `bag` into the node `node` and returns its orientations (world to
 // camera, by keyframe name) once a solution holds at least `keyframes` of
-// them and no new solve came for three seconds (the node has the last images
-// queued or in its front end when the bag ends), or after 90 s.
+// them and nothing was published for eight seconds (the node has the last
+// images queued or in its front end when the bag ends, and refines the
+// latest solution once no new one came for two seconds, then publishes it
+// again), or after 90 s.
 inline NamedOrientations PlayIntoNode(const std::string& node, const std::string& bag, std::size_t keyframes) {
   ros::NodeHandle nh;
   std::mutex mutex;
   Orientations::ConstPtr latest;
+  std::uint64_t received = 0;
   ros::Subscriber sub = nh.subscribe<Orientations>("/" + node + "/orientations", 10,
                                                    [&](const Orientations::ConstPtr& m) {
                                                      std::lock_guard<std::mutex> lock(mutex);
                                                      latest = m;
+                                                     ++received;
                                                    });
   EXPECT_TRUE(ros::service::waitForService("/" + node + "/solve", ros::Duration(30.0)));
   const std::string play = "PATH=/usr/bin:$PATH rosbag play --clock --quiet --delay=1 " + bag + " > /dev/null 2>&1";
   EXPECT_EQ(std::system(play.c_str()), 0) << play;
-  std::uint64_t last_sequence = 0;
+  std::uint64_t last_received = 0;
   ros::WallTime settled_since = ros::WallTime::now();
   const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(90.0);
   while (ros::WallTime::now() < deadline) {
     ros::WallDuration(0.2).sleep();
     std::lock_guard<std::mutex> lock(mutex);
     if (!latest || latest->keyframes.size() < keyframes) continue;
-    if (latest->solve_sequence != last_sequence) {
-      last_sequence = latest->solve_sequence;
+    if (received != last_received) {
+      last_received = received;
       settled_since = ros::WallTime::now();
       continue;
     }
-    if ((ros::WallTime::now() - settled_since).toSec() > 3.0) break;
+    if ((ros::WallTime::now() - settled_since).toSec() > 8.0) break;
   }
   NamedOrientations live;
   std::lock_guard<std::mutex> lock(mutex);

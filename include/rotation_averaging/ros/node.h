@@ -25,6 +25,7 @@
 #include <deque>
 #include <map>
 #include <memory>
+#include <atomic>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -99,8 +100,11 @@ class RotationAveragingNode {
   bool OnAddMap(LoadGraph::Request& req, LoadGraph::Response& res);
   // Called from the averager's worker thread after each successful solve.
   void Publish(const OnlineSolution& solution);
-  // Starts the background refinement of `solution` when it is due.
-  void Refine(const OnlineSolution& solution);
+  // Starts the background refinement of `solution` when it is due, or
+  // `now` (unless one runs).
+  void Refine(const OnlineSolution& solution, bool now);
+  // The input is quiet when no solution came for this long (s).
+  static constexpr double kRefineWhenQuietS = 2.0;
   // Measurements dropped at the view or edge caps are counted when the worker
   // applies them to the graph; say so once per burst, with the caps' names.
   void WarnAboutCaps();
@@ -122,6 +126,9 @@ class RotationAveragingNode {
   diagnostic_updater::Updater diagnostics_;
   ros::Timer diagnostics_timer_;
   ros::WallTimer autosave_timer_;
+  ros::WallTimer refine_timer_;  // refines the latest solution once the input is quiet
+  std::atomic<std::uint64_t> refined_sequence_{0};  // the solution the last refinement started from
+  std::atomic<double> last_solution_wall_s_{0.0};
   std::mutex publish_mutex_;  // Publish, from the averager's thread and the refinement's
   std::mutex mutex_;  // camera_infos_, the counters and times below
   std::uint64_t dropped_images_ = 0, images_without_info_ = 0;

@@ -15,10 +15,12 @@
 //
 //   C_i = R_adjusted_i G R_averaged_i^T
 //
-// with G one rotation per group of keyframes the edges connect, fitted
-// robustly so that the group keeps the averaging's frame (the adjustment
-// holds one view of each group where it was, which would turn the whole
-// group by that one view's error). Later solutions are published with the
+// with G one rotation per camera in each group of keyframes the edges
+// connect, fitted robustly so that each camera's keyframes keep the
+// averaging's frame: the adjustment holds one view of each group where it
+// was, which would turn the whole group by that one view's error, and it
+// relates two cameras only through the few tracks both see, so how the
+// cameras sit relative to each other stays the averaging's. Later solutions are published with the
 // corrections applied, R_i = C_i R_averaged_i: a correction is the
 // keyframe's own error, in its camera's frame, which the averaging's later
 // changes (a loop closure moving a whole stretch) do not undo. Keyframes
