@@ -8,11 +8,11 @@
 #    images;
 #  * the demo bag (two cameras, rig extrinsics known, one capture a second);
 #  * the demo renderer's rig as a 20 Hz driver publishes it (one loop in
-#    30 s), and its forward camera alone;
+#    30 s), and its forward camera alone (a bag of that camera);
 #  * EuRoC's raw stereo stream.
 # Replays refine by bag time (refinement_period_s), in the solve's thread:
 # the same refinements on every run, and their time is in the wall time.
-#   bash scripts/benchmark_refinement.sh        (about fifteen minutes)
+#   bash scripts/benchmark_refinement.sh        (about ten minutes)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
 OUT=build/benchmark_refinement
@@ -45,13 +45,18 @@ if [ ! -f "$STREAM" ]; then
   "$BIN/rotation_averaging_make_demo_bag" --output "$STREAM.tmp" --captures 600 --period 0.05 --cameras 2 > /dev/null
   mv "$STREAM.tmp" "$STREAM"
 fi
+ONE=build/demo/demo_20hz_600_1cam.bag
+if [ ! -f "$ONE" ]; then
+  "$BIN/rotation_averaging_make_demo_bag" --output "$ONE.tmp" --captures 600 --period 0.05 --cameras 1 > /dev/null
+  mv "$ONE.tmp" "$ONE"
+fi
 mapfile -t demo < <(grep -v '^#' config/demo.yaml)
 mapfile -t stream < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:')
 mapfile -t one < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:\|^image_topics:')
 for r in false true; do
   replay_with "demo_$r" "$DEMO" "${demo[@]}" "refinement: $r"
   replay_with "stream_$r" "$STREAM" "${stream[@]}" "keyframe_selection: motion" "refinement: $r"
-  replay_with "one_camera_$r" "$STREAM" "${one[@]}" 'image_topics: ["/cam_front/image_raw"]' \
+  replay_with "one_camera_$r" "$ONE" "${one[@]}" 'image_topics: ["/cam_front/image_raw"]' \
     "keyframe_selection: motion" "refinement: $r"
 done
 

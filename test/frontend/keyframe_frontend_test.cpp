@@ -178,6 +178,23 @@ RenderedSequence RenderLaps(int laps, int per_lap, int first = 0, int step = 1) 
   return seq;
 }
 
+// One camera's first eight captures of forty round the rendered room (small
+// steps along the circle), 480 px wide.
+RenderedSequence RenderSmallSteps() {
+  RigSceneOptions scene_options;
+  scene_options.num_cameras = 1;
+  scene_options.num_captures = 40;
+  scene_options.WithWidth(480);
+  const RigScene scene(scene_options);
+  RenderedSequence seq;
+  seq.k = scene.Intrinsics();
+  for (int i = 0; i < 8; ++i) {
+    seq.world_to_camera.push_back(scene.WorldToCamera(i, 0));
+    seq.images.push_back(scene.Render(i, 0));
+  }
+  return seq;
+}
+
 int Index(const KeyframeKey& key) { return static_cast<int>(key.stamp_ns / 1'000'000'000LL) - 1; }
 
 // Components of the keyframes in `members` under `edges` (union-find).
@@ -259,17 +276,7 @@ TEST(KeyframeFrontend, AFailedPairDoesNotCutTheChain) {
 // chain (the default); they carry the cell jackknife's covariance, the
 // previous pair the pixel model's. Without it, only the chain.
 TEST(KeyframeFrontend, WindowPairsRelateAKeyframeToTheOlderOnesOfItsWindow) {
-  RigSceneOptions scene_options;
-  scene_options.num_cameras = 1;
-  scene_options.num_captures = 40;  // small steps along the circle
-  scene_options.WithWidth(480);
-  const RigScene scene(scene_options);
-  RenderedSequence seq;
-  seq.k = scene.Intrinsics();
-  for (int i = 0; i < 8; ++i) {
-    seq.world_to_camera.push_back(scene.WorldToCamera(i, 0));
-    seq.images.push_back(scene.Render(i, 0));
-  }
+  const RenderedSequence seq = RenderSmallSteps();
   KeyframeFrontendOptions options;
   options.max_loop_candidates = 0;
   ASSERT_EQ(options.covisibility_window, 3);
@@ -326,17 +333,7 @@ TEST(KeyframeFrontend, WindowPairsRelateAKeyframeToTheOlderOnesOfItsWindow) {
 // order; a refinement on them takes orientations a few tenths of a degree
 // off back to the rendered truth (wrongly normalised points would not).
 TEST(KeyframeFrontend, KeptCorrespondencesRefineTheOrientations) {
-  RigSceneOptions scene_options;
-  scene_options.num_cameras = 1;
-  scene_options.num_captures = 40;
-  scene_options.WithWidth(480);
-  const RigScene scene(scene_options);
-  RenderedSequence seq;
-  seq.k = scene.Intrinsics();
-  for (int i = 0; i < 8; ++i) {
-    seq.world_to_camera.push_back(scene.WorldToCamera(i, 0));
-    seq.images.push_back(scene.Render(i, 0));
-  }
+  const RenderedSequence seq = RenderSmallSteps();
   KeyframeFrontendOptions options;
   options.max_loop_candidates = 0;
   options.keep_correspondences = true;
