@@ -221,6 +221,34 @@ TEST(KeyframeRefiner, BackgroundRefinementCallsBackAndApplies) {
   EXPECT_EQ(published.refinement_sequence, 1u);
 }
 
+// A camera's focal length corrected by a factor (focal_calibration: apply):
+// the points held, normalised with the former one, are divided by it, and
+// the refinement is as if they had been normalised right.
+TEST(KeyframeRefiner, ACorrectedFocalLengthRescalesThePointsHeld) {
+  const ArcScene scene = MakeArcScene(8, 0.3, 21);
+  const OnlineSolution averaged = Averaged(scene, "cam", 0.3, 22);
+  auto refined_error = [&](double held_scale, double corrected_by) {
+    std::vector<KeyframeCorrespondences> edges = Edges(scene, "cam");
+    for (KeyframeCorrespondences& e : edges) {
+      for (Eigen::Vector2d& p : e.points.points1) p *= held_scale;
+      for (Eigen::Vector2d& p : e.points.points2) p *= held_scale;
+    }
+    KeyframeRefiner refiner{KeyframeRefinerOptions()};
+    refiner.Add(edges);
+    refiner.ScaleCamera("other_camera", 2.0);  // not this one's: nothing changes
+    if (corrected_by != 1.0) refiner.ScaleCamera("cam", corrected_by);
+    EXPECT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+    OnlineSolution published = averaged;
+    refiner.Apply(&published);
+    return MaxErrorDeg(ById(published, "cam", 8), scene.truth);
+  };
+  const double right = refined_error(1.0, 1.0);
+  const double wrong = refined_error(1.05, 1.0);
+  const double corrected = refined_error(1.05, 1.05);
+  EXPECT_GT(wrong, 2.0 * right) << right << " " << wrong;
+  EXPECT_NEAR(corrected, right, 1e-6);
+}
+
 TEST(KeyframeRefiner, OptionsAreValidated) {
   std::string error;
   EXPECT_TRUE(KeyframeRefinerOptions().Validate(&error)) << error;
