@@ -50,7 +50,7 @@ KeyframePipeline::KeyframePipeline(const PipelineConfig& config)
     frontend_stats_ = frontend_->Stats();
   };
   map_store_ = std::make_unique<MapStore>(averager_.get(), &rig_, frontend_.get(), &frontend_mutex_, add_edge,
-                                          frontend_changed);
+                                          frontend_changed, refiner_.get());
 }
 
 KeyframePipeline::~KeyframePipeline() = default;

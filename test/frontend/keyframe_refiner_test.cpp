@@ -4,6 +4,9 @@
 
 #include <Eigen/Geometry>
 #include <atomic>
+#include <fstream>
+#include <iterator>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -247,6 +250,63 @@ TEST(KeyframeRefiner, ACorrectedFocalLengthRescalesThePointsHeld) {
   const double corrected = refined_error(1.05, 1.05);
   EXPECT_GT(wrong, 2.0 * right) << right << " " << wrong;
   EXPECT_NEAR(corrected, right, 1e-6);
+}
+
+// A saved map keeps the corrections: written and read back to the bit of
+// their quaternions, and a damaged file is refused with the reason.
+TEST(KeyframeRefiner, CorrectionsAreSavedAndReadBackAndDamageIsRefused) {
+  const ArcScene scene = MakeArcScene(8, 0.5, 23);
+  KeyframeRefiner refiner{KeyframeRefinerOptions()};
+  refiner.Add(Edges(scene, "cam"));
+  ASSERT_TRUE(refiner.Refine(Averaged(scene, "cam", 0.3, 24)));
+  char pattern[] = "/tmp/rotavg_refiner_XXXXXX";
+  const std::string dir = mkdtemp(pattern);
+  const std::string path = dir + "/map.refinement";
+  std::string error;
+  ASSERT_TRUE(refiner.SaveCorrections(path, &error)) << error;
+  std::map<KeyframeKey, Eigen::Matrix3d> read;
+  ASSERT_TRUE(KeyframeRefiner::ReadCorrections(path, &read, &error)) << error;
+  const std::map<KeyframeKey, Eigen::Matrix3d> held = refiner.Corrections();
+  ASSERT_EQ(read.size(), 8u);
+  for (const auto& [key, c] : held) EXPECT_LT(RadToDeg(AngularDistanceRad(read.at(key), c)), 1e-9);
+
+  // Taken by another refiner (a restarted node): applied as they were.
+  KeyframeRefiner restarted{KeyframeRefinerOptions()};
+  restarted.SetCorrections(read, true);
+  OnlineSolution a = Averaged(scene, "cam", 0.3, 24), b = a;
+  refiner.Apply(&a);
+  restarted.Apply(&b);
+  for (const auto& [key, r] : a.orientations) EXPECT_LT(RadToDeg(AngularDistanceRad(b.orientations.at(key), r)), 1e-9);
+  // Beside those held, a keyframe held keeps its own.
+  std::map<KeyframeKey, Eigen::Matrix3d> other = {{Key("cam", 0), Eigen::Matrix3d::Identity()},
+                                                  {Key("other", 0), Eigen::Matrix3d::Identity()}};
+  restarted.SetCorrections(other, false);
+  EXPECT_EQ(restarted.Corrections().size(), 9u);
+  EXPECT_FALSE(restarted.Corrections().at(Key("cam", 0)).isIdentity(1e-12));
+
+  std::ifstream in(path);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  auto refused = [&](const std::string& content, const std::string& why) {
+    const std::string damaged = dir + "/damaged.refinement";
+    std::ofstream(damaged) << content;
+    std::map<KeyframeKey, Eigen::Matrix3d> none;
+    std::string message;
+    EXPECT_FALSE(KeyframeRefiner::ReadCorrections(damaged, &none, &message)) << why;
+    EXPECT_NE(message.find(why), std::string::npos) << message;
+    EXPECT_TRUE(none.empty());
+  };
+  refused(text.substr(0, text.rfind("END")), "no END record");
+  refused("# another file\n" + text, "not a refinement file");
+  std::string changed = text;
+  changed[changed.find("CORRECTION cam") + 11] = 'k';  // "cam" -> "kam": the checksum no longer holds
+  refused(changed, "");
+  std::string not_unit = text;
+  const std::size_t line = not_unit.find("CORRECTION");
+  const std::size_t end_of_line = not_unit.find('\n', line);
+  not_unit.replace(line, end_of_line - line, "CORRECTION cam 5 0.5 0 0 0");
+  refused(not_unit, "");
+  EXPECT_FALSE(KeyframeRefiner::ReadCorrections(dir + "/missing.refinement", &read, &error));
+  EXPECT_NE(error.find("cannot open"), std::string::npos);
 }
 
 TEST(KeyframeRefiner, OptionsAreValidated) {

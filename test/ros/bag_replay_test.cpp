@@ -479,6 +479,11 @@ TEST_F(BagReplay, TheNextSessionContinuesTheSavedMap) {
   EXPECT_LE(first.keyframe_times.Median(), first.keyframe_times.P95());
   EXPECT_NE(first.Summary().find("time per keyframe (front end): median "), std::string::npos);
   ASSERT_TRUE(std::filesystem::exists(map + ".keyframes"));
+  // The background refinement's corrections are saved with the map.
+  std::map<KeyframeKey, Eigen::Matrix3d> saved_corrections;
+  ASSERT_TRUE(KeyframeRefiner::ReadCorrections(map + ".refinement", &saved_corrections, &error)) << error;
+  EXPECT_EQ(saved_corrections.size(), first.refinement_stats.corrected_keyframes);
+  EXPECT_EQ(saved_corrections.size(), 32u);
 
   ReplayOptions o2 = Options(second_bag, "session2");
   o2.config_path = dir + "/second.yaml";
@@ -487,6 +492,8 @@ TEST_F(BagReplay, TheNextSessionContinuesTheSavedMap) {
   ASSERT_TRUE(second.ok) << second.error;
   std::cout << second.Summary() << "\n";
   EXPECT_NE(second.map_loaded.find("32 keyframes"), std::string::npos) << second.map_loaded;
+  EXPECT_NE(second.map_loaded.find("the refinement's corrections of 32 keyframes"), std::string::npos)
+      << second.map_loaded;
   EXPECT_EQ(second.keyframes, 64u);   // both sessions' keyframes are oriented
   EXPECT_EQ(second.variables, 32u);   // as rig captures: the loaded graph's and the new ones
   EXPECT_EQ(second.components, 1u);   // joined by loop closures to the first session's keyframes

@@ -1,12 +1,14 @@
 #include "rotation_averaging/frontend/controllers/keyframe_refiner.h"
 
 #include <algorithm>
+#include <cmath>
 #include <numeric>
 #include <sstream>
 
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/util/option_check.h"
+#include "rotation_averaging/util/text_lines.h"
 
 namespace rotation_averaging {
 namespace {
@@ -269,6 +271,82 @@ void KeyframeRefiner::Reset() {
   stats_.edges_held = 0;
   stats_.bytes = 0;
   stats_.corrected_keyframes = 0;
+}
+
+namespace {
+constexpr char kCorrectionsHeader[] = "# rotation_averaging refinement v1";
+}  // namespace
+
+std::map<KeyframeKey, Eigen::Matrix3d> KeyframeRefiner::Corrections() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return corrections_;
+}
+
+void KeyframeRefiner::SetCorrections(const std::map<KeyframeKey, Eigen::Matrix3d>& corrections, bool replace) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (replace) corrections_.clear();
+  for (const auto& [key, c] : corrections) corrections_.emplace(key, c);
+  stats_.corrected_keyframes = corrections_.size();
+}
+
+bool KeyframeRefiner::SaveCorrections(const std::string& path, std::string* error) const {
+  std::ostringstream body;
+  body.precision(17);
+  body << kCorrectionsHeader << "\n# CORRECTION frame_id stamp_ns qw qx qy qz (R_published = C R_averaged)\n";
+  for (const auto& [key, c] : Corrections()) {
+    if (key.frame_id.empty() || key.frame_id.find_first_of(" \t\r\n") != std::string::npos) {
+      if (error) *error = "frame id '" + key.frame_id + "' is empty or contains whitespace";
+      return false;
+    }
+    const Eigen::Vector4d q = RotationToQuaternion(c);
+    body << "CORRECTION " << key.frame_id << ' ' << key.stamp_ns << ' ' << q[0] << ' ' << q[1] << ' ' << q[2] << ' '
+         << q[3] << '\n';
+  }
+  const std::string text = body.str();
+  return WriteFileAtomically(path, [&](std::ostream& out) -> std::string {
+    out << text << EndRecord(text);
+    return "";
+  }, error);
+}
+
+bool KeyframeRefiner::ReadCorrections(const std::string& path, std::map<KeyframeKey, Eigen::Matrix3d>* corrections,
+                                      std::string* error) {
+  auto fail = [&](const std::string& why) {
+    if (error) *error = why;
+    return false;
+  };
+  LineReader reader(path);
+  if (!reader.IsOpen()) return fail("cannot open " + path);
+  std::map<KeyframeKey, Eigen::Matrix3d> read;
+  std::string_view line;
+  std::vector<std::string_view> tokens;
+  EndRecordCheck end;
+  while (reader.Next(&line)) {
+    if (end.ContentLines() == 0 && !end.Ended() && line != kCorrectionsHeader) {
+      return fail(reader.Where("not a refinement file of this version"));
+    }
+    std::string why;
+    const EndRecordCheck::Line kind = end.Take(line, &why);
+    if (kind == EndRecordCheck::Line::kError) return fail(reader.Where(why));
+    if (kind != EndRecordCheck::Line::kContent || IsBlankOrComment(line)) continue;
+    SplitTokens(line, &tokens);
+    std::uint64_t stamp = 0;
+    double q[4];
+    if (tokens.size() != 7 || tokens[0] != "CORRECTION" || !ParseUint64(tokens[2], &stamp) ||
+        !ParseDouble(tokens[3], &q[0]) || !ParseDouble(tokens[4], &q[1]) || !ParseDouble(tokens[5], &q[2]) ||
+        !ParseDouble(tokens[6], &q[3])) {
+      return fail(reader.Where("expected 'CORRECTION frame_id stamp_ns qw qx qy qz'"));
+    }
+    const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    if (!std::isfinite(norm) || std::abs(norm - 1.0) > 1e-6) return fail(reader.Where("not a unit quaternion"));
+    const KeyframeKey key{std::string(tokens[1]), static_cast<std::int64_t>(stamp)};
+    if (!read.emplace(key, QuaternionToRotation(q[0], q[1], q[2], q[3])).second) {
+      return fail(reader.Where("keyframe listed twice"));
+    }
+  }
+  if (!end.Ended()) return fail(path + ": no END record (cut short)");
+  *corrections = std::move(read);
+  return true;
 }
 
 void KeyframeRefiner::Apply(OnlineSolution* cameras) const {

@@ -11,10 +11,12 @@ namespace rotation_averaging {
 
 std::string KeyframeDatabasePath(const std::string& graph_path) { return graph_path + ".keyframes"; }
 std::string RigPath(const std::string& graph_path) { return graph_path + ".rig"; }
+std::string RefinementPath(const std::string& graph_path) { return graph_path + ".refinement"; }
 
 MapStore::MapStore(OnlineAverager* averager, RigModel* rig, KeyframeFrontend* frontend, std::mutex* frontend_mutex,
-                   AddEdge add_edge, FrontendChanged frontend_changed)
-    : averager_(averager),
+                   AddEdge add_edge, FrontendChanged frontend_changed, KeyframeRefiner* refiner)
+    : refiner_(refiner),
+      averager_(averager),
       rig_(rig),
       frontend_(frontend),
       frontend_mutex_(frontend_mutex),
@@ -38,6 +40,16 @@ bool MapStore::Save(const std::string& graph_path, std::string* error, std::stri
   if (!WriteRotavgGraph(graph_path, graph, error, &orientations)) return false;
   if (!rig_->Save(RigPath(graph_path), error)) return false;
   std::string saved = "view graph saved to " + graph_path;
+  const std::string refinement_path = RefinementPath(graph_path);
+  if (refiner_) {
+    if (!refiner_->SaveCorrections(refinement_path, error)) return false;
+    saved += ", the refinement's corrections to " + refinement_path;
+  } else {
+    // Corrections left from an earlier save to this path belong to another
+    // map's keyframes.
+    std::error_code ec;
+    std::filesystem::remove(refinement_path, ec);
+  }
   const std::string database_path = KeyframeDatabasePath(graph_path);
   if (frontend_ && frontend_->UsesVocabulary()) {
     KeyframeDatabase database;
@@ -72,13 +84,16 @@ MapSaveTiming MapStore::LastSaveTiming() const {
 }
 
 bool MapStore::Check(const std::string& graph_path, SavedKeyframeGraph* graph, bool* have_rig, RigModel::Saved* rig,
+                     bool* have_refinement, std::map<KeyframeKey, Eigen::Matrix3d>* corrections,
                      std::string* error) const {
   if (!ReadSavedKeyframeGraph(graph_path, graph, error)) return false;
   // The rig's captures: without them a saved capture would stay one
   // orientation of the rig frame, and the cameras' keyframes in it unknown.
   std::error_code ec;
   *have_rig = std::filesystem::exists(RigPath(graph_path), ec);
-  return !*have_rig || RigModel::ReadFile(RigPath(graph_path), rig, error);
+  if (*have_rig && !RigModel::ReadFile(RigPath(graph_path), rig, error)) return false;
+  *have_refinement = refiner_ && std::filesystem::exists(RefinementPath(graph_path), ec);
+  return !*have_refinement || KeyframeRefiner::ReadCorrections(RefinementPath(graph_path), corrections, error);
 }
 
 bool MapStore::Load(const std::string& graph_path, std::string* error, std::string* note,
@@ -86,9 +101,10 @@ bool MapStore::Load(const std::string& graph_path, std::string* error, std::stri
   // The graph is read and the rig file checked before the database replaces
   // the front end's keyframes: a refused map leaves everything as it was.
   SavedKeyframeGraph graph;
-  bool have_rig = false;
+  bool have_rig = false, have_refinement = false;
   RigModel::Saved saved_rig;
-  if (!Check(graph_path, &graph, &have_rig, &saved_rig, error)) return false;
+  std::map<KeyframeKey, Eigen::Matrix3d> corrections;
+  if (!Check(graph_path, &graph, &have_rig, &saved_rig, &have_refinement, &corrections, error)) return false;
   std::string loaded = "view graph of " + std::to_string(graph.graph.NumViews()) + " views loaded from " + graph_path;
   const std::string rig = RigPath(graph_path);
   std::error_code ec;
@@ -120,6 +136,15 @@ bool MapStore::Load(const std::string& graph_path, std::string* error, std::stri
     rig_->Replace(std::move(saved_rig));
     loaded += ", " + std::to_string(rig_->NumCaptures()) + " rig captures from " + rig;
   }
+  if (refiner_) {
+    // The keyframes held before are gone, and with them their correspondences.
+    refiner_->Reset();
+    refiner_->SetCorrections(corrections, true);
+    if (have_refinement) {
+      loaded += ", the refinement's corrections of " + std::to_string(corrections.size()) + " keyframes from " +
+                RefinementPath(graph_path);
+    }
+  }
   if (note) *note = loaded;
   return true;
 }
@@ -129,9 +154,10 @@ bool MapStore::Add(const std::string& graph_path, std::string* error, std::strin
   // The files are checked before anything is added (the database as it is
   // added): a refused map leaves what is held as it was.
   SavedKeyframeGraph graph;
-  bool have_rig = false;
+  bool have_rig = false, have_refinement = false;
   RigModel::Saved saved_rig;
-  if (!Check(graph_path, &graph, &have_rig, &saved_rig, error)) return false;
+  std::map<KeyframeKey, Eigen::Matrix3d> corrections;
+  if (!Check(graph_path, &graph, &have_rig, &saved_rig, &have_refinement, &corrections, error)) return false;
   std::error_code ec;
   std::string added_note = "map " + graph_path + " added:";
   const std::string database = KeyframeDatabasePath(graph_path);
@@ -167,6 +193,10 @@ bool MapStore::Add(const std::string& graph_path, std::string* error, std::strin
     const std::size_t before = rig_->NumCaptures();
     rig_->Merge(std::move(saved_rig));
     added_note += ", " + std::to_string(rig_->NumCaptures() - before) + " rig captures";
+  }
+  if (have_refinement) {
+    refiner_->SetCorrections(corrections, false);
+    added_note += ", the refinement's corrections of " + std::to_string(corrections.size()) + " keyframes";
   }
   if (with_database) {
     std::size_t linked = 0;

@@ -131,6 +131,23 @@ class KeyframeRefiner {
 
   // Lets go of the correspondences and corrections held (the counters stay).
   void Reset();
+
+  // The corrections held, by keyframe: what a saved map keeps of the
+  // refinement (the correspondences are not saved: keyframes of an earlier
+  // session keep their corrections, and are not adjusted again).
+  std::map<KeyframeKey, Eigen::Matrix3d> Corrections() const;
+  // Takes corrections (a saved map's): in place of those held with
+  // `replace`, else beside them (a keyframe held keeps its own).
+  void SetCorrections(const std::map<KeyframeKey, Eigen::Matrix3d>& corrections, bool replace);
+  // The corrections in a text file of the package's kind (a header, one
+  // line per keyframe "CORRECTION frame_id stamp_ns qw qx qy qz", an END
+  // record with the line count and a checksum), written atomically.
+  bool SaveCorrections(const std::string& path, std::string* error) const;
+  // Reads such a file; a file of another kind, cut short, changed, with a
+  // quaternion that is not a unit one or a keyframe twice is refused with
+  // the reason ("path:line: ...").
+  static bool ReadCorrections(const std::string& path, std::map<KeyframeKey, Eigen::Matrix3d>* corrections,
+                              std::string* error);
   // `cameras` with the corrections held applied; its refinement_sequence
   // set to the latest applied refinement's.
   void Apply(OnlineSolution* cameras) const;

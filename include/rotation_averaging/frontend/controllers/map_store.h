@@ -17,6 +17,7 @@
 
 #include "rotation_averaging/core/controllers/rig_model.h"
 #include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
+#include "rotation_averaging/frontend/controllers/keyframe_refiner.h"
 #include "rotation_averaging/core/controllers/online_averager.h"
 
 namespace rotation_averaging {
@@ -26,6 +27,9 @@ namespace rotation_averaging {
 std::string KeyframeDatabasePath(const std::string& graph_path);
 // Where its rig model goes (RigModel::Save): ".rig" appended.
 std::string RigPath(const std::string& graph_path);
+// Where the background refinement's corrections go
+// (KeyframeRefiner::SaveCorrections): ".refinement" appended.
+std::string RefinementPath(const std::string& graph_path);
 
 // How long a save held what other threads wait for, and how long it took in
 // all (the files written after the copies; seconds).
@@ -44,9 +48,10 @@ class MapStore {
   using FrontendChanged = std::function<void()>;
 
   // `frontend` may be null (no image front end); it is used only while
-  // `frontend_mutex` is held.
+  // `frontend_mutex` is held. `refiner` may be null (no background
+  // refinement): with one, a map keeps its keyframes' corrections.
   MapStore(OnlineAverager* averager, RigModel* rig, KeyframeFrontend* frontend, std::mutex* frontend_mutex,
-           AddEdge add_edge, FrontendChanged frontend_changed);
+           AddEdge add_edge, FrontendChanged frontend_changed, KeyframeRefiner* refiner = nullptr);
 
   // Saves the map at `graph_path` (graph, RigPath, KeyframeDatabasePath).
   // `note` (if given) says what was saved or why the database was not. One
@@ -74,9 +79,11 @@ class MapStore {
   // Reads the graph of a saved map and its rig file, if any (views named as
   // keyframes, a rig file that reads), before any part is used: `rig` is
   // what the rig file holds, applied once the rest has loaded.
+  // So are the refinement's corrections (`have_refinement`, `corrections`).
   bool Check(const std::string& graph_path, SavedKeyframeGraph* graph, bool* have_rig, RigModel::Saved* rig,
-             std::string* error) const;
+             bool* have_refinement, std::map<KeyframeKey, Eigen::Matrix3d>* corrections, std::string* error) const;
 
+  KeyframeRefiner* refiner_ = nullptr;
   OnlineAverager* averager_;
   RigModel* rig_;
   KeyframeFrontend* frontend_;
