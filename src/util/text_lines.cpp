@@ -185,6 +185,33 @@ EndRecordCheck::Line EndRecordCheck::Take(std::string_view line, std::string* wh
   return Line::kContent;
 }
 
+bool ReadEndRecordedFile(const std::string& path, std::string_view header, const std::string& kind,
+                         const std::function<bool(const std::vector<std::string_view>& tokens, std::string* why)>& record,
+                         std::string* error) {
+  auto fail = [&](const std::string& why) {
+    if (error) *error = why;
+    return false;
+  };
+  LineReader reader(path);
+  if (!reader.IsOpen()) return fail("cannot open " + path);
+  std::string_view line;
+  std::vector<std::string_view> tokens;
+  EndRecordCheck end;
+  while (reader.Next(&line)) {
+    if (end.ContentLines() == 0 && !end.Ended() && line != header) {
+      return fail(reader.Where("not a " + kind + " file of this version"));
+    }
+    std::string why;
+    const EndRecordCheck::Line kind_of_line = end.Take(line, &why);
+    if (kind_of_line == EndRecordCheck::Line::kError) return fail(reader.Where(why));
+    if (kind_of_line != EndRecordCheck::Line::kContent || IsBlankOrComment(line)) continue;
+    SplitTokens(line, &tokens);
+    if (!record(tokens, &why)) return fail(reader.Where(why));
+  }
+  if (!end.Ended()) return fail(path + ": no END record: the file is truncated (a save that was interrupted?)");
+  return true;
+}
+
 namespace {
 
 bool SyncToDisk(const std::string& path) {

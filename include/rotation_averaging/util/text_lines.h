@@ -84,6 +84,17 @@ class EndRecordCheck {
   std::vector<std::string_view> tokens_;
 };
 
+// Reads a file of the package's own text kind whose first line is `header`
+// and whose last record is its END record (the rig file, the refinement's
+// corrections): `record` gets each other line that is not blank or a
+// comment, split into tokens, and returns false with `why` to refuse the
+// file. False, with "path:line: why" in `error`, for a file that cannot be
+// opened, starts otherwise ("not a <kind> file of this version"), is cut
+// short, changed, or refused by `record`.
+bool ReadEndRecordedFile(const std::string& path, std::string_view header, const std::string& kind,
+                         const std::function<bool(const std::vector<std::string_view>& tokens, std::string* why)>& record,
+                         std::string* error);
+
 // Writes `path` atomically: `write` fills a temporary file beside it, which is
 // renamed over `path` only when everything was written, so a reader never
 // sees half a file, and flushed to disk (fsync) before the rename, so a

@@ -228,29 +228,16 @@ bool RigModel::Add(const std::string& path, std::string* error) {
 }
 
 bool RigModel::ReadFile(const std::string& path, Saved* saved, std::string* error) {
-  auto fail = [&](const std::string& why) {
-    if (error) *error = why;
-    return false;
-  };
-  LineReader reader(path);
-  if (!reader.IsOpen()) return fail("cannot open " + path);
   std::map<std::string, Camera> cameras;
   std::map<std::string, std::set<std::int64_t>> capture_stamps;
   std::map<KeyframeKey, std::vector<KeyframeKey>> members;
   std::map<KeyframeKey, KeyframeKey> variable_of;
-  std::string_view line;
-  std::vector<std::string_view> tokens;
-  EndRecordCheck end;
   const KeyframeKey* capture = nullptr;
-  while (reader.Next(&line)) {
-    if (end.ContentLines() == 0 && !end.Ended() && line != kRigHeader) {
-      return fail(reader.Where("not a rig file of this version"));
-    }
-    std::string why;
-    const EndRecordCheck::Line kind = end.Take(line, &why);
-    if (kind == EndRecordCheck::Line::kError) return fail(reader.Where(why));
-    if (kind != EndRecordCheck::Line::kContent || IsBlankOrComment(line)) continue;
-    SplitTokens(line, &tokens);
+  auto record = [&](const std::vector<std::string_view>& tokens, std::string* why) {
+    auto refuse = [&](const std::string& reason) {
+      *why = reason;
+      return false;
+    };
     std::uint64_t stamp = 0;
     if (tokens[0] == "CAMERA") {
       double q[4];
@@ -258,36 +245,37 @@ bool RigModel::ReadFile(const std::string& path, Saved* saved, std::string* erro
       if (tokens.size() != 8 || !ParseInt(tokens[2], &in_rig) || (in_rig != 0 && in_rig != 1) ||
           !ParseDouble(tokens[4], &q[0]) || !ParseDouble(tokens[5], &q[1]) || !ParseDouble(tokens[6], &q[2]) ||
           !ParseDouble(tokens[7], &q[3])) {
-        return fail(reader.Where("expected 'CAMERA frame in_rig rig_frame qw qx qy qz'"));
+        return refuse("expected 'CAMERA frame in_rig rig_frame qw qx qy qz'");
       }
       const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-      if (!std::isfinite(norm) || std::abs(norm - 1.0) > 1e-6) return fail(reader.Where("not a unit quaternion"));
+      if (!std::isfinite(norm) || std::abs(norm - 1.0) > 1e-6) return refuse("not a unit quaternion");
       Camera c;
       c.in_rig = in_rig == 1;
       if (c.in_rig) c.rig_frame = std::string(tokens[3]);
       c.camera_from_rig = QuaternionToRotation(q[0], q[1], q[2], q[3]);
       cameras[std::string(tokens[1])] = c;
     } else if (tokens[0] == "CAPTURE") {
-      if (tokens.size() != 3 || !ParseUint64(tokens[2], &stamp)) return fail(reader.Where("expected 'CAPTURE rig_frame stamp_ns'"));
+      if (tokens.size() != 3 || !ParseUint64(tokens[2], &stamp)) return refuse("expected 'CAPTURE rig_frame stamp_ns'");
       const KeyframeKey key{std::string(tokens[1]), static_cast<std::int64_t>(stamp)};
-      if (members.count(key)) return fail(reader.Where("capture listed twice"));
+      if (members.count(key)) return refuse("capture listed twice");
       capture = &members.emplace(key, std::vector<KeyframeKey>()).first->first;
       capture_stamps[key.frame_id].insert(key.stamp_ns);
     } else if (tokens[0] == "MEMBER") {
-      if (tokens.size() != 3 || !ParseUint64(tokens[2], &stamp)) return fail(reader.Where("expected 'MEMBER camera_frame stamp_ns'"));
-      if (!capture) return fail(reader.Where("MEMBER before any CAPTURE"));
+      if (tokens.size() != 3 || !ParseUint64(tokens[2], &stamp)) return refuse("expected 'MEMBER camera_frame stamp_ns'");
+      if (!capture) return refuse("MEMBER before any CAPTURE");
       const KeyframeKey key{std::string(tokens[1]), static_cast<std::int64_t>(stamp)};
       auto c = cameras.find(key.frame_id);
       if (c == cameras.end() || !c->second.in_rig || c->second.rig_frame != capture->frame_id) {
-        return fail(reader.Where("camera '" + key.frame_id + "' is not a camera of rig '" + capture->frame_id + "'"));
+        return refuse("camera '" + key.frame_id + "' is not a camera of rig '" + capture->frame_id + "'");
       }
-      if (!variable_of.emplace(key, *capture).second) return fail(reader.Where("a keyframe in two captures"));
+      if (!variable_of.emplace(key, *capture).second) return refuse("a keyframe in two captures");
       members[*capture].push_back(key);
     } else {
-      return fail(reader.Where("unknown record '" + std::string(tokens[0]) + "' (CAMERA, CAPTURE or MEMBER)"));
+      return refuse("unknown record '" + std::string(tokens[0]) + "' (CAMERA, CAPTURE or MEMBER)");
     }
-  }
-  if (!end.Ended()) return fail(path + ": no END record: the file is truncated (a save that was interrupted?)");
+    return true;
+  };
+  if (!ReadEndRecordedFile(path, kRigHeader, "rig", record, error)) return false;
   saved->cameras = std::move(cameras);
   saved->capture_stamps = std::move(capture_stamps);
   saved->members = std::move(members);

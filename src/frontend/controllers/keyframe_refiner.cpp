@@ -311,40 +311,29 @@ bool KeyframeRefiner::SaveCorrections(const std::string& path, std::string* erro
 
 bool KeyframeRefiner::ReadCorrections(const std::string& path, std::map<KeyframeKey, Eigen::Matrix3d>* corrections,
                                       std::string* error) {
-  auto fail = [&](const std::string& why) {
-    if (error) *error = why;
-    return false;
-  };
-  LineReader reader(path);
-  if (!reader.IsOpen()) return fail("cannot open " + path);
   std::map<KeyframeKey, Eigen::Matrix3d> read;
-  std::string_view line;
-  std::vector<std::string_view> tokens;
-  EndRecordCheck end;
-  while (reader.Next(&line)) {
-    if (end.ContentLines() == 0 && !end.Ended() && line != kCorrectionsHeader) {
-      return fail(reader.Where("not a refinement file of this version"));
-    }
-    std::string why;
-    const EndRecordCheck::Line kind = end.Take(line, &why);
-    if (kind == EndRecordCheck::Line::kError) return fail(reader.Where(why));
-    if (kind != EndRecordCheck::Line::kContent || IsBlankOrComment(line)) continue;
-    SplitTokens(line, &tokens);
+  auto record = [&](const std::vector<std::string_view>& tokens, std::string* why) {
     std::uint64_t stamp = 0;
     double q[4];
     if (tokens.size() != 7 || tokens[0] != "CORRECTION" || !ParseUint64(tokens[2], &stamp) ||
         !ParseDouble(tokens[3], &q[0]) || !ParseDouble(tokens[4], &q[1]) || !ParseDouble(tokens[5], &q[2]) ||
         !ParseDouble(tokens[6], &q[3])) {
-      return fail(reader.Where("expected 'CORRECTION frame_id stamp_ns qw qx qy qz'"));
+      *why = "expected 'CORRECTION frame_id stamp_ns qw qx qy qz'";
+      return false;
     }
     const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-    if (!std::isfinite(norm) || std::abs(norm - 1.0) > 1e-6) return fail(reader.Where("not a unit quaternion"));
+    if (!std::isfinite(norm) || std::abs(norm - 1.0) > 1e-6) {
+      *why = "not a unit quaternion";
+      return false;
+    }
     const KeyframeKey key{std::string(tokens[1]), static_cast<std::int64_t>(stamp)};
     if (!read.emplace(key, QuaternionToRotation(q[0], q[1], q[2], q[3])).second) {
-      return fail(reader.Where("keyframe listed twice"));
+      *why = "keyframe listed twice";
+      return false;
     }
-  }
-  if (!end.Ended()) return fail(path + ": no END record (cut short)");
+    return true;
+  };
+  if (!ReadEndRecordedFile(path, kCorrectionsHeader, "refinement", record, error)) return false;
   *corrections = std::move(read);
   return true;
 }
