@@ -5,7 +5,8 @@
 #   fuzz_readers   every file reader (1DSfM, g2o, TORO, iRotAvg, the package's
 #                  graph file, orientations CSV, COLMAP and chained ground
 #                  truth, format detection, the rig file, the keyframe
-#                  database); seeds in test/fuzz/corpus
+#                  database, the refinement's corrections); seeds in
+#                  test/fuzz/corpus
 #   fuzz_messages  the message-to-graph path: serialised RelativePose(Array),
 #                  CameraInfo, Image, CompressedImage and /tf_static messages
 #                  through the KeyframePipeline, the averager and the output

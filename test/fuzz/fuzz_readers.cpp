@@ -22,6 +22,7 @@
 #include "rotation_averaging/core/io/graph_io.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "rotation_averaging/core/controllers/rig_model.h"
+#include "rotation_averaging/frontend/controllers/keyframe_refiner.h"
 #include "rotation_averaging/frontend/io/keyframe_database.h"
 
 namespace ra = rotation_averaging;
@@ -33,7 +34,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     return std::string(mkdtemp(pattern));
   }();
   const std::string path = dir + "/input";
-  const int reader = data[0] % 11;
+  const int reader = data[0] % 12;
   std::vector<char> content(data + 1, data + size);
   std::uint64_t fingerprint = 0;
   constexpr std::size_t kHeader = 44;  // magic 16, version 4, fingerprint 8, size 8, checksum 8
@@ -69,6 +70,11 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     case 10: {
       ra::KeyframeDatabase database;
       ra::ReadKeyframeDatabase(path, fingerprint, &database, &error);
+      break;
+    }
+    case 11: {
+      std::map<ra::KeyframeKey, Eigen::Matrix3d> corrections;
+      ra::KeyframeRefiner::ReadCorrections(path, &corrections, &error);
       break;
     }
     default: ra::ReadViewGraph(path, ra::GraphFormat::kAuto, &graph); break;
