@@ -81,13 +81,14 @@ void KeyframeRefiner::ScaleCamera(const std::string& frame_id, double scale) {
 }
 
 void KeyframeRefiner::SelectWindow(const OnlineSolution& cameras, std::vector<EdgeCorrespondences>* edges,
-                                   std::vector<KeyframeKey>* keys) const {
+                                   std::vector<KeyframeKey>* keys, std::optional<KeyframeKey>* oldest) const {
   std::vector<KeyframeKey> newest;
   newest.reserve(cameras.orientations.size());
   for (const auto& [key, r] : cameras.orientations) newest.push_back(key);
   const std::size_t window = std::min(newest.size(), static_cast<std::size_t>(options_.max_keyframes));
   std::partial_sort(newest.begin(), newest.begin() + window, newest.end(), Newer);
   newest.resize(window);
+  if (window > 0 && window < cameras.orientations.size()) *oldest = newest.back();
   std::map<KeyframeKey, ViewId> ids;
   for (const auto& [key, held] : edges_) {
     const auto in_window = [&](const KeyframeKey& k) {
@@ -112,9 +113,10 @@ bool KeyframeRefiner::Refine(const OnlineSolution& cameras, const RigCaptures& r
   const auto start = std::chrono::steady_clock::now();
   std::vector<EdgeCorrespondences> edges;
   std::vector<KeyframeKey> keys;
+  std::optional<KeyframeKey> oldest_kept;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    SelectWindow(cameras, &edges, &keys);
+    SelectWindow(cameras, &edges, &keys, &oldest_kept);
   }
   ViewOrientations averaged;
   for (std::size_t v = 0; v < keys.size(); ++v) averaged[static_cast<ViewId>(v)] = cameras.orientations.at(keys[v]);
@@ -218,7 +220,6 @@ bool KeyframeRefiner::Refine(const OnlineSolution& cameras, const RigCaptures& r
   }
   for (const auto& [id, c] : corrections) corrections_[keys[id]] = c;
   ++stats_.applied;
-  stats_.sequence = stats_.applied;
   stats_.solution_sequence = cameras.sequence;
   stats_.corrected_keyframes = corrections_.size();
   std::nth_element(moved_deg.begin(), moved_deg.begin() + moved_deg.size() / 2, moved_deg.end());
@@ -227,13 +228,9 @@ bool KeyframeRefiner::Refine(const OnlineSolution& cameras, const RigCaptures& r
   stats_.held_back = held_back;
   // Edges both of whose keyframes are older than the window will not be
   // refined again: let them go.
-  if (static_cast<int>(cameras.orientations.size()) > options_.max_keyframes) {
-    std::vector<KeyframeKey> all;
-    for (const auto& [key, r] : cameras.orientations) all.push_back(key);
-    std::nth_element(all.begin(), all.begin() + (options_.max_keyframes - 1), all.end(), Newer);
-    const KeyframeKey oldest_kept = all[options_.max_keyframes - 1];
+  if (oldest_kept) {
     for (auto it = edges_.begin(); it != edges_.end();) {
-      if (Newer(oldest_kept, it->second.keyframe1) && Newer(oldest_kept, it->second.keyframe2)) {
+      if (Newer(*oldest_kept, it->second.keyframe1) && Newer(*oldest_kept, it->second.keyframe2)) {
         stats_.bytes -= EdgeBytes(it->second.points);
         it = edges_.erase(it);
       } else {
@@ -344,7 +341,7 @@ void KeyframeRefiner::Apply(OnlineSolution* cameras) const {
     const auto c = corrections_.find(key);
     if (c != corrections_.end()) r = c->second * r;
   }
-  cameras->refinement_sequence = stats_.sequence;
+  cameras->refinement_sequence = stats_.applied;
 }
 
 KeyframeRefinerStats KeyframeRefiner::Stats() const {

@@ -43,6 +43,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -80,8 +81,9 @@ struct KeyframeRefinerOptions {
 };
 
 struct KeyframeRefinerStats {
+  // applied: also the sequence number of the latest applied refinement
+  // (OnlineSolution::refinement_sequence; 0: none).
   std::uint64_t runs = 0, applied = 0, failed = 0;
-  std::uint64_t sequence = 0;            // of the latest applied refinement (0: none)
   std::uint64_t solution_sequence = 0;   // the averaging solution it refined
   std::size_t corrected_keyframes = 0;   // keyframes with a correction
   std::size_t edges_held = 0;            // edges whose correspondences are held
@@ -159,9 +161,10 @@ class KeyframeRefiner {
     EdgeCorrespondences points;
   };
   // The edges among the newest max_keyframes keyframes of `cameras`, with
-  // view ids, and the keyframe of each id.
+  // view ids, and the keyframe of each id; `oldest` gets the window's oldest
+  // keyframe when `cameras` has more than the window (else it is left).
   void SelectWindow(const OnlineSolution& cameras, std::vector<EdgeCorrespondences>* edges,
-                    std::vector<KeyframeKey>* keys) const;
+                    std::vector<KeyframeKey>* keys, std::optional<KeyframeKey>* oldest) const;
   static std::size_t EdgeBytes(const EdgeCorrespondences& e);
 
   const KeyframeRefinerOptions options_;
