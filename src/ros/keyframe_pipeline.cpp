@@ -205,6 +205,11 @@ bool KeyframePipeline::DecodeCompressedImage(const sensor_msgs::CompressedImage&
 
 std::vector<PendingKeyframe> KeyframePipeline::SelectKeyframes(const PendingKeyframe& image) {
   const auto start = Clock::now();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stream_gaps_.Observe(image.key.frame_id, image.key.stamp_ns);
+    stats_.frames_missing = stream_gaps_.Missing();
+  }
   if (config_.keyframe_selection == KeyframeSelectionMode::kAll) {
     // Images that are keyframes already (another stack's) are too far
     // apart for tracks: their pairs are matched by descriptors.
@@ -238,7 +243,16 @@ std::vector<PendingKeyframe> KeyframePipeline::SelectKeyframes(const PendingKeyf
   return keyframes;
 }
 
+std::uint64_t KeyframePipeline::FramesMissing() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return stats_.frames_missing;
+}
+
 void KeyframePipeline::ResetKeyframeSelection() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stream_gaps_.Reset();
+  }
   std::lock_guard<std::mutex> lock(selector_mutex_);
   selector_.Reset();
 }

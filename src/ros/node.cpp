@@ -199,18 +199,18 @@ void RotationAveragingNode::SetUpImages(const ros::NodeHandle& node) {
     if (compressed) {
       const std::string info_topic = image_transport::getCameraInfoTopic(topic);
       info_subs_.push_back(nh.subscribe<sensor_msgs::CameraInfo>(
-          info_topic, 10, [this, topic](const sensor_msgs::CameraInfoConstPtr& info) {
+          info_topic, config.image_transport_queue, [this, topic](const sensor_msgs::CameraInfoConstPtr& info) {
             std::lock_guard<std::mutex> lock(mutex_);
             camera_infos_[topic] = info;
           }));
       compressed_subs_.push_back(nh.subscribe<sensor_msgs::CompressedImage>(
-          topic + "/compressed", 10, [this, topic, rectified](const sensor_msgs::CompressedImageConstPtr& m) {
+          topic + "/compressed", config.image_transport_queue, [this, topic, rectified](const sensor_msgs::CompressedImageConstPtr& m) {
             OnCompressedImage(topic, m, rectified);
           }));
       ROS_INFO("keyframes from %s/compressed (+ %s)", topic.c_str(), info_topic.c_str());
     } else {
       camera_subs_.push_back(image_transport_->subscribeCamera(
-          topic, 10,
+          topic, config.image_transport_queue,
           [this, rectified](const sensor_msgs::ImageConstPtr& image, const sensor_msgs::CameraInfoConstPtr& info) {
             OnImage(image, info, rectified);
           }));
@@ -260,6 +260,15 @@ void RotationAveragingNode::OnCompressedImage(const std::string& topic,
 void RotationAveragingNode::Select(const PendingKeyframe& image) {
   for (const std::string& notice : pipeline_->TakeCameraModelNotices()) ROS_INFO("camera model: %s", notice.c_str());
   for (PendingKeyframe& keyframe : pipeline_->SelectKeyframes(image)) Enqueue(std::move(keyframe));
+  const std::uint64_t missing = pipeline_->FramesMissing();
+  if (missing > frames_missing_warned_) {
+    ROS_WARN_THROTTLE(5.0,
+                      "%llu images missing so far by the gaps in their cameras' stamps (the latest before %s at %.3f): "
+                      "lost by the driver, the network, or a full image_transport_queue",
+                      static_cast<unsigned long long>(missing), image.key.frame_id.c_str(),
+                      1e-9 * static_cast<double>(image.key.stamp_ns));
+    frames_missing_warned_ = missing;
+  }
 }
 
 void RotationAveragingNode::Enqueue(PendingKeyframe keyframe) {

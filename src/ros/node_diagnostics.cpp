@@ -37,6 +37,10 @@ void Summarise(const NodeStatus& s, diagnostic_updater::DiagnosticStatusWrapper*
   } else if (s.dropped_images > 0) {
     status->summary(DiagnosticStatus::WARN,
                     "keyframe images dropped: they come faster than the front end processes them");
+  } else if (s.pipeline.frames_missing > 0) {
+    status->summary(DiagnosticStatus::WARN,
+                    "images missing from the camera streams (gaps in their stamps): the driver, the network or "
+                    "image_transport_queue lost them, and keyframe selection did not see them");
   } else if (s.refinement && s.refinement_stats.runs > 0 && !s.refinement_stats.last_ok) {
     status->summary(DiagnosticStatus::WARN,
                     "the latest refinement changed nothing (the averaging's orientations are published)");
@@ -129,6 +133,7 @@ void FillDiagnostics(const NodeStatus& s, diagnostic_updater::DiagnosticStatusWr
   status->add("rejected messages", p.rejected_messages);
   status->add("images seen", p.frames);
   status->add("images that were not keyframes (keyframe_selection)", p.frames_skipped);
+  status->add("images missing by their cameras' stamps (lost before the node)", p.frames_missing);
   if (p.frames > 0) status->add("keyframe selection per image (ms)", 1e3 * p.selection_s / p.frames);
   // The time budget, over the most recent images, keyframes and pairs
   // (TimeDistribution's window).

@@ -146,6 +146,7 @@ bool PipelineConfig::Validate(std::string* error) const {
       .Above("refinement_period_s", refinement_period_s, 0.0)
       .Require(refiner.Validate(&refiner_error), refiner_error)
       .AtLeast("max_image_queue", static_cast<double>(max_image_queue), 1)
+      .AtLeast("image_transport_queue", static_cast<double>(image_transport_queue), 1)
       .Above("marker_spacing_m", marker_spacing_m, 0.0)
       .AtLeast("marker_max_keyframes", marker_max_keyframes, 1)
       .NotNan("autosave_period_s", autosave_period_s)
@@ -212,6 +213,7 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("refinement_max_keyframes", &c.refiner.max_keyframes);
   r.Read("refinement_max_correction_deg", &c.refiner.max_correction_deg);
   r.Read("refinement_max_iterations", &c.refiner.adjustment.max_iterations);
+  r.Read("refinement_niceness", &c.refiner.background_niceness);
   r.Read("use_rig_extrinsics", &c.rig.enabled);
   r.Read("rig_frame", &c.rig.rig_frame);
   r.Read("covisibility_window", &f.covisibility_window);
@@ -228,6 +230,7 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("min_retrieval_score_ratio", &f.min_retrieval_score_ratio);
   r.Read("vocabulary", &c.vocabulary);
   r.Read("max_image_queue", &c.max_image_queue);
+  r.Read("image_transport_queue", &c.image_transport_queue);
 
   r.Read("max_queue", &a.max_queue);
   r.Read("max_views", &a.max_views);

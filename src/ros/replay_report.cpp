@@ -27,6 +27,7 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
   result->keyframe_images = pipeline_stats.processed_images;
   result->images_seen = pipeline_stats.frames;
   result->images_skipped = pipeline_stats.frames_skipped;
+  result->images_missing = pipeline_stats.frames_missing;
   result->selection = pipeline_stats.selection;
   result->selection_s = pipeline_stats.selection_s;
   result->image_times = pipeline_stats.image_times;
@@ -246,6 +247,10 @@ std::string ReplayResult::Summary() const {
     out << "keyframe selection (" << keyframe_selection << "): " << images_seen << " images, " << keyframe_images
         << " keyframes, " << images_skipped << " not keyframes; " << 1e3 * selection_s / images_seen
         << " ms per image\n";
+    if (images_missing > 0) {
+      out << "  images missing from the bag by their cameras' stamps (lost before recording): " << images_missing
+          << "\n";
+    }
     if (selection.keyframes > 0) {
       out << "  keyframes made: " << selection.first << " first of their camera, " << selection.by_motion
           << " by motion, " << selection.by_rotation << " by rotation, " << selection.by_tracking

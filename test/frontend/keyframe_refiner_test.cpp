@@ -1,6 +1,11 @@
 #include "rotation_averaging/frontend/controllers/keyframe_refiner.h"
 
 #include <gtest/gtest.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <cerrno>
 
 #include <Eigen/Geometry>
 #include <atomic>
@@ -211,13 +216,22 @@ TEST(KeyframeRefiner, BackgroundRefinementCallsBackAndApplies) {
   refiner.Add(Edges(scene, "cam"));
   std::atomic<int> called{0};
   std::atomic<bool> result{false};
+  // `done` runs on the refinement's thread: its nice value is the caller's
+  // plus background_niceness (the default, 10), and this thread's is as it was.
+  errno = 0;
+  const int caller_nice = getpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)));
+  ASSERT_EQ(errno, 0);
+  std::atomic<int> refinement_nice{-100};
   ASSERT_TRUE(refiner.RefineInBackground(averaged, {}, [&](bool ok) {
     result = ok;
+    refinement_nice = getpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)));
     ++called;
   }));
   refiner.Wait();
   EXPECT_EQ(called.load(), 1);
   EXPECT_TRUE(result.load());
+  EXPECT_EQ(refinement_nice.load(), std::min(19, caller_nice + 10));
+  EXPECT_EQ(getpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid))), caller_nice);
   EXPECT_FALSE(refiner.Running());
   OnlineSolution published = *averaged;
   refiner.Apply(&published);

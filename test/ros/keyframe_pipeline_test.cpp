@@ -145,6 +145,30 @@ TEST(KeyframePipeline, BadImagesAreRejectedAndCounted) {
   EXPECT_EQ(pipeline.Stats().rejected_images, 11u);
 }
 
+// A 20 Hz stream that lost frames before the pipeline saw them (a
+// subscriber queue that overflowed, a driver that dropped them): the gaps in
+// each camera's stamps count them, with every keyframe selection mode.
+TEST(KeyframePipeline, ImagesMissingFromAStreamAreCounted) {
+  for (const char* mode : {"motion", "all"}) {
+    PipelineConfig config = DefaultConfig();
+    ASSERT_TRUE(ParseOption(mode, &config.keyframe_selection)) << mode;
+    KeyframePipeline pipeline(config);
+    for (int i = 0; i < 60; ++i) {
+      if (i == 30 || i == 31 || i == 45) continue;
+      for (const char* camera : {"cam_a", "cam_b"}) {
+        if (std::string(camera) == "cam_b" && i == 50) continue;
+        PendingKeyframe k;
+        std::string error;
+        ASSERT_TRUE(pipeline.DecodeImage(Image(camera, 10.0 + 0.05 * i, 64, 48, "mono8"), Info(64, 48), &k, &error))
+            << error;
+        pipeline.SelectKeyframes(k);
+      }
+    }
+    EXPECT_EQ(pipeline.Stats().frames_missing, 7u) << mode;
+    EXPECT_EQ(pipeline.FramesMissing(), 7u) << mode;
+  }
+}
+
 // camera_info as image_proc reads it: a raw image's camera is K with its
 // distortion model and D; a rectified image's is P, without distortion.
 TEST(KeyframePipeline, CameraInfoGivesTheCameraModelOfRawAndRectifiedImages) {

@@ -89,8 +89,17 @@ TEST(NodeDiagnostics, TheSummaryNamesTheFirstProblemInOrder) {
     s.dropped_images = 2;
     EXPECT_EQ(Fill(s).level, diagnostic_msgs::DiagnosticStatus::WARN);
     EXPECT_EQ(Fill(s).message, "keyframe images dropped: they come faster than the front end processes them");
-    // A solve period of 0 (solves on request only) never overruns.
+    // Frames that never reached keyframe selection come after it.
+    s.pipeline.frames_missing = 3;
+    EXPECT_EQ(Fill(s).message, "keyframe images dropped: they come faster than the front end processes them");
     s.dropped_images = 0;
+    EXPECT_EQ(Fill(s).level, diagnostic_msgs::DiagnosticStatus::WARN);
+    EXPECT_EQ(Fill(s).message,
+              "images missing from the camera streams (gaps in their stamps): the driver, the network or "
+              "image_transport_queue lost them, and keyframe selection did not see them");
+    EXPECT_EQ(Values(Fill(s)).at("images missing by their cameras' stamps (lost before the node)"), "3");
+    // A solve period of 0 (solves on request only) never overruns.
+    s.pipeline.frames_missing = 0;
     s.solve_period_s = 0.0;
     s.averager.last_solve_s = 5.0;
     EXPECT_EQ(Fill(s).message, "ok");

@@ -76,7 +76,8 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
                     {"keyframe_min_tracked_fraction", "0.3"}, {"keyframe_max_interval_s", "2"},
                     {"rig_stamp_tolerance_s", "0.01"}, {"image_type", "rectified"}, {"focal_calibration", "off"},
                     {"refinement", "false"}, {"refinement_period_s", "3"}, {"refinement_max_keyframes", "50"},
-                    {"refinement_max_iterations", "7"}, {"refinement_max_correction_deg", "0.5"}},
+                    {"refinement_max_iterations", "7"}, {"refinement_max_correction_deg", "0.5"},
+                    {"refinement_niceness", "5"}, {"image_transport_queue", "12"}},
                    &c, &warnings, &error))
       << error;
   EXPECT_TRUE(warnings.empty());
@@ -101,6 +102,8 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
   EXPECT_EQ(c.refiner.max_keyframes, 50);
   EXPECT_EQ(c.refiner.adjustment.max_iterations, 7);
   EXPECT_EQ(c.refiner.max_correction_deg, 0.5);
+  EXPECT_EQ(c.refiner.background_niceness, 5);
+  EXPECT_EQ(c.image_transport_queue, 12u);
 }
 
 TEST(PipelineConfig, FormerNamesAreReadWithADeprecationWarning) {
@@ -142,6 +145,8 @@ TEST(PipelineConfig, ValuesOutOfRangeAndUnknownChoicesAreRefusedByName) {
       {{{"refinement_max_keyframes", "1"}}, "refinement_max_keyframes must be at least 3"},
       {{{"refinement_max_iterations", "0"}}, "refinement_max_iterations must be at least 1"},
       {{{"refinement_max_correction_deg", "nan"}}, "refinement_max_correction_deg must be above 0"},
+      {{{"refinement_niceness", "20"}}, "refinement_niceness must be in [0, 19]"},
+      {{{"image_transport_queue", "0"}}, "image_transport_queue must be at least 1"},
   };
   for (const auto& [values, expected] : cases) {
     PipelineConfig c;

@@ -38,6 +38,7 @@
 #include "rotation_averaging/ros/image_conversion.h"
 #include "rotation_averaging/ros/output_messages.h"
 #include "rotation_averaging/ros/pipeline_config.h"
+#include "rotation_averaging/util/stream_gaps.h"
 #include "rotation_averaging/util/time_distribution.h"
 #include "rotation_averaging/CameraInfoCheckArray.h"
 #include "rotation_averaging/Orientations.h"
@@ -59,6 +60,9 @@ struct PendingKeyframe {
 struct PipelineStats {
   std::uint64_t frames = 0;             // valid images offered to keyframe selection
   std::uint64_t frames_skipped = 0;     // of them, not keyframes (keyframe_selection: motion)
+  // Images that never came, by the gaps in each camera's stamps (StreamGaps):
+  // lost by the driver, the recording, or a subscriber queue that overflowed.
+  std::uint64_t frames_missing = 0;
   KeyframeSelectionStats selection;     // keyframe_selection: motion (why each keyframe was made)
   double selection_s = 0.0;             // wall time of keyframe selection
   // The time budget: each valid image's decoding, checks and keyframe
@@ -143,6 +147,8 @@ class KeyframePipeline {
   std::vector<PendingKeyframe> SelectKeyframes(const PendingKeyframe& image);
   // After the averager's Reset(): the next image of each camera is a keyframe.
   void ResetKeyframeSelection();
+  // PipelineStats::frames_missing, without copying the rest of the stats.
+  std::uint64_t FramesMissing() const;
 
   // Runs the front end on one keyframe and enqueues its edges. Not
   // thread-safe with itself (one front-end thread). Returns the edges added;
@@ -239,6 +245,7 @@ class KeyframePipeline {
   RigModel rig_;
   std::mutex selector_mutex_;
   KeyframeSelector selector_;
+  StreamGaps stream_gaps_;  // under mutex_
   mutable std::mutex mutex_;  // stats_, frontend_stats_, last_image_stamp_, camera_models_, camera_model_notices_
   PipelineStats stats_;
   KeyframeFrontendStats frontend_stats_;

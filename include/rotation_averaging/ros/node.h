@@ -152,6 +152,7 @@ class RotationAveragingNode {
   std::condition_variable image_wake_;
   std::deque<QueuedKeyframe> image_queue_;
   std::size_t max_image_queue_ = 8;
+  std::uint64_t frames_missing_warned_ = 0;  // the image callback's thread only
   std::uint64_t cap_drops_warned_ = 0;  // the averager's worker thread only
   bool images_running_ = false;
   std::thread image_worker_;

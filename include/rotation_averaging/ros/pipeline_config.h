@@ -97,6 +97,13 @@ struct PipelineConfig {
   // "none": no vocabulary (retrieval by voting, linear in the map).
   std::string vocabulary = "default";
   std::size_t max_image_queue = 8;
+  // Images of each topic that ROS holds while the image callback (decoding,
+  // keyframe selection) is busy; beyond, ROS drops the oldest, and the gap
+  // in the camera's stamps is counted (PipelineStats::frames_missing). A
+  // second and a half at 20 Hz: a loaded machine holds that callback up for
+  // longer than half a second, and a frame lost changes which keyframes are
+  // made.
+  std::size_t image_transport_queue = 30;
   RigModelOptions rig;  // use_rig_extrinsics, rig_frame, rig_stamp_tolerance_s
   // rviz markers: orientations carry no positions, so each camera (or rig)
   // gets a lane along y and its keyframes are laid out along x in time order.

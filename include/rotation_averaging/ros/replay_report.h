@@ -47,6 +47,7 @@ struct ReplayResult {
   std::size_t keyframe_images = 0, rejected_images = 0, rejected_messages = 0;
   KeyframeSelectionStats selection;  // keyframe_selection: motion
   std::size_t images_seen = 0, images_skipped = 0;  // valid images offered to keyframe selection, not keyframes
+  std::size_t images_missing = 0;  // by the gaps in each camera's stamps (PipelineStats::frames_missing)
   std::string keyframe_selection;
   double selection_s = 0.0;  // wall time of keyframe selection
   // The time budget (PipelineStats, KeyframeFrontendStats): per valid image

@@ -1,9 +1,16 @@
 #include "rotation_averaging/frontend/controllers/keyframe_refiner.h"
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <numeric>
 #include <sstream>
+
+#ifdef __linux__
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+#endif
 
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"
@@ -23,6 +30,22 @@ bool Newer(const KeyframeKey& a, const KeyframeKey& b) {
   return a.stamp_ns != b.stamp_ns ? a.stamp_ns > b.stamp_ns : a.frame_id < b.frame_id;
 }
 
+// Linux keeps a nice value per thread, and a thread std::async starts is
+// new each time: raising this one's leaves every other thread as it was.
+// Failing (not Linux, or a sandbox that forbids it) leaves it as it was.
+void LowerThisThreadsPriority(int niceness) {
+#ifdef __linux__
+  if (niceness <= 0) return;
+  const id_t tid = static_cast<id_t>(syscall(SYS_gettid));
+  errno = 0;
+  const int current = getpriority(PRIO_PROCESS, tid);
+  if (errno != 0) return;
+  setpriority(PRIO_PROCESS, tid, std::min(19, current + niceness));
+#else
+  (void)niceness;
+#endif
+}
+
 }  // namespace
 
 KeyframeRefinerOptions::KeyframeRefinerOptions() {
@@ -35,6 +58,7 @@ bool KeyframeRefinerOptions::Validate(std::string* error) const {
       .Above("refinement_max_correction_deg", max_correction_deg, 0.0)
       .AtLeast("refinement min_correspondences", adjustment.min_correspondences, 5)
       .AtLeast("refinement_max_iterations", adjustment.max_iterations, 1)
+      .Within("refinement_niceness", background_niceness, 0, 19)
       .Ok(error);
 }
 
@@ -248,6 +272,7 @@ bool KeyframeRefiner::RefineInBackground(std::shared_ptr<const OnlineSolution> c
   if (background_.valid()) background_.get();  // finished: running_ was false
   background_ = std::async(std::launch::async, [this, cameras = std::move(cameras), rig = std::move(rig),
                                                 done = std::move(done)] {
+    LowerThisThreadsPriority(options_.background_niceness);
     const bool ok = Refine(*cameras, rig);
     // Before running_ falls: a refinement started from `done`, or waiting
     // in the starting thread for this one's end, would deadlock.

@@ -72,6 +72,12 @@ struct KeyframeRefinerOptions {
   // cannot repair a bad one); with more than a quarter of them the
   // refinement changes nothing.
   double max_correction_deg = 1.0;
+  // RefineInBackground's thread runs this much nicer than the thread that
+  // starts it (Linux; 0: as nice, at most 19): the refinement takes the CPU
+  // that the camera-rate work leaves, so that on a loaded machine it is the
+  // refinement that waits, not the images (an image callback held up for
+  // longer than its subscriber queue holds loses frames).
+  int background_niceness = 10;
   // The bundle adjustment's options; the refinement's own defaults in the
   // constructor.
   BundleAdjustmentOptions adjustment;
