@@ -10,8 +10,10 @@
 #  * the demo renderer's rig as a 20 Hz driver publishes it (one loop in
 #    30 s), and its forward camera alone (a bag of that camera);
 #  * EuRoC's raw stereo stream.
-# Replays refine by bag time (refinement_period_s), in the solve's thread:
-# the same refinements on every run, and their time is in the wall time.
+# Replays refine by bag time (refinement_period_s), each refinement on a
+# thread of its own while the bag goes on, taken when the next is due, and
+# the final solution in the replay's thread: the same refinements on every
+# run, and their time is in the wall and CPU time.
 #   bash scripts/benchmark_refinement.sh        (about ten minutes)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null

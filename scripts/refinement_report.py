@@ -73,9 +73,10 @@ The node bundle adjusts its newest keyframes (`refinement_max_keyframes`) on the
 background (`refinement: true`, docs/node.md "Background refinement"): the adjustment `rotavg images` runs after
 the averaging, started from the node's averaged orientations. Each keyframe keeps the correction it found, in its
 camera's frame, and every later solution is published with it; the cameras of a rig capture share one correction.
-Here each bag is replayed with the refinement off and on (the defaults otherwise); the replay refines every
-`refinement_period_s` of bag time in the solve's thread, and the final solution once more, so the refinements'
-time is in the wall and CPU time. Errors of the final solution against the ground truth, in degrees; NEES: the
+Here each bag is replayed with the refinement off and on (the defaults otherwise); the replay starts a refinement
+every `refinement_period_s` of bag time on a thread of its own while the bag goes on, takes what it found when the
+next is due, and refines the final solution once more in its own thread, so the refinements' time is in the wall
+and CPU time. Errors of the final solution against the ground truth, in degrees; NEES: the
 published posterior covariances (the averaging's) against the errors of the published orientations, with the
 share of keyframes within chi-square's 95% bound; refinements: applied / run; time per refinement: median / p95
 (ms). `rotavg images`: the same images, every pair tried, with focal self-calibration and the bundle adjustment

@@ -488,8 +488,11 @@ class Replayer {
     ++result_.solves;
     const std::shared_ptr<const OnlineSolution> solution = averager.Solution();
     if (loaded_ && !result_.map_merged) MeasureMerge(*solution);
-    // Refinements by bag time, in the solve's thread: the same on every run.
-    if (pipeline_.MaybeRefine(*solution, when.toSec(), false, false)) refined_sequence_ = solution->sequence;
+    // Refinements by bag time, each on a thread of its own while the bag
+    // goes on, taken when the next is due: the same on every run.
+    if (pipeline_.MaybeRefine(*solution, when.toSec(), false, KeyframePipeline::RefineIn::kStaged)) {
+      refined_sequence_ = solution->sequence;
+    }
     const OnlineSolution cameras = pipeline_.CameraSolution(*solution);
     out_.write("/rotation_averaging/orientations", when, pipeline_.OrientationsMsg(cameras, when));
     if (pipeline_.HasFrontend() && config_.focal_calibration != FocalCalibrationMode::kOff) {
@@ -507,10 +510,13 @@ class Replayer {
   // The final solution refined, unless the last refinement was of it: what
   // the node publishes once its refinement has caught up with the input.
   void RefineFinal(const ros::Time& when) {
+    pipeline_.CommitRefinement();
     const std::shared_ptr<const OnlineSolution> solution = pipeline_.Averager().Solution();
-    if (!solution || solution->sequence == refined_sequence_) return;
-    if (!pipeline_.MaybeRefine(*solution, when.toSec(), true, false)) return;
-    refined_sequence_ = solution->sequence;
+    if (!solution) return;
+    if (solution->sequence != refined_sequence_) {
+      if (!pipeline_.MaybeRefine(*solution, when.toSec(), true, KeyframePipeline::RefineIn::kHere)) return;
+      refined_sequence_ = solution->sequence;
+    }
     out_.write("/rotation_averaging/orientations", when,
                pipeline_.OrientationsMsg(pipeline_.CameraSolution(*solution), when));
   }
@@ -519,6 +525,7 @@ class Replayer {
   // input so far, then saved.
   void SaveMap(const Checkpoint& checkpoint) {
     Solve(checkpoint.after);
+    pipeline_.CommitRefinement();  // a refinement under way is saved with the map
     std::string note, error;
     if (pipeline_.SaveMap(checkpoint.path, &error, &note)) {
       result_.maps_saved_after_bags.push_back(note);

@@ -309,7 +309,7 @@ OnlineSolution KeyframePipeline::CameraSolution(const OnlineSolution& solution, 
   return cameras;
 }
 
-bool KeyframePipeline::MaybeRefine(const OnlineSolution& solution, double now_s, bool force, bool background,
+bool KeyframePipeline::MaybeRefine(const OnlineSolution& solution, double now_s, bool force, RefineIn where,
                                    std::function<void(bool)> done) {
   if (!refiner_ || solution.orientations.empty()) return false;
   {
@@ -318,6 +318,9 @@ bool KeyframePipeline::MaybeRefine(const OnlineSolution& solution, double now_s,
     // keyframes has nothing to adjust.
     if (std::isnan(last_refine_s_)) last_refine_s_ = now_s;
     if (!force && now_s - last_refine_s_ < config_.refinement_period_s) return false;
+    // Staged: the previous one lands now, when the next is due by the
+    // caller's clock, however long it took.
+    if (where == RefineIn::kStaged) refiner_->Commit();
     if (refiner_->Running()) return false;
     last_refine_s_ = now_s;
   }
@@ -328,10 +331,17 @@ bool KeyframePipeline::MaybeRefine(const OnlineSolution& solution, double now_s,
     const auto camera = rig_cameras.find(key.frame_id);
     if (camera != rig_cameras.end()) rig[key] = {rig_.VariableOfKnown(key), camera->second.second};
   }
-  if (background) return refiner_->RefineInBackground(std::move(cameras), std::move(rig), std::move(done));
+  if (where != RefineIn::kHere) {
+    return refiner_->RefineInBackground(std::move(cameras), std::move(rig), std::move(done),
+                                        where == RefineIn::kStaged);
+  }
   const bool ok = refiner_->Refine(*cameras, rig);
   if (done) done(ok);
   return true;
+}
+
+void KeyframePipeline::CommitRefinement() {
+  if (refiner_) refiner_->Commit();
 }
 
 void KeyframePipeline::WaitForRefinement() {

@@ -410,13 +410,14 @@ void RotationAveragingNode::Refine(const OnlineSolution& solution, bool now) {
   // From the averager's thread, after its solution is out, or from the
   // quiet-input timer: the refinement runs on a thread of its own, and its
   // end publishes the latest solution again with its corrections.
-  const bool started = pipeline_->MaybeRefine(solution, ros::WallTime::now().toSec(), now, true, [this](bool ok) {
-    const KeyframeRefinerStats r = pipeline_->RefinerStats();
-    if (!ok) ROS_WARN_THROTTLE(30.0, "refinement changed nothing: %s", r.last_report.c_str());
-    if (const std::shared_ptr<const OnlineSolution> latest = averager_->Solution()) {
-      if (ok) Publish(*latest);
-    }
-  });
+  const bool started = pipeline_->MaybeRefine(
+      solution, ros::WallTime::now().toSec(), now, KeyframePipeline::RefineIn::kBackground, [this](bool ok) {
+        const KeyframeRefinerStats r = pipeline_->RefinerStats();
+        if (!ok) ROS_WARN_THROTTLE(30.0, "refinement changed nothing: %s", r.last_report.c_str());
+        if (const std::shared_ptr<const OnlineSolution> latest = averager_->Solution()) {
+          if (ok) Publish(*latest);
+        }
+      });
   if (started) refined_sequence_ = solution.sequence;
 }
 

@@ -238,6 +238,37 @@ TEST(KeyframeRefiner, BackgroundRefinementCallsBackAndApplies) {
   EXPECT_EQ(published.refinement_sequence, 1u);
 }
 
+// Staged (the replay): what a background refinement finds lands at Commit,
+// not when its thread ends, and is what the same refinement in the calling
+// thread finds.
+TEST(KeyframeRefiner, AStagedRefinementLandsAtCommit) {
+  const ArcScene scene = MakeArcScene(8, 0.5, 19);
+  auto averaged = std::make_shared<const OnlineSolution>(Averaged(scene, "cam", 0.3, 20));
+  KeyframeRefiner here{KeyframeRefinerOptions()};
+  here.Add(Edges(scene, "cam"));
+  ASSERT_TRUE(here.Refine(*averaged));
+  KeyframeRefiner staged{KeyframeRefinerOptions()};
+  staged.Add(Edges(scene, "cam"));
+  EXPECT_FALSE(staged.Commit());  // nothing staged
+  ASSERT_TRUE(staged.RefineInBackground(averaged, {}, nullptr, true));
+  staged.Wait();
+  EXPECT_TRUE(staged.Corrections().empty());
+  EXPECT_EQ(staged.Stats().runs, 0u);
+  OnlineSolution published = *averaged;
+  staged.Apply(&published);
+  EXPECT_EQ(published.refinement_sequence, 0u);
+  EXPECT_TRUE(staged.Commit());
+  EXPECT_FALSE(staged.Commit());  // taken once
+  EXPECT_EQ(staged.Stats().runs, 1u);
+  EXPECT_EQ(staged.Stats().applied, 1u);
+  const auto expected = here.Corrections();
+  const auto corrections = staged.Corrections();
+  ASSERT_EQ(corrections.size(), expected.size());
+  for (const auto& [key, c] : expected) EXPECT_TRUE(corrections.at(key).isApprox(c, 1e-12)) << key.stamp_ns;
+  staged.Apply(&published);
+  EXPECT_EQ(published.refinement_sequence, 1u);
+}
+
 // A camera's focal length corrected by a factor (focal_calibration: apply):
 // the points held, normalised with the former one, are divided by it, and
 // the refinement is as if they had been normalised right.

@@ -166,13 +166,21 @@ class KeyframePipeline {
   // The background refinement (KeyframeRefiner), with an image front end
   // and `refinement` on. MaybeRefine starts one on `solution` (the
   // averager's) when refinement_period_s has passed since the last start at
-  // `now_s` (the node's wall time, the replay's bag time) or `force`, and
-  // none is under way: in the background, then `done`, or with
-  // `background` false in the calling thread (the replay: the same
-  // refinements on every run). True if one ran or started.
+  // `now_s` (the node's wall time, the replay's bag time) or `force`:
+  //  - kBackground (the node): on a thread of its own, then `done`; what it
+  //    finds is taken when it ends. None starts while one is under way.
+  //  - kStaged (the replay): on a thread of its own, what it finds taken
+  //    only when the next one is due, or at CommitRefinement. The previous
+  //    one is waited for then: the same refinements land at the same bag
+  //    times on every run, and the front end goes on meanwhile.
+  //  - kHere: in the calling thread.
+  // True if one ran or started.
+  enum class RefineIn { kBackground, kStaged, kHere };
   bool HasRefiner() const { return refiner_ != nullptr; }
-  bool MaybeRefine(const OnlineSolution& solution, double now_s, bool force, bool background,
+  bool MaybeRefine(const OnlineSolution& solution, double now_s, bool force, RefineIn where,
                    std::function<void(bool)> done = nullptr);
+  // Waits for a staged refinement and takes what it found.
+  void CommitRefinement();
   void WaitForRefinement();
   KeyframeRefinerStats RefinerStats() const;
   // After the averager's Reset(): the corrections and correspondences held go.

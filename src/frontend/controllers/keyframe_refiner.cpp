@@ -133,6 +133,10 @@ void KeyframeRefiner::SelectWindow(const OnlineSolution& cameras, std::vector<Ed
 }
 
 bool KeyframeRefiner::Refine(const OnlineSolution& cameras, const RigCaptures& rig) {
+  return Run(cameras, rig, false);
+}
+
+bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig, bool staged) {
   std::lock_guard<std::mutex> run(run_mutex_);
   const auto start = std::chrono::steady_clock::now();
   std::vector<EdgeCorrespondences> edges;
@@ -233,9 +237,29 @@ bool KeyframeRefiner::Refine(const OnlineSolution& cameras, const RigCaptures& r
     report += why.str();
   }
 
+  const double seconds = SecondsSince(start);
+  const std::uint64_t sequence = cameras.sequence;
+  // What the run found, taken under mutex_: now, or at Commit.
+  auto take = [this, seconds, sequence, ok, report = std::move(report), keys = std::move(keys),
+               corrections = std::move(corrections), moved_deg = std::move(moved_deg), largest, held_back,
+               oldest_kept]() mutable {
+    return Take(seconds, sequence, ok, report, keys, corrections, &moved_deg, largest, held_back, oldest_kept);
+  };
   std::lock_guard<std::mutex> lock(mutex_);
+  if (staged) {
+    staged_ = std::move(take);
+    return ok;
+  }
+  return take();
+}
+
+bool KeyframeRefiner::Take(double seconds, std::uint64_t sequence, bool ok, const std::string& report,
+                           const std::vector<KeyframeKey>& keys, const std::map<ViewId, Eigen::Matrix3d>& corrections,
+                           std::vector<double>* moved, double largest, std::size_t held_back,
+                           const std::optional<KeyframeKey>& oldest_kept) {
+  std::vector<double>& moved_deg = *moved;
   ++stats_.runs;
-  stats_.times.Add(SecondsSince(start));
+  stats_.times.Add(seconds);
   stats_.last_ok = ok;
   stats_.last_report = report;
   if (!ok) {
@@ -244,7 +268,7 @@ bool KeyframeRefiner::Refine(const OnlineSolution& cameras, const RigCaptures& r
   }
   for (const auto& [id, c] : corrections) corrections_[keys[id]] = c;
   ++stats_.applied;
-  stats_.solution_sequence = cameras.sequence;
+  stats_.solution_sequence = sequence;
   stats_.corrected_keyframes = corrections_.size();
   std::nth_element(moved_deg.begin(), moved_deg.begin() + moved_deg.size() / 2, moved_deg.end());
   stats_.median_correction_deg = moved_deg.empty() ? 0.0 : moved_deg[moved_deg.size() / 2];
@@ -267,13 +291,13 @@ bool KeyframeRefiner::Refine(const OnlineSolution& cameras, const RigCaptures& r
 }
 
 bool KeyframeRefiner::RefineInBackground(std::shared_ptr<const OnlineSolution> cameras, RigCaptures rig,
-                                         std::function<void(bool)> done) {
+                                         std::function<void(bool)> done, bool staged) {
   if (running_.exchange(true)) return false;
   if (background_.valid()) background_.get();  // finished: running_ was false
   background_ = std::async(std::launch::async, [this, cameras = std::move(cameras), rig = std::move(rig),
-                                                done = std::move(done)] {
+                                                done = std::move(done), staged] {
     LowerThisThreadsPriority(options_.background_niceness);
-    const bool ok = Refine(*cameras, rig);
+    const bool ok = Run(*cameras, rig, staged);
     // Before running_ falls: a refinement started from `done`, or waiting
     // in the starting thread for this one's end, would deadlock.
     if (done) done(ok);
@@ -286,10 +310,20 @@ void KeyframeRefiner::Wait() {
   if (background_.valid()) background_.get();
 }
 
+bool KeyframeRefiner::Commit() {
+  Wait();
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!staged_) return false;
+  const bool taken = staged_();
+  staged_ = nullptr;
+  return taken;
+}
+
 void KeyframeRefiner::Reset() {
   std::lock_guard<std::mutex> lock(mutex_);
   edges_.clear();
   corrections_.clear();
+  staged_ = nullptr;
   stats_.edges_held = 0;
   stats_.bytes = 0;
   stats_.corrected_keyframes = 0;

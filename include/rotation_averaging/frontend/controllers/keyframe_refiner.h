@@ -129,13 +129,19 @@ class KeyframeRefiner {
   // knows no extrinsics, sees each only through its own camera's tracks.
   bool Refine(const OnlineSolution& cameras, const RigCaptures& rig = {});
   // The same on a thread of its own, then `done` (from that thread). False,
-  // and nothing started, while one is under way.
+  // and nothing started, while one is under way. With `staged`, what it
+  // finds (corrections, counters, the edges let go) waits for Commit:
+  // a caller that must publish the same on every run (the replay) decides
+  // when it lands, and not the clock when the thread ends.
   bool RefineInBackground(std::shared_ptr<const OnlineSolution> cameras, RigCaptures rig,
-                          std::function<void(bool)> done);
+                          std::function<void(bool)> done, bool staged = false);
   bool Running() const { return running_; }
   // Waits for a background refinement under way; from the thread that
   // starts them.
   void Wait();
+  // Waits for a staged refinement and takes what it found; true if it
+  // changed the corrections. Nothing staged: false.
+  bool Commit();
 
   // Lets go of the correspondences and corrections held (the counters stay).
   void Reset();
@@ -172,6 +178,14 @@ class KeyframeRefiner {
   void SelectWindow(const OnlineSolution& cameras, std::vector<EdgeCorrespondences>* edges,
                     std::vector<KeyframeKey>* keys, std::optional<KeyframeKey>* oldest) const;
   static std::size_t EdgeBytes(const EdgeCorrespondences& e);
+  // Refine's work; with `staged`, its last step (under mutex_: what it
+  // found taken, the counters, the edges let go) is left in staged_.
+  bool Run(const OnlineSolution& cameras, const RigCaptures& rig, bool staged);
+  // Run's last step, under mutex_.
+  bool Take(double seconds, std::uint64_t sequence, bool ok, const std::string& report,
+            const std::vector<KeyframeKey>& keys, const std::map<ViewId, Eigen::Matrix3d>& corrections,
+            std::vector<double>* moved_deg, double largest, std::size_t held_back,
+            const std::optional<KeyframeKey>& oldest_kept);
 
   const KeyframeRefinerOptions options_;
   mutable std::mutex mutex_;  // edges_, corrections_, stats_
@@ -181,6 +195,7 @@ class KeyframeRefiner {
   std::mutex run_mutex_;  // one refinement at a time
   std::atomic<bool> running_{false};
   std::future<void> background_;  // of the thread that starts them
+  std::function<bool()> staged_;   // under mutex_; run under it by Commit
 };
 
 }  // namespace rotation_averaging
