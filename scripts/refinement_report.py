@@ -106,6 +106,36 @@ share of keyframes within chi-square's 95% bound; refinements: applied / run; ti
                 line = row(out, "euroc", r, error="%.4f" % float(np.median(errors)))
                 if line:
                     print(line)
+    pairs = []
+    for k in (1, 2):
+        pool, held = read(out, "openblas_pool_%d" % k), read(out, "openblas_held_%d" % k)
+        if pool and held:
+            pairs.append((k, pool, held))
+    if pairs:
+        print("""
+## OpenBLAS
+
+Debian's BLAS is OpenBLAS's pthread build: it splits each call over a pool of worker threads, one per core,
+and a waiting worker spins on sched_yield for a while before it sleeps. The bundle adjustment's sparse Schur
+solves (CHOLMOD's supernodes) call it every iteration, and a profile of this replay showed a worker spinning
+for 15% of the process's samples. The package holds OpenBLAS to one thread (`util/blas_threads.h`; a thread
+count the user sets is left alone). The demo bag with the refinement on and the front end on one thread, so
+that the second core is the pool's: OpenBLAS's pool (`OPENBLAS_NUM_THREADS=2`) against held to one thread,
+alternated twice in this run (this machine is shared: compare within a pair):
+""")
+        print("| pair | CPU (s), pool | CPU (s), held | CPU saved | wall (s), pool | wall (s), held |")
+        print("|---|---|---|---|---|---|")
+        for k, pool, held in pairs:
+            cpu_pool = float(value(pool, r"CPU time: ([\d.]+) s", "nan"))
+            cpu_held = float(value(held, r"CPU time: ([\d.]+) s", "nan"))
+            print("| %d | %.1f | %.1f | %.0f%% | %s | %s |" % (
+                k, cpu_pool, cpu_held, 100.0 * (cpu_pool - cpu_held) / cpu_pool,
+                value(pool, r"wall time: ([\d.]+) s", "-"), value(held, r"wall time: ([\d.]+) s", "-")))
+        same = all(open(os.path.join(out, "openblas_held_%d" % k, "orientations.csv")).read() ==
+                   open(os.path.join(out, "openblas_pool_%d" % k, "orientations.csv")).read() for k, _, _ in pairs)
+        print("\nThe orientations of the two are %s." % ("the same, bit for bit" if same else
+                                                          "different in their last bits: a product split over "
+                                                          "two threads sums in another order"))
     print("""
 The replays' summaries (`refinement, latest:` gives the last adjustment's report) are in
 build/benchmark_refinement/*.txt.""")

@@ -9,6 +9,7 @@
 
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/util/blas_threads.h"
 #include "rotation_averaging/util/time_distribution.h"
 
 namespace rotation_averaging {
@@ -24,6 +25,8 @@ KeyframePipeline::KeyframePipeline(const PipelineConfig& config)
       output_(config),
       rig_(config.rig),
       selector_(config.selection) {
+  // Before the first image: OpenCV's LAPACK and the refinement's solves.
+  HoldOpenBlasToOneThread();
   config_.frontend.focal_monitor.enabled = config_.focal_calibration != FocalCalibrationMode::kOff;
   config_.frontend.focal_monitor.hold_for_correction = config_.focal_calibration == FocalCalibrationMode::kApply;
   config_.frontend.focal_monitor.focal.num_threads = config_.frontend.num_threads;

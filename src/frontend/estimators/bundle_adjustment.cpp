@@ -12,6 +12,8 @@
 #include <sstream>
 #include <tuple>
 
+#include "rotation_averaging/util/blas_threads.h"
+
 namespace rotation_averaging {
 namespace {
 
@@ -416,6 +418,7 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
                                          const BundleAdjustmentOptions& options, ViewOrientations* orientations,
                                          BundleAdjustmentSummary* summary,
                                          std::unordered_map<ViewId, Eigen::Vector3d>* centres) {
+  HoldOpenBlasToOneThread();  // Ceres' sparse Schur solves call it every iteration
   const auto start = std::chrono::steady_clock::now();
   *summary = BundleAdjustmentSummary();
   auto finish = [&](bool ok, const std::string& status) {

@@ -1,0 +1,25 @@
+// OpenBLAS held to one thread. Debian's BLAS is OpenBLAS's pthread build,
+// which splits each call over a pool of worker threads, one per core, that
+// it starts when it loads. The package's work is many small dense products
+// (CHOLMOD's supernodes under Ceres' bundle adjustment and the averaging's
+// factorisations, OpenCV's LAPACK), threaded already where it pays (the
+// front end's pool): split further, the workers mostly wait, and a waiting
+// worker spins on sched_yield, a core each, for a while before it sleeps,
+// taking the CPU the rest of a robot's stack needs. And a product split over
+// another number of threads differs in its last bits: the results would
+// depend on the machine's core count. Measured on the replay of the demo bag
+// (results/refinement.md, "OpenBLAS").
+#ifndef ROTATION_AVERAGING_UTIL_BLAS_THREADS_H_
+#define ROTATION_AVERAGING_UTIL_BLAS_THREADS_H_
+
+namespace rotation_averaging {
+
+// Once per process: OpenBLAS, if the process has it in its global scope,
+// runs every later call on the calling thread, unless the user set a thread
+// count (OPENBLAS_NUM_THREADS or GOTO_NUM_THREADS). True if OpenBLAS was
+// found and held (or the user's count left alone); false without OpenBLAS.
+bool HoldOpenBlasToOneThread();
+
+}  // namespace rotation_averaging
+
+#endif  // ROTATION_AVERAGING_UTIL_BLAS_THREADS_H_
