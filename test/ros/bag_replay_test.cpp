@@ -64,6 +64,26 @@ class BagReplay : public ::testing::Test {
     return o;
   }
 
+  // The rendered two-camera rig, 16 captures at 320x240, as a bag (its
+  // ground truth inside), and a config of the node's parameters for it with
+  // `extra` (YAML lines) added; the bag's and the config's paths.
+  std::pair<std::string, std::string> WriteRigBagAndConfig(const std::string& extra = "") {
+    RigSceneOptions scene_options;
+    scene_options.num_captures = 16;
+    scene_options.WithWidth(320);
+    const RigScene scene(scene_options);
+    const std::string bag = TempDir() + "/rig.bag";
+    NamedOrientations truth;
+    std::string error;
+    EXPECT_TRUE(WriteRigSceneBag(scene, bag, /*compressed=*/false, &truth, &error)) << error;
+    const std::string config = TempDir() + "/rig.yaml";
+    WriteText(config,
+              "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
+              "max_features: 1000\nretrieval_sample: 150\nmax_loop_candidates: 2\n" +
+                  extra);
+    return {bag, config};
+  }
+
   // A bag of relative poses of a ring of views with known orientations,
   // one outlier and loop closures; returns the ground truth.
   NamedOrientations WriteRelativePoseBag(const std::string& path, int views) {
@@ -100,18 +120,8 @@ class BagReplay : public ::testing::Test {
 };
 
 TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
-  RigSceneOptions scene_options;
-  scene_options.num_captures = 16;
-  scene_options.WithWidth(320);
-  const RigScene scene(scene_options);
-  const std::string bag = TempDir() + "/rig.bag";
-  NamedOrientations truth;
-  std::string error;
-  ASSERT_TRUE(WriteRigSceneBag(scene, bag, /*compressed=*/false, &truth, &error)) << error;
-  const std::string config = TempDir() + "/rig.yaml";
-  WriteText(config,
-            "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
-            "max_features: 1000\nretrieval_sample: 150\nmax_loop_candidates: 2\nsolve_period: 2.0\n");
+  const auto [bag, config] = WriteRigBagAndConfig("solve_period: 2.0\n");
+  ASSERT_FALSE(HasFailure());
 
   ReplayOptions o = Options(bag, "rig1");
   o.config_path = config;
@@ -175,19 +185,8 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
 // those between refinements too, is the same bit for bit on one thread as
 // on three, whenever each refinement's thread ends.
 TEST_F(BagReplay, RefinementsDuringTheBagLandAtTheSameBagTimesOnEveryRun) {
-  RigSceneOptions scene_options;
-  scene_options.num_captures = 16;
-  scene_options.WithWidth(320);
-  const RigScene scene(scene_options);
-  const std::string bag = TempDir() + "/rig.bag";
-  NamedOrientations truth;
-  std::string error;
-  ASSERT_TRUE(WriteRigSceneBag(scene, bag, /*compressed=*/false, &truth, &error)) << error;
-  const std::string config = TempDir() + "/rig.yaml";
-  WriteText(config,
-            "image_topics: [\"/cam_front/image_raw\", \"/cam_left/image_raw\"]\n"
-            "max_features: 1000\nretrieval_sample: 150\nmax_loop_candidates: 2\nsolve_period: 1.0\n"
-            "refinement_period_s: 3.0\n");
+  const auto [bag, config] = WriteRigBagAndConfig("solve_period: 1.0\nrefinement_period_s: 3.0\n");
+  ASSERT_FALSE(HasFailure());
   auto messages = [](const std::string& path) {
     std::vector<std::string> out;
     rosbag::Bag b(path, rosbag::bagmode::Read);
