@@ -900,6 +900,19 @@ TEST_F(BagReplay, ArrayLengthAskingForTerabytesIsDropped) {
 
 // rotation_averaging_images_to_bag names its outputs as outputs and refuses
 // to write over any of its inputs.
+// Frames missing from a camera's stream in the bag (lost before it was
+// recorded) are reported, and nothing is said when none are.
+TEST(ReplaySummary, FramesMissingFromTheBagAreReported) {
+  ReplayResult r;
+  r.images_seen = 100;
+  r.keyframe_images = 10;
+  r.images_skipped = 90;
+  const std::string line = "images missing from the bag by their cameras' stamps (lost before recording): 3";
+  EXPECT_EQ(r.Summary().find("images missing"), std::string::npos) << r.Summary();
+  r.images_missing = 3;
+  EXPECT_NE(r.Summary().find(line), std::string::npos) << r.Summary();
+}
+
 TEST(ImagesToBag, NeverOverwritesAnInput) {
   const std::string dir = TempDir() + "/images_to_bag";
   std::filesystem::create_directories(dir + "/images");
