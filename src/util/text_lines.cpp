@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <charconv>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -76,6 +77,18 @@ bool ParseDouble(std::string_view token, double* value) { return ParseWhole(toke
 bool ParseUint64(std::string_view token, std::uint64_t* value) { return ParseWhole(token, false, value); }
 
 bool ParseInt(std::string_view token, int* value) { return ParseWhole(token, true, value); }
+
+bool ParseQuaternion(const std::string_view* first, double q[4]) {
+  for (int k = 0; k < 4; ++k) {
+    if (!ParseDouble(first[k], &q[k])) return false;
+  }
+  return true;
+}
+
+bool IsUnitQuaternion(const double q[4]) {
+  const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  return std::isfinite(norm) && std::abs(norm - 1.0) <= 1e-6;
+}
 
 void AppendDouble(std::string* out, double value) {
   char buffer[32];

@@ -25,6 +25,12 @@ void SplitTokens(std::string_view line, std::vector<std::string_view>* tokens, b
 bool ParseDouble(std::string_view token, double* value);
 bool ParseUint64(std::string_view token, std::uint64_t* value);
 bool ParseInt(std::string_view token, int* value);
+// A rotation's quaternion as four tokens, qw qx qy qz from `first`: false if
+// one is not a number.
+bool ParseQuaternion(const std::string_view* first, double q[4]);
+// Of unit norm within 1e-6: the package's files refuse other quaternions
+// ("not a unit quaternion") rather than normalise them.
+bool IsUnitQuaternion(const double q[4]);
 
 // Appends the shortest decimal text that reads back as exactly `value`
 // (std::to_chars): exact round trips, several times faster than iostreams.

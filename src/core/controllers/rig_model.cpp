@@ -243,12 +243,10 @@ bool RigModel::ReadFile(const std::string& path, Saved* saved, std::string* erro
       double q[4];
       int in_rig = 0;
       if (tokens.size() != 8 || !ParseInt(tokens[2], &in_rig) || (in_rig != 0 && in_rig != 1) ||
-          !ParseDouble(tokens[4], &q[0]) || !ParseDouble(tokens[5], &q[1]) || !ParseDouble(tokens[6], &q[2]) ||
-          !ParseDouble(tokens[7], &q[3])) {
+          !ParseQuaternion(&tokens[4], q)) {
         return refuse("expected 'CAMERA frame in_rig rig_frame qw qx qy qz'");
       }
-      const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-      if (!std::isfinite(norm) || std::abs(norm - 1.0) > 1e-6) return refuse("not a unit quaternion");
+      if (!IsUnitQuaternion(q)) return refuse("not a unit quaternion");
       Camera c;
       c.in_rig = in_rig == 1;
       if (c.in_rig) c.rig_frame = std::string(tokens[3]);

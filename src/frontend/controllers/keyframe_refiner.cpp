@@ -372,13 +372,11 @@ bool KeyframeRefiner::ReadCorrections(const std::string& path, std::map<Keyframe
     std::uint64_t stamp = 0;
     double q[4];
     if (tokens.size() != 7 || tokens[0] != "CORRECTION" || !ParseUint64(tokens[2], &stamp) ||
-        !ParseDouble(tokens[3], &q[0]) || !ParseDouble(tokens[4], &q[1]) || !ParseDouble(tokens[5], &q[2]) ||
-        !ParseDouble(tokens[6], &q[3])) {
+        !ParseQuaternion(&tokens[3], q)) {
       *why = "expected 'CORRECTION frame_id stamp_ns qw qx qy qz'";
       return false;
     }
-    const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-    if (!std::isfinite(norm) || std::abs(norm - 1.0) > 1e-6) {
+    if (!IsUnitQuaternion(q)) {
       *why = "not a unit quaternion";
       return false;
     }
