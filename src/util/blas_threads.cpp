@@ -7,16 +7,18 @@
 
 namespace rotation_averaging {
 
+bool HoldOpenBlasToOneThreadIn(void* library) {
+  if (std::getenv("OPENBLAS_NUM_THREADS") || std::getenv("GOTO_NUM_THREADS")) return false;
+  const auto set = reinterpret_cast<void (*)(int)>(dlsym(library, "openblas_set_num_threads"));
+  if (!set) return false;
+  set(1);
+  return true;
+}
+
 bool HoldOpenBlasToOneThread() {
   static std::once_flag once;
   static bool held = false;
-  std::call_once(once, [] {
-    const auto set = reinterpret_cast<void (*)(int)>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
-    if (!set) return;
-    held = true;
-    if (std::getenv("OPENBLAS_NUM_THREADS") || std::getenv("GOTO_NUM_THREADS")) return;
-    set(1);
-  });
+  std::call_once(once, [] { held = HoldOpenBlasToOneThreadIn(RTLD_DEFAULT); });
   return held;
 }
 

@@ -16,6 +16,11 @@ TEST(BlasThreads, OpenBlasIsHeldToOneThread) {
   if (!blas) GTEST_SKIP() << "no libopenblas.so.0: " << dlerror();
   const auto get = reinterpret_cast<int (*)()>(dlsym(blas, "openblas_get_num_threads"));
   ASSERT_NE(get, nullptr);
+  // A thread count the user set is left alone.
+  const int before = get();
+  setenv("OPENBLAS_NUM_THREADS", "2", 1);
+  EXPECT_FALSE(HoldOpenBlasToOneThreadIn(blas));
+  EXPECT_EQ(get(), before);
   unsetenv("OPENBLAS_NUM_THREADS");
   unsetenv("GOTO_NUM_THREADS");
   EXPECT_TRUE(HoldOpenBlasToOneThread());

@@ -14,10 +14,14 @@
 
 namespace rotation_averaging {
 
-// Once per process: OpenBLAS, if the process has it in its global scope,
-// runs every later call on the calling thread, unless the user set a thread
-// count (OPENBLAS_NUM_THREADS or GOTO_NUM_THREADS). True if OpenBLAS was
-// found and held (or the user's count left alone); false without OpenBLAS.
+// OpenBLAS, looked up in `library` (a dlopen handle, searched with its
+// dependencies; RTLD_DEFAULT: the process's global scope), runs every later
+// call on the calling thread, unless the user set a thread count
+// (OPENBLAS_NUM_THREADS or GOTO_NUM_THREADS). True if it was found and is
+// held now; false without OpenBLAS there, or with the user's count left alone.
+bool HoldOpenBlasToOneThreadIn(void* library);
+// The same in the process's global scope, once per process (the first
+// call's answer).
 bool HoldOpenBlasToOneThread();
 
 }  // namespace rotation_averaging

@@ -3,10 +3,11 @@
 #include <dlfcn.h>
 
 #include <atomic>
-#include <cstdlib>
 #include <iostream>
 #include <mutex>
 #include <string>
+
+#include "rotation_averaging/util/blas_threads.h"
 
 namespace rotation_averaging {
 namespace {
@@ -21,18 +22,13 @@ std::atomic<const Backends*> loaded{nullptr};
 // pool of worker threads that it starts when it loads; on the factors of
 // pose graphs the threads cost more than they bring (the real pose graphs
 // solved several times faster with one thread), and the solver is
-// single-threaded by design. So OpenBLAS, looked up in `library` and its dependencies (other
-// BLAS have no such calls), is held to one thread, unless the user set a
-// thread count (OPENBLAS_NUM_THREADS, GOTO_NUM_THREADS). With `stop_pool`
-// the workers it started are shut down as well (idle workers spin on
-// sched_yield for a while before they sleep, a core each): only safe while
-// no other thread can be calling BLAS.
-void HoldOpenBlasToOneThread(void* library, bool stop_pool) {
-  if (std::getenv("OPENBLAS_NUM_THREADS") || std::getenv("GOTO_NUM_THREADS")) return;
-  const auto set = reinterpret_cast<void (*)(int)>(dlsym(library, "openblas_set_num_threads"));
-  if (!set) return;
-  set(1);
-  if (!stop_pool) return;
+// single-threaded by design. So OpenBLAS, looked up in `library` and its
+// dependencies (other BLAS have no such calls), is held to one thread
+// (util/blas_threads.h). With `stop_pool` the workers it started are shut
+// down as well (idle workers spin on sched_yield for a while before they
+// sleep, a core each): only safe while no other thread can be calling BLAS.
+void HoldBackendsBlasToOneThread(void* library, bool stop_pool) {
+  if (!HoldOpenBlasToOneThreadIn(library) || !stop_pool) return;
   if (const auto shutdown = reinterpret_cast<int (*)()>(dlsym(library, "blas_thread_shutdown_"))) shutdown();
 }
 
@@ -78,7 +74,7 @@ const Backends* Load() {
   }
   // If OpenBLAS came in with the library just now, no other thread can be
   // using its pool yet: stopping the pool is safe.
-  HoldOpenBlasToOneThread(handle, /*stop_pool=*/!blas_was_loaded);
+  HoldBackendsBlasToOneThread(handle, /*stop_pool=*/!blas_was_loaded);
   return entry();
 }
 
