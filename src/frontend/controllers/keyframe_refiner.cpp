@@ -237,48 +237,47 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
     report += why.str();
   }
 
-  const double seconds = SecondsSince(start);
-  const std::uint64_t sequence = cameras.sequence;
-  // What the run found, taken under mutex_: now, or at Commit.
-  auto take = [this, seconds, sequence, ok, report = std::move(report), keys = std::move(keys),
-               corrections = std::move(corrections), moved_deg = std::move(moved_deg), largest, held_back,
-               oldest_kept]() mutable {
-    return Take(seconds, sequence, ok, report, keys, corrections, &moved_deg, largest, held_back, oldest_kept);
-  };
+  Outcome found;
+  found.seconds = SecondsSince(start);
+  found.sequence = cameras.sequence;
+  found.ok = ok;
+  found.report = std::move(report);
+  for (const auto& [id, c] : corrections) found.corrections.emplace(keys[id], c);
+  std::nth_element(moved_deg.begin(), moved_deg.begin() + moved_deg.size() / 2, moved_deg.end());
+  found.median_deg = moved_deg.empty() ? 0.0 : moved_deg[moved_deg.size() / 2];
+  found.largest_deg = largest;
+  found.held_back = held_back;
+  found.oldest_kept = oldest_kept;
   std::lock_guard<std::mutex> lock(mutex_);
   if (staged) {
-    staged_ = std::move(take);
+    staged_ = std::move(found);
     return ok;
   }
-  return take();
+  return Take(found);
 }
 
-bool KeyframeRefiner::Take(double seconds, std::uint64_t sequence, bool ok, const std::string& report,
-                           const std::vector<KeyframeKey>& keys, const std::map<ViewId, Eigen::Matrix3d>& corrections,
-                           std::vector<double>* moved, double largest, std::size_t held_back,
-                           const std::optional<KeyframeKey>& oldest_kept) {
-  std::vector<double>& moved_deg = *moved;
+bool KeyframeRefiner::Take(const Outcome& found) {
   ++stats_.runs;
-  stats_.times.Add(seconds);
-  stats_.last_ok = ok;
-  stats_.last_report = report;
-  if (!ok) {
+  stats_.times.Add(found.seconds);
+  stats_.last_ok = found.ok;
+  stats_.last_report = found.report;
+  if (!found.ok) {
     ++stats_.failed;
     return false;
   }
-  for (const auto& [id, c] : corrections) corrections_[keys[id]] = c;
+  for (const auto& [key, c] : found.corrections) corrections_[key] = c;
   ++stats_.applied;
-  stats_.solution_sequence = sequence;
+  stats_.solution_sequence = found.sequence;
   stats_.corrected_keyframes = corrections_.size();
-  std::nth_element(moved_deg.begin(), moved_deg.begin() + moved_deg.size() / 2, moved_deg.end());
-  stats_.median_correction_deg = moved_deg.empty() ? 0.0 : moved_deg[moved_deg.size() / 2];
-  stats_.max_correction_deg = largest;
-  stats_.held_back = held_back;
+  stats_.median_correction_deg = found.median_deg;
+  stats_.max_correction_deg = found.largest_deg;
+  stats_.held_back = found.held_back;
   // Edges both of whose keyframes are older than the window will not be
   // refined again: let them go.
-  if (oldest_kept) {
+  if (found.oldest_kept) {
+    const KeyframeKey& oldest_kept = *found.oldest_kept;
     for (auto it = edges_.begin(); it != edges_.end();) {
-      if (Newer(*oldest_kept, it->second.keyframe1) && Newer(*oldest_kept, it->second.keyframe2)) {
+      if (Newer(oldest_kept, it->second.keyframe1) && Newer(oldest_kept, it->second.keyframe2)) {
         stats_.bytes -= EdgeBytes(it->second.points);
         it = edges_.erase(it);
       } else {
@@ -314,8 +313,8 @@ bool KeyframeRefiner::Commit() {
   Wait();
   std::lock_guard<std::mutex> lock(mutex_);
   if (!staged_) return false;
-  const bool taken = staged_();
-  staged_ = nullptr;
+  const bool taken = Take(*staged_);
+  staged_.reset();
   return taken;
 }
 
@@ -323,7 +322,7 @@ void KeyframeRefiner::Reset() {
   std::lock_guard<std::mutex> lock(mutex_);
   edges_.clear();
   corrections_.clear();
-  staged_ = nullptr;
+  staged_.reset();
   stats_.edges_held = 0;
   stats_.bytes = 0;
   stats_.corrected_keyframes = 0;

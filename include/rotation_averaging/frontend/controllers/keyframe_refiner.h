@@ -178,14 +178,23 @@ class KeyframeRefiner {
   void SelectWindow(const OnlineSolution& cameras, std::vector<EdgeCorrespondences>* edges,
                     std::vector<KeyframeKey>* keys, std::optional<KeyframeKey>* oldest) const;
   static std::size_t EdgeBytes(const EdgeCorrespondences& e);
-  // Refine's work; with `staged`, its last step (under mutex_: what it
-  // found taken, the counters, the edges let go) is left in staged_.
+  // What one refinement found, before it is taken.
+  struct Outcome {
+    double seconds = 0.0;
+    std::uint64_t sequence = 0;  // of the solution refined
+    bool ok = false;
+    std::string report;
+    std::map<KeyframeKey, Eigen::Matrix3d> corrections;
+    double median_deg = 0.0, largest_deg = 0.0;  // of the corrections
+    std::size_t held_back = 0;
+    std::optional<KeyframeKey> oldest_kept;  // the window's oldest, when keyframes are older
+  };
+  // Refine's work; with `staged`, what it found is left in staged_ for
+  // Commit, else taken at once.
   bool Run(const OnlineSolution& cameras, const RigCaptures& rig, bool staged);
-  // Run's last step, under mutex_.
-  bool Take(double seconds, std::uint64_t sequence, bool ok, const std::string& report,
-            const std::vector<KeyframeKey>& keys, const std::map<ViewId, Eigen::Matrix3d>& corrections,
-            std::vector<double>* moved_deg, double largest, std::size_t held_back,
-            const std::optional<KeyframeKey>& oldest_kept);
+  // Under mutex_: the corrections, the counters, the edges let go. True if
+  // the corrections were taken.
+  bool Take(const Outcome& found);
 
   const KeyframeRefinerOptions options_;
   mutable std::mutex mutex_;  // edges_, corrections_, stats_
@@ -195,7 +204,7 @@ class KeyframeRefiner {
   std::mutex run_mutex_;  // one refinement at a time
   std::atomic<bool> running_{false};
   std::future<void> background_;  // of the thread that starts them
-  std::function<bool()> staged_;   // under mutex_; run under it by Commit
+  std::optional<Outcome> staged_;  // under mutex_; taken by Commit
 };
 
 }  // namespace rotation_averaging
