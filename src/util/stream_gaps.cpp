@@ -23,9 +23,9 @@ std::uint64_t StreamGaps::Observe(const std::string& camera_name, std::int64_t s
   if (stamp_ns <= camera.last_ns) return 0;
   const std::int64_t gap = stamp_ns - camera.last_ns;
   camera.last_ns = stamp_ns;
+  if (static_cast<double>(gap) > 1e9 * kPauseS) return 0;
   const std::int64_t period = Period(camera);
   std::uint64_t missing = 0;
-  if (static_cast<double>(gap) > 1e9 * kPauseS) return 0;
   if (period > 0 && 2 * gap >= 3 * period) {
     missing = static_cast<std::uint64_t>(std::llround(static_cast<double>(gap) / static_cast<double>(period))) - 1;
     // 1.5 periods rounds to 2: one missing frame.
