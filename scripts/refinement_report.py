@@ -117,8 +117,9 @@ share of keyframes within chi-square's 95% bound; refinements: applied / run; ti
 
 Debian's BLAS is OpenBLAS's pthread build: it splits each call over a pool of worker threads, one per core,
 and a waiting worker spins on sched_yield for a while before it sleeps. The bundle adjustment's sparse Schur
-solves (CHOLMOD's supernodes) call it every iteration, and a profile of this replay showed a worker spinning
-for 15% of the process's samples. The package holds OpenBLAS to one thread (`util/blas_threads.h`; a thread
+solves (CHOLMOD's supernodes) call it every iteration, and a profile of this replay with the pool (`perf record
+-F 200 -g` of `rotation_averaging_replay --bag build/demo/demo_60.bag` with config/demo.yaml and `num_threads: 1`,
+then `perf report --sort pid,sym`) showed a worker spinning on sched_yield for 15% of the process's samples. The package holds OpenBLAS to one thread (`util/blas_threads.h`; a thread
 count the user sets is left alone). The demo bag with the refinement on and the front end on one thread, so
 that the second core is the pool's: OpenBLAS's pool (`OPENBLAS_NUM_THREADS=2`) against held to one thread,
 alternated twice in this run (this machine is shared: compare within a pair):
