@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <algorithm>
+#include <iostream>
 #include <random>
 
 #include "frontend/refinement_test_util.h"
@@ -70,6 +72,109 @@ TEST(BundleAdjustment, TracksPinRotationsBetterThanThePairsAlone) {
     pairwise_sum += MaxErrorDeg(pairwise, scene.truth);
   }
   EXPECT_LT(adjusted_sum, 0.7 * pairwise_sum) << adjusted_sum << " vs " << pairwise_sum;
+}
+
+// NEES of every view but view 0 relative to it, d = Log(R_hat_v R_hat_0^T R_0
+// R_v^T), against `covariance` (Relative, or one model's blocks alone).
+std::vector<double> NeesRelativeToViewZero(const ViewOrientations& estimate, const ViewOrientations& truth,
+                                           const BundleAdjustmentCovariance& covariance, bool pixel_model_alone) {
+  std::vector<double> out;
+  for (const auto& [v, r] : estimate) {
+    if (v == 0) continue;
+    Eigen::Matrix3d c;
+    if (!covariance.Relative(v, 0, &c)) continue;
+    if (pixel_model_alone) {
+      BundleAdjustmentCovariance pixel = covariance;
+      pixel.jackknife.resize(0, 0);
+      EXPECT_TRUE(pixel.Relative(v, 0, &c));
+    }
+    const Eigen::Vector3d d = LogSO3(r * estimate.at(0).transpose() * truth.at(0) * truth.at(v).transpose());
+    out.push_back(d.dot(c.ldlt().solve(d)));
+  }
+  return out;
+}
+
+double Mean(const std::vector<double>& values) {
+  double sum = 0.0;
+  for (double v : values) sum += v;
+  return values.empty() ? 0.0 : sum / values.size();
+}
+
+TEST(BundleAdjustmentCovariance, CalibratedOnIndependentPixelNoise) {
+  // Half a pixel of Gaussian noise, as the edges' sigma says: the pixel
+  // model's NEES is chi-square with 3 degrees of freedom (mean 3). The
+  // jackknife only ever widens it; from 16 cells a view its estimate is
+  // noisy, and the larger of the two in every direction is somewhat wide.
+  std::vector<double> pixel, both;
+  for (std::uint32_t seed = 1; seed <= 30; ++seed) {
+    const Scene scene = MakeScene(6, 0.5, seed);
+    ViewOrientations adjusted = Perturbed(scene.truth, 0.3, 100 + seed);
+    BundleAdjustmentSummary summary;
+    BundleAdjustmentCovariance covariance;
+    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &adjusted, &summary,
+                                                    nullptr, &covariance))
+        << summary.Report();
+    ASSERT_EQ(covariance.index.size(), 6u);
+    EXPECT_NEAR(covariance.variance_factor, 1.0, 0.15);
+    EXPECT_GE(covariance.cells, 6 * 14);
+    EXPECT_LE(covariance.cells, 6 * 16);
+    Eigen::Matrix3d zero;
+    ASSERT_TRUE(covariance.Relative(3, 3, &zero));
+    EXPECT_EQ(zero, Eigen::Matrix3d::Zero());
+    EXPECT_FALSE(covariance.Relative(3, 17, &zero));
+    for (double n : NeesRelativeToViewZero(adjusted, scene.truth, covariance, true)) pixel.push_back(n);
+    for (double n : NeesRelativeToViewZero(adjusted, scene.truth, covariance, false)) both.push_back(n);
+  }
+  std::cout << "mean NEES: pixel model " << Mean(pixel) << ", with the jackknife " << Mean(both) << "\n";
+  ASSERT_EQ(pixel.size(), 150u);
+  EXPECT_GT(Mean(pixel), 2.4);
+  EXPECT_LT(Mean(pixel), 3.6);
+  EXPECT_LE(Mean(both), Mean(pixel) + 1e-12);
+  EXPECT_GT(Mean(both), 1.2);
+}
+
+TEST(BundleAdjustmentCovariance, TheJackknifeWidensWhatARegionOfAnImageShares) {
+  // Each view's keypoints in each cell of a 4 x 4 grid over them share an
+  // offset of 0.1 px (a local bias the pixel model counts as
+  // independent noise), on top of a tenth of a pixel of independent noise.
+  std::vector<double> pixel, both;
+  for (std::uint32_t seed = 1; seed <= 20; ++seed) {
+    Scene scene = MakeScene(6, 0.1, seed);
+    std::mt19937 rng(1000 + seed);
+    std::normal_distribution<double> bias(0.0, 0.1 / kFocal);
+    std::vector<std::vector<Eigen::Vector2d>> offsets(6);
+    std::vector<Eigen::Vector2d> lo(6, Eigen::Vector2d::Constant(INFINITY)), hi(6, -lo[0]);
+    for (int v = 0; v < 6; ++v) {
+      for (int q = 0; q < 16; ++q) offsets[v].push_back(DrawVector2(rng, bias));
+      for (const Eigen::Vector2d& x : scene.keypoints[v]) {
+        lo[v] = lo[v].cwiseMin(x);
+        hi[v] = hi[v].cwiseMax(x);
+      }
+    }
+    const auto shifted = [&](ViewId v, const Eigen::Vector2d& x) {
+      const Eigen::Vector2d f = (x - lo[v]).cwiseQuotient(hi[v] - lo[v]) * 4.0;
+      return x + offsets[v][std::clamp(static_cast<int>(f.y()), 0, 3) * 4 + std::clamp(static_cast<int>(f.x()), 0, 3)];
+    };
+    for (EdgeCorrespondences& e : scene.edges) {
+      for (Eigen::Vector2d& x : e.points1) x = shifted(e.view1, x);
+      for (Eigen::Vector2d& x : e.points2) x = shifted(e.view2, x);
+    }
+    ViewOrientations adjusted = Perturbed(scene.truth, 0.3, 100 + seed);
+    BundleAdjustmentSummary summary;
+    BundleAdjustmentCovariance covariance;
+    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &adjusted, &summary,
+                                                    nullptr, &covariance))
+        << summary.Report();
+    for (double n : NeesRelativeToViewZero(adjusted, scene.truth, covariance, true)) pixel.push_back(n);
+    for (double n : NeesRelativeToViewZero(adjusted, scene.truth, covariance, false)) both.push_back(n);
+  }
+  // The pixel model is over-confident (about 18 here); the jackknife brings
+  // the NEES back to about 3 (its leverage correction matters: without it,
+  // 9).
+  std::cout << "mean NEES: pixel model " << Mean(pixel) << ", with the jackknife " << Mean(both) << "\n";
+  EXPECT_GT(Mean(pixel), 10.0);
+  EXPECT_GT(Mean(both), 2.0);
+  EXPECT_LT(Mean(both), 4.5);
 }
 
 // A camera that turned in place (the front end's rotation-only model: zero

@@ -3,7 +3,9 @@
 #include <ceres/ceres.h>
 #include <ceres/rotation.h>
 
+#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
+#include <Eigen/LU>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -12,6 +14,7 @@
 #include <sstream>
 #include <tuple>
 
+#include "rotation_averaging/frontend/estimators/relative_pose.h"
 #include "rotation_averaging/util/blas_threads.h"
 
 namespace rotation_averaging {
@@ -398,6 +401,244 @@ void DropOutlierObservations(const std::vector<AdjustedView>& views, const Bundl
   *tracks = std::move(kept);
 }
 
+
+// The cell of each observation's view: a grid x grid partition of the
+// bounding box of that view's observations; one index per (view, cell) that
+// holds any, in the order of the views.
+std::vector<std::vector<int>> ObservationCells(const std::vector<AdjustedView>& views, const std::vector<Track>& tracks,
+                                               int grid, int* cells) {
+  const std::size_t n = views.size();
+  std::vector<Eigen::Vector2d> lo(n, Eigen::Vector2d::Constant(INFINITY)), hi(n, Eigen::Vector2d::Constant(-INFINITY));
+  for (const Track& t : tracks) {
+    for (const Observation& o : t.observations) {
+      lo[o.view] = lo[o.view].cwiseMin(o.x);
+      hi[o.view] = hi[o.view].cwiseMax(o.x);
+    }
+  }
+  const auto cell_index = [grid](double v, double low, double high) {
+    return high > low ? std::clamp(static_cast<int>((v - low) / (high - low) * grid), 0, grid - 1) : 0;
+  };
+  const auto key = [&](const Observation& o) {
+    const int v = o.view;
+    return std::make_pair(v, cell_index(o.x.y(), lo[v].y(), hi[v].y()) * grid + cell_index(o.x.x(), lo[v].x(), hi[v].x()));
+  };
+  std::map<std::pair<int, int>, int> numbered;  // in (view, cell) order, whatever order the tracks meet them in
+  for (const Track& t : tracks) {
+    for (const Observation& o : t.observations) numbered.emplace(key(o), 0);
+  }
+  int next = 0;
+  for (auto& [cell, number] : numbered) number = next++;
+  std::vector<std::vector<int>> out(tracks.size());
+  for (std::size_t k = 0; k < tracks.size(); ++k) {
+    for (const Observation& o : tracks[k].observations) out[k].push_back(numbered.at(key(o)));
+  }
+  *cells = next;
+  return out;
+}
+
+// E[w x] / E[x] for x the squared norm of a 2-vector of unit Gaussian noise
+// (chi-square, 2 degrees of freedom) and w = 1 / (1 + x / a^2) Cauchy's
+// weight at scale a: what Cauchy's weights take off the sum of squares of
+// residuals that are all inliers (0.72 at a = 3), so that dividing by it
+// makes the variance factor 1 on noise the pixel model describes.
+double CauchyWeightedSquaresFraction(double a) {
+  const double a2 = a * a, step = 0.01;
+  double weighted = 0.0;
+  for (double x = 0.5 * step; x < 80.0; x += step) weighted += x / (1.0 + x / a2) * 0.5 * std::exp(-0.5 * x) * step;
+  return weighted / 2.0;
+}
+
+Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
+  Eigen::Matrix3d m;
+  m << 0.0, -v.z(), v.y(), v.z(), 0.0, -v.x(), -v.y(), v.x(), 0.0;
+  return m;
+}
+
+// The orientations' joint covariance at the adjusted solution under Cauchy's
+// loss of scale `loss_scale` (see BundleAdjustmentCovariance): the normal
+// equations over each view's left rotation perturbation and centre, each
+// track's point eliminated (its 3 x 3 block), every observation weighted by
+// the loss' rho'. Each group's held view (the first of it, as Adjust holds
+// it) has no variables; the scale, which Adjust holds through one
+// coordinate, is held here by a penalty along the direction that scales
+// every centre about the held one, which no observation sees, so that the
+// rotations' covariance does not depend on which coordinate held it.
+// The jackknife: one Gauss-Newton step from the solution without each cell's
+// observations, S^-1 u_c with u_c the cell's score on the reduced system (a
+// cell is a small part of its view's observations, so its step is a
+// fraction of a standard deviation and the full system's S stands for S
+// without it), C = (g - 1) / g sum_c (m_c - mean)(m_c - mean)^T.
+bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector<Track>& tracks, double loss_scale,
+                       int grid, BundleAdjustmentCovariance* out) {
+  const int n = static_cast<int>(views.size());
+  std::vector<int> group(n);
+  std::iota(group.begin(), group.end(), 0);
+  std::vector<bool> observed(n, false);
+  for (const Track& t : tracks) {
+    for (const Observation& o : t.observations) {
+      Unite(&group, t.observations.front().view, o.view);
+      observed[o.view] = true;
+    }
+  }
+  std::vector<int> var(n, -1), held(n, -1);
+  int dim = 0, groups = 0;
+  for (int k = 0; k < n; ++k) {
+    if (!observed[k]) continue;
+    const int g = Root(&group, k);
+    if (held[g] < 0) {
+      held[g] = k;
+      ++groups;
+      continue;
+    }
+    var[k] = dim;
+    dim += 6;
+  }
+  if (dim == 0) return false;
+  int cells = 0;
+  const std::vector<std::vector<int>> cell_of = ObservationCells(views, tracks, std::max(1, grid), &cells);
+  Eigen::MatrixXd s = Eigen::MatrixXd::Zero(dim, dim);
+  Eigen::MatrixXd scores = grid > 0 ? Eigen::MatrixXd::Zero(dim, cells) : Eigen::MatrixXd();
+  // Each cell's information on its own view's variables (the points
+  // eliminated), for its leverage; and the view's first variable (-1: held).
+  std::vector<Eigen::Matrix<double, 6, 6>> cell_information(grid > 0 ? cells : 0,
+                                                            Eigen::Matrix<double, 6, 6>::Zero());
+  std::vector<int> cell_variable(grid > 0 ? cells : 0, -1);
+  const double a2 = loss_scale * loss_scale;
+  double weighted_squares = 0.0;
+  std::size_t residuals = 0;
+  using Matrix63 = Eigen::Matrix<double, 6, 3>;
+  using Matrix26 = Eigen::Matrix<double, 2, 6>;
+  using Vector6d = Eigen::Matrix<double, 6, 1>;
+  std::vector<Matrix63> b;
+  std::vector<Eigen::Vector3d> gx;
+  std::vector<Eigen::Matrix<double, 6, 6>> a;
+  std::vector<Vector6d> gc;
+  for (std::size_t k = 0; k < tracks.size(); ++k) {
+    const Track& t = tracks[k];
+    const std::size_t m = t.observations.size();
+    b.assign(m, Matrix63::Zero());
+    gx.assign(m, Eigen::Vector3d::Zero());
+    a.assign(m, Eigen::Matrix<double, 6, 6>::Zero());
+    gc.assign(m, Vector6d::Zero());
+    Eigen::Matrix3d hpp = Eigen::Matrix3d::Zero();
+    for (std::size_t i = 0; i < m; ++i) {
+      const Observation& o = t.observations[i];
+      const AdjustedView& v = views[o.view];
+      const Eigen::Vector3d y = v.rotation * (t.point - v.centre);
+      Eigen::Matrix<double, 2, 3> p;
+      p << 1.0 / y.z(), 0.0, -y.x() / (y.z() * y.z()), 0.0, 1.0 / y.z(), -y.y() / (y.z() * y.z());
+      p /= v.sigma;
+      const Eigen::Vector2d r = (y.head<2>() / y.z() - o.x) / v.sigma;
+      const double w = 1.0 / (1.0 + r.squaredNorm() / a2);
+      Matrix26 jc;
+      jc.leftCols<3>() = -p * Skew(y);
+      jc.rightCols<3>() = -p * v.rotation;
+      const Eigen::Matrix<double, 2, 3> jx = p * v.rotation;
+      hpp.noalias() += w * jx.transpose() * jx;
+      b[i] = w * jc.transpose() * jx;
+      gx[i] = w * jx.transpose() * r;
+      a[i] = w * jc.transpose() * jc;
+      gc[i] = w * jc.transpose() * r;
+      weighted_squares += w * r.squaredNorm();
+      residuals += 2;
+    }
+    // (Triangulated with parallax, so not expected: a point the weights leave
+    // undetermined is left out, as if its track were not there.)
+    const Eigen::LDLT<Eigen::Matrix3d> ldlt(hpp);
+    if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 0.0)) continue;
+    const Eigen::Matrix3d hpp_inv = ldlt.solve(Eigen::Matrix3d::Identity());
+    for (std::size_t i = 0; i < m; ++i) {
+      const int vi = var[t.observations[i].view];
+      if (vi < 0) continue;
+      s.block<6, 6>(vi, vi) += a[i];
+      const Matrix63 bi = b[i] * hpp_inv;
+      if (grid > 0) {
+        scores.col(cell_of[k][i]).segment<6>(vi) += gc[i];
+        cell_information[cell_of[k][i]] += a[i] - bi * b[i].transpose();
+        cell_variable[cell_of[k][i]] = vi;
+      }
+      for (std::size_t j = 0; j < m; ++j) {
+        const int vj = var[t.observations[j].view];
+        if (vj >= 0) s.block<6, 6>(vi, vj).noalias() -= bi * b[j].transpose();
+      }
+      if (grid > 0) {
+        for (std::size_t j = 0; j < m; ++j) {
+          scores.col(cell_of[k][j]).segment<6>(vi).noalias() -= bi * gx[j];
+        }
+      }
+    }
+  }
+  // The scale direction of each group, held by a penalty on its own scale.
+  const double penalty = s.trace() / dim;
+  for (int g = 0; g < n; ++g) {
+    if (held[g] < 0) continue;
+    Eigen::VectorXd direction = Eigen::VectorXd::Zero(dim);
+    for (int k = 0; k < n; ++k) {
+      if (var[k] >= 0 && Root(&group, k) == g) {
+        direction.segment<3>(var[k] + 3) = views[k].centre - views[held[g]].centre;
+      }
+    }
+    if (direction.norm() > 0.0) direction.normalize();
+    s.noalias() += penalty * direction * direction.transpose();
+  }
+  const Eigen::LLT<Eigen::MatrixXd> llt(s);
+  if (llt.info() != Eigen::Success) return false;
+  // The rotation rows of S^-1.
+  std::vector<int> rotation_rows;
+  out->index.clear();
+  out->orientations.clear();
+  out->group.clear();
+  for (int k = 0; k < n; ++k) {
+    if (!observed[k]) continue;
+    out->index[views[k].id] = static_cast<int>(out->orientations.size());
+    out->orientations.push_back(views[k].rotation);
+    out->group.push_back(Root(&group, k));
+    rotation_rows.push_back(var[k]);
+  }
+  const int blocks = static_cast<int>(rotation_rows.size());
+  Eigen::MatrixXd selector = Eigen::MatrixXd::Zero(dim, 3 * blocks);
+  for (int k = 0; k < blocks; ++k) {
+    if (rotation_rows[k] >= 0) selector.block<3, 3>(rotation_rows[k], 3 * k).setIdentity();
+  }
+  const Eigen::MatrixXd columns = llt.solve(selector);  // S^-1 restricted to the rotations' columns
+  if (!columns.allFinite()) return false;
+  const double redundancy = static_cast<double>(residuals) - (dim - groups) - 3.0 * tracks.size();
+  out->variance_factor =
+      redundancy >= 10.0 ? weighted_squares / (CauchyWeightedSquaresFraction(loss_scale) * redundancy) : 1.0;
+  out->pixel_model = out->variance_factor * (selector.transpose() * columns);
+  out->cells = grid > 0 ? cells : 0;
+  if (grid > 0 && cells >= 2) {
+    // The step without cell c, (S - D_c)^-1 u_c, with D_c the cell's
+    // information on its own view (its largest part: a cell is a sixteenth
+    // of its view's observations and a small part of any other view's):
+    // by Woodbury, S^-1 u_c + Z_v D_c (I - Z_vv D_c)^-1 Z_v^T u_c, Z = S^-1.
+    // A cell holds a large share of what fixes its own view, so its step
+    // from S alone would understate the spread by that view's leverage.
+    const Eigen::MatrixXd z = llt.solve(Eigen::MatrixXd::Identity(dim, dim));
+    const Eigen::MatrixXd z_scores = z * scores;
+    Eigen::MatrixXd steps = selector.transpose() * z_scores;  // 3 blocks x cells
+    for (int c = 0; c < cells; ++c) {
+      const int v = cell_variable[c];
+      if (v < 0) continue;
+      const Eigen::Matrix<double, 6, 6> d = cell_information[c];
+      const Eigen::Matrix<double, 6, 6> i_minus = Eigen::Matrix<double, 6, 6>::Identity() - z.block<6, 6>(v, v) * d;
+      const Eigen::FullPivLU<Eigen::Matrix<double, 6, 6>> lu(i_minus);
+      if (!lu.isInvertible()) continue;
+      const Vector6d x = d * lu.solve(Vector6d(z_scores.col(c).segment<6>(v)));
+      steps.col(c).noalias() += columns.transpose().middleCols<6>(v) * x;
+    }
+    const Eigen::VectorXd mean = steps.rowwise().mean();
+    const Eigen::MatrixXd centred = steps.colwise() - mean;
+    out->jackknife = (static_cast<double>(cells - 1) / cells) * (centred * centred.transpose());
+  } else {
+    out->jackknife.resize(0, 0);
+  }
+  if (!out->pixel_model.allFinite() || !out->jackknife.allFinite()) {
+    out->index.clear();
+    return false;
+  }
+  return true;
+}
 }  // namespace
 
 std::string BundleAdjustmentSummary::Report() const {
@@ -410,14 +651,38 @@ std::string BundleAdjustmentSummary::Report() const {
       << " dropped), rms reprojection error " << initial_rms_sigmas << " sigma at the centres from the pairs, "
       << final_rms_sigmas << " sigma adjusted, "
       << iterations << " iterations, " << time_s << " s" << (converged ? "" : " (not converged)");
+  if (covariance_time_s > 0.0) out << " (covariance " << covariance_time_s << " s)";
   if (!status.empty()) out << ": " << status;
   return out.str();
+}
+
+bool BundleAdjustmentCovariance::Relative(ViewId view, ViewId reference, Eigen::Matrix3d* covariance) const {
+  const auto a = index.find(view), b = index.find(reference);
+  if (a == index.end() || b == index.end() || group[a->second] != group[b->second]) return false;
+  const int i = a->second, j = b->second;
+  if (i == j) {
+    covariance->setZero();
+    return true;
+  }
+  // d = d_v - R d_r with R = R_hat_v R_hat_r^T: the reference's perturbation
+  // seen in the view's frame.
+  const Eigen::Matrix3d r = orientations[i] * orientations[j].transpose();
+  const auto relative = [&](const Eigen::MatrixXd& joint) -> Eigen::Matrix3d {
+    if (joint.rows() == 0) return Eigen::Matrix3d::Zero();
+    const Eigen::Matrix3d vr = joint.block<3, 3>(3 * i, 3 * j);
+    const Eigen::Matrix3d c = joint.block<3, 3>(3 * i, 3 * i) - vr * r.transpose() - r * vr.transpose() +
+                              r * joint.block<3, 3>(3 * j, 3 * j) * r.transpose();
+    return 0.5 * (c + c.transpose());
+  };
+  *covariance = LoewnerMax(relative(pixel_model), relative(jackknife));
+  return covariance->allFinite();
 }
 
 bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>& edges,
                                          const BundleAdjustmentOptions& options, ViewOrientations* orientations,
                                          BundleAdjustmentSummary* summary,
-                                         std::unordered_map<ViewId, Eigen::Vector3d>* centres) {
+                                         std::unordered_map<ViewId, Eigen::Vector3d>* centres,
+                                         BundleAdjustmentCovariance* covariance) {
   HoldOpenBlasToOneThread();  // Ceres' sparse Schur solves call it every iteration
   const auto start = std::chrono::steady_clock::now();
   *summary = BundleAdjustmentSummary();
@@ -480,6 +745,15 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   if (centres) {
     centres->clear();
     for (const AdjustedView& v : views) (*centres)[v.id] = v.centre;
+  }
+  if (covariance) {
+    const auto covariance_start = std::chrono::steady_clock::now();
+    *covariance = BundleAdjustmentCovariance();
+    if (!ComputeCovariance(views, tracks, scale, options.covariance_cell_grid, covariance)) {
+      *covariance = BundleAdjustmentCovariance();
+    }
+    summary->covariance_time_s =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - covariance_start).count();
   }
   return finish(true, summary->converged ? "" : second.message);
 }

@@ -144,19 +144,6 @@ int RefineSampson(const std::vector<Eigen::Vector2d>& points1, const std::vector
   return iterations;
 }
 
-// The smallest covariance at least as large as both a and b in every
-// direction: b whitened by a, its eigenvalues raised to 1.
-Eigen::Matrix3d LoewnerMax(const Eigen::Matrix3d& a, const Eigen::Matrix3d& b) {
-  const Eigen::LLT<Eigen::Matrix3d> llt(a);
-  if (llt.info() != Eigen::Success || !b.allFinite()) return a;
-  const Eigen::Matrix3d l = llt.matrixL();
-  const Eigen::Matrix3d l_inv = l.inverse();
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(l_inv * b * l_inv.transpose());
-  const Eigen::Matrix3d out = l * eig.eigenvectors() * eig.eigenvalues().cwiseMax(1.0).asDiagonal() *
-                              eig.eigenvectors().transpose() * l.transpose();
-  return 0.5 * (out + out.transpose());
-}
-
 // Delete-one-cell jackknife covariance of the rotation: the inliers grouped by
 // the cell of a grid x grid partition of their bounding box in image 1, the
 // pose re-estimated without each non-empty cell in turn (t too: a marginal
@@ -778,6 +765,17 @@ RelativePoseResult EstimateRelativePoseWithCovariance(const std::vector<Eigen::V
   if (essential.success) chosen.homography_inlier_ratio = essential.homography_inlier_ratio;
   chosen.median_parallax_deg = essential.median_parallax_deg;
   return chosen;
+}
+
+Eigen::Matrix3d LoewnerMax(const Eigen::Matrix3d& a, const Eigen::Matrix3d& b) {
+  const Eigen::LLT<Eigen::Matrix3d> llt(a);
+  if (llt.info() != Eigen::Success || !b.allFinite()) return a;
+  const Eigen::Matrix3d l = llt.matrixL();
+  const Eigen::Matrix3d l_inv = l.inverse();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(l_inv * b * l_inv.transpose());
+  const Eigen::Matrix3d out = l * eig.eigenvectors() * eig.eigenvalues().cwiseMax(1.0).asDiagonal() *
+                              eig.eigenvectors().transpose() * l.transpose();
+  return 0.5 * (out + out.transpose());
 }
 
 }  // namespace rotation_averaging

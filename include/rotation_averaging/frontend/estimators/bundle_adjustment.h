@@ -35,6 +35,7 @@
 #define ROTATION_AVERAGING_FRONTEND_ESTIMATORS_BUNDLE_ADJUSTMENT_H_
 
 #include <Eigen/Core>
+#include <map>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -63,6 +64,36 @@ struct BundleAdjustmentOptions {
   double min_parallax_deg = 1.0;
   int max_iterations = 200;  // per stage
   int min_correspondences = 8;  // edges with fewer are left out
+  // The orientations' covariance (when asked for): the pixel model's, at
+  // least in every direction the delete-one-cell jackknife's over a grid x
+  // grid partition of each view's observations (0: the pixel model alone).
+  // Errors a region of an image shares (keypoints biased alike, a repeated
+  // structure matched to its neighbour) move the orientations together, where
+  // the pixel model counts them as independent: as the two-view covariances'
+  // jackknife (RelativePoseOptions::jackknife_grid) does for a pair.
+  int covariance_cell_grid = 4;
+};
+
+// The adjusted orientations' covariance: left perturbations of the
+// world-to-camera rotations, R = Exp(d) R_hat (d in the camera's frame), over
+// the adjustment's normal equations with the points and centres eliminated.
+// In each group of views the tracks connect, one view is held (the gauge):
+// the covariance of a view relative to another of its group is what it
+// describes, and that is the same whichever view the adjustment held.
+struct BundleAdjustmentCovariance {
+  std::map<ViewId, int> index;                // view -> block
+  std::vector<Eigen::Matrix3d> orientations;  // adjusted, by block
+  std::vector<int> group;                     // by block
+  // Joint covariances (rad^2) of the blocks' d, 3 rows per block: the pixel
+  // model's (scaled by the variance factor) and the cell jackknife's.
+  Eigen::MatrixXd pixel_model, jackknife;
+  double variance_factor = 1.0;  // weighted mean squared whitened residual over the redundancy
+  int cells = 0;                 // non-empty cells of the jackknife
+  // Covariance of view's orientation relative to reference's, of
+  // d = Log(R_hat_v R_hat_r^T R_r R_v^T) (what the published covariances
+  // describe): the larger of the two models in every direction. False if
+  // either view is not adjusted or they are in different groups.
+  bool Relative(ViewId view, ViewId reference, Eigen::Matrix3d* covariance) const;
 };
 
 struct BundleAdjustmentSummary {
@@ -82,6 +113,7 @@ struct BundleAdjustmentSummary {
   double final_rms_sigmas = 0.0;
   int iterations = 0;           // of every stage
   double time_s = 0.0;
+  double covariance_time_s = 0.0;  // of it, the covariance's (when asked for)
   bool converged = false;
   std::string status;
   std::string Report() const;   // one line for logs and the CLI
@@ -95,10 +127,13 @@ struct BundleAdjustmentSummary {
 // keeps its orientation and centre, and one coordinate of a second view's
 // centre keeps the scale of step 2 (s_ij >= 1). Returns false, leaving
 // `orientations` as they were, if nothing could be adjusted or a solve failed.
+// With `covariance`, also the adjusted orientations' covariance; it is left
+// empty (index empty) if the normal equations are singular.
 bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>& edges,
                                          const BundleAdjustmentOptions& options, ViewOrientations* orientations,
                                          BundleAdjustmentSummary* summary,
-                                         std::unordered_map<ViewId, Eigen::Vector3d>* centres = nullptr);
+                                         std::unordered_map<ViewId, Eigen::Vector3d>* centres = nullptr,
+                                         BundleAdjustmentCovariance* covariance = nullptr);
 
 }  // namespace rotation_averaging
 

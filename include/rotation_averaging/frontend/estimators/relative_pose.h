@@ -154,6 +154,11 @@ struct RelativePoseResult {
   Eigen::Matrix3d EdgeRotation() const { return rotation.transpose(); }
 };
 
+// The smallest covariance at least as large as both a and b in every
+// direction: b whitened by a, its eigenvalues raised to 1 (a itself if it is
+// not positive definite or b is not finite).
+Eigen::Matrix3d LoewnerMax(const Eigen::Matrix3d& a, const Eigen::Matrix3d& b);
+
 // The points at the given indices (a pose's inliers) in normalised image
 // coordinates K^-1 x. Every index must be within points_px.
 std::vector<Eigen::Vector2d> NormalisedPoints(const std::vector<Eigen::Vector2d>& points_px, const Eigen::Matrix3d& k,
