@@ -5,50 +5,92 @@
 # (EvaluatePosteriorCovariances: each keyframe's error relative to its
 # component's gauge keyframe, whitened by its covariance): the demo bag (the
 # rendered two-camera rig at 1 Hz, every image a keyframe), the rig as a
-# 20 Hz driver publishes it (600 captures, keyframe_selection: motion), the
-# Strecha scenes and lund_door as bags (quarter resolution, every image a
-# keyframe), each with the defaults and again without the covariance floor
-# (posterior_covariance_floor: false). EuRoC's excerpt has no ground truth and
-# is not scored.
-#   bash scripts/benchmark_posterior.sh
+# 20 Hz driver publishes it (600 captures, keyframe_selection: motion), its
+# forward camera alone, the Strecha scenes and lund_door as bags (quarter
+# resolution, every image a keyframe). Each input with the defaults (the
+# refined keyframes' covariances from the bundle adjustment, with its cell
+# jackknife over 3 x 3 cells), with the jackknife's grid at 0 (the pixel
+# model alone), 2 and 4, with the averaging's covariances
+# (refinement_covariances: false), and without the refinement, with and
+# without the averaging's covariance floor. The Strecha scenes are scored
+# twice: against their LIDAR-registered cameras, and against `rotavg images`
+# on the full-resolution photographs (every pair, focal self-calibration,
+# bundle adjustment), sixteen times the pixels the bags have. EuRoC's
+# excerpt has no ground truth and is not scored.
+#   bash scripts/benchmark_posterior.sh        (about half an hour)
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
 OUT=build/benchmark_posterior
 mkdir -p "$OUT" build/demo
 
+VARIANTS=(default grid0 grid2 grid4 averaging no_refinement no_refinement_no_floor)
+variant_lines() {  # variant: its config lines
+  case $1 in
+    default) ;;
+    grid*) echo "refinement_jackknife_grid: ${1#grid}" ;;
+    averaging) echo "refinement_covariances: false" ;;
+    no_refinement) echo "refinement: false" ;;
+    no_refinement_no_floor) printf 'refinement: false\nposterior_covariance_floor: false\n' ;;
+  esac
+}
+replay() {  # name bag gt config-lines...: every variant
+  local name=$1 bag=$2 gt=$3
+  shift 3
+  for v in "${VARIANTS[@]}"; do
+    { printf '%s\n' "$@"; variant_lines "$v"; } > "$OUT/${name}_$v.yaml"
+    "$BIN/rotation_averaging_replay" --bag "$bag" --config "$OUT/${name}_$v.yaml" --gt "$gt" \
+      --output-dir "$OUT/${name}_$v" --no-progress > "$OUT/${name}_$v.txt" 2>&1
+  done
+}
+
 DEMO=build/demo/demo_60.bag
 [ -f "$DEMO" ] || "$BIN/rotation_averaging_make_demo_bag" --output "$DEMO" --captures 60 --cameras 2 > /dev/null 2>&1
-replay() {  # name bag config: the defaults, then the posterior scaled by the residual variance factor alone
-  "$BIN/rotation_averaging_replay" --bag "$2" --config "$3" --gt "$2" --output-dir "$OUT/$1" --no-progress \
-    > "$OUT/$1.txt"
-  { cat "$3"; echo "posterior_covariance_floor: false"; } > "$OUT/$1_no_floor.yaml"
-  "$BIN/rotation_averaging_replay" --bag "$2" --config "$OUT/$1_no_floor.yaml" --gt "$2" \
-    --output-dir "$OUT/$1_no_floor" --no-progress > "$OUT/$1_no_floor.txt"
-}
-INPUTS=(demo)
-replay demo "$DEMO" config/demo.yaml
 STREAM=build/demo/demo_20hz_600_2cam.bag  # benchmark_budget.sh's two-camera stream
-[ -f "$STREAM" ] || "$BIN/rotation_averaging_make_demo_bag" --output "$STREAM" --captures 600 --period 0.05 \
-  --cameras 2 > /dev/null 2>&1
-{ grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:'; echo "keyframe_selection: motion"; } > "$OUT/stream.yaml"
-INPUTS+=(stream)
-replay stream "$STREAM" "$OUT/stream.yaml"
+if [ ! -f "$STREAM" ]; then
+  "$BIN/rotation_averaging_make_demo_bag" --output "$STREAM.tmp" --captures 600 --period 0.05 --cameras 2 > /dev/null
+  mv "$STREAM.tmp" "$STREAM"
+fi
+ONE=build/demo/demo_20hz_600_1cam.bag
+if [ ! -f "$ONE" ]; then
+  "$BIN/rotation_averaging_make_demo_bag" --output "$ONE.tmp" --captures 600 --period 0.05 --cameras 1 > /dev/null
+  mv "$ONE.tmp" "$ONE"
+fi
+mapfile -t demo < <(grep -v '^#' config/demo.yaml)
+mapfile -t stream < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:')
+mapfile -t one < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:\|^image_topics:')
+INPUTS=(demo stream one_camera)
+replay demo "$DEMO" "$DEMO" "${demo[@]}"
+replay stream "$STREAM" "$STREAM" "${stream[@]}" "keyframe_selection: motion"
+replay one_camera "$ONE" "$ONE" "${one[@]}" 'image_topics: ["/cam_front/image_raw"]' "keyframe_selection: motion"
 
-scene() {  # name: $OUT/name.bag (made beforehand) replayed with every image a keyframe
-  printf 'image_topics: ["/camera/image_raw"]\nkeyframe_selection: all\nfeatures: sift\nmax_features: 4000\n' \
-    > "$OUT/$1.yaml"
-  replay "$1" "$OUT/$1.bag" "$OUT/$1.yaml"
-  INPUTS+=("$1")
-}
+PHOTO_CONFIG=('image_topics: ["/camera/image_raw"]' "keyframe_selection: all" "features: sift" "max_features: 4000")
 for s in castle-P19 entry-P10 fountain-P11; do
   [ -d "$DATA/strecha/$s" ] || continue
   [ -f "$OUT/$s.bag" ] || strecha_bag "$DATA/strecha/$s" "$OUT/$s.bag"
-  scene "$s"
+  replay "$s" "$OUT/$s.bag" "$OUT/$s.bag" "${PHOTO_CONFIG[@]}"
+  INPUTS+=("$s")
+  # The full-resolution reference, keyed as the bag's keyframes: the
+  # photographs in name order, one a second from 1000 s.
+  if [ ! -f "$OUT/${s}_full_resolution.csv" ]; then
+    "$BIN/rotavg" images --images "$DATA/strecha/$s/images" --intrinsics "$DATA/strecha/$s/images/K.txt" \
+      --pairs exhaustive --output "$OUT/${s}_full_resolution_by_image.csv" --gt "$DATA/strecha/$s" \
+      > "$OUT/${s}_full_resolution.txt" 2>&1
+    python3 - "$OUT/${s}_full_resolution_by_image.csv" > "$OUT/${s}_full_resolution.csv" <<'EOF'
+import sys
+rows = sorted(line.strip().split(",") for line in open(sys.argv[1]) if line.strip() and not line.startswith("name"))
+print("name,qw,qx,qy,qz")
+for i, row in enumerate(rows):
+    print("camera@%d,%s" % ((1000 + i) * 1000000000, ",".join(row[1:])))
+EOF
+  fi
+  replay "${s}_full_resolution" "$OUT/$s.bag" "$OUT/${s}_full_resolution.csv" "${PHOTO_CONFIG[@]}"
+  INPUTS+=("${s}_full_resolution")
 done
 LUND=$DATA/lund_door
 if [ -d "$LUND" ]; then
   [ -f "$OUT/lund_door.bag" ] || lund_door_bag "$OUT/lund_door.bag"
-  scene lund_door
+  replay lund_door "$OUT/lund_door.bag" "$OUT/lund_door.bag" "${PHOTO_CONFIG[@]}"
+  INPUTS+=(lund_door)
 fi
 
 python3 scripts/posterior_report.py "$OUT" "$(IFS=,; echo "${INPUTS[*]}")" > results/posterior.md

@@ -77,8 +77,9 @@ Here each bag is replayed with the refinement off and on (the defaults otherwise
 every `refinement_period_s` of bag time on a thread of its own while the bag goes on, takes what it found when the
 next is due, and refines the final solution once more in its own thread, so the refinements' time is in the wall
 and CPU time. Errors of the final solution against the ground truth, in degrees; NEES: the
-published posterior covariances (the averaging's) against the errors of the published orientations, with the
-share of keyframes within chi-square's 95% bound; refinements: applied / run; time per refinement: median / p95
+published posterior covariances (with the refinement on, the refined keyframes' from the bundle adjustment:
+results/posterior.md) against the errors of the published orientations, with the share of keyframes within
+chi-square's 95% bound; refinements: applied / run; time per refinement: median / p95
 (ms). `rotavg images`: the same images, every pair tried, with focal self-calibration and the bundle adjustment
 (`--downsample 0.25 --pairs exhaustive`); ratio: the node's median over it (the target is 1.5 or less).
 """)

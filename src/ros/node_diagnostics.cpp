@@ -89,6 +89,7 @@ void AddFrontend(const NodeStatus& s, diagnostic_updater::DiagnosticStatusWrappe
     status->add("refinements applied", r.applied);
     status->add("refinements that changed nothing", r.failed);
     status->add("keyframes corrected by the refinement", r.corrected_keyframes);
+    status->add("of them, with the refinement's covariance", r.covariance_keyframes);
     status->add("refinement correction, latest median (deg)", r.median_correction_deg);
     status->add("time per refinement, median (ms)", 1e3 * r.times.Median());
     status->add("time per refinement, p95 (ms)", 1e3 * r.times.P95());

@@ -281,7 +281,8 @@ std::string ReplayResult::Summary() const {
   if (refinement) {
     const KeyframeRefinerStats& r = refinement_stats;
     out << "refinement (bundle adjustment of the newest keyframes): " << r.runs << " runs, " << r.applied
-        << " applied, " << r.failed << " changed nothing; " << r.corrected_keyframes << " keyframes corrected";
+        << " applied, " << r.failed << " changed nothing; " << r.corrected_keyframes << " keyframes corrected ("
+        << r.covariance_keyframes << " with the adjustment's covariance)";
     if (r.applied > 0) {
       out << ", the latest by median " << r.median_correction_deg << " deg, at most " << r.max_correction_deg
           << " deg (" << r.held_back << " held back)";

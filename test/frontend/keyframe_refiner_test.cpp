@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cmath>
 
 #include <Eigen/Geometry>
 #include <atomic>
@@ -84,6 +85,85 @@ TEST(KeyframeRefiner, CorrectionsTakeTheAveragingToTheTracksInItsFrame) {
   EXPECT_TRUE(stats.last_ok);
   EXPECT_GT(stats.median_correction_deg, 0.0);
   EXPECT_EQ(stats.times.Count(), 1u);
+}
+
+// The averaging's covariances: (sigma_deg)^2 I per keyframe, zero for the
+// gauge (view 0); `component` 0 for all.
+void WithCovariances(OnlineSolution* solution, const std::string& camera, int views, double sigma_deg) {
+  for (int v = 0; v < views; ++v) {
+    const double s = DegToRad(sigma_deg);
+    solution->covariance[Key(camera, v)] = v == 0 ? Eigen::Matrix3d::Zero() : Eigen::Matrix3d(s * s * Eigen::Matrix3d::Identity());
+    solution->component[Key(camera, v)] = 0;
+  }
+}
+
+TEST(KeyframeRefiner, TheCorrectedKeyframesCarryTheAdjustmentsCovariances) {
+  // The averaging's covariances say 0.3 deg, as its errors; the adjustment
+  // takes the errors to a few thousandths of a degree, and its covariances
+  // say so: NEES against the truth, relative to the gauge keyframe, about 3.
+  std::vector<double> nees;
+  for (std::uint32_t seed = 1; seed <= 8; ++seed) {
+    const ArcScene scene = MakeArcScene(8, 0.5, seed);
+    OnlineSolution averaged = Averaged(scene, "cam", 0.3, 40 + seed);
+    WithCovariances(&averaged, "cam", 8, 0.3);
+    KeyframeRefiner refiner{KeyframeRefinerOptions()};
+    refiner.Add(Edges(scene, "cam"));
+    ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+    EXPECT_EQ(refiner.Stats().covariance_keyframes, 8u);
+    OnlineSolution published = averaged;
+    refiner.Apply(&published);
+    EXPECT_EQ(published.covariance.at(Key("cam", 0)), Eigen::Matrix3d::Zero());  // the gauge's
+    const Eigen::Matrix3d& r0 = published.orientations.at(Key("cam", 0));
+    for (int v = 1; v < 8; ++v) {
+      const Eigen::Matrix3d& c = published.covariance.at(Key("cam", v));
+      EXPECT_LT(c.trace(), 0.05 * averaged.covariance.at(Key("cam", v)).trace());
+      const Eigen::Vector3d d = LogSO3(published.orientations.at(Key("cam", v)) * r0.transpose() *
+                                       scene.truth.at(0) * scene.truth.at(v).transpose());
+      nees.push_back(d.dot(c.ldlt().solve(d)));
+    }
+  }
+  double mean = 0.0;
+  for (double n : nees) mean += n / nees.size();
+  EXPECT_GT(mean, 1.0);
+  EXPECT_LT(mean, 5.0);
+}
+
+TEST(KeyframeRefiner, TheReferencesOwnCovarianceIsAddedAndCanBeLeftOut) {
+  const ArcScene scene = MakeArcScene(8, 0.5, 5);
+  OnlineSolution averaged = Averaged(scene, "cam", 0.3, 6);
+  WithCovariances(&averaged, "cam", 8, 0.3);
+  // The gauge is outside the window (of another camera, no edges): the
+  // reference is the keyframe the averaging holds best, view 2.
+  averaged.covariance[Key("cam", 0)] = Eigen::Matrix3d::Identity();
+  const double s2 = std::pow(DegToRad(0.1), 2);
+  averaged.covariance[Key("cam", 2)] = s2 * Eigen::Matrix3d::Identity();
+  KeyframeRefiner refiner{KeyframeRefinerOptions()};
+  refiner.Add(Edges(scene, "cam"));
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  OnlineSolution published = averaged;
+  refiner.Apply(&published);
+  EXPECT_LT((published.covariance.at(Key("cam", 2)) - s2 * Eigen::Matrix3d::Identity()).norm(), 1e-12 * s2);
+  for (int v : {1, 3, 7}) {
+    const Eigen::Matrix3d c = published.covariance.at(Key("cam", v));
+    EXPECT_GT(c.trace(), 3.0 * s2);
+    EXPECT_LT(c.trace(), 3.3 * s2);  // the adjustment's own share is small
+  }
+  // Another component: the averaging's stays.
+  OnlineSolution split = averaged;
+  split.component[Key("cam", 5)] = 1;
+  refiner.Apply(&split);
+  EXPECT_EQ(split.covariance.at(Key("cam", 5)), averaged.covariance.at(Key("cam", 5)));
+  // refinement_covariances: false leaves the averaging's.
+  KeyframeRefinerOptions options;
+  options.covariances = false;
+  KeyframeRefiner without{options};
+  without.Add(Edges(scene, "cam"));
+  ASSERT_TRUE(without.Refine(averaged));
+  OnlineSolution kept = averaged;
+  without.Apply(&kept);
+  ASSERT_EQ(kept.covariance.size(), averaged.covariance.size());
+  for (const auto& [key, c] : averaged.covariance) EXPECT_EQ(kept.covariance.at(key), c) << key.stamp_ns;
+  EXPECT_EQ(without.Stats().covariance_keyframes, 0u);
 }
 
 TEST(KeyframeRefiner, LaterSolutionsCarryTheCorrections) {

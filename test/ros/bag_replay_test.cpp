@@ -160,6 +160,9 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
   EXPECT_EQ(first.refinement_stats.runs, 1u);
   EXPECT_TRUE(first.refinement_stats.last_ok) << first.refinement_stats.last_report;
   EXPECT_EQ(first.refinement_stats.corrected_keyframes, 32u);
+  // Each with the adjustment's covariance, which the published solution
+  // carries (relative to the gauge keyframe: the gauge's capture zero).
+  EXPECT_EQ(first.refinement_stats.covariance_keyframes, 32u);
   EXPECT_NE(first.Summary().find("refinement (bundle adjustment of the newest keyframes): 1 runs, 1 applied"),
             std::string::npos)
       << first.Summary();

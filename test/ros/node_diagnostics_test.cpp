@@ -116,6 +116,7 @@ TEST(NodeDiagnostics, TheRefinementIsReportedAndWarnsWhenItChangedNothing) {
   s.refinement_stats.runs = 3;
   s.refinement_stats.applied = 3;
   s.refinement_stats.corrected_keyframes = 40;
+  s.refinement_stats.covariance_keyframes = 38;
   s.refinement_stats.last_ok = true;
   s.refinement_stats.last_report = "bundle adjustment: 40 views";
   s.refinement_stats.times.Add(0.25);
@@ -124,6 +125,7 @@ TEST(NodeDiagnostics, TheRefinementIsReportedAndWarnsWhenItChangedNothing) {
   std::map<std::string, std::string> v = Values(status);
   EXPECT_EQ(v.at("refinements run"), "3");
   EXPECT_EQ(v.at("keyframes corrected by the refinement"), "40");
+  EXPECT_EQ(v.at("of them, with the refinement's covariance"), "38");
   EXPECT_EQ(v.at("time per refinement, median (ms)"), "250");
   EXPECT_EQ(v.at("refinement, latest"), "bundle adjustment: 40 views");
   s.refinement_stats.runs = 4;

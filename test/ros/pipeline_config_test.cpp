@@ -77,7 +77,8 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
                     {"rig_stamp_tolerance_s", "0.01"}, {"image_type", "rectified"}, {"focal_calibration", "off"},
                     {"refinement", "false"}, {"refinement_period_s", "3"}, {"refinement_max_keyframes", "50"},
                     {"refinement_max_iterations", "7"}, {"refinement_max_correction_deg", "0.5"},
-                    {"refinement_niceness", "5"}, {"image_transport_queue", "12"}},
+                    {"refinement_niceness", "5"}, {"image_transport_queue", "12"},
+                    {"refinement_covariances", "false"}, {"refinement_jackknife_grid", "2"}},
                    &c, &warnings, &error))
       << error;
   EXPECT_TRUE(warnings.empty());
@@ -103,6 +104,8 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
   EXPECT_EQ(c.refiner.adjustment.max_iterations, 7);
   EXPECT_EQ(c.refiner.max_correction_deg, 0.5);
   EXPECT_EQ(c.refiner.background_niceness, 5);
+  EXPECT_FALSE(c.refiner.covariances);
+  EXPECT_EQ(c.refiner.adjustment.covariance_cell_grid, 2);
   EXPECT_EQ(c.image_transport_queue, 12u);
 }
 
@@ -146,6 +149,7 @@ TEST(PipelineConfig, ValuesOutOfRangeAndUnknownChoicesAreRefusedByName) {
       {{{"refinement_max_iterations", "0"}}, "refinement_max_iterations must be at least 1"},
       {{{"refinement_max_correction_deg", "nan"}}, "refinement_max_correction_deg must be above 0"},
       {{{"refinement_niceness", "20"}}, "refinement_niceness must be in [0, 19]"},
+      {{{"refinement_jackknife_grid", "17"}}, "refinement_jackknife_grid must be in [0, 16]"},
       {{{"image_transport_queue", "0"}}, "image_transport_queue must be at least 1"},
   };
   for (const auto& [values, expected] : cases) {

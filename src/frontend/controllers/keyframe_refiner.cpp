@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
+#include <limits>
 #include <numeric>
 #include <sstream>
 
@@ -59,6 +60,7 @@ bool KeyframeRefinerOptions::Validate(std::string* error) const {
       .AtLeast("refinement min_correspondences", adjustment.min_correspondences, 5)
       .AtLeast("refinement_max_iterations", adjustment.max_iterations, 1)
       .Within("refinement_niceness", background_niceness, 0, 19)
+      .Within("refinement_jackknife_grid", adjustment.covariance_cell_grid, 0, 16)
       .Ok(error);
 }
 
@@ -150,7 +152,13 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   for (std::size_t v = 0; v < keys.size(); ++v) averaged[static_cast<ViewId>(v)] = cameras.orientations.at(keys[v]);
   ViewOrientations adjusted = averaged;
   BundleAdjustmentSummary summary;
-  bool ok = !edges.empty() && RefineRotationsWithBundleAdjustment(edges, options_.adjustment, &adjusted, &summary);
+  // (Without the averaging's covariances there is nothing to publish them
+  // with: posterior_covariance_max_views.)
+  const bool with_covariance = options_.covariances && !cameras.covariance.empty();
+  BundleAdjustmentCovariance adjusted_covariance;
+  bool ok = !edges.empty() && RefineRotationsWithBundleAdjustment(edges, options_.adjustment, &adjusted, &summary,
+                                                                  nullptr,
+                                                                  with_covariance ? &adjusted_covariance : nullptr);
   std::string report = edges.empty() ? "no edge with correspondences among the solved keyframes" : summary.Report();
 
   // Each camera's keyframes in each group the edges connect keep the
@@ -248,12 +256,70 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   found.largest_deg = largest;
   found.held_back = held_back;
   found.oldest_kept = oldest_kept;
+  if (ok && with_covariance) found.covariances = Covariances(adjusted_covariance, cameras, keys, corrections, rig);
   std::lock_guard<std::mutex> lock(mutex_);
   if (staged) {
     staged_ = std::move(found);
     return ok;
   }
   return Take(found);
+}
+
+std::map<KeyframeKey, KeyframeRefiner::RelativeCovariance> KeyframeRefiner::Covariances(
+    const BundleAdjustmentCovariance& adjusted, const OnlineSolution& cameras, const std::vector<KeyframeKey>& keys,
+    const std::map<ViewId, Eigen::Matrix3d>& corrections, const RigCaptures& rig) {
+  std::map<KeyframeKey, RelativeCovariance> out;
+  if (adjusted.index.empty()) return out;
+  // The reference: the corrected keyframe the averaging holds best (its
+  // gauge keyframe, of covariance zero, when that is in the window).
+  std::optional<ViewId> reference;
+  double smallest = std::numeric_limits<double>::infinity();
+  for (const auto& [id, c] : corrections) {
+    const auto averaged = cameras.covariance.find(keys[id]);
+    if (averaged == cameras.covariance.end() || !averaged->second.allFinite()) continue;
+    if (averaged->second.trace() < smallest) {
+      smallest = averaged->second.trace();
+      reference = id;
+    }
+  }
+  if (!reference) return out;
+  const auto reference_rig = rig.find(keys[*reference]);
+  std::map<ViewId, Eigen::Matrix3d> relative;
+  for (const auto& [id, c] : corrections) {
+    const auto in_rig = rig.find(keys[id]);
+    Eigen::Matrix3d covariance;
+    const auto same_capture = [](const KeyframeKey& a, const KeyframeKey& b) {
+      return a.frame_id == b.frame_id && a.stamp_ns == b.stamp_ns;
+    };
+    if (id == *reference || (reference_rig != rig.end() && in_rig != rig.end() &&
+                             same_capture(in_rig->second.first, reference_rig->second.first))) {
+      covariance.setZero();  // the reference's capture: held to it by the rig's extrinsics
+    } else if (!adjusted.Relative(id, *reference, &covariance)) {
+      continue;  // not tied to the reference by the tracks: the averaging's stays
+    }
+    relative[id] = covariance;
+  }
+  // The cameras of a rig capture share one correction, the mean of theirs in
+  // the rig's frame, and get the mean of their covariances there: at least
+  // the mean's, however correlated they are.
+  std::map<KeyframeKey, std::vector<ViewId>> by_capture;
+  for (const auto& [id, c] : relative) {
+    const auto it = rig.find(keys[id]);
+    if (it != rig.end()) by_capture[it->second.first].push_back(id);
+  }
+  for (const auto& [capture, ids] : by_capture) {
+    Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
+    for (ViewId id : ids) {
+      const Eigen::Matrix3d& e = rig.at(keys[id]).second;
+      sum += e.transpose() * relative.at(id) * e;
+    }
+    for (ViewId id : ids) {
+      const Eigen::Matrix3d& e = rig.at(keys[id]).second;
+      relative[id] = e * (sum / static_cast<double>(ids.size())) * e.transpose();
+    }
+  }
+  for (const auto& [id, c] : relative) out[keys[id]] = RelativeCovariance{keys[*reference], c};
+  return out;
 }
 
 bool KeyframeRefiner::Take(const Outcome& found) {
@@ -266,7 +332,9 @@ bool KeyframeRefiner::Take(const Outcome& found) {
     return false;
   }
   for (const auto& [key, c] : found.corrections) corrections_[key] = c;
+  for (const auto& [key, c] : found.covariances) covariances_[key] = c;
   ++stats_.applied;
+  stats_.covariance_keyframes = covariances_.size();
   stats_.solution_sequence = found.sequence;
   stats_.corrected_keyframes = corrections_.size();
   stats_.median_correction_deg = found.median_deg;
@@ -322,10 +390,12 @@ void KeyframeRefiner::Reset() {
   std::lock_guard<std::mutex> lock(mutex_);
   edges_.clear();
   corrections_.clear();
+  covariances_.clear();
   staged_.reset();
   stats_.edges_held = 0;
   stats_.bytes = 0;
   stats_.corrected_keyframes = 0;
+  stats_.covariance_keyframes = 0;
 }
 
 namespace {
@@ -398,6 +468,27 @@ void KeyframeRefiner::Apply(OnlineSolution* cameras) const {
     if (c != corrections_.end()) r = c->second * r;
   }
   cameras->refinement_sequence = stats_.applied;
+  // Relative to the component's gauge keyframe: the reference's own
+  // covariance in this solution, carried into the keyframe's frame. All
+  // computed before any is replaced (a reference is corrected too).
+  std::vector<std::pair<KeyframeKey, Eigen::Matrix3d>> adjusted;
+  for (const auto& [key, held] : covariances_) {
+    const auto own = cameras->covariance.find(key);
+    const auto reference = cameras->covariance.find(held.reference);
+    const auto component = cameras->component.find(key);
+    const auto reference_component = cameras->component.find(held.reference);
+    const auto orientation = cameras->orientations.find(key);
+    const auto reference_orientation = cameras->orientations.find(held.reference);
+    if (own == cameras->covariance.end() || reference == cameras->covariance.end() ||
+        component == cameras->component.end() || reference_component == cameras->component.end() ||
+        component->second != reference_component->second || orientation == cameras->orientations.end() ||
+        reference_orientation == cameras->orientations.end()) {
+      continue;
+    }
+    const Eigen::Matrix3d r = orientation->second * reference_orientation->second.transpose();
+    adjusted.emplace_back(key, held.covariance + r * reference->second * r.transpose());
+  }
+  for (const auto& [key, c] : adjusted) cameras->covariance[key] = c;
 }
 
 KeyframeRefinerStats KeyframeRefiner::Stats() const {

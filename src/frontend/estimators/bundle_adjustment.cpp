@@ -463,11 +463,10 @@ Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
 // coordinate, is held here by a penalty along the direction that scales
 // every centre about the held one, which no observation sees, so that the
 // rotations' covariance does not depend on which coordinate held it.
-// The jackknife: one Gauss-Newton step from the solution without each cell's
-// observations, S^-1 u_c with u_c the cell's score on the reduced system (a
-// cell is a small part of its view's observations, so its step is a
-// fraction of a standard deviation and the full system's S stands for S
-// without it), C = (g - 1) / g sum_c (m_c - mean)(m_c - mean)^T.
+// The jackknife: each cell's move, S^-1 u_c with u_c its score on the
+// reduced system (corrected for its leverage, below), the one Gauss-Newton
+// step its observations pull the solution by, and
+// C = (g - 1) / g sum_c (m_c - mean)(m_c - mean)^T over the g cells.
 bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector<Track>& tracks, double loss_scale,
                        int grid, BundleAdjustmentCovariance* out) {
   const int n = static_cast<int>(views.size());
@@ -568,6 +567,9 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
       }
     }
   }
+  // Each view's own block, before the scale's penalty: the cells' leverage.
+  std::vector<Eigen::Matrix<double, 6, 6>> view_blocks(dim / 6);
+  for (int k = 0; k < dim / 6; ++k) view_blocks[k] = s.block<6, 6>(6 * k, 6 * k);
   // The scale direction of each group, held by a penalty on its own scale.
   const double penalty = s.trace() / dim;
   for (int g = 0; g < n; ++g) {
@@ -581,8 +583,21 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     if (direction.norm() > 0.0) direction.normalize();
     s.noalias() += penalty * direction * direction.transpose();
   }
-  const Eigen::LLT<Eigen::MatrixXd> llt(s);
-  if (llt.info() != Eigen::Success) return false;
+  // S^-1 restricted to the rotations' columns. A direction the tracks hardly
+  // fix (a wall seen head on: turning the cameras and moving them sideways
+  // together, bas-relief) leaves S close to singular, and the sums of the
+  // elimination can leave it a little indefinite there: then its eigenvalues
+  // are floored at 1e-12 of the largest, a variance as large as the
+  // adjustment can express (what it can say: nothing).
+  const auto inverse_columns = [&](const Eigen::MatrixXd& rhs) -> Eigen::MatrixXd {
+    const Eigen::LLT<Eigen::MatrixXd> llt(s);
+    if (llt.info() == Eigen::Success) return llt.solve(rhs);
+    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(s);
+    if (eigen.info() != Eigen::Success) return Eigen::MatrixXd();
+    const double floor = 1e-12 * eigen.eigenvalues().cwiseAbs().maxCoeff();
+    const Eigen::VectorXd inverse = eigen.eigenvalues().cwiseMax(floor).cwiseInverse();
+    return eigen.eigenvectors() * (inverse.asDiagonal() * (eigen.eigenvectors().transpose() * rhs));
+  };
   // The rotation rows of S^-1.
   std::vector<int> rotation_rows;
   out->index.clear();
@@ -600,33 +615,46 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   for (int k = 0; k < blocks; ++k) {
     if (rotation_rows[k] >= 0) selector.block<3, 3>(rotation_rows[k], 3 * k).setIdentity();
   }
-  const Eigen::MatrixXd columns = llt.solve(selector);  // S^-1 restricted to the rotations' columns
-  if (!columns.allFinite()) return false;
+  const Eigen::MatrixXd columns = inverse_columns(selector);
+  if (columns.rows() != dim || !columns.allFinite()) return false;
   const double redundancy = static_cast<double>(residuals) - (dim - groups) - 3.0 * tracks.size();
   out->variance_factor =
       redundancy >= 10.0 ? weighted_squares / (CauchyWeightedSquaresFraction(loss_scale) * redundancy) : 1.0;
   out->pixel_model = out->variance_factor * (selector.transpose() * columns);
   out->cells = grid > 0 ? cells : 0;
   if (grid > 0 && cells >= 2) {
-    // The step without cell c, (S - D_c)^-1 u_c, with D_c the cell's
-    // information on its own view (its largest part: a cell is a sixteenth
-    // of its view's observations and a small part of any other view's):
-    // by Woodbury, S^-1 u_c + Z_v D_c (I - Z_vv D_c)^-1 Z_v^T u_c, Z = S^-1.
-    // A cell holds a large share of what fixes its own view, so its step
-    // from S alone would understate the spread by that view's leverage.
-    const Eigen::MatrixXd z = llt.solve(Eigen::MatrixXd::Identity(dim, dim));
-    const Eigen::MatrixXd z_scores = z * scores;
-    Eigen::MatrixXd steps = selector.transpose() * z_scores;  // 3 blocks x cells
+    // Each cell's score is taken from the fitted residuals, which the
+    // cell's own pull on its view has shrunk, by (I - H_c) with H_c its
+    // leverage: large, since a cell is a sixteenth of what fixes its view,
+    // and more of some directions of it. The bias-reduced linearisation
+    // (Bell & McCaffrey, 2002) undoes it with (I - H_c)^-1/2, which makes the
+    // estimate unbiased for independent noise (the exact delete-one-cell
+    // step, (I - H_c)^-1, overshoots, and diverges where one cell alone fixes
+    // a direction of its view). H_c is the cell's leverage on its own view
+    // with the others held: with D_c its information there (its share of the
+    // view's block S_vv, the points eliminated) and S_vv^-1/2 D_c S_vv^-1/2
+    // = Q diag(l) Q^T (l in [0, 1]), the score gains
+    // D_c S_vv^-1/2 Q diag(g(l)) Q^T S_vv^-1/2 u_cv, g(l) = ((1 - l)^-1/2 - 1) / l.
     for (int c = 0; c < cells; ++c) {
       const int v = cell_variable[c];
       if (v < 0) continue;
-      const Eigen::Matrix<double, 6, 6> d = cell_information[c];
-      const Eigen::Matrix<double, 6, 6> i_minus = Eigen::Matrix<double, 6, 6>::Identity() - z.block<6, 6>(v, v) * d;
-      const Eigen::FullPivLU<Eigen::Matrix<double, 6, 6>> lu(i_minus);
-      if (!lu.isInvertible()) continue;
-      const Vector6d x = d * lu.solve(Vector6d(z_scores.col(c).segment<6>(v)));
-      steps.col(c).noalias() += columns.transpose().middleCols<6>(v) * x;
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> block(view_blocks[v / 6]);
+      if (!(block.eigenvalues().minCoeff() > 0.0)) continue;
+      const Eigen::Matrix<double, 6, 6> root_inverse = block.eigenvectors() *
+                                                       block.eigenvalues().cwiseSqrt().cwiseInverse().asDiagonal() *
+                                                       block.eigenvectors().transpose();
+      const Eigen::Matrix<double, 6, 6>& d = cell_information[c];
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> h(root_inverse * d * root_inverse);
+      Vector6d g;
+      for (int i = 0; i < 6; ++i) {
+        const double leverage = std::clamp(h.eigenvalues()[i], 0.0, 0.99);
+        g[i] = leverage > 1e-9 ? (1.0 / std::sqrt(1.0 - leverage) - 1.0) / leverage : 0.5;
+      }
+      const Vector6d own = scores.col(c).segment<6>(v);
+      scores.col(c).segment<6>(v) +=
+          d * root_inverse * h.eigenvectors() * g.asDiagonal() * h.eigenvectors().transpose() * root_inverse * own;
     }
+    const Eigen::MatrixXd steps = columns.transpose() * scores;  // 3 blocks x cells: Z u_c (Z symmetric)
     const Eigen::VectorXd mean = steps.rowwise().mean();
     const Eigen::MatrixXd centred = steps.colwise() - mean;
     out->jackknife = (static_cast<double>(cells - 1) / cells) * (centred * centred.transpose());
@@ -639,6 +667,7 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   }
   return true;
 }
+
 }  // namespace
 
 std::string BundleAdjustmentSummary::Report() const {

@@ -27,6 +27,18 @@
 // newer than the last refinement are published as the averaging has them;
 // those that left the window keep their last correction.
 //
+// The published posterior covariances of the corrected keyframes come from
+// the adjustment too (KeyframeRefinerOptions::covariances): the averaging's
+// describe its own orientations, which the corrections have moved. Each
+// keyframe keeps the adjustment's covariance relative to one reference
+// keyframe of its window (the one the averaging holds best: its gauge
+// keyframe when that is in the window), and Apply adds the reference's own,
+// the averaging's of the solution it is applied to:
+//
+//   C_k = C_adjusted(k | r) + R_kr C_averaged(r) R_kr^T,  R_kr = R_k R_r^T,
+//
+// so that it is relative to the component's gauge keyframe, as published.
+//
 // A keyframe that a refinement moves further than `max_correction_deg` (a
 // divergence, not a refinement of a good averaging) keeps what it had; a
 // refinement that fails, or that moves more than a quarter of its keyframes
@@ -78,6 +90,10 @@ struct KeyframeRefinerOptions {
   // refinement that waits, not the images (an image callback held up for
   // longer than its subscriber queue holds loses frames).
   int background_niceness = 10;
+  // The corrected keyframes' posterior covariances from the adjustment (see
+  // above); false: the averaging's stay, though they describe the
+  // averaging's orientations.
+  bool covariances = true;
   // The bundle adjustment's options; the refinement's own defaults in the
   // constructor.
   BundleAdjustmentOptions adjustment;
@@ -92,6 +108,7 @@ struct KeyframeRefinerStats {
   std::uint64_t runs = 0, applied = 0, failed = 0;
   std::uint64_t solution_sequence = 0;   // the averaging solution it refined
   std::size_t corrected_keyframes = 0;   // keyframes with a correction
+  std::size_t covariance_keyframes = 0;  // of them, with the adjustment's covariance
   std::size_t edges_held = 0;            // edges whose correspondences are held
   std::size_t bytes = 0;                 // their memory
   double median_correction_deg = 0.0;    // of the latest applied refinement
@@ -163,7 +180,9 @@ class KeyframeRefiner {
   static bool ReadCorrections(const std::string& path, std::map<KeyframeKey, Eigen::Matrix3d>* corrections,
                               std::string* error);
   // `cameras` with the corrections held applied; its refinement_sequence
-  // set to the latest applied refinement's.
+  // set to the latest applied refinement's; the corrected keyframes'
+  // covariances from the adjustment where `cameras` has a covariance for
+  // their reference keyframe in their component.
   void Apply(OnlineSolution* cameras) const;
   KeyframeRefinerStats Stats() const;
 
@@ -171,6 +190,11 @@ class KeyframeRefiner {
   struct HeldEdge {
     KeyframeKey keyframe1, keyframe2;
     EdgeCorrespondences points;
+  };
+  // A corrected keyframe's covariance relative to its reference keyframe.
+  struct RelativeCovariance {
+    KeyframeKey reference;
+    Eigen::Matrix3d covariance;
   };
   // The edges among the newest max_keyframes keyframes of `cameras`, with
   // view ids, and the keyframe of each id; `oldest` gets the window's oldest
@@ -188,7 +212,16 @@ class KeyframeRefiner {
     double median_deg = 0.0, largest_deg = 0.0;  // of the corrections
     std::size_t held_back = 0;
     std::optional<KeyframeKey> oldest_kept;  // the window's oldest, when keyframes are older
+    std::map<KeyframeKey, RelativeCovariance> covariances;
   };
+  // The adjustment's covariances of the corrected keyframes (view ids of
+  // `keys`) relative to the reference keyframe; rig captures as their
+  // corrections: one for the capture.
+  static std::map<KeyframeKey, RelativeCovariance> Covariances(const BundleAdjustmentCovariance& adjusted,
+                                                               const OnlineSolution& cameras,
+                                                               const std::vector<KeyframeKey>& keys,
+                                                               const std::map<ViewId, Eigen::Matrix3d>& corrections,
+                                                               const RigCaptures& rig);
   // Refine's work; with `staged`, what it found is left in staged_ for
   // Commit, else taken at once.
   bool Run(const OnlineSolution& cameras, const RigCaptures& rig, bool staged);
@@ -200,6 +233,7 @@ class KeyframeRefiner {
   mutable std::mutex mutex_;  // edges_, corrections_, stats_
   std::map<std::pair<KeyframeKey, KeyframeKey>, HeldEdge> edges_;
   std::map<KeyframeKey, Eigen::Matrix3d> corrections_;
+  std::map<KeyframeKey, RelativeCovariance> covariances_;
   KeyframeRefinerStats stats_;
   std::mutex run_mutex_;  // one refinement at a time
   std::atomic<bool> running_{false};

@@ -70,8 +70,11 @@ struct BundleAdjustmentOptions {
   // Errors a region of an image shares (keypoints biased alike, a repeated
   // structure matched to its neighbour) move the orientations together, where
   // the pixel model counts them as independent: as the two-view covariances'
-  // jackknife (RelativePoseOptions::jackknife_grid) does for a pair.
-  int covariance_cell_grid = 4;
+  // jackknife (RelativePoseOptions::jackknife_grid) does for a pair. 3: of
+  // 2, 3 and 4, the grid whose NEES is within 1.5-6 on the most inputs with
+  // a reference (results/posterior.md, "The jackknife's grid"): the errors
+  // are shared by large regions of an image, which a finer grid splits.
+  int covariance_cell_grid = 3;
 };
 
 // The adjusted orientations' covariance: left perturbations of the
