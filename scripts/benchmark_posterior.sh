@@ -21,7 +21,7 @@
 source "$(dirname "$0")/common.sh"
 bash scripts/setup.sh > /dev/null
 OUT=build/benchmark_posterior
-mkdir -p "$OUT" build/demo
+mkdir -p "$OUT"
 
 VARIANTS=(default grid0 grid2 grid4 averaging no_refinement no_refinement_no_floor)
 variant_lines() {  # variant: its config lines
@@ -43,21 +43,7 @@ replay() {  # name bag gt config-lines...: every variant
   done
 }
 
-DEMO=build/demo/demo_60.bag
-[ -f "$DEMO" ] || "$BIN/rotation_averaging_make_demo_bag" --output "$DEMO" --captures 60 --cameras 2 > /dev/null 2>&1
-STREAM=build/demo/demo_20hz_600_2cam.bag  # benchmark_budget.sh's two-camera stream
-if [ ! -f "$STREAM" ]; then
-  "$BIN/rotation_averaging_make_demo_bag" --output "$STREAM.tmp" --captures 600 --period 0.05 --cameras 2 > /dev/null
-  mv "$STREAM.tmp" "$STREAM"
-fi
-ONE=build/demo/demo_20hz_600_1cam.bag
-if [ ! -f "$ONE" ]; then
-  "$BIN/rotation_averaging_make_demo_bag" --output "$ONE.tmp" --captures 600 --period 0.05 --cameras 1 > /dev/null
-  mv "$ONE.tmp" "$ONE"
-fi
-mapfile -t demo < <(grep -v '^#' config/demo.yaml)
-mapfile -t stream < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:')
-mapfile -t one < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:\|^image_topics:')
+demo_bags
 INPUTS=(demo stream one_camera)
 replay demo "$DEMO" "$DEMO" "${demo[@]}"
 replay stream "$STREAM" "$STREAM" "${stream[@]}" "keyframe_selection: motion"

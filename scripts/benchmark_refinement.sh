@@ -40,21 +40,7 @@ for s in "${PHOTOS[@]}"; do
   for r in false true; do replay_with "${s}_$r" "$OUT/$s.bag" "${PHOTO_CONFIG[@]}" "refinement: $r"; done
 done
 
-DEMO=build/demo/demo_60.bag
-[ -f "$DEMO" ] || "$BIN/rotation_averaging_make_demo_bag" --output "$DEMO" --captures 60 --cameras 2 > /dev/null
-STREAM=build/demo/demo_20hz_600_2cam.bag
-if [ ! -f "$STREAM" ]; then
-  "$BIN/rotation_averaging_make_demo_bag" --output "$STREAM.tmp" --captures 600 --period 0.05 --cameras 2 > /dev/null
-  mv "$STREAM.tmp" "$STREAM"
-fi
-ONE=build/demo/demo_20hz_600_1cam.bag
-if [ ! -f "$ONE" ]; then
-  "$BIN/rotation_averaging_make_demo_bag" --output "$ONE.tmp" --captures 600 --period 0.05 --cameras 1 > /dev/null
-  mv "$ONE.tmp" "$ONE"
-fi
-mapfile -t demo < <(grep -v '^#' config/demo.yaml)
-mapfile -t stream < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:')
-mapfile -t one < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:\|^image_topics:')
+demo_bags
 for r in false true; do
   replay_with "demo_$r" "$DEMO" "${demo[@]}" "refinement: $r"
   replay_with "stream_$r" "$STREAM" "${stream[@]}" "keyframe_selection: motion" "refinement: $r"

@@ -43,3 +43,27 @@ lund_door_bag() {
     --intrinsics "$DATA/lund_door/colmap_ground_truth/cameras.txt" \
     --gt "$DATA/lund_door/colmap_ground_truth/images.txt" --downsample 0.25 --output "$1" > /dev/null 2>&1
 }
+# The rendered rig's bags the benchmarks share, made once under build/demo:
+# DEMO (two cameras, one capture a second, 60 captures), STREAM (two cameras
+# at 20 Hz, 600 captures) and ONE (its forward camera alone); and the demo
+# configuration's lines for each: demo, stream (without its
+# keyframe_selection) and one (without keyframe_selection and image_topics).
+demo_bags() {
+  mkdir -p build/demo
+  DEMO=build/demo/demo_60.bag
+  STREAM=build/demo/demo_20hz_600_2cam.bag
+  ONE=build/demo/demo_20hz_600_1cam.bag
+  local bag args
+  for bag in "$DEMO" "$STREAM" "$ONE"; do
+    [ -f "$bag" ] && continue
+    case $bag in
+      "$DEMO") args=(--captures 60 --cameras 2) ;;
+      "$STREAM") args=(--captures 600 --period 0.05 --cameras 2) ;;
+      *) args=(--captures 600 --period 0.05 --cameras 1) ;;
+    esac
+    "$BIN/rotation_averaging_make_demo_bag" --output "$bag.tmp" "${args[@]}" > /dev/null && mv "$bag.tmp" "$bag"
+  done
+  mapfile -t demo < <(grep -v '^#' config/demo.yaml)
+  mapfile -t stream < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:')
+  mapfile -t one < <(grep -v '^#' config/demo.yaml | grep -v '^keyframe_selection:\|^image_topics:')
+}

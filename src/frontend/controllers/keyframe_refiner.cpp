@@ -47,6 +47,18 @@ void LowerThisThreadsPriority(int niceness) {
 #endif
 }
 
+// The views of `by_view` that belong to a rig capture, by capture.
+std::map<KeyframeKey, std::vector<ViewId>> ByCapture(const std::map<ViewId, Eigen::Matrix3d>& by_view,
+                                                     const std::vector<KeyframeKey>& keys,
+                                                     const KeyframeRefiner::RigCaptures& rig) {
+  std::map<KeyframeKey, std::vector<ViewId>> out;
+  for (const auto& [id, value] : by_view) {
+    const auto it = rig.find(keys[id]);
+    if (it != rig.end()) out[it->second.first].push_back(id);
+  }
+  return out;
+}
+
 }  // namespace
 
 KeyframeRefinerOptions::KeyframeRefinerOptions() {
@@ -197,12 +209,7 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
     }
   }
   if (ok && !rig.empty()) {
-    std::map<KeyframeKey, std::vector<ViewId>> by_capture;
-    for (const auto& [id, c] : corrections) {
-      const auto it = rig.find(keys[id]);
-      if (it != rig.end()) by_capture[it->second.first].push_back(id);
-    }
-    for (const auto& [capture, ids] : by_capture) {
+    for (const auto& [capture, ids] : ByCapture(corrections, keys, rig)) {
       Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
       for (ViewId id : ids) {
         const Eigen::Matrix3d& e = rig.at(keys[id]).second;
@@ -302,12 +309,7 @@ std::map<KeyframeKey, KeyframeRefiner::RelativeCovariance> KeyframeRefiner::Cova
   // The cameras of a rig capture share one correction, the mean of theirs in
   // the rig's frame, and get the mean of their covariances there: at least
   // the mean's, however correlated they are.
-  std::map<KeyframeKey, std::vector<ViewId>> by_capture;
-  for (const auto& [id, c] : relative) {
-    const auto it = rig.find(keys[id]);
-    if (it != rig.end()) by_capture[it->second.first].push_back(id);
-  }
-  for (const auto& [capture, ids] : by_capture) {
+  for (const auto& [capture, ids] : ByCapture(relative, keys, rig)) {
     Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
     for (ViewId id : ids) {
       const Eigen::Matrix3d& e = rig.at(keys[id]).second;
