@@ -101,7 +101,7 @@ bool KeyframePipeline::Reject(std::uint64_t* counter, const std::string& why, st
 bool KeyframePipeline::AddMeasurement(const KeyframeRelativeRotation& m, std::string* error, bool* queue_full) {
   if (queue_full) *queue_full = false;
   // Self-references are errors even when both ends are rig cameras.
-  if (m.keyframe1.frame_id == m.keyframe2.frame_id && m.keyframe1.stamp_ns == m.keyframe2.stamp_ns) {
+  if (m.keyframe1 == m.keyframe2) {
     if (error) *error = "a keyframe related to itself";
     return false;
   }

@@ -68,9 +68,7 @@ KeyframeKey RigModel::VariableLocked(const KeyframeKey& keyframe) {
   if (!found) stamps.insert(capture);
   const KeyframeKey variable{camera.rig_frame, capture};
   std::vector<KeyframeKey>& members = members_[variable];
-  if (std::find_if(members.begin(), members.end(), [&](const KeyframeKey& m) {
-        return m.frame_id == keyframe.frame_id && m.stamp_ns == keyframe.stamp_ns;
-      }) == members.end()) {
+  if (std::find(members.begin(), members.end(), keyframe) == members.end()) {
     members.push_back(keyframe);
     variable_of_[keyframe] = variable;
   }

@@ -707,7 +707,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AcceptLoops(const std::v
     ++stats_.loop_closure_edges;
     for (std::size_t c = 0; c < candidates.size(); ++c) {
       const KeyframeKey& k1 = keyframes_[candidates[c].older]->key;
-      if (k1.frame_id == e.keyframe1.frame_id && k1.stamp_ns == e.keyframe1.stamp_ns) accepted->push_back(c);
+      if (k1 == e.keyframe1) accepted->push_back(c);
     }
   }
   return loops;

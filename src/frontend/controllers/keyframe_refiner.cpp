@@ -87,7 +87,7 @@ std::size_t KeyframeRefiner::EdgeBytes(const EdgeCorrespondences& e) {
 void KeyframeRefiner::Add(std::vector<KeyframeCorrespondences> edges) {
   std::lock_guard<std::mutex> lock(mutex_);
   for (KeyframeCorrespondences& e : edges) {
-    if (e.keyframe1.frame_id == e.keyframe2.frame_id && e.keyframe1.stamp_ns == e.keyframe2.stamp_ns) continue;
+    if (e.keyframe1 == e.keyframe2) continue;
     if (static_cast<int>(e.points.points1.size()) < options_.adjustment.min_correspondences ||
         e.points.points1.size() != e.points.points2.size() || !CorrespondencesAreFinite(e.points, true)) {
       continue;
@@ -295,11 +295,8 @@ std::map<KeyframeKey, KeyframeRefiner::RelativeCovariance> KeyframeRefiner::Cova
   for (const auto& [id, c] : corrections) {
     const auto in_rig = rig.find(keys[id]);
     Eigen::Matrix3d covariance;
-    const auto same_capture = [](const KeyframeKey& a, const KeyframeKey& b) {
-      return a.frame_id == b.frame_id && a.stamp_ns == b.stamp_ns;
-    };
     if (id == *reference || (reference_rig != rig.end() && in_rig != rig.end() &&
-                             same_capture(in_rig->second.first, reference_rig->second.first))) {
+                             in_rig->second.first == reference_rig->second.first)) {
       covariance.setZero();  // the reference's capture: held to it by the rig's extrinsics
     } else if (!adjusted.Relative(id, *reference, &covariance)) {
       continue;  // not tied to the reference by the tracks: the averaging's stays

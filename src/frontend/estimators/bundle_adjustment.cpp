@@ -5,7 +5,6 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
-#include <Eigen/LU>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -401,7 +400,6 @@ void DropOutlierObservations(const std::vector<AdjustedView>& views, const Bundl
   *tracks = std::move(kept);
 }
 
-
 // The cell of each observation's view: a grid x grid partition of the
 // bounding box of that view's observations; one index per (view, cell) that
 // holds any, in the order of the views.
@@ -625,8 +623,8 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   if (grid > 0 && cells >= 2) {
     // Each cell's score is taken from the fitted residuals, which the
     // cell's own pull on its view has shrunk, by (I - H_c) with H_c its
-    // leverage: large, since a cell is a sixteenth of what fixes its view,
-    // and more of some directions of it. The bias-reduced linearisation
+    // leverage: large, since a cell is one of grid x grid parts of what
+    // fixes its view, and more of some directions of it. The bias-reduced linearisation
     // (Bell & McCaffrey, 2002) undoes it with (I - H_c)^-1/2, which makes the
     // estimate unbiased for independent noise (the exact delete-one-cell
     // step, (I - H_c)^-1, overshoots, and diverges where one cell alone fixes

@@ -34,6 +34,8 @@ struct KeyframeKey {
   bool operator<(const KeyframeKey& o) const {
     return frame_id != o.frame_id ? frame_id < o.frame_id : stamp_ns < o.stamp_ns;
   }
+  bool operator==(const KeyframeKey& o) const { return frame_id == o.frame_id && stamp_ns == o.stamp_ns; }
+  bool operator!=(const KeyframeKey& o) const { return !(*this == o); }
 };
 
 // One relative rotation between two keyframes, in the conventions of
