@@ -509,16 +509,29 @@ class Replayer {
 
   // The final solution refined, unless the last refinement was of it: what
   // the node publishes once its refinement has caught up with the input.
+  // With focal_calibration: apply, a correction the final refinement's
+  // focal estimates call for is applied as the next keyframe would apply
+  // it (its pairs estimated again), then solved and refined again: twice
+  // at most.
   void RefineFinal(const ros::Time& when) {
-    pipeline_.CommitRefinement();
-    const std::shared_ptr<const OnlineSolution> solution = pipeline_.Averager().Solution();
-    if (!solution) return;
-    if (solution->sequence != refined_sequence_) {
-      if (!pipeline_.MaybeRefine(*solution, when.toSec(), true, KeyframePipeline::RefineIn::kHere)) return;
-      refined_sequence_ = solution->sequence;
+    for (int round = 0; round < 3; ++round) {
+      pipeline_.CommitRefinement();
+      const std::shared_ptr<const OnlineSolution> solution = pipeline_.Averager().Solution();
+      if (!solution) return;
+      if (solution->sequence != refined_sequence_) {
+        if (!pipeline_.MaybeRefine(*solution, when.toSec(), true, KeyframePipeline::RefineIn::kHere)) return;
+        refined_sequence_ = solution->sequence;
+      }
+      out_.write("/rotation_averaging/orientations", when,
+                 pipeline_.OrientationsMsg(pipeline_.CameraSolution(*solution), when));
+      std::vector<std::string> warnings;
+      const bool corrected = round < 2 && pipeline_.ApplyFocalCorrections(&warnings);
+      TakeFocalNotices();
+      for (const std::string& w : warnings) Warn(w);
+      if (!corrected) return;
+      dirty_ = true;
+      Solve(when);
     }
-    out_.write("/rotation_averaging/orientations", when,
-               pipeline_.OrientationsMsg(pipeline_.CameraSolution(*solution), when));
   }
 
   // The map as the session that ends here leaves it: solved with every
@@ -531,6 +544,13 @@ class Replayer {
       result_.maps_saved_after_bags.push_back(note);
     } else if (error_.empty()) {
       error_ = "saving the map after a bag: " + error;
+    }
+  }
+
+  void TakeFocalNotices() {
+    for (auto& [line, disagrees] : pipeline_.TakeFocalNotices()) {
+      if (disagrees) Warn("camera_info check: " + line);
+      if (result_.focal_notices.size() < 50) result_.focal_notices.push_back(std::move(line));
     }
   }
 
@@ -591,10 +611,7 @@ class Replayer {
     // the output bag then holds the same checks on every replay (the node
     // runs them beside its front end instead).
     pipeline_.WaitForFocalChecks();
-    for (auto& [line, disagrees] : pipeline_.TakeFocalNotices()) {
-      if (disagrees) Warn("camera_info check: " + line);
-      if (result_.focal_notices.size() < 50) result_.focal_notices.push_back(std::move(line));
-    }
+    TakeFocalNotices();
     for (const std::string& w : warnings) Warn(w);
     if (loop_closure && config_.averager.solve_early_on_loop_closure) Solve(time);
   }

@@ -69,6 +69,32 @@ TimeDistribution KeyframePipeline::FocalCheckTimes() const {
 std::vector<std::pair<std::string, bool>> KeyframePipeline::TakeFocalNotices() {
   std::vector<std::pair<std::string, bool>> out;
   if (focal_checker_) out = focal_checker_->TakeNotices();
+  if (refiner_ && config_.focal_calibration != FocalCalibrationMode::kOff) {
+    const KeyframeRefinerStats r = refiner_->Stats();
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (r.focal_refinement > refinement_focal_seen_) {
+      refinement_focal_seen_ = r.focal_refinement;
+      for (const auto& [camera, e] : r.focal) {
+        const FocalVerdict verdict = JudgeFocalEstimate(e, config_.frontend.focal_monitor.focal.min_correction);
+        const auto said = refinement_focal_verdicts_.find(camera);
+        if (said != refinement_focal_verdicts_.end() && said->second == verdict) continue;
+        refinement_focal_verdicts_[camera] = verdict;
+        std::string line = camera + ": the refinement puts the focal length at " + DescribeFocalEstimate(e) +
+                           ", of the one in use: ";
+        if (verdict == FocalVerdict::kDisagrees) {
+          line += config_.focal_calibration == FocalCalibrationMode::kApply
+                      ? "it disagrees (focal_calibration: apply)"
+                      : "it disagrees; fix camera_info, or set focal_calibration: apply to correct it";
+        } else if (verdict == FocalVerdict::kAgrees) {
+          line += "it agrees";
+        } else {
+          line += "the keyframes cannot tell yet (too few, or motion that does not separate the focal length "
+                  "from the depths and the principal point)";
+        }
+        out.emplace_back(line, verdict == FocalVerdict::kDisagrees);
+      }
+    }
+  }
   if (focal_corrector_) {
     std::vector<std::pair<std::string, bool>> corrections = focal_corrector_->TakeNotices();
     out.insert(out.end(), corrections.begin(), corrections.end());
@@ -266,19 +292,8 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   if (!frontend_) return 0;
   const auto start = Clock::now();
   if (rig_.IsRigCamera(keyframe.key.frame_id)) frontend_->SetRigCalibrated(keyframe.key.frame_id);
-  if (focal_corrector_) {
-    const std::map<std::string, double> before = focal_corrector_->Corrections();
-    focal_corrector_->ApplyCorrections(warnings);
-    focal_corrector_->RefineByLoops(FrontendStats().loop_closure_edges);
-    // The refinement's held points were normalised with the former focal length.
-    if (refiner_) {
-      for (const auto& [camera, product] : focal_corrector_->Corrections()) {
-        const auto b = before.find(camera);
-        const double previous = b == before.end() ? 1.0 : b->second;
-        if (product != previous) refiner_->ScaleCamera(camera, product / previous);
-      }
-    }
-  }
+  if (refiner_ && keyframe.camera.HasDistortion()) refiner_->HoldFocal(keyframe.key.frame_id);
+  ApplyFocalCorrections(warnings);
   std::size_t added = 0;
   std::vector<KeyframeRelativeRotation> edges;
   KeyframeFrontendStats frontend_stats;
@@ -304,6 +319,33 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   stats_.keyframe_times.Add(SecondsSince(start));
   frontend_stats_ = std::move(frontend_stats);
   return added;
+}
+
+bool KeyframePipeline::ApplyFocalCorrections(std::vector<std::string>* warnings) {
+  if (!focal_corrector_) return false;
+  const std::map<std::string, double> before = focal_corrector_->Corrections();
+  if (refiner_) {
+    const KeyframeRefinerStats r = refiner_->Stats();
+    focal_corrector_->ApplyRefinementEstimates(r.focal, r.focal_refinement, warnings);
+  }
+  focal_corrector_->ApplyCorrections(warnings);
+  focal_corrector_->RefineByLoops(FrontendStats().loop_closure_edges);
+  bool changed = false;
+  for (const auto& [camera, product] : focal_corrector_->Corrections()) {
+    const auto b = before.find(camera);
+    const double previous = b == before.end() ? 1.0 : b->second;
+    if (product == previous) continue;
+    changed = true;
+    // The refinement's held points were normalised with the former focal length.
+    if (refiner_) refiner_->ScaleCamera(camera, product / previous);
+  }
+  if (changed && refiner_) {
+    // The pairs estimated again, with the new focal length's points (after
+    // ScaleCamera, which must not scale them).
+    std::lock_guard<std::mutex> lock(frontend_mutex_);
+    refiner_->Add(frontend_->TakeCorrespondences());
+  }
+  return changed;
 }
 
 OnlineSolution KeyframePipeline::CameraSolution(const OnlineSolution& solution, bool refined) const {

@@ -95,6 +95,10 @@ void AddFrontend(const NodeStatus& s, diagnostic_updater::DiagnosticStatusWrappe
     status->add("time per refinement, p95 (ms)", 1e3 * r.times.P95());
     status->add("refinement correspondences held (MiB)", r.bytes / (1024.0 * 1024.0));
     if (!r.last_report.empty()) status->add("refinement, latest", r.last_report);
+    for (const auto& [camera, e] : r.focal) {
+      status->add("focal length scale of " + camera + " by the refinement (estimated / in use)", e.scale);
+      status->add("focal length scale of " + camera + " by the refinement, standard deviation", e.sigma);
+    }
   }
   if (s.focal_check_times.Count() > 0) {
     status->add("focal-length check estimates", s.focal_check_times.Count());

@@ -1,5 +1,7 @@
 #include "rotation_averaging/ros/replay_report.h"
 
+#include "rotation_averaging/frontend/controllers/focal_corrector.h"
+
 #include <algorithm>
 #include <cstdio>
 #include <fstream>
@@ -8,6 +10,7 @@
 #include <sstream>
 #include <utility>
 
+#include "rotation_averaging/frontend/controllers/focal_corrector.h"
 #include "rotation_averaging/frontend/eval/error_plot.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 
@@ -290,6 +293,10 @@ std::string ReplayResult::Summary() const {
     out << "; time per refinement: " << r.times.DescribeMs() << "; correspondences held: " << r.edges_held
         << " edges, " << r.bytes / (1024.0 * 1024.0) << " MiB\n";
     if (!r.last_report.empty()) out << "refinement, latest: " << r.last_report << "\n";
+    for (const auto& [camera, e] : r.focal) {
+      out << "focal length by the refinement, " << camera << ": " << DescribeFocalEstimate(e)
+          << " of the one in use\n";
+    }
   }
   if (!rig_cameras.empty()) {
     out << "rig cameras (one orientation per capture): ";

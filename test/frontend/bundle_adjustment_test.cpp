@@ -180,6 +180,89 @@ TEST(BundleAdjustmentCovariance, TheJackknifeWidensWhatARegionOfAnImageShares) {
   EXPECT_LT(Mean(both), 7.5);
 }
 
+BundleAdjustmentFocal OneCamera(const Scene& scene) {
+  BundleAdjustmentFocal focal;
+  for (const auto& [v, r] : scene.truth) focal.camera[v] = "cam";
+  return focal;
+}
+
+TEST(BundleAdjustmentFocal, AFocalLengthThreePercentOffIsFoundWithinItsDeviation) {
+  // camera_info 3% short: the true focal length is 1/0.97 of the one in use.
+  // Held at the wrong one, the adjustment bends the orientations; estimated,
+  // it lands within 0.5% and within three of its deviations, and the
+  // orientations are as good as with the right focal length.
+  const double truth = 1.0 / 0.97;
+  for (std::uint32_t seed = 1; seed <= 4; ++seed) {
+    const Scene scene = MakePathScene(10, 0.5, truth, seed);
+    ViewOrientations held = Perturbed(scene.truth, 0.3, 20 + seed), estimated = held;
+    BundleAdjustmentSummary summary;
+    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &held, &summary));
+    BundleAdjustmentFocal focal = OneCamera(scene);
+    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &estimated, &summary,
+                                                    nullptr, nullptr, &focal))
+        << summary.Report();
+    ASSERT_EQ(focal.estimates.size(), 1u);
+    const BundleAdjustmentFocal::Estimate& e = focal.estimates.at("cam");
+    std::cout << "seed " << seed << ": x" << e.scale << " +- " << e.sigma << " (matches " << e.sigma_matches
+              << ", principal point " << e.sigma_principal_point << "), error held "
+              << MaxErrorDeg(held, scene.truth) << " deg, estimated " << MaxErrorDeg(estimated, scene.truth)
+              << " deg\n";
+    EXPECT_TRUE(e.determined);
+    EXPECT_EQ(e.views, 10);
+    EXPECT_NEAR(e.scale, truth, 0.005 * truth);
+    EXPECT_LT(std::abs(e.scale - truth), 3.0 * e.sigma);
+    // Precise enough to tell a 3% error from none.
+    EXPECT_LT(3.0 * e.sigma, truth - 1.0);
+    EXPECT_NEAR(summary.final_rms_sigmas, 1.0, 0.15) << summary.Report();
+    EXPECT_LT(MaxErrorDeg(estimated, scene.truth), 0.5 * MaxErrorDeg(held, scene.truth));
+  }
+}
+
+TEST(BundleAdjustmentFocal, ARightFocalLengthStaysAndViewsNotListedKeepTheirs) {
+  int within = 0;
+  for (std::uint32_t seed = 1; seed <= 6; ++seed) {
+    const Scene scene = MakePathScene(10, 0.5, 1.0, seed);
+    ViewOrientations plain = Perturbed(scene.truth, 0.3, 40 + seed), listed_none = plain;
+    BundleAdjustmentSummary summary;
+    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &plain, &summary));
+    BundleAdjustmentFocal none;  // no view listed: exactly the adjustment without it
+    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &listed_none, &summary,
+                                                    nullptr, nullptr, &none));
+    EXPECT_TRUE(none.estimates.empty());
+    for (const auto& [v, r] : plain) EXPECT_EQ(r, listed_none.at(v)) << v;
+    BundleAdjustmentFocal focal = OneCamera(scene);
+    ViewOrientations estimated = Perturbed(scene.truth, 0.3, 40 + seed);
+    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &estimated, &summary,
+                                                    nullptr, nullptr, &focal));
+    const BundleAdjustmentFocal::Estimate& e = focal.estimates.at("cam");
+    within += std::abs(e.scale - 1.0) < 3.0 * e.sigma;
+    EXPECT_LT(std::abs(e.scale - 1.0), 0.005);
+  }
+  EXPECT_GE(within, 5);
+}
+
+TEST(BundleAdjustmentFocal, AnArcAroundAnObjectCannotTellItsFocalLengthFromItsPrincipalPoint) {
+  // Optical axes meeting at one point: the critical configuration of focal
+  // self-calibration, where a focal length error is explained by the
+  // points' depths (and the principal point). The deviation says so: over
+  // ten times the path's, on as many views and as much noise.
+  const Scene path = MakePathScene(10, 0.5, 1.0, 3);
+  const Scene arc = MakeScene(10, 0.5, 3);
+  BundleAdjustmentFocal on_path = OneCamera(path), on_arc = OneCamera(arc);
+  ViewOrientations a = Perturbed(path.truth, 0.3, 5), b = Perturbed(arc.truth, 0.3, 5);
+  BundleAdjustmentSummary summary;
+  ASSERT_TRUE(
+      RefineRotationsWithBundleAdjustment(path.edges, BundleAdjustmentOptions(), &a, &summary, nullptr, nullptr, &on_path));
+  ASSERT_TRUE(
+      RefineRotationsWithBundleAdjustment(arc.edges, BundleAdjustmentOptions(), &b, &summary, nullptr, nullptr, &on_arc));
+  const auto& p = on_path.estimates.at("cam");
+  const auto& r = on_arc.estimates.at("cam");
+  std::cout << "path: +- " << p.sigma_matches << " (matches), " << p.sigma_principal_point << " (principal point); arc: +- "
+            << r.sigma_matches << ", " << r.sigma_principal_point << "\n";
+  EXPECT_GT(r.sigma, 10.0 * p.sigma);
+  EXPECT_LT(std::abs(r.scale - 1.0), 3.0 * r.sigma);
+}
+
 // A camera that turned in place (the front end's rotation-only model: zero
 // translation) gives no direction between centres, but its matches are
 // observations of the same points. View 1 here is taken from view 0's centre,

@@ -423,6 +423,95 @@ TEST(FocalMonitor, TheCorrectorAppliesADisagreeingCheckOnce) {
   EXPECT_TRUE(corrector.LoopRefinements().empty());
 }
 
+// The refinement's focal estimates (FocalCorrector::ApplyRefinementEstimates):
+// judged by JudgeFocalEstimate, a camera they put off is corrected by the
+// estimate, once per refinement; one they cannot tell, or that agrees, is
+// not; and a camera of a rig (extrinsics known) waits while another camera
+// of the rig is not told.
+TEST(FocalMonitor, TheCorrectorAppliesTheRefinementsEstimates) {
+  BundleAdjustmentFocal::Estimate off, agrees, unsure;
+  off.scale = 1.031, off.sigma = 0.001, off.determined = true;
+  agrees.scale = 1.003, agrees.sigma = 0.001, agrees.determined = true;
+  unsure.scale = 1.03, unsure.sigma = 0.04, unsure.determined = true;
+  EXPECT_EQ(JudgeFocalEstimate(off, 0.005), FocalVerdict::kDisagrees);
+  EXPECT_EQ(JudgeFocalEstimate(agrees, 0.005), FocalVerdict::kAgrees);  // within min_correction
+  EXPECT_EQ(JudgeFocalEstimate(unsure, 0.005), FocalVerdict::kCannotTell);
+  BundleAdjustmentFocal::Estimate undetermined = off;
+  undetermined.determined = false;
+  EXPECT_EQ(JudgeFocalEstimate(undetermined, 0.005), FocalVerdict::kCannotTell);
+
+  const std::unique_ptr<ShortFocalRun> run = RunShortFocal(true);
+  const std::string front = run->scene->Cameras()[0].frame_id, left = run->scene->Cameras()[1].frame_id;
+  FocalChecker checker(run->options.focal_monitor.focal);
+  std::mutex frontend_mutex;
+  RigModel rig{RigModelOptions()};
+  OnlineAverager averager{OnlineAveragerOptions()};
+  std::vector<KeyframeRelativeRotation> added;
+  FocalCorrector corrector(FocalCorrectorOptions(), run->frontend.get(), &frontend_mutex, &checker, &rig, &averager,
+                           [&added](const KeyframeRelativeRotation& e, std::string*) {
+                             added.push_back(e);
+                             return true;
+                           });
+  const double given_px = run->frontend->FocalInUsePx(left);
+  EXPECT_GT(given_px, 0.0);
+  std::vector<std::string> warnings;
+  corrector.ApplyRefinementEstimates({{left, off}, {front, unsure}}, 1, &warnings);
+  EXPECT_EQ(corrector.Corrections(), (std::map<std::string, double>{{left, 1.031}}));
+  EXPECT_DOUBLE_EQ(run->frontend->FocalInUsePx(left), given_px * 1.031);
+  EXPECT_GE(added.size(), 20u);
+  const std::vector<std::pair<std::string, bool>> notices = corrector.TakeNotices();
+  ASSERT_EQ(notices.size(), 1u);
+  EXPECT_NE(notices[0].first.find(left + ": focal length corrected by x1.0310"), std::string::npos) << notices[0].first;
+  EXPECT_NE(notices[0].first.find("the refinement's estimate"), std::string::npos) << notices[0].first;
+  // The same refinement again: decided already.
+  const std::size_t edges = added.size();
+  corrector.ApplyRefinementEstimates({{left, off}}, 1, &warnings);
+  EXPECT_EQ(added.size(), edges);
+  // A later one that agrees with the corrected focal length: nothing to do.
+  corrector.ApplyRefinementEstimates({{left, agrees}}, 2, &warnings);
+  EXPECT_EQ(added.size(), edges);
+  EXPECT_TRUE(corrector.TakeNotices().empty());
+}
+
+// The same with the rig's extrinsics known: the left camera waits while the
+// refinement cannot tell the forward camera's focal length, and says why.
+TEST(FocalMonitor, ARigCameraWaitsForTheRigsOtherCamerasToBeTold) {
+  const std::unique_ptr<ShortFocalRun> run = RunShortFocal(true);
+  const RigScene& scene = *run->scene;
+  const std::string front = scene.Cameras()[0].frame_id, left = scene.Cameras()[1].frame_id;
+  FocalChecker checker(run->options.focal_monitor.focal);
+  std::mutex frontend_mutex;
+  RigModel rig{RigModelOptions()};
+  for (const RigCamera& c : scene.Cameras()) {
+    rig.AddStaticTransform("base_link", c.frame_id, c.camera_from_rig.transpose());
+    ASSERT_TRUE(rig.IsRigCamera(c.frame_id));
+  }
+  OnlineAverager averager{OnlineAveragerOptions()};
+  std::vector<KeyframeRelativeRotation> added;
+  FocalCorrector corrector(FocalCorrectorOptions(), run->frontend.get(), &frontend_mutex, &checker, &rig, &averager,
+                           [&added](const KeyframeRelativeRotation& e, std::string*) {
+                             added.push_back(e);
+                             return true;
+                           });
+  BundleAdjustmentFocal::Estimate off, unsure;
+  off.scale = 1.031, off.sigma = 0.001, off.determined = true;
+  unsure.scale = 1.03, unsure.sigma = 0.04, unsure.determined = true;
+  std::vector<std::string> warnings;
+  corrector.ApplyRefinementEstimates({{left, off}, {front, unsure}}, 1, &warnings);
+  EXPECT_TRUE(corrector.Corrections().empty());
+  EXPECT_TRUE(added.empty());
+  const std::vector<std::pair<std::string, bool>> notices = corrector.TakeNotices();
+  ASSERT_EQ(notices.size(), 1u);
+  EXPECT_NE(notices[0].first.find("cannot tell the focal lengths of the other cameras of its rig (" + front + ")"),
+            std::string::npos)
+      << notices[0].first;
+  // Both told (the forward camera agrees): the left one is corrected.
+  BundleAdjustmentFocal::Estimate agrees = off;
+  agrees.scale = 1.001;
+  corrector.ApplyRefinementEstimates({{left, off}, {front, agrees}}, 2, &warnings);
+  EXPECT_EQ(corrector.Corrections(), (std::map<std::string, double>{{left, 1.031}}));
+}
+
 // focal_calibration: apply, refined by the loops (FocalCorrector::RefineByLoops
 // in the node): once a camera is corrected, its held pairs' edges move by their
 // derivatives with respect to its focal length for the loops' small

@@ -111,6 +111,57 @@ inline ArcScene MakeArcScene(int views, double noise_px, std::uint32_t seed) {
   return scene;
 }
 
+
+// Cameras on a path past a deep box of points, turned about every axis
+// (general motion for focal self-calibration): each sees the points in its
+// field of view with the keypoints normalised by a focal length
+// `focal_scale` times too short (x = focal_scale proj: camera_info's focal
+// length over focal_scale). Every pair that shares 30 points is an edge.
+// (ArcScene's fields; `keypoints` holds every point, seen or not.)
+inline ArcScene MakePathScene(int views, double noise_px, double focal_scale, std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, noise_px / kArcSceneFocal);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  ArcScene scene;
+  for (int k = 0; k < 600; ++k) {
+    const Eigen::Vector3d d = DrawVector3(rng, u);
+    scene.points.emplace_back(6.0 * d.x(), 3.0 * d.y(), 8.0 + 4.0 * d.z());
+  }
+  std::vector<std::vector<bool>> visible(views);
+  for (int v = 0; v < views; ++v) {
+    const Eigen::Vector3d centre(-2.0 + 4.0 * v / (views - 1), 0.3 * u(rng), 0.5 * u(rng));
+    const Eigen::Matrix3d r =
+        ExpSO3(Eigen::Vector3d(DegToRad(8.0) * u(rng), DegToRad(15.0) * u(rng), DegToRad(15.0) * u(rng)));
+    scene.truth[static_cast<ViewId>(v)] = r;
+    scene.centres.push_back(centre);
+    std::vector<Eigen::Vector2d> seen;
+    for (const Eigen::Vector3d& p : scene.points) {
+      const Eigen::Vector3d y = r * (p - centre);
+      const Eigen::Vector2d x = focal_scale * y.hnormalized() + DrawVector2(rng, noise);
+      visible[v].push_back(y.z() > 0.5 && x.cwiseAbs().maxCoeff() < 0.6);
+      seen.push_back(x);
+    }
+    scene.keypoints.push_back(seen);
+  }
+  for (int i = 0; i < views; ++i) {
+    for (int j = i + 1; j < views; ++j) {
+      EdgeCorrespondences e;
+      e.view1 = static_cast<ViewId>(i);
+      e.view2 = static_cast<ViewId>(j);
+      for (std::size_t p = 0; p < scene.points.size(); ++p) {
+        if (!visible[i][p] || !visible[j][p]) continue;
+        e.points1.push_back(scene.keypoints[i][p]);
+        e.points2.push_back(scene.keypoints[j][p]);
+      }
+      if (e.points1.size() < 30) continue;
+      e.translation = (scene.truth[e.view2] * (scene.centres[i] - scene.centres[j])).normalized();
+      e.sigma = std::max(noise_px, 0.05) / kArcSceneFocal;
+      scene.edges.push_back(std::move(e));
+    }
+  }
+  return scene;
+}
+
 }  // namespace rotation_averaging
 
 #endif  // ROTATION_AVERAGING_TEST_REFINEMENT_TEST_UTIL_H_

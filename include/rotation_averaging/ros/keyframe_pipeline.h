@@ -155,6 +155,13 @@ class KeyframePipeline {
   // `loop_closure` (optional) tells whether one of them closes a loop.
   std::size_t ProcessKeyframe(const PendingKeyframe& keyframe, bool* loop_closure = nullptr,
                               std::vector<std::string>* warnings = nullptr);
+  // focal_calibration: apply. The corrections that are due (the
+  // refinement's estimates, the focal checks', the loops'), with their
+  // pairs estimated again into the graph; ProcessKeyframe runs it before
+  // each keyframe, and a caller whose input has ended (the replay, after
+  // its final refinement) can run it on the same thread. True if a
+  // camera's focal length changed.
+  bool ApplyFocalCorrections(std::vector<std::string>* warnings = nullptr);
 
   // The averager solves one variable per rig capture; this expands a
   // solution into one orientation per camera keyframe. Callers expand once
@@ -212,7 +219,9 @@ class KeyframePipeline {
   TimeDistribution FocalCheckTimes() const;
   // Log lines of the checks and corrections since the last call
   // (FocalChecker::TakeNotices, FocalCorrector::TakeNotices), each with
-  // whether it is a warning.
+  // whether it is a warning; with refinement_focal, what the refinement's
+  // estimate says of each camera's focal length, each time that changes
+  // (JudgeFocalEstimate: a warning when it disagrees).
   std::vector<std::pair<std::string, bool>> TakeFocalNotices();
   // Waits for the estimates that are due (the replay, before its summary).
   void WaitForFocalChecks();
@@ -260,6 +269,10 @@ class KeyframePipeline {
   std::map<std::string, std::int64_t> last_image_stamp_;
   std::map<std::string, std::string> camera_models_;  // frame -> description of its model
   std::vector<std::string> camera_model_notices_;
+  // The refinement's focal verdicts said so far, and the refinement they
+  // are of (TakeFocalNotices).
+  std::map<std::string, FocalVerdict> refinement_focal_verdicts_;
+  std::uint64_t refinement_focal_seen_ = 0;
 };
 }  // namespace rotation_averaging
 

@@ -78,7 +78,7 @@ struct PipelineConfig {
   // distortion model and the images are distorted); "apply" also
   // corrects it then (frontend/controllers/focal_corrector.h); "off" does
   // neither.
-  FocalCalibrationMode focal_calibration = FocalCalibrationMode::kWarn;
+  FocalCalibrationMode focal_calibration = FocalCalibrationMode::kApply;
   // With "apply": once a camera is corrected, its focal length is refined
   // further by the loops of the averaging (FocalCorrector::RefineByLoops),
   // as loop closures arrive.

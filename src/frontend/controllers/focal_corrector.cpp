@@ -18,6 +18,19 @@ std::pair<double, double> FocalEstimatePx(const CameraFocalCheck& check) {
 
 }  // namespace
 
+FocalVerdict JudgeFocalEstimate(const BundleAdjustmentFocal::Estimate& e, double min_correction) {
+  if (!e.determined || !std::isfinite(e.scale) || !std::isfinite(e.sigma)) return FocalVerdict::kCannotTell;
+  if (std::abs(e.scale - 1.0) > std::max(min_correction, 3.0 * e.sigma)) return FocalVerdict::kDisagrees;
+  return e.sigma <= min_correction ? FocalVerdict::kAgrees : FocalVerdict::kCannotTell;
+}
+
+std::string DescribeFocalEstimate(const BundleAdjustmentFocal::Estimate& e) {
+  std::ostringstream out;
+  out << std::fixed << std::setprecision(4) << "x" << e.scale << " +- " << e.sigma << " (matches " << e.sigma_matches
+      << ", principal point " << e.sigma_principal_point << "), " << e.views << " keyframes";
+  return out.str();
+}
+
 FocalCorrector::FocalCorrector(const FocalCorrectorOptions& options, KeyframeFrontend* frontend,
                                std::mutex* frontend_mutex, FocalChecker* checker, RigModel* rig,
                                OnlineAverager* averager, AddEdge add_edge)
@@ -113,7 +126,57 @@ void FocalCorrector::ApplyCorrections(std::vector<std::string>* warnings) {
   }
 }
 
+void FocalCorrector::ApplyRefinementEstimates(const std::map<std::string, BundleAdjustmentFocal::Estimate>& estimates,
+                                              std::uint64_t refinement, std::vector<std::string>* warnings) {
+  if (refinement == 0 || refinement <= refinement_seen_) return;
+  refinement_seen_ = refinement;
+  const std::map<std::string, CameraFocalCheck> checks = checker_->Checks();
+  const std::map<std::string, double> corrected = Corrections();
+  const RigCameraMap rig_cameras = rig_->RigCameras();
+  std::map<std::string, FocalVerdict> verdicts;
+  for (const auto& [camera, e] : estimates) verdicts[camera] = JudgeFocalEstimate(e, options_.min_correction);
+  for (const auto& [camera, e] : estimates) {
+    if (verdicts.at(camera) != FocalVerdict::kDisagrees || refused_.count(camera)) continue;
+    const auto check = checks.find(camera);
+    if (check != checks.end() && check->second.distortion_unmodelled) {
+      HoldBack(camera, "its images are distorted and camera_info has no distortion model, which the "
+                       "estimate cannot tell from a focal length error; give the model first");
+      continue;
+    }
+    std::string untold;
+    const auto rig = rig_cameras.find(camera);
+    if (rig != rig_cameras.end()) {
+      for (const auto& [other, other_rig] : rig_cameras) {
+        if (other == camera || other_rig.first != rig->second.first || corrected.count(other)) continue;
+        const auto v = verdicts.find(other);
+        if (v == verdicts.end() || v->second == FocalVerdict::kCannotTell) untold += (untold.empty() ? "" : ", ") + other;
+      }
+    }
+    if (!untold.empty()) {
+      HoldBack(camera, "the refinement cannot tell the focal lengths of the other cameras of its rig (" + untold +
+                           "), and correcting one camera of a rig alone makes its cameras disagree; fix camera_info");
+      continue;
+    }
+    double given_px = 0.0;
+    {
+      std::lock_guard<std::mutex> lock(*frontend_mutex_);
+      given_px = frontend_->FocalInUsePx(camera);
+    }
+    if (!(given_px > 0.0)) continue;
+    held_back_.erase(camera);
+    Correct(camera, e.scale, given_px, {given_px * e.scale, given_px * e.sigma},
+            "the refinement's estimate " + DescribeFocalEstimate(e), warnings);
+  }
+}
+
 void FocalCorrector::Correct(const std::string& camera, const CameraFocalCheck& check,
+                             std::vector<std::string>* warnings) {
+  Correct(camera, check.calibration.scale, check.given_focal_px, FocalEstimatePx(check), "the focal check's estimate",
+          warnings);
+}
+
+void FocalCorrector::Correct(const std::string& camera, double scale, double given_px,
+                             std::pair<double, double> estimate_px, const std::string& source,
                              std::vector<std::string>* warnings) {
   std::vector<KeyframeRelativeRotation> edges;
   std::string why;
@@ -121,7 +184,7 @@ void FocalCorrector::Correct(const std::string& camera, const CameraFocalCheck& 
   double correction = 1.0;
   {
     std::lock_guard<std::mutex> lock(*frontend_mutex_);
-    ok = frontend_->ApplyFocalCorrection(camera, check.calibration.scale, &edges, &why);
+    ok = frontend_->ApplyFocalCorrection(camera, scale, &edges, &why);
     correction = frontend_->FocalCorrection(camera);
     if (ok) checker_->Submit(frontend_->TakeFocalJobs());
   }
@@ -131,9 +194,9 @@ void FocalCorrector::Correct(const std::string& camera, const CameraFocalCheck& 
     refused_.insert(camera);
     line << "focal length not corrected: " << why;
   } else {
-    checker_->ExpectFocal(camera, check.given_focal_px * check.calibration.scale);
-    focal_in_use_px_[camera] = check.given_focal_px * check.calibration.scale;
-    focal_prior_px_[camera] = FocalEstimatePx(check);
+    checker_->ExpectFocal(camera, given_px * scale);
+    focal_in_use_px_[camera] = given_px * scale;
+    focal_prior_px_[camera] = estimate_px;
     loops_at_refinement_ = 0;  // the loops look again at the new focal length
     std::size_t replaced = 0;
     for (const KeyframeRelativeRotation& e : edges) {
@@ -144,8 +207,8 @@ void FocalCorrector::Correct(const std::string& camera, const CameraFocalCheck& 
         warnings->push_back("re-estimated edge dropped: " + error);
       }
     }
-    line << "focal length corrected by x" << check.calibration.scale << " (x" << correction
-         << " of camera_info's in all): " << replaced << " of its pairs estimated again";
+    line << "focal length corrected by x" << scale << " (x" << correction << " of camera_info's in all; " << source
+         << "): " << replaced << " of its pairs estimated again";
   }
   std::lock_guard<std::mutex> lock(mutex_);
   if (ok) corrections_[camera] = correction;

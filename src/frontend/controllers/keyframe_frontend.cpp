@@ -428,6 +428,7 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
   // A focal length corrected by the check (ApplyFocalCorrection) replaces
   // the given one before anything, undistortion included.
   CameraIntrinsics camera = given;
+  given_focal_px_[key.frame_id] = given.k(0, 0);
   const double correction = FocalCorrection(key.frame_id);
   camera.k(0, 0) *= correction;
   camera.k(1, 1) *= correction;

@@ -59,6 +59,11 @@ double KeyframeFrontend::FocalCorrection(const std::string& camera) const {
   return it == focal_correction_.end() ? 1.0 : it->second;
 }
 
+double KeyframeFrontend::FocalInUsePx(const std::string& camera) const {
+  const auto it = given_focal_px_.find(camera);
+  return it == given_focal_px_.end() ? 0.0 : it->second * FocalCorrection(camera);
+}
+
 std::vector<FocalSensitivity> KeyframeFrontend::FocalSensitivities(const std::string& camera, double step) {
   std::vector<FocalSensitivity> out;
   const auto held = held_pairs_.find(camera);

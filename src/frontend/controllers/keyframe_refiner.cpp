@@ -107,6 +107,10 @@ void KeyframeRefiner::Add(std::vector<KeyframeCorrespondences> edges) {
 void KeyframeRefiner::ScaleCamera(const std::string& frame_id, double scale) {
   if (!(scale > 0.0) || !std::isfinite(scale)) return;
   std::lock_guard<std::mutex> lock(mutex_);
+  const auto scaled = camera_scales_.emplace(frame_id, 1.0).first;
+  scaled->second *= scale;
+  const auto estimate = stats_.focal.find(frame_id);
+  if (estimate != stats_.focal.end()) ScaleEstimate(1.0 / scale, &estimate->second);
   for (auto& [key, held] : edges_) {
     const bool first = held.keyframe1.frame_id == frame_id, second = held.keyframe2.frame_id == frame_id;
     if (first) {
@@ -116,6 +120,12 @@ void KeyframeRefiner::ScaleCamera(const std::string& frame_id, double scale) {
       for (Eigen::Vector2d& p : held.points.points2) p /= scale;
     }
   }
+}
+
+void KeyframeRefiner::HoldFocal(const std::string& frame_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  focal_held_.insert(frame_id);
+  stats_.focal.erase(frame_id);
 }
 
 void KeyframeRefiner::SelectWindow(const OnlineSolution& cameras, std::vector<EdgeCorrespondences>* edges,
@@ -146,6 +156,13 @@ void KeyframeRefiner::SelectWindow(const OnlineSolution& cameras, std::vector<Ed
   }
 }
 
+void KeyframeRefiner::ScaleEstimate(double factor, BundleAdjustmentFocal::Estimate* e) {
+  e->scale *= factor;
+  e->sigma *= factor;
+  e->sigma_matches *= factor;
+  e->sigma_principal_point *= factor;
+}
+
 bool KeyframeRefiner::Refine(const OnlineSolution& cameras, const RigCaptures& rig) {
   return Run(cameras, rig, false);
 }
@@ -156,9 +173,13 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   std::vector<EdgeCorrespondences> edges;
   std::vector<KeyframeKey> keys;
   std::optional<KeyframeKey> oldest_kept;
+  Outcome found;
+  std::set<std::string> held;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     SelectWindow(cameras, &edges, &keys, &oldest_kept);
+    found.camera_scales = camera_scales_;
+    held = focal_held_;
   }
   ViewOrientations averaged;
   for (std::size_t v = 0; v < keys.size(); ++v) averaged[static_cast<ViewId>(v)] = cameras.orientations.at(keys[v]);
@@ -168,10 +189,22 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   // with: posterior_covariance_max_views.)
   const bool with_covariance = options_.covariances && !cameras.covariance.empty();
   BundleAdjustmentCovariance adjusted_covariance;
+  BundleAdjustmentFocal focal;
+  if (options_.estimate_focal) {
+    for (std::size_t v = 0; v < keys.size(); ++v) {
+      if (held.count(keys[v].frame_id) == 0) focal.camera[static_cast<ViewId>(v)] = keys[v].frame_id;
+    }
+  }
   bool ok = !edges.empty() && RefineRotationsWithBundleAdjustment(edges, options_.adjustment, &adjusted, &summary,
                                                                   nullptr,
-                                                                  with_covariance ? &adjusted_covariance : nullptr);
+                                                                  with_covariance ? &adjusted_covariance : nullptr,
+                                                                  options_.estimate_focal ? &focal : nullptr);
   std::string report = edges.empty() ? "no edge with correspondences among the solved keyframes" : summary.Report();
+  // The focal estimates of an adjustment that succeeded stand even where
+  // its corrections are held back below: a focal length a few percent off
+  // bends the averaging by more than max_correction_deg, which is what the
+  // adjustment with the focal length free then finds.
+  if (ok) found.focal = std::move(focal.estimates);
 
   // Each camera's keyframes in each group the edges connect keep the
   // averaging's frame: the adjustment relates two cameras only through the
@@ -252,7 +285,6 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
     report += why.str();
   }
 
-  Outcome found;
   found.seconds = SecondsSince(start);
   found.sequence = cameras.sequence;
   found.ok = ok;
@@ -326,6 +358,19 @@ bool KeyframeRefiner::Take(const Outcome& found) {
   stats_.times.Add(found.seconds);
   stats_.last_ok = found.ok;
   stats_.last_report = found.report;
+  if (!found.focal.empty()) {
+    // The estimates were made with the focal lengths in use as it started.
+    stats_.focal.clear();
+    for (auto [camera, e] : found.focal) {
+      const auto then = found.camera_scales.find(camera);
+      const auto now = camera_scales_.find(camera);
+      ScaleEstimate((then == found.camera_scales.end() ? 1.0 : then->second) /
+                        (now == camera_scales_.end() ? 1.0 : now->second),
+                    &e);
+      stats_.focal[camera] = e;
+    }
+    stats_.focal_refinement = stats_.runs;
+  }
   if (!found.ok) {
     ++stats_.failed;
     return false;
@@ -395,6 +440,7 @@ void KeyframeRefiner::Reset() {
   stats_.bytes = 0;
   stats_.corrected_keyframes = 0;
   stats_.covariance_keyframes = 0;
+  stats_.focal.clear();
 }
 
 namespace {

@@ -6,6 +6,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <map>
@@ -32,6 +33,25 @@ struct WhitenedReprojection {
     ceres::AngleAxisRotatePoint(w, d, y);
     residual[0] = T(inverse_sigma_) * (y[0] / y[2] - T(x_.x()));
     residual[1] = T(inverse_sigma_) * (y[1] / y[2] - T(x_.y()));
+    return true;
+  }
+
+  Eigen::Vector2d x_;
+  double inverse_sigma_;
+};
+
+// The same with the camera's focal length a multiple a of the one the
+// observation was normalised with: x = a proj(y) (BundleAdjustmentFocal).
+struct WhitenedReprojectionWithFocal {
+  WhitenedReprojectionWithFocal(const Eigen::Vector2d& x, double inverse_sigma) : x_(x), inverse_sigma_(inverse_sigma) {}
+
+  template <typename T>
+  bool operator()(const T* w, const T* c, const T* point, const T* a, T* residual) const {
+    const T d[3] = {point[0] - c[0], point[1] - c[1], point[2] - c[2]};
+    T y[3];
+    ceres::AngleAxisRotatePoint(w, d, y);
+    residual[0] = T(inverse_sigma_) * (a[0] * y[0] / y[2] - T(x_.x()));
+    residual[1] = T(inverse_sigma_) * (a[0] * y[1] / y[2] - T(x_.y()));
     return true;
   }
 
@@ -84,10 +104,15 @@ struct AdjustedView {
   Eigen::Vector3d angle_axis = Eigen::Vector3d::Zero();
   Eigen::Vector3d centre = Eigen::Vector3d::Zero();
   double sigma = 0.0;  // pixel noise over the focal length
+  // The camera whose focal length is estimated (an index into the focal
+  // scales; -1: none) and that scale (BundleAdjustmentFocal; exactly 1
+  // where none is, so that the arithmetic is what it is without it).
+  int camera = -1;
+  double focal_scale = 1.0;
 };
 
 Eigen::Vector3d Ray(const AdjustedView& v, const Eigen::Vector2d& x) {
-  return (v.rotation.transpose() * x.homogeneous()).normalized();
+  return (v.rotation.transpose() * (x / v.focal_scale).homogeneous()).normalized();
 }
 
 ceres::Solver::Options SolverOptions(int max_iterations) {
@@ -133,7 +158,7 @@ bool Triangulate(const std::vector<AdjustedView>& views, double min_parallax_rad
 
 double WhitenedSquaredError(const AdjustedView& v, const Track& t, const Observation& o) {
   const Eigen::Vector3d y = v.rotation * (t.point - v.centre);
-  return ((y.head<2>() / y.z() - o.x) / v.sigma).squaredNorm();
+  return ((v.focal_scale * (y.head<2>() / y.z()) - o.x) / v.sigma).squaredNorm();
 }
 
 // The edges the adjustment can use (distinct oriented views, enough finite
@@ -318,10 +343,11 @@ double RmsSigmas(const std::vector<AdjustedView>& views, const std::vector<Track
 }
 
 // Minimises the whitened reprojection errors under `loss` over points,
-// centres and (unless held) orientations. True if the solution is usable.
+// centres and (unless held) orientations and the cameras' focal scales
+// (`focal_scales`, by AdjustedView::camera). True if the solution is usable.
 bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjustmentOptions& options,
-            std::vector<AdjustedView>* views, std::vector<Track>* tracks, BundleAdjustmentSummary* summary,
-            ceres::Solver::Summary* ceres_summary) {
+            std::vector<AdjustedView>* views, std::vector<Track>* tracks, std::vector<double>* focal_scales,
+            BundleAdjustmentSummary* summary, ceres::Solver::Summary* ceres_summary) {
   ceres::Problem problem(ProblemOptions());
   auto* ordering = new ceres::ParameterBlockOrdering;
   summary->observations = 0;
@@ -330,9 +356,18 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
     ordering->AddElementToGroup(t.point.data(), 0);
     for (const Observation& o : t.observations) {
       AdjustedView& v = (*views)[o.view];
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojection, 2, 3, 3, 3>(
-                                   new WhitenedReprojection(o.x, 1.0 / v.sigma)),
-                               loss, v.angle_axis.data(), v.centre.data(), t.point.data());
+      if (v.camera >= 0) {
+        double* a = &(*focal_scales)[v.camera];
+        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojectionWithFocal, 2, 3, 3, 3, 1>(
+                                     new WhitenedReprojectionWithFocal(o.x, 1.0 / v.sigma)),
+                                 loss, v.angle_axis.data(), v.centre.data(), t.point.data(), a);
+        ordering->AddElementToGroup(a, 1);
+        if (hold_orientations) problem.SetParameterBlockConstant(a);
+      } else {
+        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojection, 2, 3, 3, 3>(
+                                     new WhitenedReprojection(o.x, 1.0 / v.sigma)),
+                                 loss, v.angle_axis.data(), v.centre.data(), t.point.data());
+      }
       ++summary->observations;
     }
   }
@@ -374,6 +409,7 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
     v.rotation = Eigen::AngleAxisd(v.angle_axis.norm(), v.angle_axis.norm() > 0.0 ? v.angle_axis.normalized()
                                                                                   : Eigen::Vector3d::UnitX())
                      .toRotationMatrix();
+    if (v.camera >= 0) v.focal_scale = (*focal_scales)[v.camera];
   }
   return ceres_summary->IsSolutionUsable();
 }
@@ -465,8 +501,14 @@ Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
 // reduced system (corrected for its leverage, below), the one Gauss-Newton
 // step its observations pull the solution by, and
 // C = (g - 1) / g sum_c (m_c - mean)(m_c - mean)^T over the g cells.
+// With `focal` (one entry per estimated camera, AdjustedView::camera), each
+// camera's focal scale is a variable too, and its deviation is filled in
+// (BundleAdjustmentFocal): its principal point's offset is a further
+// variable there, of prior deviation `principal_point_sigma` times the
+// width of the camera's observations, for that part alone.
 bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector<Track>& tracks, double loss_scale,
-                       int grid, BundleAdjustmentCovariance* out) {
+                       int grid, double principal_point_sigma, BundleAdjustmentCovariance* out,
+                       std::vector<BundleAdjustmentFocal::Estimate>* focal) {
   const int n = static_cast<int>(views.size());
   std::vector<int> group(n);
   std::iota(group.begin(), group.end(), 0);
@@ -491,6 +533,26 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     dim += 6;
   }
   if (dim == 0) return false;
+  // After the views' variables: each estimated camera's focal scale, then
+  // its principal point's offset (two).
+  const int view_dim = dim, cameras = focal ? static_cast<int>(focal->size()) : 0;
+  std::vector<int> var_f(cameras, -1), var_p(cameras, -1);
+  std::vector<double> lo_x(cameras, INFINITY), hi_x(cameras, -INFINITY);
+  for (const Track& t : tracks) {
+    for (const Observation& o : t.observations) {
+      const int c = views[o.view].camera;
+      if (c < 0 || c >= cameras) continue;
+      lo_x[c] = std::min(lo_x[c], o.x.x());
+      hi_x[c] = std::max(hi_x[c], o.x.x());
+    }
+  }
+  for (int c = 0; c < cameras; ++c) {
+    if (hi_x[c] > lo_x[c]) var_f[c] = dim++;
+  }
+  const int focal_dim = dim;
+  for (int c = 0; c < cameras; ++c) {
+    if (var_f[c] >= 0) var_p[c] = dim, dim += 2;
+  }
   int cells = 0;
   const std::vector<std::vector<int>> cell_of = ObservationCells(views, tracks, std::max(1, grid), &cells);
   Eigen::MatrixXd s = Eigen::MatrixXd::Zero(dim, dim);
@@ -510,6 +572,12 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   std::vector<Eigen::Vector3d> gx;
   std::vector<Eigen::Matrix<double, 6, 6>> a;
   std::vector<Vector6d> gc;
+  // An observation's focal scale and principal point offset (e: 3 columns,
+  // their variables in ei; -1 where its view's camera is not estimated).
+  std::vector<Eigen::Matrix3d> be, aee;
+  std::vector<Eigen::Matrix<double, 3, 6>> aec;
+  std::vector<Eigen::Vector3d> ge;
+  std::vector<std::array<int, 3>> ei;
   for (std::size_t k = 0; k < tracks.size(); ++k) {
     const Track& t = tracks[k];
     const std::size_t m = t.observations.size();
@@ -517,6 +585,13 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     gx.assign(m, Eigen::Vector3d::Zero());
     a.assign(m, Eigen::Matrix<double, 6, 6>::Zero());
     gc.assign(m, Vector6d::Zero());
+    if (cameras > 0) {
+      be.assign(m, Eigen::Matrix3d::Zero());
+      aee.assign(m, Eigen::Matrix3d::Zero());
+      aec.assign(m, Eigen::Matrix<double, 3, 6>::Zero());
+      ge.assign(m, Eigen::Vector3d::Zero());
+      ei.assign(m, {-1, -1, -1});
+    }
     Eigen::Matrix3d hpp = Eigen::Matrix3d::Zero();
     for (std::size_t i = 0; i < m; ++i) {
       const Observation& o = t.observations[i];
@@ -525,7 +600,9 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
       Eigen::Matrix<double, 2, 3> p;
       p << 1.0 / y.z(), 0.0, -y.x() / (y.z() * y.z()), 0.0, 1.0 / y.z(), -y.y() / (y.z() * y.z());
       p /= v.sigma;
-      const Eigen::Vector2d r = (y.head<2>() / y.z() - o.x) / v.sigma;
+      const bool estimated = v.camera >= 0 && v.camera < cameras && var_f[v.camera] >= 0;
+      if (estimated) p *= v.focal_scale;
+      const Eigen::Vector2d r = (v.focal_scale * (y.head<2>() / y.z()) - o.x) / v.sigma;
       const double w = 1.0 / (1.0 + r.squaredNorm() / a2);
       Matrix26 jc;
       jc.leftCols<3>() = -p * Skew(y);
@@ -536,6 +613,17 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
       gx[i] = w * jx.transpose() * r;
       a[i] = w * jc.transpose() * jc;
       gc[i] = w * jc.transpose() * r;
+      if (estimated) {
+        // d r / d a = proj / sigma; d r / d offset = I / sigma (x = a proj + offset).
+        Eigen::Matrix<double, 2, 3> je;
+        je.col(0) = y.head<2>() / (y.z() * v.sigma);
+        je.rightCols<2>() = Eigen::Matrix2d::Identity() / v.sigma;
+        be[i] = w * je.transpose() * jx;
+        aee[i] = w * je.transpose() * je;
+        aec[i] = w * je.transpose() * jc;
+        ge[i] = w * je.transpose() * r;
+        ei[i] = {var_f[v.camera], var_p[v.camera], var_p[v.camera] + 1};
+      }
       weighted_squares += w * r.squaredNorm();
       residuals += 2;
     }
@@ -564,22 +652,60 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
         }
       }
     }
+    if (cameras > 0) {
+      // The focal scales' and principal points' rows and columns: the
+      // same elimination of the point, element by element.
+      for (std::size_t i = 0; i < m; ++i) {
+        const int vi = var[t.observations[i].view];
+        if (ei[i][0] < 0) continue;
+        const Eigen::Matrix3d bei = be[i] * hpp_inv;
+        for (int p = 0; p < 3; ++p) {
+          for (int q = 0; q < 3; ++q) s(ei[i][p], ei[i][q]) += aee[i](p, q);
+          if (vi >= 0) {
+            for (int q = 0; q < 6; ++q) {
+              s(ei[i][p], vi + q) += aec[i](p, q);
+              s(vi + q, ei[i][p]) += aec[i](p, q);
+            }
+          }
+          if (grid > 0 && p == 0) scores(ei[i][0], cell_of[k][i]) += ge[i](0);
+        }
+        for (std::size_t j = 0; j < m; ++j) {
+          const int vj = var[t.observations[j].view];
+          if (vj >= 0) {
+            const Eigen::Matrix<double, 3, 6> cross = bei * b[j].transpose();
+            for (int p = 0; p < 3; ++p) {
+              for (int q = 0; q < 6; ++q) {
+                s(ei[i][p], vj + q) -= cross(p, q);
+                s(vj + q, ei[i][p]) -= cross(p, q);
+              }
+            }
+          }
+          if (ei[j][0] >= 0) {
+            const Eigen::Matrix3d both = bei * be[j].transpose();
+            for (int p = 0; p < 3; ++p) {
+              for (int q = 0; q < 3; ++q) s(ei[i][p], ei[j][q]) -= both(p, q);
+            }
+          }
+          if (grid > 0) scores(ei[i][0], cell_of[k][j]) -= bei.row(0).dot(gx[j]);
+        }
+      }
+    }
   }
   // Each view's own block, before the scale's penalty: the cells' leverage.
-  std::vector<Eigen::Matrix<double, 6, 6>> view_blocks(dim / 6);
-  for (int k = 0; k < dim / 6; ++k) view_blocks[k] = s.block<6, 6>(6 * k, 6 * k);
+  std::vector<Eigen::Matrix<double, 6, 6>> view_blocks(view_dim / 6);
+  for (int k = 0; k < view_dim / 6; ++k) view_blocks[k] = s.block<6, 6>(6 * k, 6 * k);
   // The scale direction of each group, held by a penalty on its own scale.
-  const double penalty = s.trace() / dim;
+  const double penalty = s.topLeftCorner(view_dim, view_dim).trace() / view_dim;
   for (int g = 0; g < n; ++g) {
     if (held[g] < 0) continue;
-    Eigen::VectorXd direction = Eigen::VectorXd::Zero(dim);
+    Eigen::VectorXd direction = Eigen::VectorXd::Zero(view_dim);
     for (int k = 0; k < n; ++k) {
       if (var[k] >= 0 && Root(&group, k) == g) {
         direction.segment<3>(var[k] + 3) = views[k].centre - views[held[g]].centre;
       }
     }
     if (direction.norm() > 0.0) direction.normalize();
-    s.noalias() += penalty * direction * direction.transpose();
+    s.topLeftCorner(view_dim, view_dim).noalias() += penalty * direction * direction.transpose();
   }
   // S^-1 restricted to the rotations' columns. A direction the tracks hardly
   // fix (a wall seen head on: turning the cameras and moving them sideways
@@ -587,7 +713,7 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   // elimination can leave it a little indefinite there: then its eigenvalues
   // are floored at 1e-12 of the largest, a variance as large as the
   // adjustment can express (what it can say: nothing).
-  const auto inverse_columns = [&](const Eigen::MatrixXd& rhs) -> Eigen::MatrixXd {
+  const auto inverse_columns = [](const Eigen::MatrixXd& s, const Eigen::MatrixXd& rhs) -> Eigen::MatrixXd {
     const Eigen::LLT<Eigen::MatrixXd> llt(s);
     if (llt.info() == Eigen::Success) return llt.solve(rhs);
     const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(s);
@@ -609,16 +735,22 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     rotation_rows.push_back(var[k]);
   }
   const int blocks = static_cast<int>(rotation_rows.size());
-  Eigen::MatrixXd selector = Eigen::MatrixXd::Zero(dim, 3 * blocks);
+  // The rotations' columns, then the focal scales'; of the system without
+  // the principal points (the adjustment held them).
+  const int focal_columns = focal_dim - view_dim;
+  Eigen::MatrixXd selector = Eigen::MatrixXd::Zero(focal_dim, 3 * blocks + focal_columns);
   for (int k = 0; k < blocks; ++k) {
     if (rotation_rows[k] >= 0) selector.block<3, 3>(rotation_rows[k], 3 * k).setIdentity();
   }
-  const Eigen::MatrixXd columns = inverse_columns(selector);
-  if (columns.rows() != dim || !columns.allFinite()) return false;
-  const double redundancy = static_cast<double>(residuals) - (dim - groups) - 3.0 * tracks.size();
+  for (int f = 0; f < focal_columns; ++f) selector(view_dim + f, 3 * blocks + f) = 1.0;
+  const Eigen::MatrixXd columns =
+      inverse_columns(dim == focal_dim ? s : Eigen::MatrixXd(s.topLeftCorner(focal_dim, focal_dim)), selector);
+  if (columns.rows() != focal_dim || !columns.allFinite()) return false;
+  const double redundancy = static_cast<double>(residuals) - (focal_dim - groups) - 3.0 * tracks.size();
   out->variance_factor =
       redundancy >= 10.0 ? weighted_squares / (CauchyWeightedSquaresFraction(loss_scale) * redundancy) : 1.0;
-  out->pixel_model = out->variance_factor * (selector.transpose() * columns);
+  const Eigen::MatrixXd joint = out->variance_factor * (selector.transpose() * columns);
+  out->pixel_model = joint.topLeftCorner(3 * blocks, 3 * blocks);
   out->cells = grid > 0 ? cells : 0;
   if (grid > 0 && cells >= 2) {
     // Each cell's score is taken from the fitted residuals, which the
@@ -652,12 +784,43 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
       scores.col(c).segment<6>(v) +=
           d * root_inverse * h.eigenvectors() * g.asDiagonal() * h.eigenvectors().transpose() * root_inverse * own;
     }
-    const Eigen::MatrixXd steps = columns.transpose() * scores;  // 3 blocks x cells: Z u_c (Z symmetric)
+    // 3 blocks (and the focal scales) x cells: Z u_c (Z symmetric).
+    const Eigen::MatrixXd steps = columns.transpose() * scores.topRows(focal_dim);
     const Eigen::VectorXd mean = steps.rowwise().mean();
     const Eigen::MatrixXd centred = steps.colwise() - mean;
-    out->jackknife = (static_cast<double>(cells - 1) / cells) * (centred * centred.transpose());
+    const Eigen::MatrixXd jackknife = (static_cast<double>(cells - 1) / cells) * (centred * centred.transpose());
+    out->jackknife = jackknife.topLeftCorner(3 * blocks, 3 * blocks);
+    for (int c = 0; c < cameras; ++c) {
+      if (var_f[c] >= 0) (*focal)[c].sigma_matches = jackknife(var_f[c] - view_dim + 3 * blocks, var_f[c] - view_dim + 3 * blocks);
+    }
   } else {
     out->jackknife.resize(0, 0);
+  }
+  if (focal_columns > 0) {
+    // The principal points: a prior of principal_point_sigma of each
+    // camera's width (in the variance factor's units, so that the scaled
+    // covariance holds it at that), then what the focal scales' variance
+    // gains.
+    for (int c = 0; c < cameras; ++c) {
+      if (var_f[c] < 0) continue;
+      const double sigma = std::max(principal_point_sigma * (hi_x[c] - lo_x[c]), 1e-12);
+      for (int q = 0; q < 2; ++q) s(var_p[c] + q, var_p[c] + q) += out->variance_factor / (sigma * sigma);
+    }
+    Eigen::MatrixXd focal_selector = Eigen::MatrixXd::Zero(dim, focal_columns);
+    for (int f = 0; f < focal_columns; ++f) focal_selector(view_dim + f, f) = 1.0;
+    const Eigen::MatrixXd with_principal_points = inverse_columns(s, focal_selector);
+    if (with_principal_points.rows() != dim || !with_principal_points.allFinite()) return false;
+    for (int c = 0; c < cameras; ++c) {
+      if (var_f[c] < 0) continue;
+      const int f = var_f[c] - view_dim;
+      const double matches = joint(3 * blocks + f, 3 * blocks + f);
+      const double total = out->variance_factor * with_principal_points(var_f[c], f);
+      BundleAdjustmentFocal::Estimate& e = (*focal)[c];
+      e.sigma_matches = std::sqrt(std::max(matches, e.sigma_matches));  // (the jackknife's variance, if any)
+      e.sigma_principal_point = std::sqrt(std::max(total - matches, 0.0));
+      e.sigma = std::hypot(e.sigma_matches, e.sigma_principal_point);
+      e.determined = std::isfinite(e.sigma) && e.sigma > 0.0;
+    }
   }
   if (!out->pixel_model.allFinite() || !out->jackknife.allFinite()) {
     out->index.clear();
@@ -709,7 +872,7 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
                                          const BundleAdjustmentOptions& options, ViewOrientations* orientations,
                                          BundleAdjustmentSummary* summary,
                                          std::unordered_map<ViewId, Eigen::Vector3d>* centres,
-                                         BundleAdjustmentCovariance* covariance) {
+                                         BundleAdjustmentCovariance* covariance, BundleAdjustmentFocal* focal) {
   HoldOpenBlasToOneThread();  // Ceres' sparse Schur solves call it every iteration
   const auto start = std::chrono::steady_clock::now();
   *summary = BundleAdjustmentSummary();
@@ -723,6 +886,26 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   std::vector<const EdgeCorrespondences*> used;
   SelectEdgesAndViews(edges, options, *orientations, &used, &index, &views, summary);
   if (used.empty()) return finish(false, "no edge with enough correspondences between oriented views");
+  // The cameras whose focal lengths are estimated, in name order.
+  std::vector<std::string> camera_names;
+  if (focal) {
+    focal->estimates.clear();
+    std::map<std::string, int> numbered;
+    for (AdjustedView& v : views) {
+      const auto it = focal->camera.find(v.id);
+      if (it == focal->camera.end()) continue;
+      numbered.emplace(it->second, 0);
+    }
+    for (auto& [name, number] : numbered) {
+      number = static_cast<int>(camera_names.size());
+      camera_names.push_back(name);
+    }
+    for (AdjustedView& v : views) {
+      const auto it = focal->camera.find(v.id);
+      if (it != focal->camera.end()) v.camera = numbered.at(it->second);
+    }
+  }
+  std::vector<double> focal_scales(camera_names.size(), 1.0);
   std::vector<Track> tracks = BuildTracks(used, index, options, summary);
   std::string message;
   if (!PlaceCentres(used, index, options, &views, summary, &message)) return finish(false, "centres: " + message);
@@ -736,7 +919,7 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   const double scale = options.loss_scale_sigmas > 0.0 ? options.loss_scale_sigmas : 3.0;
   ceres::HuberLoss huber(scale);
   ceres::Solver::Summary first;
-  if (!Adjust(true, &huber, options, &views, &tracks, summary, &first)) {
+  if (!Adjust(true, &huber, options, &views, &tracks, &focal_scales, summary, &first)) {
     return finish(false, "centres and points: " + first.message);
   }
   // Then everything: with the orientations held, their errors (a tenth of a
@@ -747,7 +930,7 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   // the adjustment kept the averaging's errors on a courtyard of repeated
   // windows.
   ceres::CauchyLoss cauchy(scale);
-  if (!Adjust(false, &cauchy, options, &views, &tracks, summary, &first)) {
+  if (!Adjust(false, &cauchy, options, &views, &tracks, &focal_scales, summary, &first)) {
     return finish(false, "everything: " + first.message);
   }
   // Drop the observations the first stages could not fit, and triangulate
@@ -757,11 +940,13 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   if (tracks.empty()) return finish(false, "no track left after the first stage");
 
   ceres::Solver::Summary second;
-  if (!Adjust(false, &cauchy, options, &views, &tracks, summary, &second)) {
+  if (!Adjust(false, &cauchy, options, &views, &tracks, &focal_scales, summary, &second)) {
     return finish(false, "orientations: " + second.message);
   }
   for (const AdjustedView& v : views) {
-    if (!v.rotation.allFinite() || !v.centre.allFinite()) return finish(false, "non-finite result: orientations kept");
+    if (!v.rotation.allFinite() || !v.centre.allFinite() || !std::isfinite(v.focal_scale) || !(v.focal_scale > 0.0)) {
+      return finish(false, "non-finite result: orientations kept");
+    }
   }
   summary->final_rms_sigmas = RmsSigmas(views, tracks);
   summary->tracks = static_cast<int>(tracks.size());
@@ -773,14 +958,33 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
     centres->clear();
     for (const AdjustedView& v : views) (*centres)[v.id] = v.centre;
   }
-  if (covariance) {
+  std::vector<BundleAdjustmentFocal::Estimate> estimates(camera_names.size());
+  for (std::size_t c = 0; c < camera_names.size(); ++c) estimates[c].scale = focal_scales[c];
+  for (const Track& t : tracks) {
+    for (const Observation& o : t.observations) {
+      if (views[o.view].camera >= 0) ++estimates[views[o.view].camera].observations;
+    }
+  }
+  if (covariance || !camera_names.empty()) {
     const auto covariance_start = std::chrono::steady_clock::now();
-    *covariance = BundleAdjustmentCovariance();
-    if (!ComputeCovariance(views, tracks, scale, options.covariance_cell_grid, covariance)) {
-      *covariance = BundleAdjustmentCovariance();
+    BundleAdjustmentCovariance own;
+    BundleAdjustmentCovariance* out = covariance ? covariance : &own;
+    *out = BundleAdjustmentCovariance();
+    if (!ComputeCovariance(views, tracks, scale, options.covariance_cell_grid,
+                           focal ? focal->principal_point_sigma : 0.0, out, focal ? &estimates : nullptr)) {
+      *out = BundleAdjustmentCovariance();
+      for (BundleAdjustmentFocal::Estimate& e : estimates) e.determined = false;
     }
     summary->covariance_time_s =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - covariance_start).count();
+  }
+  if (focal) {
+    for (const AdjustedView& v : views) {
+      if (v.camera >= 0) ++estimates[v.camera].views;
+    }
+    for (std::size_t c = 0; c < camera_names.size(); ++c) {
+      if (estimates[c].observations > 0) focal->estimates[camera_names[c]] = estimates[c];
+    }
   }
   return finish(true, summary->converged ? "" : second.message);
 }

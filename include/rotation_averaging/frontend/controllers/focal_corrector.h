@@ -23,8 +23,21 @@
 #include "rotation_averaging/frontend/controllers/focal_monitor.h"
 #include "rotation_averaging/frontend/controllers/keyframe_frontend.h"
 #include "rotation_averaging/core/controllers/online_averager.h"
+#include "rotation_averaging/frontend/estimators/bundle_adjustment.h"
 
 namespace rotation_averaging {
+
+// What the refinement's estimate of a camera's focal length
+// (KeyframeRefinerStats::focal, relative to the one in use) says of it:
+// kDisagrees when it is further from 1 than `min_correction` and than 3 of
+// its deviations; kAgrees when not, and it is precise enough to have seen
+// such an error (deviation at most min_correction); kCannotTell otherwise
+// (too few keyframes, or motion that cannot separate the focal length from
+// the points' depths or the principal point: its deviation says so).
+enum class FocalVerdict { kAgrees, kDisagrees, kCannotTell };
+FocalVerdict JudgeFocalEstimate(const BundleAdjustmentFocal::Estimate& estimate, double min_correction);
+// "x1.0309 +- 0.0005 (matches 0.0005, principal point 0.0001), 60 keyframes".
+std::string DescribeFocalEstimate(const BundleAdjustmentFocal::Estimate& estimate);
 
 struct FocalCorrectorOptions {
   // After a correction, refine the focal length by the loops (RefineByLoops).
@@ -67,6 +80,18 @@ class FocalCorrector {
   // number, and for as long as the camera's pairs are held
   // (max_correction_pairs). Called after ApplyCorrections.
   void RefineByLoops(std::uint64_t loop_closure_edges);
+  // The refinement's focal estimates (KeyframeRefinerStats::focal) from its
+  // refinement number `refinement`: a camera they put off (kDisagrees) is
+  // corrected by its estimate, its pairs estimated again as for a check's
+  // correction. The refinement estimates a rig's cameras together, so a rig
+  // camera is corrected when every other camera of its rig is told there
+  // too (agrees or disagrees) or was corrected; never a camera whose images
+  // show a lens camera_info does not describe (its focal check says so).
+  // Each refinement is looked at once; an estimate made before a
+  // correction is relative to the corrected focal length by then. Called
+  // before each keyframe, on the thread that adds keyframes.
+  void ApplyRefinementEstimates(const std::map<std::string, BundleAdjustmentFocal::Estimate>& estimates,
+                                std::uint64_t refinement, std::vector<std::string>* warnings);
 
   // The product of the corrections applied to each camera's focal length,
   // by camera (cameras never corrected are not listed).
@@ -92,6 +117,11 @@ class FocalCorrector {
                                   const RigCameraMap& rig_cameras) const;
   // Applies one check's correction, with its notice.
   void Correct(const std::string& camera, const CameraFocalCheck& check, std::vector<std::string>* warnings);
+  // Multiplies the focal length in use, `given_px`, by `scale`; `estimate_px`
+  // (with its deviation) is the loops' prior. `source` names the estimate
+  // in the notice.
+  void Correct(const std::string& camera, double scale, double given_px, std::pair<double, double> estimate_px,
+               const std::string& source, std::vector<std::string>* warnings);
   // Each sensitivity's derivative as one of the graph's edges (the rig's
   // variables; an edge stored from its other end turned round), parameter p
   // being the p-th camera of `sensitivities`.
@@ -112,6 +142,7 @@ class FocalCorrector {
 
   // The thread that adds keyframes only.
   std::uint64_t loops_at_refinement_ = 0;
+  std::uint64_t refinement_seen_ = 0;  // ApplyRefinementEstimates' latest
   // Per corrected camera: the focal length in use, px, and the latest focal
   // check's estimate of it with its deviation, px (the loops' prior).
   std::map<std::string, double> focal_in_use_px_;

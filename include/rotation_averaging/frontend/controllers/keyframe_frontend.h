@@ -298,6 +298,9 @@ class KeyframeFrontend {
                             std::string* why, bool linearised = false);
   // The product of the corrections applied to `camera` (1: none).
   double FocalCorrection(const std::string& camera) const;
+  // The focal length in use for `camera`, px: its latest camera_info's
+  // times FocalCorrection (0: no keyframe of it yet).
+  double FocalInUsePx(const std::string& camera) const;
   // focal_calibration: apply. The held pairs of `camera` (those that
   // ApplyFocalCorrection would estimate again), each pose refined on its
   // inliers with the camera's focal length times 1 +- step (its keypoints
@@ -471,6 +474,7 @@ class KeyframeFrontend {
   std::map<std::string, std::vector<HeldPair>> held_pairs_;  // by camera (a rig pair under both)
   std::set<std::string> held_overflow_;  // cameras whose pairs outgrew max_correction_pairs
   std::map<std::string, double> focal_correction_;  // ApplyFocalCorrection
+  std::map<std::string, double> given_focal_px_;     // the latest camera_info's, by camera
 };
 
 }  // namespace rotation_averaging

@@ -99,6 +99,37 @@ struct BundleAdjustmentCovariance {
   bool Relative(ViewId view, ViewId reference, Eigen::Matrix3d* covariance) const;
 };
 
+// Self-calibration: one focal length per camera estimated with everything
+// else, for the views of `camera`. A view's normalised observations x were
+// taken with the focal length in use f (x = (u - c) / f), so with the true
+// one a f the model is x = a proj(R (X - c)); a is estimated in the last two
+// stages (the first, with the orientations held, holds it at 1). Views not
+// listed keep their focal length (a = 1, exactly as without this).
+//
+// Its deviation has two parts, as the two-view focal check's
+// (FocalCalibrationOptions): the matches' (the pixel model's variance, at
+// least the cell jackknife's, as the orientations' covariance) and the
+// principal point's, the variance the focal length gains when each camera's
+// principal point is a further unknown with a prior of
+// `principal_point_sigma` of the width its observations span. Where the
+// views' axes meet near one point (an arc around an object: the critical
+// configuration of focal self-calibration) a principal point error explains
+// the observations as well as a focal length error does, and that part is
+// large: what says the motion cannot tell.
+struct BundleAdjustmentFocal {
+  std::map<ViewId, std::string> camera;  // in: the camera of each view whose focal length is estimated
+  double principal_point_sigma = 0.007;  // in: of the observations' width (FocalCalibrationOptions' default)
+  struct Estimate {
+    double scale = 1.0;  // true over in use: the focal length to use is scale times the one in use
+    // Standard deviation of scale: sqrt(matches^2 + principal_point^2).
+    double sigma = 0.0, sigma_matches = 0.0, sigma_principal_point = 0.0;
+    int views = 0;
+    std::size_t observations = 0;
+    bool determined = false;  // false: no deviation (the covariance failed), so no evidence
+  };
+  std::map<std::string, Estimate> estimates;  // out: by camera, those with adjusted views
+};
+
 struct BundleAdjustmentSummary {
   int views = 0;
   int edges_used = 0;
@@ -131,12 +162,15 @@ struct BundleAdjustmentSummary {
 // centre keeps the scale of step 2 (s_ij >= 1). Returns false, leaving
 // `orientations` as they were, if nothing could be adjusted or a solve failed.
 // With `covariance`, also the adjusted orientations' covariance; it is left
-// empty (index empty) if the normal equations are singular.
+// empty (index empty) if the normal equations are singular. With `focal`,
+// its cameras' focal lengths are estimated too (BundleAdjustmentFocal), and
+// the orientations and their covariance are those of that adjustment.
 bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>& edges,
                                          const BundleAdjustmentOptions& options, ViewOrientations* orientations,
                                          BundleAdjustmentSummary* summary,
                                          std::unordered_map<ViewId, Eigen::Vector3d>* centres = nullptr,
-                                         BundleAdjustmentCovariance* covariance = nullptr);
+                                         BundleAdjustmentCovariance* covariance = nullptr,
+                                         BundleAdjustmentFocal* focal = nullptr);
 
 }  // namespace rotation_averaging
 
