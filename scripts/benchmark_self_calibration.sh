@@ -5,9 +5,11 @@
 # rotation_averaging_replay. Three configurations per input:
 #  * fixed: refinement_focal: false, focal_calibration: warn (the focal
 #    length is camera_info's throughout; the focal check warns);
-#  * warn:  refinement_focal: true (the refinement's orientations are those
-#    of the adjustment with the focal length free; it warns);
-#  * apply: refinement_focal: true, focal_calibration: apply (it corrects).
+#  * warn:  refinement_focal: true, focal_calibration: warn (the refinement's
+#    orientations are those of the adjustment with the focal length free;
+#    it warns);
+#  * apply: refinement_focal: true, focal_calibration: apply (the defaults:
+#    it corrects).
 # Inputs with ground truth: the rendered rig (1 capture a second, 60
 # captures: the README's demo), its forward camera alone, the rig through a
 # plumb_bob lens with its model, the Strecha scenes and lund_door as one
@@ -30,8 +32,8 @@ EUROC_LINES=('image_topics: ["/cam0/image_raw", "/cam1/image_raw"]' "use_rig_ext
 three() {
   local name=$1 bag=$2
   shift 2
-  replay_with "${name}_fixed" "$bag" "$@" "refinement_focal: false" &
-  replay_with "${name}_warn" "$bag" "$@" "refinement_focal: true" &
+  replay_with "${name}_fixed" "$bag" "$@" "refinement_focal: false" "focal_calibration: warn" &
+  replay_with "${name}_warn" "$bag" "$@" "refinement_focal: true" "focal_calibration: warn" &
   wait
   replay_with "${name}_apply" "$bag" "$@" "refinement_focal: true" "focal_calibration: apply"
 }

@@ -53,10 +53,11 @@ def main():
     print(reproduce_line("bash scripts/benchmark_self_calibration.sh") + " "
           "Every run is `rotation_averaging_replay` (the node's pipeline) on a bag whose camera_info carries the "
           "true focal length times *camera_info* (the images are the same). Three configurations: *fixed* "
-          "(`refinement_focal: false`: the focal length is camera_info's throughout), *warn* (`refinement_focal: "
-          "true`, `focal_calibration: warn`, the defaults: the background refinement estimates each camera's focal "
-          "length with everything else and warns when it disagrees) and *apply* (`focal_calibration: apply`: the "
-          "camera's focal length is corrected by that estimate and its pairs estimated again).\n")
+          "(`refinement_focal: false`, `focal_calibration: warn`: the focal length is camera_info's throughout), "
+          "*warn* (`refinement_focal: true`, `focal_calibration: warn`: the background refinement estimates each "
+          "camera's focal length with everything else and warns when it disagrees) and *apply* (`refinement_focal: "
+          "true`, `focal_calibration: apply`, the defaults: the camera's focal length is corrected by that estimate, "
+          "or by the focal check's, and its pairs estimated again).\n")
     print("*estimate*: the last refinement's, of the focal length in use, with its standard deviation (matches, "
           "principal point); *in deviations*: how far it is from the true ratio. *first warning*: the keyframes of "
           "the refinement that first said it disagrees (warn). *ended at*: the focal length in use at the end with "
@@ -106,7 +107,7 @@ def main():
     print("The two-view focal check (results/focal_check.md) runs beside this in every configuration; with `apply`, "
           "its corrections are made too where it disagrees first. The replay, whose input ends, applies a "
           "correction the final refinement calls for as the next keyframe would, then solves and refines again "
-          "(twice at most); the node does so with its next keyframe.")
+          "(twice at most); the node applies it as soon as the refinement lands.")
 
 
 if __name__ == "__main__":

@@ -296,8 +296,19 @@ void RotationAveragingNode::ImageWorker() {
     QueuedKeyframe next;
     {
       std::unique_lock<std::mutex> lock(image_mutex_);
-      image_wake_.wait(lock, [this] { return !images_running_ || !image_queue_.empty(); });
+      image_wake_.wait(lock, [this] { return !images_running_ || !image_queue_.empty() || refinement_landed_; });
       if (!images_running_) return;
+      refinement_landed_ = false;
+      if (image_queue_.empty()) {
+        // Quiet input: a correction the refinement calls for would otherwise
+        // wait for the next image (ProcessKeyframe applies them first).
+        lock.unlock();
+        std::vector<std::string> warnings;
+        pipeline_->ApplyFocalCorrections(&warnings);
+        for (const std::string& w : warnings) ROS_WARN_THROTTLE(5.0, "%s", w.c_str());
+        LogFocalNotices();
+        continue;
+      }
       next = std::move(image_queue_.front());
       image_queue_.pop_front();
     }
@@ -414,6 +425,11 @@ void RotationAveragingNode::Refine(const OnlineSolution& solution, bool now) {
       solution, ros::WallTime::now().toSec(), now, KeyframePipeline::RefineIn::kBackground, [this](bool ok) {
         const KeyframeRefinerStats r = pipeline_->RefinerStats();
         if (!ok) ROS_WARN_THROTTLE(30.0, "refinement changed nothing: %s", r.last_report.c_str());
+        {
+          std::lock_guard<std::mutex> lock(image_mutex_);
+          refinement_landed_ = true;
+        }
+        image_wake_.notify_one();
         if (const std::shared_ptr<const OnlineSolution> latest = averager_->Solution()) {
           if (ok) Publish(*latest);
         }

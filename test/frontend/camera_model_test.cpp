@@ -1,6 +1,8 @@
 #include "rotation_averaging/frontend/geometry/camera_model.h"
 
 #include <gtest/gtest.h>
+
+#include <iostream>
 #include <unistd.h>
 
 #include <algorithm>
@@ -385,6 +387,33 @@ TEST(CameraModel, EurocStereoPairMatchesItsCalibrationOnlyWhenUndistorted) {
             << raw_median << " deg, undistorted " << undistorted_median << " deg\n";
   EXPECT_GT(raw_median, 1.0);
   EXPECT_LT(undistorted_median, 0.2);
+}
+
+// A lens keeps the undistorted keypoints from scaling with the focal
+// length: a strong barrel lens (EuRoC's k1 = -0.28) at the corners of a
+// 640 x 480 image by a large fraction of what the focal length does, a mild
+// one (lund_door's k1 = -0.034 over a narrower field) by little, no lens
+// not at all.
+TEST(CameraIntrinsics, ALensKeepsKeypointsFromScalingWithTheFocalLength) {
+  CameraIntrinsics none;
+  none.k << 407.4, 0, 319.5, 0, 407.4, 239.5, 0, 0, 1;
+  EXPECT_EQ(FocalScalingError(none, none.k, cv::Size(640, 480)), 0.0);
+  CameraIntrinsics strong = none;
+  strong.distortion = DistortionModel::kPlumbBob;
+  strong.coefficients = {-0.28, 0.07, 0.0002, 0.00002};
+  const double strong_error = FocalScalingError(strong, strong.k, cv::Size(640, 480));
+  CameraIntrinsics mild;
+  mild.k << 608.8, 0, 162, 0, 608.8, 242, 0, 0, 1;  // lund_door at a quarter of 1296 x 1936
+  mild.distortion = DistortionModel::kPlumbBob;
+  mild.coefficients = {-0.0336, 0, 0, 0};
+  const double mild_error = FocalScalingError(mild, mild.k, cv::Size(324, 484));
+  std::cout << "strong " << strong_error << ", mild " << mild_error << "\n";
+  EXPECT_GT(strong_error, 0.1);  // 0.14
+  EXPECT_LT(mild_error, 0.03);   // 0.016
+  // The same lens at half the resolution (K scaled with the image): the same.
+  Eigen::Matrix3d half = strong.k;
+  half.topRows<2>() *= 0.5;
+  EXPECT_NEAR(FocalScalingError(strong, half, cv::Size(320, 240)), strong_error, 0.02);
 }
 
 }  // namespace

@@ -370,6 +370,24 @@ TEST(FocalMonitor, ACorrectedFocalLengthMakesTheCamerasPairsRight) {
   EXPECT_NEAR(again.back().given_focal_px, short_k(0, 0) * check.calibration.scale, 1e-9);
 }
 
+// A FocalCorrector over a run's front end, with a checker, a rig model and
+// an averager of its own; the edges it puts into the graph are collected.
+struct Correcting {
+  explicit Correcting(ShortFocalRun* run)
+      : checker(run->options.focal_monitor.focal),
+        corrector(FocalCorrectorOptions(), run->frontend.get(), &frontend_mutex, &checker, &rig, &averager,
+                  [this](const KeyframeRelativeRotation& e, std::string*) {
+                    added.push_back(e);
+                    return true;
+                  }) {}
+  FocalChecker checker;
+  std::mutex frontend_mutex;
+  RigModel rig{RigModelOptions()};
+  OnlineAverager averager{OnlineAveragerOptions()};
+  std::vector<KeyframeRelativeRotation> added;
+  FocalCorrector corrector;
+};
+
 // FocalCorrector, what focal_calibration: apply runs: a camera whose check
 // disagrees is corrected once per estimate. Its pairs estimated again go
 // into the graph through the given edge sink, the correction and its notice
@@ -379,20 +397,14 @@ TEST(FocalMonitor, ACorrectedFocalLengthMakesTheCamerasPairsRight) {
 TEST(FocalMonitor, TheCorrectorAppliesADisagreeingCheckOnce) {
   const std::unique_ptr<ShortFocalRun> run = RunShortFocal(true);
   const std::string front = run->scene->Cameras()[0].frame_id, left = run->scene->Cameras()[1].frame_id;
-  FocalChecker checker(run->options.focal_monitor.focal);
+  Correcting harness(run.get());
+  FocalChecker& checker = harness.checker;
+  FocalCorrector& corrector = harness.corrector;
+  std::vector<KeyframeRelativeRotation>& added = harness.added;
   checker.Submit(run->jobs);
   checker.Wait();
   const CameraFocalCheck check = checker.Checks().at(left);
   ASSERT_TRUE(check.disagrees) << check.Report();
-  std::mutex frontend_mutex;
-  RigModel rig{RigModelOptions()};
-  OnlineAverager averager{OnlineAveragerOptions()};
-  std::vector<KeyframeRelativeRotation> added;
-  FocalCorrector corrector(FocalCorrectorOptions(), run->frontend.get(), &frontend_mutex, &checker, &rig, &averager,
-                           [&added](const KeyframeRelativeRotation& e, std::string*) {
-                             added.push_back(e);
-                             return true;
-                           });
   std::vector<std::string> warnings;
   corrector.ApplyCorrections(&warnings);
   EXPECT_TRUE(warnings.empty());
@@ -442,16 +454,9 @@ TEST(FocalMonitor, TheCorrectorAppliesTheRefinementsEstimates) {
 
   const std::unique_ptr<ShortFocalRun> run = RunShortFocal(true);
   const std::string front = run->scene->Cameras()[0].frame_id, left = run->scene->Cameras()[1].frame_id;
-  FocalChecker checker(run->options.focal_monitor.focal);
-  std::mutex frontend_mutex;
-  RigModel rig{RigModelOptions()};
-  OnlineAverager averager{OnlineAveragerOptions()};
-  std::vector<KeyframeRelativeRotation> added;
-  FocalCorrector corrector(FocalCorrectorOptions(), run->frontend.get(), &frontend_mutex, &checker, &rig, &averager,
-                           [&added](const KeyframeRelativeRotation& e, std::string*) {
-                             added.push_back(e);
-                             return true;
-                           });
+  Correcting harness(run.get());
+  FocalCorrector& corrector = harness.corrector;
+  std::vector<KeyframeRelativeRotation>& added = harness.added;
   const double given_px = run->frontend->FocalInUsePx(left);
   EXPECT_GT(given_px, 0.0);
   std::vector<std::string> warnings;
@@ -479,20 +484,13 @@ TEST(FocalMonitor, ARigCameraWaitsForTheRigsOtherCamerasToBeTold) {
   const std::unique_ptr<ShortFocalRun> run = RunShortFocal(true);
   const RigScene& scene = *run->scene;
   const std::string front = scene.Cameras()[0].frame_id, left = scene.Cameras()[1].frame_id;
-  FocalChecker checker(run->options.focal_monitor.focal);
-  std::mutex frontend_mutex;
-  RigModel rig{RigModelOptions()};
+  Correcting harness(run.get());
   for (const RigCamera& c : scene.Cameras()) {
-    rig.AddStaticTransform("base_link", c.frame_id, c.camera_from_rig.transpose());
-    ASSERT_TRUE(rig.IsRigCamera(c.frame_id));
+    harness.rig.AddStaticTransform("base_link", c.frame_id, c.camera_from_rig.transpose());
+    ASSERT_TRUE(harness.rig.IsRigCamera(c.frame_id));
   }
-  OnlineAverager averager{OnlineAveragerOptions()};
-  std::vector<KeyframeRelativeRotation> added;
-  FocalCorrector corrector(FocalCorrectorOptions(), run->frontend.get(), &frontend_mutex, &checker, &rig, &averager,
-                           [&added](const KeyframeRelativeRotation& e, std::string*) {
-                             added.push_back(e);
-                             return true;
-                           });
+  FocalCorrector& corrector = harness.corrector;
+  std::vector<KeyframeRelativeRotation>& added = harness.added;
   BundleAdjustmentFocal::Estimate off, unsure;
   off.scale = 1.031, off.sigma = 0.001, off.determined = true;
   unsure.scale = 1.03, unsure.sigma = 0.04, unsure.determined = true;

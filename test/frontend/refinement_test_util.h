@@ -70,6 +70,30 @@ struct ArcScene {
   std::vector<EdgeCorrespondences> edges;
 };
 
+// Every pair of the scene's views that shares at least `min_shared` points
+// as an edge: the keypoints of the points both see (`visible[view][point]`;
+// empty: every point), the true translation direction, the noise's sigma.
+inline void AddSceneEdges(double noise_px, const std::vector<std::vector<bool>>& visible, std::size_t min_shared,
+                          ArcScene* scene) {
+  const int views = static_cast<int>(scene->keypoints.size());
+  for (int i = 0; i < views; ++i) {
+    for (int j = i + 1; j < views; ++j) {
+      EdgeCorrespondences e;
+      e.view1 = static_cast<ViewId>(i);
+      e.view2 = static_cast<ViewId>(j);
+      for (std::size_t p = 0; p < scene->points.size(); ++p) {
+        if (!visible.empty() && (!visible[i][p] || !visible[j][p])) continue;
+        e.points1.push_back(scene->keypoints[i][p]);
+        e.points2.push_back(scene->keypoints[j][p]);
+      }
+      if (e.points1.size() < min_shared) continue;
+      e.translation = (scene->truth[e.view2] * (scene->centres[i] - scene->centres[j])).normalized();
+      e.sigma = std::max(noise_px, 0.05) / kArcSceneFocal;
+      scene->edges.push_back(std::move(e));
+    }
+  }
+}
+
 inline ArcScene MakeArcScene(int views, double noise_px, std::uint32_t seed) {
   std::mt19937 rng(seed);
   std::normal_distribution<double> noise(0.0, noise_px / kArcSceneFocal);
@@ -96,21 +120,9 @@ inline ArcScene MakeArcScene(int views, double noise_px, std::uint32_t seed) {
     }
     scene.keypoints.push_back(seen);
   }
-  for (int i = 0; i < views; ++i) {
-    for (int j = i + 1; j < views; ++j) {
-      EdgeCorrespondences e;
-      e.view1 = static_cast<ViewId>(i);
-      e.view2 = static_cast<ViewId>(j);
-      e.points1 = scene.keypoints[i];
-      e.points2 = scene.keypoints[j];
-      e.translation = (scene.truth[e.view2] * (scene.centres[i] - scene.centres[j])).normalized();
-      e.sigma = std::max(noise_px, 0.05) / kArcSceneFocal;
-      scene.edges.push_back(std::move(e));
-    }
-  }
+  AddSceneEdges(noise_px, {}, 0, &scene);
   return scene;
 }
-
 
 // Cameras on a path past a deep box of points, turned about every axis
 // (general motion for focal self-calibration): each sees the points in its
@@ -143,22 +155,7 @@ inline ArcScene MakePathScene(int views, double noise_px, double focal_scale, st
     }
     scene.keypoints.push_back(seen);
   }
-  for (int i = 0; i < views; ++i) {
-    for (int j = i + 1; j < views; ++j) {
-      EdgeCorrespondences e;
-      e.view1 = static_cast<ViewId>(i);
-      e.view2 = static_cast<ViewId>(j);
-      for (std::size_t p = 0; p < scene.points.size(); ++p) {
-        if (!visible[i][p] || !visible[j][p]) continue;
-        e.points1.push_back(scene.keypoints[i][p]);
-        e.points2.push_back(scene.keypoints[j][p]);
-      }
-      if (e.points1.size() < 30) continue;
-      e.translation = (scene.truth[e.view2] * (scene.centres[i] - scene.centres[j])).normalized();
-      e.sigma = std::max(noise_px, 0.05) / kArcSceneFocal;
-      scene.edges.push_back(std::move(e));
-    }
-  }
+  AddSceneEdges(noise_px, visible, 30, &scene);
   return scene;
 }
 

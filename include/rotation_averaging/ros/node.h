@@ -148,13 +148,16 @@ class RotationAveragingNode {
   // the spinner and unsubscribes first.
   ros::CallbackQueue image_callbacks_;
   std::unique_ptr<ros::AsyncSpinner> image_spinner_;
-  std::mutex image_mutex_;  // image_queue_, images_running_
+  std::mutex image_mutex_;  // image_queue_, images_running_, refinement_landed_
   std::condition_variable image_wake_;
   std::deque<QueuedKeyframe> image_queue_;
   std::size_t max_image_queue_ = 8;
   std::uint64_t frames_missing_warned_ = 0;  // the image callback's thread only
   std::uint64_t cap_drops_warned_ = 0;  // the averager's worker thread only
   bool images_running_ = false;
+  // A refinement landed: its focal estimates are acted on (and its notices
+  // logged) by the image thread, at once if no image waits.
+  bool refinement_landed_ = false;
   std::thread image_worker_;
 };
 

@@ -233,6 +233,25 @@ bool CameraIntrinsics::HasDistortion() const {
   return std::any_of(coefficients.begin(), coefficients.end(), [](double c) { return c != 0.0; });
 }
 
+double FocalScalingError(const CameraIntrinsics& camera, const Eigen::Matrix3d& scaled_k, const cv::Size& size) {
+  if (!camera.HasDistortion() || size.width <= 0 || size.height <= 0) return 0.0;
+  Eigen::Matrix3d longer = scaled_k;
+  longer(0, 0) *= 1.01;
+  longer(1, 1) *= 1.01;
+  double worst = 0.0;
+  for (const Eigen::Vector2d corner : {Eigen::Vector2d(0.0, 0.0), Eigen::Vector2d(size.width - 1.0, 0.0),
+                                       Eigen::Vector2d(0.0, size.height - 1.0),
+                                       Eigen::Vector2d(size.width - 1.0, size.height - 1.0)}) {
+    const Eigen::Vector2d given = (scaled_k.inverse() * camera.Undistort(corner, scaled_k).homogeneous()).head<2>();
+    const Eigen::Vector2d moved = (longer.inverse() * camera.Undistort(corner, longer).homogeneous()).head<2>();
+    const Eigen::Vector2d scaled = given / 1.01;
+    const double step = (given - scaled).norm();
+    if (!given.allFinite() || !moved.allFinite() || !(step > 0.0)) return INFINITY;  // the lens does not invert there
+    worst = std::max(worst, (moved - scaled).norm() / step);
+  }
+  return worst;
+}
+
 bool CameraIntrinsics::Validate(std::string* error) const {
   if (!IsCameraIntrinsics(k)) return Fail(error, std::string("K is not a camera's (") + kCameraIntrinsicsRule + ")");
   for (double c : coefficients) {

@@ -149,14 +149,14 @@ class KeyframeRefiner {
   // way when it lands.
   void ScaleCamera(const std::string& frame_id, double scale);
   // The camera's focal length is held in the adjustment (estimate_focal):
-  // a camera with a lens model, whose points were undistorted with the
-  // focal length in use. The distortion acts on the coordinates K gives,
-  // so its points do not scale with the focal length as the adjustment's
-  // model has them, and the estimate would be biased (on the rendered rig
-  // through a plumb_bob lens, camera_info 3% short: x1.0049 and x1.0001
-  // against a true x1.0309; results/self_calibration.md). The focal check,
-  // which undistorts its pairs again for every focal length it tries,
-  // estimates such a camera's.
+  // a camera whose lens keeps its points from scaling with the focal
+  // length (FocalScalingError). Its points were undistorted with the focal
+  // length in use and the distortion acts on the coordinates K gives, so
+  // the adjustment's model of a focal length error, a scale of the points,
+  // would bias the estimate (the rendered rig through a plumb_bob lens,
+  // camera_info 3% short: x1.0049 and x1.0001 against a true x1.0309;
+  // docs/decisions.md). The focal check, which undistorts its pairs again
+  // for every focal length it tries, estimates such a camera's.
   void HoldFocal(const std::string& frame_id);
 
   // Camera keyframes of a rig with known extrinsics: the capture (the

@@ -63,6 +63,16 @@ struct CameraIntrinsics {
   Eigen::Vector2d Undistort(const Eigen::Vector2d& pixel, const Eigen::Matrix3d& scaled_k) const;
 };
 
+// How far a lens keeps its undistorted keypoints from scaling with the
+// focal length: at the corners of an image of `size` with intrinsics
+// `scaled_k`, the largest distance between the keypoint undistorted with a
+// focal length 1% longer and the one undistorted with K divided by 1.01 (in
+// normalised coordinates), over what the 1% moves it. 0 without
+// distortion; a bundle adjustment that models a focal length error as a
+// scale of the normalised keypoints (BundleAdjustmentFocal) is biased by
+// about this fraction of the error.
+double FocalScalingError(const CameraIntrinsics& camera, const Eigen::Matrix3d& scaled_k, const cv::Size& size);
+
 // Undistorts pixels of an image whose intrinsics are `scaled_k` in place (one
 // OpenCV call for all of them). A pixel whose undistortion does not
 // reproject onto it within a hundredth of a pixel (the iteration diverged:
