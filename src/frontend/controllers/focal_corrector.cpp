@@ -11,6 +11,12 @@
 namespace rotation_averaging {
 namespace {
 
+// Why a camera whose images show a lens camera_info leaves out is not
+// corrected, by either estimate.
+constexpr char kUnmodelledLens[] =
+    "its images are distorted and camera_info has no distortion model, which the estimate cannot tell from a "
+    "focal length error; give the model first";
+
 // A focal check's estimate and its standard deviation, px.
 std::pair<double, double> FocalEstimatePx(const CameraFocalCheck& check) {
   return {check.given_focal_px * check.calibration.scale, check.given_focal_px * check.calibration.standard_deviation};
@@ -78,18 +84,25 @@ std::string FocalCorrector::UncheckedRigCameras(const std::string& camera,
   // corrected only when each other camera of its rig is checked as
   // precisely as a correction needs (its deviation within
   // min_correction) and agrees, or disagrees too, or was corrected.
-  const auto rig = rig_cameras.find(camera);
-  std::string unchecked;
-  if (rig == rig_cameras.end()) return unchecked;
-  for (const auto& [other, other_rig] : rig_cameras) {
-    if (other == camera || other_rig.first != rig->second.first) continue;
+  return UnsettledRigCameras(camera, corrected, rig_cameras, [&](const std::string& other) {
     const auto c = checks.find(other);
-    const bool settled = corrected.count(other) > 0 ||
-                         (c != checks.end() && c->second.calibration.estimated &&
-                          (c->second.disagrees || c->second.calibration.standard_deviation <= options_.min_correction));
-    if (!settled) unchecked += (unchecked.empty() ? "" : ", ") + other;
+    return c != checks.end() && c->second.calibration.estimated &&
+           (c->second.disagrees || c->second.calibration.standard_deviation <= options_.min_correction);
+  });
+}
+
+std::string FocalCorrector::UnsettledRigCameras(const std::string& camera,
+                                                const std::map<std::string, double>& corrected,
+                                                const RigCameraMap& rig_cameras,
+                                                const std::function<bool(const std::string&)>& settled) {
+  const auto rig = rig_cameras.find(camera);
+  std::string unsettled;
+  if (rig == rig_cameras.end()) return unsettled;
+  for (const auto& [other, other_rig] : rig_cameras) {
+    if (other == camera || other_rig.first != rig->second.first || corrected.count(other) || settled(other)) continue;
+    unsettled += (unsettled.empty() ? "" : ", ") + other;
   }
-  return unchecked;
+  return unsettled;
 }
 
 void FocalCorrector::ApplyCorrections(std::vector<std::string>* warnings) {
@@ -106,8 +119,7 @@ void FocalCorrector::ApplyCorrections(std::vector<std::string>* warnings) {
       // A lens the model leaves out bends the focal estimate too: correcting
       // it would fit the focal length to the distortion.
       applied_checks_[camera] = {check.given_focal_px, check.pairs_seen};
-      HoldBack(camera, "its images are distorted and camera_info has no distortion model, which the "
-                       "estimate cannot tell from a focal length error; give the model first");
+      HoldBack(camera, kUnmodelledLens);
       continue;
     }
     const std::string unchecked = UncheckedRigCameras(camera, checks, corrected, rig_cameras);
@@ -139,19 +151,15 @@ void FocalCorrector::ApplyRefinementEstimates(const std::map<std::string, Bundle
     if (verdicts.at(camera) != FocalVerdict::kDisagrees || refused_.count(camera)) continue;
     const auto check = checks.find(camera);
     if (check != checks.end() && check->second.distortion_unmodelled) {
-      HoldBack(camera, "its images are distorted and camera_info has no distortion model, which the "
-                       "estimate cannot tell from a focal length error; give the model first");
+      HoldBack(camera, kUnmodelledLens);
       continue;
     }
-    std::string untold;
-    const auto rig = rig_cameras.find(camera);
-    if (rig != rig_cameras.end()) {
-      for (const auto& [other, other_rig] : rig_cameras) {
-        if (other == camera || other_rig.first != rig->second.first || corrected.count(other)) continue;
-        const auto v = verdicts.find(other);
-        if (v == verdicts.end() || v->second == FocalVerdict::kCannotTell) untold += (untold.empty() ? "" : ", ") + other;
-      }
-    }
+    // The refinement estimates a rig's cameras together: the others are
+    // settled when it tells theirs (agrees or disagrees).
+    const std::string untold = UnsettledRigCameras(camera, corrected, rig_cameras, [&](const std::string& other) {
+      const auto v = verdicts.find(other);
+      return v != verdicts.end() && v->second != FocalVerdict::kCannotTell;
+    });
     if (!untold.empty()) {
       HoldBack(camera, "the refinement cannot tell the focal lengths of the other cameras of its rig (" + untold +
                            "), and correcting one camera of a rig alone makes its cameras disagree; fix camera_info");

@@ -115,6 +115,11 @@ class FocalCorrector {
   std::string UncheckedRigCameras(const std::string& camera, const std::map<std::string, CameraFocalCheck>& checks,
                                   const std::map<std::string, double>& corrected,
                                   const RigCameraMap& rig_cameras) const;
+  // The other cameras of `camera`'s rig that are neither corrected nor
+  // `settled` ("a, b"; "" when there are none or it is on no rig).
+  static std::string UnsettledRigCameras(const std::string& camera, const std::map<std::string, double>& corrected,
+                                         const RigCameraMap& rig_cameras,
+                                         const std::function<bool(const std::string&)>& settled);
   // Applies one check's correction, with its notice.
   void Correct(const std::string& camera, const CameraFocalCheck& check, std::vector<std::string>* warnings);
   // Multiplies the focal length in use, `given_px`, by `scale`; `estimate_px`
