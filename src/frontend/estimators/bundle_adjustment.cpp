@@ -41,13 +41,7 @@ struct WhitenedReprojection {
 };
 
 // The same with the camera's focal length a multiple a of the one the
-// observation was normalised with (BundleAdjustmentFocal), in a block of
-// three with an offset o that FocalOffsetPrior pins at 0: x = a proj(y) + o.
-// A block of three, as every other block beside the points is: Ceres' Schur
-// elimination then keeps its fixed-size path, whose sums do not depend on
-// where the blocks lie in memory; with a block of one among them it took
-// the dynamic-size one, and a replay's refined orientations differed in the
-// last bits from run to run (bag_replay_test).
+// observation was normalised with: x = a proj(y) (BundleAdjustmentFocal).
 struct WhitenedReprojectionWithFocal {
   WhitenedReprojectionWithFocal(const Eigen::Vector2d& x, double inverse_sigma) : x_(x), inverse_sigma_(inverse_sigma) {}
 
@@ -56,25 +50,13 @@ struct WhitenedReprojectionWithFocal {
     const T d[3] = {point[0] - c[0], point[1] - c[1], point[2] - c[2]};
     T y[3];
     ceres::AngleAxisRotatePoint(w, d, y);
-    residual[0] = T(inverse_sigma_) * (a[0] * y[0] / y[2] + a[1] - T(x_.x()));
-    residual[1] = T(inverse_sigma_) * (a[0] * y[1] / y[2] + a[2] - T(x_.y()));
+    residual[0] = T(inverse_sigma_) * (a[0] * y[0] / y[2] - T(x_.x()));
+    residual[1] = T(inverse_sigma_) * (a[0] * y[1] / y[2] - T(x_.y()));
     return true;
   }
 
   Eigen::Vector2d x_;
   double inverse_sigma_;
-};
-
-// Holds the focal block's offset at 0 (a deviation of 1e-6 in normalised
-// coordinates, a thousandth of a pixel's noise): the focal length alone is
-// estimated.
-struct FocalOffsetPrior {
-  template <typename T>
-  bool operator()(const T* a, T* residual) const {
-    residual[0] = a[1] * T(1e6);
-    residual[1] = a[2] * T(1e6);
-    return true;
-  }
 };
 
 // c_j - c_i - s d: the least-unsquared-deviations residual of one edge.
@@ -369,21 +351,31 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
   ceres::Problem problem(ProblemOptions());
   auto* ordering = new ceres::ParameterBlockOrdering;
   summary->observations = 0;
+  // Each camera's scale is one parameter block: the focal_scale of its
+  // first view, so that it lies among the views' blocks, in their order.
+  // Ceres orders a group's blocks by address (ParameterBlockOrdering holds
+  // a set of pointers), the fill-reducing ordering of the Schur complement
+  // starts from that order, and a different one changes the last bits: an
+  // array of their own would lie before or after the views as the heap
+  // has it, and a replay's refined orientations differed from run to run.
+  std::vector<int> first_view(focal_scales->size(), -1);
+  for (std::size_t k = 0; k < views->size(); ++k) {
+    AdjustedView& v = (*views)[k];
+    if (v.camera < 0 || first_view[v.camera] >= 0) continue;
+    first_view[v.camera] = static_cast<int>(k);
+    v.focal_scale = (*focal_scales)[v.camera];
+  }
   for (Track& t : *tracks) {
     problem.AddParameterBlock(t.point.data(), 3);
     ordering->AddElementToGroup(t.point.data(), 0);
     for (const Observation& o : t.observations) {
       AdjustedView& v = (*views)[o.view];
       if (v.camera >= 0) {
-        double* a = &(*focal_scales)[3 * v.camera];
-        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojectionWithFocal, 2, 3, 3, 3, 3>(
+        double* a = &(*views)[first_view[v.camera]].focal_scale;
+        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojectionWithFocal, 2, 3, 3, 3, 1>(
                                      new WhitenedReprojectionWithFocal(o.x, 1.0 / v.sigma)),
                                  loss, v.angle_axis.data(), v.centre.data(), t.point.data(), a);
-        if (!ordering->IsMember(a)) {
-          ordering->AddElementToGroup(a, 1);
-          problem.AddResidualBlock(new ceres::AutoDiffCostFunction<FocalOffsetPrior, 2, 3>(new FocalOffsetPrior),
-                                   nullptr, a);
-        }
+        ordering->AddElementToGroup(a, 1);
         if (hold_orientations) problem.SetParameterBlockConstant(a);
       } else {
         problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojection, 2, 3, 3, 3>(
@@ -427,11 +419,14 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
   solver_options.linear_solver_ordering.reset(ordering);
   ceres::Solve(solver_options, &problem, ceres_summary);
   summary->iterations += static_cast<int>(ceres_summary->iterations.size()) - 1;
+  for (std::size_t c = 0; c < first_view.size(); ++c) {
+    if (first_view[c] >= 0) (*focal_scales)[c] = (*views)[first_view[c]].focal_scale;
+  }
   for (AdjustedView& v : *views) {
     v.rotation = Eigen::AngleAxisd(v.angle_axis.norm(), v.angle_axis.norm() > 0.0 ? v.angle_axis.normalized()
                                                                                   : Eigen::Vector3d::UnitX())
                      .toRotationMatrix();
-    if (v.camera >= 0) v.focal_scale = (*focal_scales)[3 * v.camera];
+    if (v.camera >= 0) v.focal_scale = (*focal_scales)[v.camera];
   }
   return ceres_summary->IsSolutionUsable();
 }
@@ -927,9 +922,7 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
       if (it != focal->camera.end()) v.camera = numbered.at(it->second);
     }
   }
-  // Per camera: its scale and the offset held at 0 (WhitenedReprojectionWithFocal).
-  std::vector<double> focal_scales(3 * camera_names.size(), 0.0);
-  for (std::size_t c = 0; c < camera_names.size(); ++c) focal_scales[3 * c] = 1.0;
+  std::vector<double> focal_scales(camera_names.size(), 1.0);
   std::vector<Track> tracks = BuildTracks(used, index, options, summary);
   std::string message;
   if (!PlaceCentres(used, index, options, &views, summary, &message)) return finish(false, "centres: " + message);
@@ -983,7 +976,7 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
     for (const AdjustedView& v : views) (*centres)[v.id] = v.centre;
   }
   std::vector<BundleAdjustmentFocal::Estimate> estimates(camera_names.size());
-  for (std::size_t c = 0; c < camera_names.size(); ++c) estimates[c].scale = focal_scales[3 * c];
+  for (std::size_t c = 0; c < camera_names.size(); ++c) estimates[c].scale = focal_scales[c];
   for (const Track& t : tracks) {
     for (const Observation& o : t.observations) {
       if (views[o.view].camera >= 0) ++estimates[views[o.view].camera].observations;

@@ -103,18 +103,29 @@ bool Pass(const std::vector<EdgeCorrespondences>& edges, const CorrespondenceRef
   ceres::SphereManifold<3> sphere_manifold;
   // The loss acts on whitened residuals, so one scale serves every edge.
   ceres::CauchyLoss loss(scale);
+  // The orientations in one array, in view order: Ceres orders a group's
+  // blocks by address (ParameterBlockOrdering holds a set of pointers), the
+  // fill-reducing ordering of the Schur complement starts from that order,
+  // and a different one changes the last bits; the map's nodes lie where
+  // the heap puts them.
+  std::vector<Eigen::Quaterniond> blocks;
+  std::map<ViewId, double*> block;
+  blocks.reserve(quaternions.size());
+  for (const auto& [id, q] : quaternions) blocks.push_back(q);
+  auto next = blocks.begin();
+  for (const auto& [id, q] : quaternions) block[id] = (next++)->coeffs().data();
   auto* ordering = new ceres::ParameterBlockOrdering;
-  for (auto& [id, q] : quaternions) {
-    problem.AddParameterBlock(q.coeffs().data(), 4, &quaternion_manifold);
-    ordering->AddElementToGroup(q.coeffs().data(), 1);
+  for (const auto& [id, q] : block) {
+    problem.AddParameterBlock(q, 4, &quaternion_manifold);
+    ordering->AddElementToGroup(q, 1);
   }
   for (std::size_t k = 0; k < used.size(); ++k) {
     const EdgeCorrespondences& e = *used[k];
     problem.AddParameterBlock(translations[k].data(), 3, &sphere_manifold);
     // Each edge's direction only meets its own residuals: eliminated first.
     ordering->AddElementToGroup(translations[k].data(), 0);
-    double* qi = quaternions[e.view1].coeffs().data();
-    double* qj = quaternions[e.view2].coeffs().data();
+    double* qi = block.at(e.view1);
+    double* qj = block.at(e.view2);
     for (std::size_t m = 0; m < e.points1.size(); ++m) {
       problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedSampson, 1, 4, 4, 3>(
                                    new WhitenedSampson(e.points1[m], e.points2[m], 1.0 / e.sigma)),
@@ -122,8 +133,8 @@ bool Pass(const std::vector<EdgeCorrespondences>& edges, const CorrespondenceRef
     }
     summary->correspondences += e.points1.size();
   }
-  for (auto& [id, q] : quaternions) {
-    if (Root(&parent, id) == id) problem.SetParameterBlockConstant(q.coeffs().data());
+  for (const auto& [id, q] : block) {
+    if (Root(&parent, id) == id) problem.SetParameterBlockConstant(q);
   }
   summary->edges_used = static_cast<int>(used.size());
   summary->views = static_cast<int>(quaternions.size());
@@ -145,6 +156,8 @@ bool Pass(const std::vector<EdgeCorrespondences>& edges, const CorrespondenceRef
   summary->final_cost = ceres_summary.final_cost;
   summary->iterations += static_cast<int>(ceres_summary.iterations.size()) - 1;
   summary->converged = ceres_summary.termination_type == ceres::CONVERGENCE;
+  next = blocks.begin();
+  for (auto& [id, q] : quaternions) q = *next++;
   bool finite = true;
   for (const auto& [id, q] : quaternions) finite = finite && q.coeffs().allFinite();
   if (!ceres_summary.IsSolutionUsable() || !finite || !(summary->final_cost <= summary->initial_cost)) {
