@@ -95,11 +95,11 @@ void KeyframeRefiner::Add(std::vector<KeyframeCorrespondences> edges) {
     e.points.points1.shrink_to_fit();
     e.points.points2.shrink_to_fit();
     HeldEdge& held = edges_[{e.keyframe1, e.keyframe2}];
-    if (!held.points.points1.empty()) stats_.bytes -= EdgeBytes(held.points);
+    if (held.points) stats_.bytes -= EdgeBytes(*held.points);
     held.keyframe1 = std::move(e.keyframe1);
     held.keyframe2 = std::move(e.keyframe2);
-    held.points = std::move(e.points);
-    stats_.bytes += EdgeBytes(held.points);
+    held.points = std::make_shared<const EdgeCorrespondences>(std::move(e.points));
+    stats_.bytes += EdgeBytes(*held.points);
   }
   stats_.edges_held = edges_.size();
 }
@@ -113,12 +113,16 @@ void KeyframeRefiner::ScaleCamera(const std::string& frame_id, double scale) {
   if (estimate != stats_.focal.end()) ScaleEstimate(1.0 / scale, &estimate->second);
   for (auto& [key, held] : edges_) {
     const bool first = held.keyframe1.frame_id == frame_id, second = held.keyframe2.frame_id == frame_id;
+    if (!first && !second) continue;
+    // A new copy: a refinement under way may share the one held.
+    auto scaled_points = std::make_shared<EdgeCorrespondences>(*held.points);
     if (first) {
-      for (Eigen::Vector2d& p : held.points.points1) p /= scale;
+      for (Eigen::Vector2d& p : scaled_points->points1) p /= scale;
     }
     if (second) {
-      for (Eigen::Vector2d& p : held.points.points2) p /= scale;
+      for (Eigen::Vector2d& p : scaled_points->points2) p /= scale;
     }
+    held.points = std::move(scaled_points);
   }
 }
 
@@ -128,32 +132,33 @@ void KeyframeRefiner::HoldFocal(const std::string& frame_id) {
   stats_.focal.erase(frame_id);
 }
 
-void KeyframeRefiner::SelectWindow(const OnlineSolution& cameras, std::vector<EdgeCorrespondences>* edges,
-                                   std::vector<KeyframeKey>* keys, std::optional<KeyframeKey>* oldest) const {
+KeyframeRefiner::Input KeyframeRefiner::SelectWindow(const OnlineSolution& cameras) const {
+  Input input;
   std::vector<KeyframeKey> newest;
   newest.reserve(cameras.orientations.size());
   for (const auto& [key, r] : cameras.orientations) newest.push_back(key);
   const std::size_t window = std::min(newest.size(), static_cast<std::size_t>(options_.max_keyframes));
   std::partial_sort(newest.begin(), newest.begin() + window, newest.end(), Newer);
   newest.resize(window);
-  if (window > 0 && window < cameras.orientations.size()) *oldest = newest.back();
+  if (window > 0 && window < cameras.orientations.size()) input.oldest_kept = newest.back();
   std::map<KeyframeKey, ViewId> ids;
   for (const auto& [key, held] : edges_) {
     const auto in_window = [&](const KeyframeKey& k) {
       return std::binary_search(newest.begin(), newest.end(), k, Newer);
     };
     if (!in_window(held.keyframe1) || !in_window(held.keyframe2)) continue;
-    EdgeCorrespondences e = held.points;
     for (const KeyframeKey* k : {&held.keyframe1, &held.keyframe2}) {
       if (ids.count(*k) == 0) {
-        ids.emplace(*k, static_cast<ViewId>(keys->size()));
-        keys->push_back(*k);
+        ids.emplace(*k, static_cast<ViewId>(input.keys.size()));
+        input.keys.push_back(*k);
       }
     }
-    e.view1 = ids.at(held.keyframe1);
-    e.view2 = ids.at(held.keyframe2);
-    edges->push_back(std::move(e));
+    input.points.push_back(held.points);
+    input.views.emplace_back(ids.at(held.keyframe1), ids.at(held.keyframe2));
   }
+  input.camera_scales = camera_scales_;
+  input.focal_held = focal_held_;
+  return input;
 }
 
 void KeyframeRefiner::ScaleEstimate(double factor, BundleAdjustmentFocal::Estimate* e) {
@@ -164,23 +169,27 @@ void KeyframeRefiner::ScaleEstimate(double factor, BundleAdjustmentFocal::Estima
 }
 
 bool KeyframeRefiner::Refine(const OnlineSolution& cameras, const RigCaptures& rig) {
-  return Run(cameras, rig, false);
-}
-
-bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig, bool staged) {
-  std::lock_guard<std::mutex> run(run_mutex_);
-  const auto start = std::chrono::steady_clock::now();
-  std::vector<EdgeCorrespondences> edges;
-  std::vector<KeyframeKey> keys;
-  std::optional<KeyframeKey> oldest_kept;
-  Outcome found;
-  std::set<std::string> held;
+  std::lock_guard<std::mutex> run(run_mutex_);  // after a background one
+  Input input;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    SelectWindow(cameras, &edges, &keys, &oldest_kept);
-    found.camera_scales = camera_scales_;
-    held = focal_held_;
+    input = SelectWindow(cameras);
   }
+  return Run(cameras, rig, input, false);
+}
+
+bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig, const Input& input, bool staged) {
+  const auto start = std::chrono::steady_clock::now();
+  const std::vector<KeyframeKey>& keys = input.keys;
+  std::vector<EdgeCorrespondences> edges;
+  edges.reserve(input.points.size());
+  for (std::size_t i = 0; i < input.points.size(); ++i) {
+    edges.push_back(*input.points[i]);
+    edges.back().view1 = input.views[i].first;
+    edges.back().view2 = input.views[i].second;
+  }
+  Outcome found;
+  found.camera_scales = input.camera_scales;
   ViewOrientations averaged;
   for (std::size_t v = 0; v < keys.size(); ++v) averaged[static_cast<ViewId>(v)] = cameras.orientations.at(keys[v]);
   ViewOrientations adjusted = averaged;
@@ -192,7 +201,7 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   BundleAdjustmentFocal focal;
   if (options_.estimate_focal) {
     for (std::size_t v = 0; v < keys.size(); ++v) {
-      if (held.count(keys[v].frame_id) == 0) focal.camera[static_cast<ViewId>(v)] = keys[v].frame_id;
+      if (input.focal_held.count(keys[v].frame_id) == 0) focal.camera[static_cast<ViewId>(v)] = keys[v].frame_id;
     }
   }
   bool ok = !edges.empty() && RefineRotationsWithBundleAdjustment(edges, options_.adjustment, &adjusted, &summary,
@@ -294,7 +303,7 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   found.median_deg = moved_deg.empty() ? 0.0 : moved_deg[moved_deg.size() / 2];
   found.largest_deg = largest;
   found.held_back = held_back;
-  found.oldest_kept = oldest_kept;
+  found.oldest_kept = input.oldest_kept;
   if (ok && with_covariance) found.covariances = Covariances(adjusted_covariance, cameras, keys, corrections, rig);
   std::lock_guard<std::mutex> lock(mutex_);
   if (staged) {
@@ -390,7 +399,7 @@ bool KeyframeRefiner::Take(const Outcome& found) {
     const KeyframeKey& oldest_kept = *found.oldest_kept;
     for (auto it = edges_.begin(); it != edges_.end();) {
       if (Newer(oldest_kept, it->second.keyframe1) && Newer(oldest_kept, it->second.keyframe2)) {
-        stats_.bytes -= EdgeBytes(it->second.points);
+        stats_.bytes -= EdgeBytes(*it->second.points);
         it = edges_.erase(it);
       } else {
         ++it;
@@ -405,10 +414,19 @@ bool KeyframeRefiner::RefineInBackground(std::shared_ptr<const OnlineSolution> c
                                          std::function<void(bool)> done, bool staged) {
   if (running_.exchange(true)) return false;
   if (background_.valid()) background_.get();  // finished: running_ was false
+  Input input;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    input = SelectWindow(*cameras);
+  }
   background_ = std::async(std::launch::async, [this, cameras = std::move(cameras), rig = std::move(rig),
-                                                done = std::move(done), staged] {
+                                                input = std::move(input), done = std::move(done), staged] {
     LowerThisThreadsPriority(options_.background_niceness);
-    const bool ok = Run(*cameras, rig, staged);
+    bool ok;
+    {
+      std::lock_guard<std::mutex> run(run_mutex_);
+      ok = Run(*cameras, rig, input, staged);
+    }
     // Before running_ falls: a refinement started from `done`, or waiting
     // in the starting thread for this one's end, would deadlock.
     if (done) done(ok);

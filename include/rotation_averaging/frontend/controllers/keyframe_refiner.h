@@ -214,18 +214,30 @@ class KeyframeRefiner {
  private:
   struct HeldEdge {
     KeyframeKey keyframe1, keyframe2;
-    EdgeCorrespondences points;
+    // Never changed once held (ScaleCamera replaces it): a refinement's
+    // input shares it, and the refinement's thread copies it.
+    std::shared_ptr<const EdgeCorrespondences> points;
   };
   // A corrected keyframe's covariance relative to its reference keyframe.
   struct RelativeCovariance {
     KeyframeKey reference;
     Eigen::Matrix3d covariance;
   };
-  // The edges among the newest max_keyframes keyframes of `cameras`, with
-  // view ids, and the keyframe of each id; `oldest` gets the window's oldest
-  // keyframe when `cameras` has more than the window (else it is left).
-  void SelectWindow(const OnlineSolution& cameras, std::vector<EdgeCorrespondences>* edges,
-                    std::vector<KeyframeKey>* keys, std::optional<KeyframeKey>* oldest) const;
+  // What one refinement starts from, taken under mutex_ in the thread that
+  // starts it: a focal correction, a pair estimated again or a camera held
+  // after that belong to the next refinement, whenever this one's thread
+  // gets to run.
+  struct Input {
+    std::vector<std::shared_ptr<const EdgeCorrespondences>> points;
+    std::vector<std::pair<ViewId, ViewId>> views;  // of each of `points`
+    std::vector<KeyframeKey> keys;                 // of each view id
+    std::optional<KeyframeKey> oldest_kept;  // the window's oldest, when `cameras` has more than the window
+    std::map<std::string, double> camera_scales;  // camera_scales_
+    std::set<std::string> focal_held;             // focal_held_
+  };
+  // Under mutex_: the edges among the newest max_keyframes keyframes of
+  // `cameras`, and what else the refinement needs of this one's state.
+  Input SelectWindow(const OnlineSolution& cameras) const;
   static std::size_t EdgeBytes(const EdgeCorrespondences& e);
   // A focal estimate relative to a focal length `factor` times shorter.
   static void ScaleEstimate(double factor, BundleAdjustmentFocal::Estimate* e);
@@ -251,9 +263,9 @@ class KeyframeRefiner {
                                                                const std::vector<KeyframeKey>& keys,
                                                                const std::map<ViewId, Eigen::Matrix3d>& corrections,
                                                                const RigCaptures& rig);
-  // Refine's work; with `staged`, what it found is left in staged_ for
-  // Commit, else taken at once.
-  bool Run(const OnlineSolution& cameras, const RigCaptures& rig, bool staged);
+  // Refine's work on `input`, under run_mutex_; with `staged`, what it
+  // found is left in staged_ for Commit, else taken at once.
+  bool Run(const OnlineSolution& cameras, const RigCaptures& rig, const Input& input, bool staged);
   // Under mutex_: the corrections, the counters, the edges let go. True if
   // the corrections were taken.
   bool Take(const Outcome& found);
