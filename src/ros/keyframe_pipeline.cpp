@@ -106,6 +106,10 @@ std::map<std::string, double> KeyframePipeline::FocalCorrections() const {
   return focal_corrector_ ? focal_corrector_->Corrections() : std::map<std::string, double>();
 }
 
+std::map<std::string, RadialDistortion> KeyframePipeline::LensCorrections() const {
+  return focal_corrector_ ? focal_corrector_->LensCorrections() : std::map<std::string, RadialDistortion>();
+}
+
 std::map<std::string, std::string> KeyframePipeline::FocalLoopRefinements() const {
   return focal_corrector_ ? focal_corrector_->LoopRefinements() : std::map<std::string, std::string>();
 }
@@ -296,11 +300,18 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
   // more than 5% of what the focal length does: the plumb_bob rig's (0.14)
   // biased the estimate, lund_door's (0.016) did not (docs/decisions.md,
   // "The focal length in the refinement").
-  if (refiner_ && keyframe.camera.HasDistortion() &&
-      FocalScalingError(keyframe.camera, keyframe.camera.k, keyframe.image.size()) > 0.05) {
-    refiner_->HoldFocal(keyframe.key.frame_id);
-  }
   ApplyFocalCorrections(warnings);
+  if (refiner_) {
+    // camera_info's lens, or the one the check gave it.
+    CameraIntrinsics in_use;
+    {
+      std::lock_guard<std::mutex> lock(frontend_mutex_);
+      in_use = frontend_->CameraInUse(keyframe.key.frame_id, keyframe.camera);
+    }
+    if (in_use.HasDistortion() && FocalScalingError(in_use, in_use.k, keyframe.image.size()) > 0.05) {
+      refiner_->HoldFocal(keyframe.key.frame_id);
+    }
+  }
   std::size_t added = 0;
   std::vector<KeyframeRelativeRotation> edges;
   KeyframeFrontendStats frontend_stats;
@@ -331,6 +342,7 @@ std::size_t KeyframePipeline::ProcessKeyframe(const PendingKeyframe& keyframe, b
 bool KeyframePipeline::ApplyFocalCorrections(std::vector<std::string>* warnings) {
   if (!focal_corrector_) return false;
   const std::map<std::string, double> before = focal_corrector_->Corrections();
+  const std::size_t lenses_before = focal_corrector_->LensCorrections().size();
   if (refiner_) {
     const KeyframeRefinerStats r = refiner_->Stats();
     focal_corrector_->ApplyRefinementEstimates(r.focal, r.focal_refinement, warnings);
@@ -346,6 +358,9 @@ bool KeyframePipeline::ApplyFocalCorrections(std::vector<std::string>* warnings)
     // The refinement's held points were normalised with the former focal length.
     if (refiner_) refiner_->ScaleCamera(camera, product / previous);
   }
+  // A lens given: the pairs estimated again with it bring their inliers
+  // (KeyframeFrontend::ApplyLensCorrection), in place of the refinement's.
+  changed = changed || focal_corrector_->LensCorrections().size() != lenses_before;
   if (changed && refiner_) {
     // The pairs estimated again, with the new focal length's points (after
     // ScaleCamera, which must not scale them).

@@ -509,6 +509,7 @@ NodeStatus RotationAveragingNode::Snapshot() {
     s.retrieval = pipeline_->Frontend()->RetrievalName();
     s.window_pairs = pipeline_->Config().frontend.window_pairs;
     s.focal_corrections = pipeline_->FocalCorrections();
+    s.lens_corrections = pipeline_->LensCorrections();
   }
   ReadMemoryMiB(&s.resident_mib, &s.peak_resident_mib);
   return s;

@@ -83,6 +83,9 @@ void AddFrontend(const NodeStatus& s, diagnostic_updater::DiagnosticStatusWrappe
   for (const auto& [camera, correction] : s.focal_corrections) {
     status->add("focal length of " + camera + " corrected (x camera_info's)", correction);
   }
+  for (const auto& [camera, lens] : s.lens_corrections) {
+    status->add("lens given to " + camera + " (division model; camera_info describes none)", lens.lambda);
+  }
   if (s.refinement) {
     const KeyframeRefinerStats& r = s.refinement_stats;
     status->add("refinements run", r.runs);

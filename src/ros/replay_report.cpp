@@ -70,6 +70,12 @@ void CollectStatistics(const KeyframePipeline& pipeline, OnlineAverager& average
     line << camera << ": camera_info's focal length x" << std::setprecision(6) << correction;
     result->focal_corrections.push_back(line.str());
   }
+  for (const auto& [camera, lens] : pipeline.LensCorrections()) {
+    std::ostringstream line;
+    line << std::fixed << std::setprecision(3) << camera << ": division model " << lens.lambda << " +- "
+         << lens.standard_deviation << ", " << std::setprecision(1) << lens.corner_shift_px << " px at the corners";
+    result->lens_corrections.push_back(line.str());
+  }
   for (const auto& [camera, line] : pipeline.FocalLoopRefinements()) result->focal_loop_refinements.push_back(line);
   result->refinement = pipeline.HasRefiner();
   result->refinement_stats = pipeline.RefinerStats();
@@ -280,6 +286,9 @@ std::string ReplayResult::Summary() const {
         << focal_check_times.DescribeMs() << "\n";
   }
   for (const std::string& c : focal_corrections) out << "focal length corrected (focal_calibration: apply): " << c << "\n";
+  for (const std::string& c : lens_corrections) {
+    out << "lens given where camera_info describes none (focal_calibration: apply): " << c << "\n";
+  }
   for (const std::string& r : focal_loop_refinements) out << "focal length by the loops, last estimate: " << r << "\n";
   if (refinement) {
     const KeyframeRefinerStats& r = refinement_stats;

@@ -115,12 +115,13 @@ void WriteKeyframeImage(rosbag::Bag* bag, const std::string& frame, const ros::T
 namespace {
 
 // What camera_info says of each camera of `scene` (`info_off`: other than
-// the scene's camera): the lens, unless the images are rectified, and the
-// focal lengths and principal point as bag_options puts them off.
+// the scene's camera): the lens, unless the images are rectified or
+// info_no_lens leaves it out, and the focal lengths and principal point as
+// bag_options puts them off.
 bool CameraInfos(const RigScene& scene, const CameraIntrinsics& camera, const RigSceneBagOptions& bag_options,
                  std::vector<CameraIntrinsics>* infos, bool* info_off, std::string* error) {
   CameraIntrinsics info = camera;
-  if (bag_options.rectify) {
+  if (bag_options.rectify || bag_options.info_no_lens) {
     info.distortion = DistortionModel::kNone;
     info.coefficients.clear();
   }
@@ -143,7 +144,7 @@ bool CameraInfos(const RigScene& scene, const CameraIntrinsics& camera, const Ri
     (*infos)[c].k(1, 1) *= focal_scales[c];
     (*infos)[c].k(0, 2) += bag_options.info_principal_offset_x;
     (*infos)[c].k(1, 2) += bag_options.info_principal_offset_y;
-    *info_off = *info_off || focal_scales[c] != 1.0 || bag_options.info_principal_offset_x != 0.0 ||
+    *info_off = *info_off || bag_options.info_no_lens || focal_scales[c] != 1.0 || bag_options.info_principal_offset_x != 0.0 ||
                 bag_options.info_principal_offset_y != 0.0;
   }
   return true;

@@ -5,8 +5,8 @@
 //   rotation_averaging_images_to_bag --images DIR --intrinsics CAMERA-FILE --output out.bag
 //       [--gt Strecha-folder|images.txt|orientations.csv] [--downsample 0.25] [--rate 1.0]
 //       [--frame-id camera] [--compressed] [--write-gt-csv ground_truth.csv]
-//       [--rectify] [--distortion MODEL:c1,c2,...]
-//   rotation_averaging_images_to_bag --euroc mav0 --output out.bag [--compressed] [--rectify]
+//       [--rectify] [--distortion MODEL:c1,c2,...] [--info-no-lens]
+//   rotation_averaging_images_to_bag --euroc mav0 --output out.bag [--compressed] [--rectify] [--info-no-lens]
 //
 // CAMERA-FILE: K.txt, COLMAP cameras.txt, or a ROS / EuRoC / Kalibr YAML
 // (frontend/geometry/camera_model.h). Images are written in file-name order,
@@ -16,10 +16,13 @@
 // --rectify writes rectified images instead (camera_info without
 // distortion); --distortion warps images of an ideal camera (a file without
 // distortion) through that lens and writes its model: real image content
-// with a known distortion (with --rectify too: warped, then rectified). --euroc writes every camera of a EuRoC-layout
+// with a known distortion (with --rectify too: warped, then rectified;
+// with --info-no-lens, camera_info leaves that lens out: a lens nobody
+// calibrated). --euroc writes every camera of a EuRoC-layout
 // dataset (EuRoC MAV, TUM-VI: mav0/camN/{sensor.yaml,data.csv,data/}) at its
 // own stamps, camera_info from sensor.yaml, T_BS as /tf_static body -> camN:
-// a stereo or multi-camera driver's raw stream. Ground truth
+// a stereo or multi-camera driver's raw stream (--info-no-lens: camera_info
+// without the lens, the images raw). Ground truth
 // goes on /ground_truth/orientations, keyed by the keyframes' frame id and stamp,
 // and with --write-gt-csv also to a CSV keyed by keyframe name (for
 // rotation_averaging_replay --gt). No output may be one of the inputs: the
@@ -56,8 +59,9 @@ int Usage(const std::string& why) {
   std::cerr << "usage: rotation_averaging_images_to_bag --images DIR --intrinsics CAMERA-FILE --output out.bag\n"
                "           [--gt Strecha-folder|images.txt|orientations.csv] [--downsample 0.25] [--rate 1.0]\n"
                "           [--frame-id camera] [--compressed] [--write-gt-csv ground_truth.csv]\n"
-               "           [--rectify] [--distortion MODEL:c1,c2,...]\n"
+               "           [--rectify] [--distortion MODEL:c1,c2,...] [--info-no-lens]\n"
                "       rotation_averaging_images_to_bag --euroc mav0 --output out.bag [--compressed] [--rectify]\n"
+               "           [--info-no-lens]\n"
                "CAMERA-FILE: K.txt, COLMAP cameras.txt, or a ROS camera_calibration / EuRoC / Kalibr YAML\n";
   return 2;
 }
@@ -78,7 +82,7 @@ std::string BaseName(const std::string& path) {
   return slash == std::string::npos ? path : path.substr(slash + 1);
 }
 
-int EurocToBag(const std::string& mav0, const std::string& output, bool compressed, bool rectify) {
+int EurocToBag(const std::string& mav0, const std::string& output, bool compressed, bool rectify, bool no_lens) {
   if (output.empty()) return Usage("give --output");
   std::vector<ra::EurocCamera> cameras;
   std::size_t missing = 0;
@@ -86,6 +90,13 @@ int EurocToBag(const std::string& mav0, const std::string& output, bool compress
   if (!ra::ReadEurocCameras(mav0, &cameras, &missing, &error)) {
     std::cerr << "rotation_averaging_images_to_bag: " << error << "\n";
     return 1;
+  }
+  if (no_lens) {
+    // The raw images, camera_info without their lens.
+    for (ra::EurocCamera& c : cameras) {
+      c.intrinsics.distortion = ra::DistortionModel::kNone;
+      c.intrinsics.coefficients.clear();
+    }
   }
   for (const ra::EurocCamera& c : cameras) {
     for (const auto& [stamp, image] : c.images) {
@@ -111,7 +122,7 @@ int EurocToBag(const std::string& mav0, const std::string& output, bool compress
 struct Args {
   std::string images_dir, intrinsics_path, output, gt_path, gt_csv, frame_id = "camera", distortion, euroc;
   double downsample = 1.0, rate = 1.0;
-  bool compressed = false, rectify = false;
+  bool compressed = false, rectify = false, no_lens = false;
 };
 
 // Returns an empty string, or why the command line is refused.
@@ -145,11 +156,15 @@ std::string ParseArgs(int argc, char** argv, Args* args) {
       args->rectify = true;
     } else if (a == "--distortion" && has_value) {
       args->distortion = argv[++k];
+    } else if (a == "--info-no-lens") {
+      args->no_lens = true;
     } else {
       return "bad or incomplete option " + a;
     }
   }
+  if (args->no_lens && args->rectify) return "--info-no-lens and --rectify: rectified images have no lens";
   if (!args->euroc.empty()) return "";
+  if (args->no_lens && args->distortion.empty()) return "--info-no-lens needs a --distortion (or --euroc)";
   if (args->images_dir.empty() || args->intrinsics_path.empty() || args->output.empty()) {
     return "give --images, --intrinsics and --output";
   }
@@ -199,6 +214,10 @@ cv::Mat PrepareImage(cv::Mat grey, const Args& args, const ra::CameraIntrinsics&
     lens.k = camera->k;
     grey = ra::DistortImage(grey, lens);
     *camera = lens;
+    if (args.no_lens) {  // a lens nobody calibrated
+      camera->distortion = ra::DistortionModel::kNone;
+      camera->coefficients.clear();
+    }
     if (args.rectify) {  // through the lens and back: what the lens's resampling loses
       grey = ra::UndistortImage(grey, lens);
       camera->distortion = ra::DistortionModel::kNone;
@@ -270,7 +289,7 @@ int main(int argc, char** argv) {
   Args args;
   const std::string refused = ParseArgs(argc, argv, &args);
   if (!refused.empty()) return Usage(refused);
-  if (!args.euroc.empty()) return EurocToBag(args.euroc, args.output, args.compressed, args.rectify);
+  if (!args.euroc.empty()) return EurocToBag(args.euroc, args.output, args.compressed, args.rectify, args.no_lens);
   const std::vector<std::string> images = ra::ListImages(args.images_dir);
   const std::string overwritten = OverwrittenInput(args, images);
   if (!overwritten.empty()) return Usage(overwritten);

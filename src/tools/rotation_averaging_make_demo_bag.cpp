@@ -5,7 +5,7 @@
 //       [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]
 //       [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]
 //       [--start-angle 0] [--start-time 0] [--light-gain 1] [--light-gradient 0] [--noise-seed 0]
-//       [--info-focal-scale 1 | S1,S2,...] [--rectify] [--images-dir DIR]
+//       [--info-focal-scale 1 | S1,S2,...] [--rectify] [--info-no-lens] [--images-dir DIR]
 //       [--binning 1] [--roi X,Y,W,H] [--info-principal-offset DX,DY]
 //
 // The bag holds, per camera, <cam>/image_raw (mono8, or <cam>/image_raw/compressed
@@ -16,7 +16,9 @@
 // the images are what that lens would have seen and camera_info carries the
 // model, as a camera driver's image_raw does; with --rectify as well, the
 // lens's images undistorted again and camera_info without distortion, as
-// image_proc's image_rect (the same content through both resamplings).
+// image_proc's image_rect (the same content through both resamplings);
+// with --info-no-lens, the lens's images and camera_info without the lens (a
+// lens nobody calibrated).
 // --info-focal-scale writes camera_info's focal lengths that many times the
 // scene's (one factor, or one per camera: 0.97,1.01), --info-principal-offset
 // its principal point that many sensor pixels off. --images-dir also writes the same images as a folder for `rotavg
@@ -50,7 +52,7 @@ int Usage(const std::string& why) {
                "           [--width 640] [--height 480] [--noise 2] [--period 1.0] [--seed 1] [--compressed]\n"
                "           [--gt-csv ground_truth.csv] [--distortion MODEL:c1,c2,...]\n"
                "           [--start-angle 0] [--start-time 0] [--light-gain 1] [--light-gradient 0] [--noise-seed 0]\n"
-               "           [--info-focal-scale 1 | S1,S2,...] [--rectify] [--images-dir DIR]\n"
+               "           [--info-focal-scale 1 | S1,S2,...] [--rectify] [--info-no-lens] [--images-dir DIR]\n"
                "           [--binning 1] [--roi X,Y,W,H] [--info-principal-offset DX,DY]\n";
   return 2;
 }
@@ -169,6 +171,8 @@ std::string ParseArguments(int argc, char** argv, Request* r) {
       r->compressed = true;
     } else if (a == "--rectify") {
       bag_options.rectify = true;
+    } else if (a == "--info-no-lens") {
+      bag_options.info_no_lens = true;
     } else {
       const auto option = std::find_if(numeric.begin(), numeric.end(), [&](const Numeric& n) { return a == n.name; });
       if (option == numeric.end()) return "unknown option " + a;
@@ -201,6 +205,8 @@ std::string CheckRequest(const Request& r, cv::Size* image) {
                                     [](double v) { return v != 1.0; }) ||
                         bag_options.info_principal_offset_x != 0.0 || bag_options.info_principal_offset_y != 0.0;
   if (bag_options.rectify && !bag_options.lens.HasDistortion()) return "--rectify needs a --distortion";
+  if (bag_options.info_no_lens && !bag_options.lens.HasDistortion()) return "--info-no-lens needs a --distortion";
+  if (bag_options.info_no_lens && bag_options.rectify) return "--info-no-lens and --rectify: rectified images have no lens";
   if (!bag_options.images_dir.empty() && (bag_options.lens.HasDistortion() || info_off)) {
     return "--images-dir writes ideal pinhole images with the scene's K: not with --distortion, "
            "--info-focal-scale or --info-principal-offset";

@@ -394,6 +394,39 @@ TEST(CameraModel, EurocStereoPairMatchesItsCalibrationOnlyWhenUndistorted) {
 // 640 x 480 image by a large fraction of what the focal length does, a mild
 // one (lund_door's k1 = -0.034 over a narrower field) by little, no lens
 // not at all.
+// The camera_info check measures a lens as a division model; the front end
+// undistorts by plumb_bob. The fitted plumb_bob lens undistorts every pixel
+// of the image as the division model does, within a twentieth of a pixel,
+// for a barrel lens (47 px at the corners of 640 x 480 at f = 420) and a
+// pincushion one; no lens for lambda 0 or one that folds over.
+TEST(CameraIntrinsics, APlumbBobLensUndistortsAsTheDivisionModelItIsFittedTo) {
+  Eigen::Matrix3d k;
+  k << 420, 0, 320, 0, 420, 240, 0, 0, 1;
+  for (const double lambda : {-0.12, 0.05}) {
+    const CameraIntrinsics lens = PlumbBobFromDivision(k, lambda, CornerRadius(k));
+    ASSERT_TRUE(lens.HasDistortion()) << lambda;
+    EXPECT_EQ(lens.distortion, DistortionModel::kPlumbBob);
+    std::string error;
+    EXPECT_TRUE(lens.Validate(&error)) << error;
+    double worst_px = 0.0, corner_shift_px = 0.0;
+    for (int y = 0; y <= 480; y += 40) {
+      for (int x = 0; x <= 640; x += 40) {
+        const Eigen::Vector2d pixel(x, y);
+        const Eigen::Vector2d d = (k.inverse() * pixel.homogeneous()).hnormalized();
+        const Eigen::Vector2d division = (k * (d / (1.0 + lambda * d.squaredNorm())).homogeneous()).hnormalized();
+        const Eigen::Vector2d fitted = lens.Undistort(pixel, k);
+        worst_px = std::max(worst_px, (fitted - division).norm());
+        corner_shift_px = std::max(corner_shift_px, (division - pixel).norm());
+      }
+    }
+    EXPECT_LT(worst_px, 0.05) << lambda;
+    EXPECT_GT(corner_shift_px, 15.0) << lambda;  // a lens that matters
+  }
+  EXPECT_FALSE(PlumbBobFromDivision(k, 0.0, CornerRadius(k)).HasDistortion());
+  EXPECT_FALSE(PlumbBobFromDivision(k, -2.0, CornerRadius(k)).HasDistortion());  // 1 + lambda r^2 < 0: folds
+  EXPECT_NEAR(CornerRadius(k), std::hypot(320.0, 240.0) / 420.0, 1e-12);
+}
+
 TEST(CameraIntrinsics, ALensKeepsKeypointsFromScalingWithTheFocalLength) {
   CameraIntrinsics none;
   none.k << 407.4, 0, 319.5, 0, 407.4, 239.5, 0, 0, 1;

@@ -236,8 +236,13 @@ struct ShortFocalRun {
   std::vector<FocalJob> jobs;
 };
 
+// The rig's sideways camera given `focal_factor` times its focal length,
+// its images through `lens` (if any), which camera_info carries unless
+// `lens_in_info` is false (a lens nobody calibrated); the check's first
+// estimate after `first_estimate_pairs` pairs (0: the default).
 std::unique_ptr<ShortFocalRun> RunShortFocal(bool hold_for_correction, const CameraIntrinsics* lens = nullptr,
-                                             double focal_factor = 0.97) {
+                                             double focal_factor = 0.97, bool lens_in_info = true,
+                                             int first_estimate_pairs = 0) {
   auto run = std::make_unique<ShortFocalRun>();
   run->scene_options.num_cameras = 2;
   run->scene_options.num_captures = 24;
@@ -247,6 +252,7 @@ std::unique_ptr<ShortFocalRun> RunShortFocal(bool hold_for_correction, const Cam
   run->options.max_loop_candidates = 0;
   run->options.focal_monitor.enabled = true;
   run->options.focal_monitor.hold_for_correction = hold_for_correction;
+  if (first_estimate_pairs > 0) run->options.focal_monitor.first_estimate_pairs = first_estimate_pairs;
   run->frontend = std::make_unique<KeyframeFrontend>(run->options);
   const RigScene& scene = *run->scene;
   run->short_k = FocalTimes(scene.Intrinsics(), focal_factor);
@@ -255,6 +261,10 @@ std::unique_ptr<ShortFocalRun> RunShortFocal(bool hold_for_correction, const Cam
   true_lens.k = scene.Intrinsics();
   given = true_lens;
   given.k = run->short_k;
+  if (!lens_in_info) {
+    given.distortion = DistortionModel::kNone;
+    given.coefficients.clear();
+  }
   CameraIntrinsics front;
   front.k = scene.Intrinsics();
   // The lens's image is warped from the wider field it sees: no black border.
@@ -630,6 +640,74 @@ TEST(FocalMonitor, ARawCamerasFocalLengthIsCheckedAndCorrectedThroughItsLens) {
   EXPECT_FALSE(again.back().check_distortion);
   const CameraFocalCheck rechecked = RunFocalJob(again.back(), run->options.focal_monitor.focal);
   EXPECT_FALSE(rechecked.disagrees) << rechecked.Report();
+}
+
+// focal_calibration: apply on a camera whose camera_info describes no lens
+// while its images come through one: the corrector gives it the lens its
+// check sees once two estimates in a row see the same one (the first alone
+// is not enough), its pairs estimated again with it measure its rotations
+// several times better, and its check starts again with the lens, which
+// leaves no distortion for it to look for.
+TEST(FocalMonitor, TheCorrectorGivesALensCameraInfoLeavesOutWhenTwoChecksSeeIt) {
+  CameraIntrinsics lens;
+  lens.distortion = DistortionModel::kPlumbBob;
+  lens.coefficients = {-0.1, 0.0, 0.0, 0.0};
+  const std::unique_ptr<ShortFocalRun> run = RunShortFocal(true, &lens, 1.0, false, 8);
+  const RigScene& scene = *run->scene;
+  const std::string left = scene.Cameras()[1].frame_id;
+  Correcting harness(run.get());
+  std::vector<FocalJob> left_jobs;
+  for (const FocalJob& job : run->jobs) {
+    if (job.camera == left) left_jobs.push_back(job);
+  }
+  ASSERT_GE(left_jobs.size(), 2u);
+  std::vector<std::string> warnings;
+  harness.checker.Submit({left_jobs[0]});
+  harness.checker.Wait();
+  const CameraFocalCheck first = harness.checker.Checks().at(left);
+  ASSERT_TRUE(first.distortion_unmodelled) << first.Report();
+  harness.corrector.ApplyCorrections(&warnings);
+  EXPECT_TRUE(harness.corrector.LensCorrections().empty());
+  EXPECT_EQ(run->frontend->LensCorrection(left), 0.0);
+  EXPECT_TRUE(harness.added.empty());
+
+  harness.checker.Submit({left_jobs[1]});
+  harness.checker.Wait();
+  const CameraFocalCheck second = harness.checker.Checks().at(left);
+  ASSERT_TRUE(second.distortion_unmodelled) << second.Report();
+  harness.corrector.ApplyCorrections(&warnings);
+  EXPECT_TRUE(warnings.empty());
+  const std::map<std::string, RadialDistortion> lenses = harness.corrector.LensCorrections();
+  ASSERT_EQ(lenses.size(), 1u);
+  EXPECT_EQ(lenses.at(left).lambda, second.distortion.lambda);
+  EXPECT_NEAR(run->frontend->LensCorrection(left), second.distortion.lambda, 1e-12);
+  CameraIntrinsics given;
+  given.k = scene.Intrinsics();
+  EXPECT_TRUE(run->frontend->CameraInUse(left, given).HasDistortion());
+  EXPECT_FALSE(run->frontend->CameraInUse(scene.Cameras()[0].frame_id, given).HasDistortion());
+  const std::vector<double> old_errors = SidewaysErrors(scene, run->edges), new_errors = SidewaysErrors(scene, harness.added);
+  ASSERT_GE(new_errors.size(), 20u);
+  const double old_median = old_errors[old_errors.size() / 2], new_median = new_errors[new_errors.size() / 2];
+  RecordProperty("median_error_without_lens_deg", std::to_string(old_median));
+  RecordProperty("median_error_with_lens_deg", std::to_string(new_median));
+  EXPECT_LT(new_median, 0.5 * old_median) << "median error of the left camera's pairs: " << old_median
+                                          << " deg without a lens, " << new_median << " deg with the check's";
+  const std::vector<std::pair<std::string, bool>> notices = harness.corrector.TakeNotices();
+  ASSERT_EQ(notices.size(), 1u);
+  EXPECT_NE(notices[0].first.find(left + ": camera_info describes no lens"), std::string::npos) << notices[0].first;
+  EXPECT_TRUE(notices[0].second);
+  // The check starts again with the lens: no distortion to look for.
+  for (const FocalJob& job : run->frontend->TakeFocalJobs()) {
+    if (job.camera == left) EXPECT_FALSE(job.check_distortion);
+  }
+  // Given once.
+  const std::size_t edges = harness.added.size();
+  harness.corrector.ApplyCorrections(&warnings);
+  EXPECT_EQ(harness.added.size(), edges);
+  std::string why;
+  std::vector<KeyframeRelativeRotation> again;
+  EXPECT_FALSE(run->frontend->ApplyLensCorrection(left, -0.1, &again, &why));
+  EXPECT_NE(why.find("corrected already"), std::string::npos) << why;
 }
 
 }  // namespace

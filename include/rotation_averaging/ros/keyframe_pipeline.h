@@ -229,6 +229,9 @@ class KeyframePipeline {
   // each camera's focal length, by camera (cameras never corrected are not
   // listed).
   std::map<std::string, double> FocalCorrections() const;
+  // focal_calibration: apply. The lens given to each camera whose
+  // camera_info describes none (its check's division model), by camera.
+  std::map<std::string, RadialDistortion> LensCorrections() const;
   // focal_calibration: apply with focal_loop_refinement. Each corrected
   // camera's latest estimate from the loops and what became of it, as its
   // log line says it (cameras the loops have not estimated are not listed).

@@ -50,6 +50,7 @@ struct NodeStatus {
   bool refinement = false;  // the background refinement (refinement: true, with images)
   KeyframeRefinerStats refinement_stats;
   std::map<std::string, double> focal_corrections;
+  std::map<std::string, RadialDistortion> lens_corrections;
   double resident_mib = 0.0, peak_resident_mib = 0.0;
 };
 

@@ -39,6 +39,8 @@ struct ReplayResult {
   // camera's last estimate (CameraFocalCheck::Report).
   std::vector<std::string> focal_notices, focal_checks;
   std::vector<std::string> focal_corrections;  // focal_calibration: apply: "cam: camera_info's focal length x1.03"
+  // focal_calibration: apply: "cam: division model -0.118 +- 0.001, 47.9 px at the corners".
+  std::vector<std::string> lens_corrections;
   // focal_loop_refinement: each camera's latest estimate from the loops and
   // what became of it (KeyframePipeline::FocalLoopRefinements).
   std::vector<std::string> focal_loop_refinements;

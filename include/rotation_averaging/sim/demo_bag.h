@@ -58,6 +58,10 @@ struct RigSceneBagOptions {
   // image_rect), camera_info without distortion: the same content through
   // both resamplings, for comparing the model with rectification.
   bool rectify = false;
+  // camera_info without the lens's distortion, the images distorted: a
+  // driver whose calibration describes no lens (a lens the user never
+  // calibrated).
+  bool info_no_lens = false;
   // camera_info's focal lengths are the scene's times this: a calibration
   // that is a little off.
   double info_focal_scale = 1.0;

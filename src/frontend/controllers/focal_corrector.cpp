@@ -53,6 +53,48 @@ std::map<std::string, double> FocalCorrector::Corrections() const {
   return corrections_;
 }
 
+std::map<std::string, RadialDistortion> FocalCorrector::LensCorrections() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return lens_corrections_;
+}
+
+bool FocalCorrector::CorrectLens(const std::string& camera, const CameraFocalCheck& check,
+                                 std::vector<std::string>* warnings) {
+  lens_decided_.insert(camera);
+  std::vector<KeyframeRelativeRotation> edges;
+  std::string why;
+  bool applied = false;
+  {
+    std::lock_guard<std::mutex> lock(*frontend_mutex_);
+    applied = frontend_->ApplyLensCorrection(camera, check.distortion.lambda, &edges, &why);
+  }
+  std::ostringstream text;
+  text << std::fixed << std::setprecision(3) << camera
+       << ": camera_info describes no lens, and its images show a radial distortion (division model) "
+       << check.distortion.lambda << " +- " << check.distortion.standard_deviation << ", "
+       << std::setprecision(1) << check.distortion.corner_shift_px << " px at the corners";
+  if (!applied) {
+    text << ": not corrected: " << why;
+    std::lock_guard<std::mutex> lock(mutex_);
+    notices_.emplace_back(text.str(), true);
+    return false;
+  }
+  std::size_t refused = 0;
+  for (const KeyframeRelativeRotation& e : edges) {
+    std::string error;
+    if (!add_edge_(e, &error)) {
+      ++refused;
+      if (warnings) warnings->push_back(camera + ": an edge estimated again with its lens was refused: " + error);
+    }
+  }
+  text << ": its keypoints are undistorted by that lens from now on, " << edges.size() - refused
+       << " of its pairs estimated again with it; give camera_info the lens (distortion_model and D)";
+  std::lock_guard<std::mutex> lock(mutex_);
+  lens_corrections_[camera] = check.distortion;
+  notices_.emplace_back(text.str(), true);
+  return true;
+}
+
 std::map<std::string, std::string> FocalCorrector::LoopRefinements() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return loop_refinements_;
@@ -109,6 +151,30 @@ void FocalCorrector::ApplyCorrections(std::vector<std::string>* warnings) {
   const std::map<std::string, CameraFocalCheck> checks = checker_->Checks();
   const std::map<std::string, double> corrected = Corrections();
   const RigCameraMap rig_cameras = rig_->RigCameras();
+  // The lens first: until it is given, the check's focal estimate is bent
+  // by it. The check measures it precisely (a division model fitted to
+  // every pair's matches) and only where it is beyond the noise and not
+  // explained as well by the focal length alone.
+  for (const auto& [camera, check] : checks) {
+    if (lens_decided_.count(camera) || !check.distortion_checked) continue;
+    const auto seen = lens_seen_.find(camera);
+    if (!check.distortion_unmodelled) {
+      if (seen != lens_seen_.end() && seen->second.pairs_seen < check.pairs_seen) lens_seen_.erase(seen);
+      continue;
+    }
+    if (seen == lens_seen_.end() || seen->second.pairs_seen >= check.pairs_seen) {
+      lens_seen_[camera] = check;  // the first, or of pairs counted afresh
+      continue;
+    }
+    const RadialDistortion& before = seen->second.distortion;
+    const double deviation = std::hypot(before.standard_deviation, check.distortion.standard_deviation);
+    if (std::abs(check.distortion.lambda - before.lambda) > 3.0 * deviation) {
+      seen->second = check;  // not the same lens: wait for the next
+      continue;
+    }
+    lens_seen_.erase(seen);
+    CorrectLens(camera, check, warnings);
+  }
   for (const auto& [camera, check] : checks) {
     if (!check.disagrees || refused_.count(camera)) continue;
     const auto applied = applied_checks_.find(camera);
@@ -117,9 +183,10 @@ void FocalCorrector::ApplyCorrections(std::vector<std::string>* warnings) {
     }
     if (check.distortion_unmodelled) {
       // A lens the model leaves out bends the focal estimate too: correcting
-      // it would fit the focal length to the distortion.
+      // it would fit the focal length to the distortion. Once the lens is
+      // given, the check starts again with it.
       applied_checks_[camera] = {check.given_focal_px, check.pairs_seen};
-      HoldBack(camera, kUnmodelledLens);
+      if (!LensCorrections().count(camera)) HoldBack(camera, kUnmodelledLens);
       continue;
     }
     const std::string unchecked = UncheckedRigCameras(camera, checks, corrected, rig_cameras);
@@ -151,7 +218,8 @@ void FocalCorrector::ApplyRefinementEstimates(const std::map<std::string, Bundle
     if (verdicts.at(camera) != FocalVerdict::kDisagrees || refused_.count(camera)) continue;
     const auto check = checks.find(camera);
     if (check != checks.end() && check->second.distortion_unmodelled) {
-      HoldBack(camera, kUnmodelledLens);
+      // (With the lens given since, the estimate was made without it.)
+      if (!LensCorrections().count(camera)) HoldBack(camera, kUnmodelledLens);
       continue;
     }
     // The refinement estimates a rig's cameras together: the others are

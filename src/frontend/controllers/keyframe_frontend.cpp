@@ -425,13 +425,11 @@ std::vector<KeyframeRelativeRotation> KeyframeFrontend::AddKeyframe(const Keyfra
                                                                     const CameraIntrinsics& given,
                                                                     const std::vector<TrackedPoint>& tracks) {
   std::vector<KeyframeRelativeRotation> edges;
-  // A focal length corrected by the check (ApplyFocalCorrection) replaces
-  // the given one before anything, undistortion included.
-  CameraIntrinsics camera = given;
+  // A focal length corrected by the check (ApplyFocalCorrection), and a
+  // lens where camera_info describes none (ApplyLensCorrection), replace the
+  // given ones before anything, undistortion included.
   given_focal_px_[key.frame_id] = given.k(0, 0);
-  const double correction = FocalCorrection(key.frame_id);
-  camera.k(0, 0) *= correction;
-  camera.k(1, 1) *= correction;
+  const CameraIntrinsics camera = CameraInUse(key.frame_id, given);
   // A second image under one key (a driver that repeats a stamp, a bag
   // played twice, a key of a loaded database) would be a second view under
   // the name of the first.

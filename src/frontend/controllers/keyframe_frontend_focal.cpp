@@ -64,6 +64,89 @@ double KeyframeFrontend::FocalInUsePx(const std::string& camera) const {
   return it == given_focal_px_.end() ? 0.0 : it->second * FocalCorrection(camera);
 }
 
+double KeyframeFrontend::LensCorrection(const std::string& camera) const {
+  const auto it = lens_correction_px_.find(camera);
+  const double f = FocalInUsePx(camera);
+  return it == lens_correction_px_.end() ? 0.0 : it->second.first * f * f;
+}
+
+CameraIntrinsics KeyframeFrontend::CameraInUse(const std::string& camera, const CameraIntrinsics& given) const {
+  CameraIntrinsics out = given;
+  out.k = FocalScaled(given.k, FocalCorrection(camera));
+  const auto lens = lens_correction_px_.find(camera);
+  if (lens != lens_correction_px_.end() && !given.HasDistortion()) {
+    const CameraIntrinsics fitted =
+        PlumbBobFromDivision(out.k, lens->second.first * out.k(0, 0) * out.k(0, 0), lens->second.second);
+    out.distortion = fitted.distortion;
+    out.coefficients = fitted.coefficients;
+  }
+  return out;
+}
+
+bool KeyframeFrontend::ApplyLensCorrection(const std::string& camera, double lambda,
+                                           std::vector<KeyframeRelativeRotation>* edges, std::string* why) {
+  edges->clear();
+  const auto refuse = [why](const std::string& reason) {
+    if (why) *why = reason;
+    return false;
+  };
+  if (lens_correction_px_.count(camera)) return refuse("its lens is corrected already");
+  const double f = FocalInUsePx(camera);
+  if (!(f > 0.0)) return refuse("no keyframe of it yet");
+  if (held_overflow_.count(camera)) {
+    return refuse("its pairs outgrew focal_max_correction_pairs (" +
+                  std::to_string(options_.focal_monitor.max_correction_pairs) +
+                  ") before the check found it out, so they cannot be estimated again: give camera_info its lens");
+  }
+  const auto chain = by_camera_.find(camera);
+  if (chain == by_camera_.end() || chain->second.empty()) return refuse("no keyframe of it yet");
+  // As CameraInUse gives it to later keyframes, each keyframe's lens of its
+  // own K (the features' scale): lambda is in normalised coordinates, which
+  // that scale leaves as they are.
+  const std::pair<double, double> correction(lambda / (f * f), CornerRadius(keyframes_[chain->second.back()]->k));
+  const double lambda_in_use = correction.first * f * f;
+  const auto lens_of = [&](const Eigen::Matrix3d& k) {
+    return PlumbBobFromDivision(k, lambda_in_use, correction.second);
+  };
+  if (!lens_of(keyframes_[chain->second.back()]->k).HasDistortion()) return refuse("lambda gives no lens");
+  for (int i : chain->second) {
+    const Keyframe& kf = *keyframes_[i];
+    if (!kf.resumed && kf.lens.HasDistortion()) return refuse("camera_info gives its keyframes a lens already");
+  }
+  lens_correction_px_[camera] = correction;
+  // Raw pixels undistorted; one that does not undistort (beyond the image)
+  // stays where it was, as RedoUndistortion leaves it: the features and
+  // the held pairs keep their indices.
+  const auto undistort = [](const CameraIntrinsics& lens, const Eigen::Matrix3d& k, std::vector<Eigen::Vector2d>* px) {
+    std::vector<Eigen::Vector2d> out = *px;
+    UndistortPixels(lens, k, &out);
+    for (std::size_t i = 0; i < out.size(); ++i) {
+      if (out[i].allFinite()) (*px)[i] = out[i];
+    }
+  };
+  std::vector<HeldPair>& held = held_pairs_[camera];
+  for (HeldPair& p : held) {
+    for (const auto& [index, points] : {std::make_pair(p.first, p.points1), std::make_pair(p.second, p.points2)}) {
+      const Keyframe& kf = *keyframes_[index];
+      if (kf.key.frame_id == camera && !kf.resumed) undistort(lens_of(kf.k), kf.k, points.get());
+    }
+  }
+  CameraIntrinsics lens;
+  for (int i : chain->second) {
+    Keyframe& kf = *keyframes_[i];
+    if (kf.resumed) continue;
+    lens = lens_of(kf.k);
+    undistort(lens, kf.k, &kf.features.keypoints_px);
+    kf.lens = lens;
+    if (!kf.tracks.empty()) {
+      kf.track_camera.distortion = lens.distortion;
+      kf.track_camera.coefficients = lens.coefficients;
+    }
+  }
+  ReestimateHeldPairs(camera, focal_monitor_.GivenFocal(camera), lens, true, edges);
+  return true;
+}
+
 std::vector<FocalSensitivity> KeyframeFrontend::FocalSensitivities(const std::string& camera, double step) {
   std::vector<FocalSensitivity> out;
   const auto held = held_pairs_.find(camera);
@@ -153,33 +236,40 @@ bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double sc
       kf.k = corrected(kf.k);
     }
   }
-  // The pair's new edge, replacing the old one (and the keyframe's
-  // sequential edge, for the chain's predictions).
-  auto replace_edge = [&](const HeldPair& p, const RelativePoseResult& pose) {
-    Keyframe& second = *keyframes_[p.second];
-    KeyframeRelativeRotation e;
-    e.keyframe1 = keyframes_[p.first]->key;
-    e.keyframe2 = second.key;
-    e.rotation = pose.EdgeRotation();
-    e.has_covariance = true;
-    e.covariance = pose.covariance;
-    e.num_inliers = static_cast<int>(pose.inliers.size());
-    e.source = p.source;
-    edges->push_back(e);
-    if (p.chain) {
-      second.sequential_rotation = e.rotation;
-      second.sequential_covariance = e.covariance;
-    }
-  };
   if (linearised) {
     for (HeldPair& p : held) {
       if (!p.has_derivative || !p.pose) continue;  // the old edge stays
       RelativePoseResult& pose = *p.pose;
       pose.rotation = (pose.EdgeRotation() * ExpSO3((scale - 1.0) * p.derivative)).transpose();
-      replace_edge(p, pose);
+      ReplaceHeldEdge(p, pose, edges);
     }
     return true;
   }
+  ReestimateHeldPairs(camera, focal_monitor_.GivenFocal(camera) * scale, focal_monitor_.Lens(camera), false, edges);
+  return true;
+}
+
+void KeyframeFrontend::ReplaceHeldEdge(const HeldPair& p, const RelativePoseResult& pose,
+                                       std::vector<KeyframeRelativeRotation>* edges) {
+  Keyframe& second = *keyframes_[p.second];
+  KeyframeRelativeRotation e;
+  e.keyframe1 = keyframes_[p.first]->key;
+  e.keyframe2 = second.key;
+  e.rotation = pose.EdgeRotation();
+  e.has_covariance = true;
+  e.covariance = pose.covariance;
+  e.num_inliers = static_cast<int>(pose.inliers.size());
+  e.source = p.source;
+  edges->push_back(e);
+  if (p.chain) {
+    second.sequential_rotation = e.rotation;
+    second.sequential_covariance = e.covariance;
+  }
+}
+
+void KeyframeFrontend::ReestimateHeldPairs(const std::string& camera, double given_px, const CameraIntrinsics& lens,
+                                           bool keep_correspondences, std::vector<KeyframeRelativeRotation>* edges) {
+  std::vector<HeldPair>& held = held_pairs_[camera];
   std::vector<RelativePoseResult> poses(held.size());
   ParallelFor(static_cast<int>(held.size()), ResolveThreadCount(options_.num_threads), [&](int h) {
     const HeldPair& p = held[h];
@@ -189,25 +279,34 @@ bool KeyframeFrontend::ApplyFocalCorrection(const std::string& camera, double sc
                                                   keyframes_[p.second]->k, relative_pose);
   });
   const FocalMonitorOptions& focal = options_.focal_monitor;
-  const double given = focal_monitor_.GivenFocal(camera) * scale;
   for (std::size_t h = 0; h < held.size(); ++h) {
     const HeldPair& p = held[h];
     const RelativePoseResult& pose = poses[h];
     if (!pose.success) continue;  // the old edge stays
     if (held[h].pose) *held[h].pose = pose;
     held[h].has_derivative = false;  // at the new focal length, when next needed
-    replace_edge(p, pose);
+    ReplaceHeldEdge(p, pose, edges);
     const Keyframe& first = *keyframes_[p.first];
     const Keyframe& second = *keyframes_[p.second];
-    // The check starts again on the corrected focal length, with these pairs.
+    if (keep_correspondences && options_.keep_correspondences) {
+      std::vector<Eigen::Vector2d> n1, n2;
+      const Eigen::Matrix3d k1_inverse = first.k.inverse(), k2_inverse = second.k.inverse();
+      for (int m : pose.inliers) {
+        n1.push_back((k1_inverse * (*p.points1)[m].homogeneous()).hnormalized());
+        n2.push_back((k2_inverse * (*p.points2)[m].homogeneous()).hnormalized());
+      }
+      correspondences_.push_back({first.key, second.key,
+                                  MakeEdgeCorrespondences(0, 1, std::move(n1), std::move(n2), pose.translation,
+                                                          pose.sigma_px, 0.5 * (first.k(0, 0) + first.k(1, 1)))});
+    }
+    // The check starts again on the corrected camera, with these pairs.
     if (focal.enabled && first.key.frame_id == camera && second.key.frame_id == camera && first.k == second.k &&
         pose.model == TwoViewModel::kEssential && static_cast<int>(pose.inliers.size()) >= focal.focal.min_inliers) {
-      focal_monitor_.Add(camera, first.k, given, focal_monitor_.Lens(camera),
+      focal_monitor_.Add(camera, first.k, given_px, lens,
                          MakeFocalSample(*p.points1, *p.points2, pose, focal.max_matches_per_pair));
     }
   }
   stats_.focal_bytes = FocalBytes();
-  return true;
 }
 
 std::size_t KeyframeFrontend::FocalBytes() const {

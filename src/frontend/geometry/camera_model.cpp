@@ -3,6 +3,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include <Eigen/Geometry>
+#include <Eigen/QR>
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -297,6 +298,35 @@ Eigen::Vector2d CameraIntrinsics::Undistort(const Eigen::Vector2d& pixel, const 
   std::vector<Eigen::Vector2d> one{pixel};
   UndistortPixels(*this, scaled_k, &one);
   return one[0];
+}
+
+CameraIntrinsics PlumbBobFromDivision(const Eigen::Matrix3d& k, double lambda, double max_radius) {
+  CameraIntrinsics lens;
+  lens.k = k;
+  if (lambda == 0.0 || !std::isfinite(lambda) || !(max_radius > 0.0) || !std::isfinite(max_radius)) return lens;
+  // r_d = r_u (1 + k1 r_u^2 + k2 r_u^4 + k3 r_u^6) at radii up to max_radius,
+  // r_u = r_d / (1 + lambda r_d^2): linear in (k1, k2, k3), in the distorted
+  // radius's error (pixels, up to the focal length).
+  constexpr int kSamples = 64;
+  Eigen::Matrix<double, kSamples, 3> a;
+  Eigen::Matrix<double, kSamples, 1> b;
+  for (int i = 0; i < kSamples; ++i) {
+    const double rd = max_radius * (i + 1) / kSamples;
+    const double denominator = 1.0 + lambda * rd * rd;
+    if (!(denominator > 0.1)) return lens;  // folds over: not a lens
+    const double ru = rd / denominator, ru2 = ru * ru;
+    a.row(i) << ru * ru2, ru * ru2 * ru2, ru * ru2 * ru2 * ru2;
+    b(i) = rd - ru;
+  }
+  const Eigen::Vector3d c = a.colPivHouseholderQr().solve(b);
+  if (!c.allFinite()) return lens;
+  lens.distortion = DistortionModel::kPlumbBob;
+  lens.coefficients = {c(0), c(1), 0.0, 0.0, c(2)};
+  return lens;
+}
+
+double CornerRadius(const Eigen::Matrix3d& k) {
+  return std::hypot(k(0, 2) / k(0, 0), k(1, 2) / k(1, 1));
 }
 
 int UndistortPixels(const CameraIntrinsics& camera, const Eigen::Matrix3d& scaled_k,

@@ -60,7 +60,16 @@ class FocalCorrector {
   FocalCorrector(const FocalCorrectorOptions& options, KeyframeFrontend* frontend, std::mutex* frontend_mutex,
                  FocalChecker* checker, RigModel* rig, OnlineAverager* averager, AddEdge add_edge);
 
-  // Corrects each camera whose latest check disagrees and has not been
+  // First, a camera whose check sees a radial distortion camera_info does
+  // not describe (CameraFocalCheck::distortion_unmodelled) at two estimates
+  // in a row that agree (within 3 standard deviations of their difference)
+  // gets that lens (KeyframeFrontend::ApplyLensCorrection: the later
+  // estimate's division model), once; its pairs' new edges replace the old
+  // ones and its check starts again with the lens. One estimate is not
+  // enough: the first, of a few pairs, can see a distortion in rectified
+  // images that later ones withdraw (forward motion hardly tells it from a
+  // focal length). Then it
+  // corrects each camera whose latest check disagrees and has not been
   // decided yet. A rig camera only when the rig's other cameras are checked
   // as precisely as a correction needs, or corrected; never a camera whose
   // images show a lens camera_info does not describe. Edges the graph
@@ -96,6 +105,9 @@ class FocalCorrector {
   // The product of the corrections applied to each camera's focal length,
   // by camera (cameras never corrected are not listed).
   std::map<std::string, double> Corrections() const;
+  // The lens given to each camera whose camera_info describes none: the
+  // check's estimate it was given (cameras without one are not listed).
+  std::map<std::string, RadialDistortion> LensCorrections() const;
   // Each corrected camera's latest estimate from the loops and what became
   // of it, as its log line says it (cameras the loops have not estimated
   // are not listed).
@@ -120,6 +132,8 @@ class FocalCorrector {
   static std::string UnsettledRigCameras(const std::string& camera, const std::map<std::string, double>& corrected,
                                          const RigCameraMap& rig_cameras,
                                          const std::function<bool(const std::string&)>& settled);
+  // Gives `camera` the lens its check sees; true if it did.
+  bool CorrectLens(const std::string& camera, const CameraFocalCheck& check, std::vector<std::string>* warnings);
   // Applies one check's correction, with its notice.
   void Correct(const std::string& camera, const CameraFocalCheck& check, std::vector<std::string>* warnings);
   // Multiplies the focal length in use, `given_px`, by `scale`; `estimate_px`
@@ -154,6 +168,8 @@ class FocalCorrector {
   std::map<std::string, std::pair<double, double>> focal_prior_px_;
   std::map<std::string, std::pair<double, std::uint64_t>> applied_checks_;  // camera -> (given px, pairs) applied
   std::set<std::string> refused_;
+  std::set<std::string> lens_decided_;  // CorrectLens tried, applied or not
+  std::map<std::string, CameraFocalCheck> lens_seen_;  // the latest check that saw a lens, awaiting the next
   // The reason a camera's correction was last held back: each new estimate
   // that is held back for the same reason says nothing new.
   std::map<std::string, std::string> held_back_;
@@ -161,6 +177,7 @@ class FocalCorrector {
   mutable std::mutex mutex_;  // what other threads read: the three below
   std::vector<std::pair<std::string, bool>> notices_;
   std::map<std::string, double> corrections_;
+  std::map<std::string, RadialDistortion> lens_corrections_;
   std::map<std::string, std::string> loop_refinements_;
 };
 

@@ -301,6 +301,27 @@ class KeyframeFrontend {
   // The focal length in use for `camera`, px: its latest camera_info's
   // times FocalCorrection (0: no keyframe of it yet).
   double FocalInUsePx(const std::string& camera) const;
+  // focal_calibration: apply, for a camera whose camera_info describes no
+  // lens while its images show a radial distortion: lambda of the one-
+  // parameter division model in the normalised coordinates of the focal
+  // length in use (the camera_info check's RadialDistortion). From now on
+  // the camera's keypoints are undistorted by that lens (PlumbBobFromDivision
+  // out to the image's corner), those of its keyframes and held pairs too;
+  // the held pairs are estimated again and their edges returned, to replace
+  // the old ones, as ApplyFocalCorrection does; the focal check starts again
+  // with the lens. Once per camera; keyframes loaded from a database keep
+  // theirs. False, with `why`, and nothing changed, when the camera has a
+  // lens already, lambda gives none, or its pairs outgrew
+  // max_correction_pairs.
+  bool ApplyLensCorrection(const std::string& camera, double lambda, std::vector<KeyframeRelativeRotation>* edges,
+                           std::string* why);
+  // The lens correction of `camera` (ApplyLensCorrection's lambda, in the
+  // normalised coordinates of the focal length in use then); 0: none.
+  double LensCorrection(const std::string& camera) const;
+  // `given` (a camera_info of `camera`) as the front end uses it: its focal
+  // length times FocalCorrection and, when it describes no lens, the lens
+  // of LensCorrection.
+  CameraIntrinsics CameraInUse(const std::string& camera, const CameraIntrinsics& given) const;
   // focal_calibration: apply. The held pairs of `camera` (those that
   // ApplyFocalCorrection would estimate again), each pose refined on its
   // inliers with the camera's focal length times 1 +- step (its keypoints
@@ -387,6 +408,18 @@ class KeyframeFrontend {
     Eigen::Vector3d derivative = Eigen::Vector3d::Zero();
   };
   void HoldPair(const PairTask& task, const PairOutcome& outcome, int newer_index, bool chain);
+  // A held pair's new edge, replacing its old one (and the newer
+  // keyframe's sequential edge, for the chain's predictions).
+  void ReplaceHeldEdge(const HeldPair& pair, const RelativePoseResult& pose,
+                       std::vector<KeyframeRelativeRotation>* edges);
+  // The held pairs of `camera` estimated again from their (corrected)
+  // points: the edges of those that succeed, and the focal check fed with
+  // them, its camera's focal length `given_px` and lens `lens`. With
+  // `keep_correspondences` (and options_.keep_correspondences), their
+  // inliers for TakeCorrespondences too: the refinement's held ones are of
+  // the old camera.
+  void ReestimateHeldPairs(const std::string& camera, double given_px, const CameraIntrinsics& lens,
+                           bool keep_correspondences, std::vector<KeyframeRelativeRotation>* edges);
   std::size_t FocalBytes() const;  // what the focal-length check and correction hold
   // Gives the focal-length check the pair of a used outcome.
   void MonitorFocal(const PairOutcome& outcome, const Keyframe& newer, const CameraIntrinsics& camera);
@@ -474,6 +507,11 @@ class KeyframeFrontend {
   std::map<std::string, std::vector<HeldPair>> held_pairs_;  // by camera (a rig pair under both)
   std::set<std::string> held_overflow_;  // cameras whose pairs outgrew max_correction_pairs
   std::map<std::string, double> focal_correction_;  // ApplyFocalCorrection
+  // ApplyLensCorrection's lambda over the focal length in use then, squared
+  // (px^-2): the same lens in pixels whatever the focal length becomes.
+  // and the normalised radius it is fitted out to (the image's corner then),
+  // so that every keyframe's lens is the same to the bit.
+  std::map<std::string, std::pair<double, double>> lens_correction_px_;
   std::map<std::string, double> given_focal_px_;     // the latest camera_info's, by camera
 };
 

@@ -73,6 +73,19 @@ struct CameraIntrinsics {
 // about this fraction of the error.
 double FocalScalingError(const CameraIntrinsics& camera, const Eigen::Matrix3d& scaled_k, const cv::Size& size);
 
+// The plumb_bob lens (k1 k2 0 0 k3) of intrinsics `k` that undistorts as the
+// one-parameter division model x_u = x_d / (1 + lambda |x_d|^2) does (x in
+// normalised coordinates of `k`), fitted by least squares in the distorted
+// radius over radii up to `max_radius` (normalised: an image's corner). The
+// camera_info check estimates the division model (EstimateRadialDistortion);
+// the front end undistorts by camera_info's models. kNone when lambda is 0 or
+// not finite, or the division model folds over within max_radius.
+CameraIntrinsics PlumbBobFromDivision(const Eigen::Matrix3d& k, double lambda, double max_radius);
+// The normalised radius of the corner of an image of intrinsics `k` that is
+// furthest from its principal point, the image being twice the principal
+// point in size.
+double CornerRadius(const Eigen::Matrix3d& k);
+
 // Undistorts pixels of an image whose intrinsics are `scaled_k` in place (one
 // OpenCV call for all of them). A pixel whose undistortion does not
 // reproject onto it within a hundredth of a pixel (the iteration diverged:
