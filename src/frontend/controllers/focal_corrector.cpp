@@ -162,6 +162,11 @@ void FocalCorrector::ApplyCorrections(std::vector<std::string>* warnings) {
       if (seen != lens_seen_.end() && seen->second.pairs_seen < check.pairs_seen) lens_seen_.erase(seen);
       continue;
     }
+    if (check.distortion.corner_shift_px >= options_.min_single_estimate_lens_px) {
+      lens_seen_.erase(camera);
+      CorrectLens(camera, check, warnings);
+      continue;
+    }
     if (seen == lens_seen_.end() || seen->second.pairs_seen >= check.pairs_seen) {
       lens_seen_[camera] = check;  // the first, or of pairs counted afresh
       continue;

@@ -45,6 +45,13 @@ struct FocalCorrectorOptions {
   // A rig camera's other cameras count as checked when their estimate's
   // standard deviation (relative) is at most this: FocalCalibrationOptions::min_correction.
   double min_correction = 0.01;
+  // A lens camera_info leaves out is given on one estimate of the check
+  // when it moves a corner keypoint by at least this (px); otherwise two
+  // estimates in a row must see it. 10: the one false alarm measured, on
+  // rectified images of a real car's forward camera after 20 pairs, moved
+  // the corners by 6.4 px, and the lenses of results/lens.md by 17-47 px; a
+  // small scene (fountain-P11's 11 photographs) has one estimate only.
+  double min_single_estimate_lens_px = 10.0;
   // The averaging the loops are solved with (the averager's).
   RotationAveragingOptions averaging;
 };
@@ -62,13 +69,14 @@ class FocalCorrector {
 
   // First, a camera whose check sees a radial distortion camera_info does
   // not describe (CameraFocalCheck::distortion_unmodelled) at two estimates
-  // in a row that agree (within 3 standard deviations of their difference)
-  // gets that lens (KeyframeFrontend::ApplyLensCorrection: the later
-  // estimate's division model), once; its pairs' new edges replace the old
-  // ones and its check starts again with the lens. One estimate is not
-  // enough: the first, of a few pairs, can see a distortion in rectified
-  // images that later ones withdraw (forward motion hardly tells it from a
-  // focal length). Then it
+  // in a row that agree (within 3 standard deviations of their difference),
+  // or at one that moves the corners by min_single_estimate_lens_px, gets
+  // that lens (KeyframeFrontend::ApplyLensCorrection: the later estimate's
+  // division model), once; its pairs' new edges replace the old ones and
+  // its check starts again with the lens. One estimate of a slight lens is
+  // not enough: the first, of a few pairs, can see a distortion in
+  // rectified images that later ones withdraw (forward motion hardly tells
+  // it from a focal length). Then it
   // corrects each camera whose latest check disagrees and has not been
   // decided yet. A rig camera only when the rig's other cameras are checked
   // as precisely as a correction needs, or corrected; never a camera whose
