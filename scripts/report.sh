@@ -86,7 +86,7 @@ step "bag replay"
 bash scripts/benchmark_replay.sh > /dev/null
 step "long image runs"
 bash scripts/benchmark_long_run.sh > /dev/null
-step "camera models (lens distortion), keyframe selection, tracks, the time budget, posterior covariances, the focal-length check and the background refinement on raw streams"
+step "camera models (lens distortion), keyframe selection, tracks, the time budget, posterior covariances, the focal-length check, the background refinement, self-calibration and lenses camera_info leaves out"
 bash scripts/benchmark_camera_models.sh > /dev/null
 bash scripts/benchmark_keyframe_selection.sh > /dev/null
 bash scripts/benchmark_keyframe_rotation.sh > /dev/null
@@ -95,6 +95,8 @@ bash scripts/benchmark_budget.sh > /dev/null
 bash scripts/benchmark_posterior.sh > /dev/null
 bash scripts/benchmark_focal_check.sh > /dev/null
 bash scripts/benchmark_refinement.sh > /dev/null
+bash scripts/benchmark_self_calibration.sh > /dev/null
+bash scripts/benchmark_lens.sh > /dev/null
 step "restarts: the map saved and loaded"
 bash scripts/benchmark_restart.sh > /dev/null
 bash scripts/benchmark_map.sh > /dev/null
