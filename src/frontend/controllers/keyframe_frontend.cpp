@@ -20,6 +20,21 @@ using Clock = std::chrono::steady_clock;
 
 }  // namespace
 
+EdgeCorrespondences InlierCorrespondences(const std::vector<Eigen::Vector2d>& pa, const std::vector<Eigen::Vector2d>& pb,
+                                          const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
+                                          const RelativePoseResult& pose) {
+  std::vector<Eigen::Vector2d> n1, n2;
+  n1.reserve(pose.inliers.size());
+  n2.reserve(pose.inliers.size());
+  const Eigen::Matrix3d k1_inverse = k1.inverse(), k2_inverse = k2.inverse();
+  for (int m : pose.inliers) {
+    n1.push_back((k1_inverse * pa[m].homogeneous()).hnormalized());
+    n2.push_back((k2_inverse * pb[m].homogeneous()).hnormalized());
+  }
+  return MakeEdgeCorrespondences(0, 1, std::move(n1), std::move(n2), pose.translation, pose.sigma_px,
+                                 0.5 * (k1(0, 0) + k1(1, 1)));
+}
+
 
 bool KeyframeFrontendOptions::Validate(std::string* error) const {
   std::string relative_pose_error;
@@ -253,18 +268,7 @@ void KeyframeFrontend::FillOutcome(const PairTask& task, const Keyframe& a, cons
     return;
   }
   if (options_.keep_correspondences) {
-    std::vector<Eigen::Vector2d> n1, n2;
-    n1.reserve(pose.inliers.size());
-    n2.reserve(pose.inliers.size());
-    const Eigen::Matrix3d k1_inverse = k1.inverse(), k2_inverse = k2.inverse();
-    for (int m : pose.inliers) {
-      n1.push_back((k1_inverse * pa[m].homogeneous()).hnormalized());
-      n2.push_back((k2_inverse * pb[m].homogeneous()).hnormalized());
-    }
-    // (The rotation-only model's zero translation: its matches join the
-    // refinement's tracks but give no baseline.)
-    out.correspondences = std::make_shared<const EdgeCorrespondences>(MakeEdgeCorrespondences(
-        0, 1, std::move(n1), std::move(n2), pose.translation, pose.sigma_px, 0.5 * (k1(0, 0) + k1(1, 1))));
+    out.correspondences = std::make_shared<const EdgeCorrespondences>(InlierCorrespondences(pa, pb, k1, k2, pose));
   }
   const FocalMonitorOptions& focal = options_.focal_monitor;
   if (focal.enabled && first.key.frame_id == second.key.frame_id && first.k == second.k &&

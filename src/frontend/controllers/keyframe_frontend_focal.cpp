@@ -70,13 +70,17 @@ double KeyframeFrontend::LensCorrection(const std::string& camera) const {
   return it == lens_correction_px_.end() ? 0.0 : it->second.first * f * f;
 }
 
+CameraIntrinsics KeyframeFrontend::CorrectedLens(const std::pair<double, double>& correction,
+                                                 const Eigen::Matrix3d& k, double focal_px) {
+  return PlumbBobFromDivision(k, correction.first * focal_px * focal_px, correction.second);
+}
+
 CameraIntrinsics KeyframeFrontend::CameraInUse(const std::string& camera, const CameraIntrinsics& given) const {
   CameraIntrinsics out = given;
   out.k = FocalScaled(given.k, FocalCorrection(camera));
   const auto lens = lens_correction_px_.find(camera);
   if (lens != lens_correction_px_.end() && !given.HasDistortion()) {
-    const CameraIntrinsics fitted =
-        PlumbBobFromDivision(out.k, lens->second.first * out.k(0, 0) * out.k(0, 0), lens->second.second);
+    const CameraIntrinsics fitted = CorrectedLens(lens->second, out.k, out.k(0, 0));
     out.distortion = fitted.distortion;
     out.coefficients = fitted.coefficients;
   }
@@ -104,10 +108,7 @@ bool KeyframeFrontend::ApplyLensCorrection(const std::string& camera, double lam
   // own K (the features' scale): lambda is in normalised coordinates, which
   // that scale leaves as they are.
   const std::pair<double, double> correction(lambda / (f * f), CornerRadius(keyframes_[chain->second.back()]->k));
-  const double lambda_in_use = correction.first * f * f;
-  const auto lens_of = [&](const Eigen::Matrix3d& k) {
-    return PlumbBobFromDivision(k, lambda_in_use, correction.second);
-  };
+  const auto lens_of = [&](const Eigen::Matrix3d& k) { return CorrectedLens(correction, k, f); };
   if (!lens_of(keyframes_[chain->second.back()]->k).HasDistortion()) return refuse("lambda gives no lens");
   for (int i : chain->second) {
     const Keyframe& kf = *keyframes_[i];
@@ -289,15 +290,8 @@ void KeyframeFrontend::ReestimateHeldPairs(const std::string& camera, double giv
     const Keyframe& first = *keyframes_[p.first];
     const Keyframe& second = *keyframes_[p.second];
     if (keep_correspondences && options_.keep_correspondences) {
-      std::vector<Eigen::Vector2d> n1, n2;
-      const Eigen::Matrix3d k1_inverse = first.k.inverse(), k2_inverse = second.k.inverse();
-      for (int m : pose.inliers) {
-        n1.push_back((k1_inverse * (*p.points1)[m].homogeneous()).hnormalized());
-        n2.push_back((k2_inverse * (*p.points2)[m].homogeneous()).hnormalized());
-      }
-      correspondences_.push_back({first.key, second.key,
-                                  MakeEdgeCorrespondences(0, 1, std::move(n1), std::move(n2), pose.translation,
-                                                          pose.sigma_px, 0.5 * (first.k(0, 0) + first.k(1, 1)))});
+      correspondences_.push_back(
+          {first.key, second.key, InlierCorrespondences(*p.points1, *p.points2, first.k, second.k, pose)});
     }
     // The check starts again on the corrected camera, with these pairs.
     if (focal.enabled && first.key.frame_id == camera && second.key.frame_id == camera && first.k == second.k &&

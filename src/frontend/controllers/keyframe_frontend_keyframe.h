@@ -45,6 +45,15 @@ struct KeyframeFrontend::Keyframe {
   bool resumed = false;
 };
 
+// A pair's inliers in normalised coordinates (pa's pixels of intrinsics k1,
+// pb's of k2), with its translation and pixel noise: what the refinement
+// holds of it (KeyframeFrontendOptions::keep_correspondences). The
+// rotation-only model's zero translation: its matches join the
+// refinement's tracks but give no baseline.
+EdgeCorrespondences InlierCorrespondences(const std::vector<Eigen::Vector2d>& pa, const std::vector<Eigen::Vector2d>& pb,
+                                          const Eigen::Matrix3d& k1, const Eigen::Matrix3d& k2,
+                                          const RelativePoseResult& pose);
+
 }  // namespace rotation_averaging
 
 #endif  // ROTATION_AVERAGING_SRC_FRONTEND_CONTROLLERS_KEYFRAME_FRONTEND_KEYFRAME_H_

@@ -133,6 +133,7 @@ void KeyframeRefiner::HoldFocal(const std::string& frame_id) {
 }
 
 KeyframeRefiner::Input KeyframeRefiner::SelectWindow(const OnlineSolution& cameras) const {
+  std::lock_guard<std::mutex> lock(mutex_);
   Input input;
   std::vector<KeyframeKey> newest;
   newest.reserve(cameras.orientations.size());
@@ -170,12 +171,7 @@ void KeyframeRefiner::ScaleEstimate(double factor, BundleAdjustmentFocal::Estima
 
 bool KeyframeRefiner::Refine(const OnlineSolution& cameras, const RigCaptures& rig) {
   std::lock_guard<std::mutex> run(run_mutex_);  // after a background one
-  Input input;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    input = SelectWindow(cameras);
-  }
-  return Run(cameras, rig, input, false);
+  return Run(cameras, rig, SelectWindow(cameras), false);
 }
 
 bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig, const Input& input, bool staged) {
@@ -414,11 +410,7 @@ bool KeyframeRefiner::RefineInBackground(std::shared_ptr<const OnlineSolution> c
                                          std::function<void(bool)> done, bool staged) {
   if (running_.exchange(true)) return false;
   if (background_.valid()) background_.get();  // finished: running_ was false
-  Input input;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    input = SelectWindow(*cameras);
-  }
+  Input input = SelectWindow(*cameras);
   background_ = std::async(std::launch::async, [this, cameras = std::move(cameras), rig = std::move(rig),
                                                 input = std::move(input), done = std::move(done), staged] {
     LowerThisThreadsPriority(options_.background_niceness);

@@ -408,6 +408,10 @@ class KeyframeFrontend {
     Eigen::Vector3d derivative = Eigen::Vector3d::Zero();
   };
   void HoldPair(const PairTask& task, const PairOutcome& outcome, int newer_index, bool chain);
+  // The lens of a lens correction (lens_correction_px_'s entry) for
+  // intrinsics `k` of a camera whose focal length in use is `focal_px`.
+  static CameraIntrinsics CorrectedLens(const std::pair<double, double>& correction, const Eigen::Matrix3d& k,
+                                        double focal_px);
   // A held pair's new edge, replacing its old one (and the newer
   // keyframe's sequential edge, for the chain's predictions).
   void ReplaceHeldEdge(const HeldPair& pair, const RelativePoseResult& pose,

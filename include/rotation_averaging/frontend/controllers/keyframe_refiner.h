@@ -235,8 +235,8 @@ class KeyframeRefiner {
     std::map<std::string, double> camera_scales;  // camera_scales_
     std::set<std::string> focal_held;             // focal_held_
   };
-  // Under mutex_: the edges among the newest max_keyframes keyframes of
-  // `cameras`, and what else the refinement needs of this one's state.
+  // The edges among the newest max_keyframes keyframes of `cameras`, and
+  // what else the refinement needs of this one's state (takes mutex_).
   Input SelectWindow(const OnlineSolution& cameras) const;
   static std::size_t EdgeBytes(const EdgeCorrespondences& e);
   // A focal estimate relative to a focal length `factor` times shorter.
