@@ -77,6 +77,69 @@ TEST(BundleAdjustment, TracksPinRotationsBetterThanThePairsAlone) {
   EXPECT_LT(adjusted_sum, 0.7 * pairwise_sum) << adjusted_sum << " vs " << pairwise_sum;
 }
 
+TEST(BundleAdjustment, StartedFromAnEarlierAdjustmentsCentresItSettlesSooner) {
+  const Scene scene = MakeScene(10, 0.5, 4);
+  ViewOrientations cold = Perturbed(scene.truth, 0.3, 5);
+  BundleAdjustmentSummary first;
+  std::unordered_map<ViewId, Eigen::Vector3d> centres;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &cold, &first, &centres))
+      << first.Report();
+  // The same views again from the adjusted orientations and centres: it
+  // starts at the minimum.
+  ViewOrientations warm = cold;
+  BundleAdjustmentSummary second;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &warm, &second, nullptr,
+                                                  nullptr, nullptr, &centres))
+      << second.Report();
+  EXPECT_TRUE(second.converged) << second.Report();
+  EXPECT_GT(first.initial_rms_sigmas, 10.0) << first.Report();
+  EXPECT_LT(second.initial_rms_sigmas, 1.5) << second.Report();
+  EXPECT_LT(second.iterations, first.iterations / 2) << first.Report() << "\n" << second.Report();
+  EXPECT_LT(MaxErrorDeg(warm, cold), 1e-4);
+  // Less one view's centre (a keyframe added since): that one is placed
+  // among the others, which keep the frame and the scale they had (the
+  // gauge is of views whose centres were given).
+  std::unordered_map<ViewId, Eigen::Vector3d> start = centres;
+  start.erase(9);
+  ViewOrientations added = cold;
+  std::unordered_map<ViewId, Eigen::Vector3d> after;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &added, &second, &after,
+                                                  nullptr, nullptr, &start))
+      << second.Report();
+  EXPECT_TRUE(second.converged) << second.Report();
+  EXPECT_LT(MaxErrorDeg(added, cold), 1e-4);
+  for (const auto& [id, c] : centres) EXPECT_LT((after.at(id) - c).norm(), 1e-3 * c.norm() + 1e-6) << id;
+}
+
+TEST(BundleAdjustment, AFirstViewNextToTheSecondDoesNotHoldTheScale) {
+  // View 1 a hundredth of the arc's spacing from view 0 (the camera turned
+  // almost in place): the scale is held by the view farthest from view 0,
+  // and the adjustment settles within the node's 20 iterations per stage.
+  Scene scene = MakeScene(10, 0.5, 6);
+  std::mt19937 rng(7);
+  std::normal_distribution<double> noise(0.0, 0.5 / kFocal);
+  scene.centres[1] = scene.centres[0] + 0.01 * (scene.centres[2] - scene.centres[0]);
+  for (std::size_t p = 0; p < scene.points.size(); ++p) {
+    scene.keypoints[1][p] = (scene.truth.at(1) * (scene.points[p] - scene.centres[1])).hnormalized() +
+                            Eigen::Vector2d(noise(rng), noise(rng));
+  }
+  scene.edges.clear();
+  AddSceneEdges(0.5, {}, 0, &scene);
+  BundleAdjustmentOptions options;
+  options.max_iterations = 20;
+  ViewOrientations adjusted = Perturbed(scene.truth, 0.3, 8);
+  BundleAdjustmentSummary summary;
+  std::unordered_map<ViewId, Eigen::Vector3d> centres;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, options, &adjusted, &summary, &centres))
+      << summary.Report();
+  EXPECT_TRUE(summary.converged) << summary.Report();
+  EXPECT_NEAR(summary.final_rms_sigmas, 1.0, 0.15) << summary.Report();
+  ViewOrientations from_truth = scene.truth;
+  BundleAdjustmentSummary reference;
+  ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &from_truth, &reference));
+  EXPECT_LT(MaxErrorDeg(adjusted, from_truth), 1e-3) << summary.Report();
+}
+
 // NEES of every view but view 0 relative to it, d = Log(R_hat_v R_hat_0^T R_0
 // R_v^T), against `covariance` (Relative, or one model's blocks alone).
 std::vector<double> NeesRelativeToViewZero(const ViewOrientations& estimate, const ViewOrientations& truth,

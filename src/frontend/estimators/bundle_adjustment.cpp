@@ -109,6 +109,7 @@ struct AdjustedView {
   // where none is, so that the arithmetic is what it is without it).
   int camera = -1;
   double focal_scale = 1.0;
+  bool centre_given = false;  // its centre from an earlier adjustment (start_centres)
 };
 
 Eigen::Vector3d Ray(const AdjustedView& v, const Eigen::Vector2d& x) {
@@ -256,15 +257,29 @@ ceres::Problem::Options ProblemOptions() {
 
 // Centres by least unsquared deviations, the orientations held, from the
 // edges with a translation direction; each group of views they connect has
-// its first view's centre held. False, with `message`, if Ceres fails.
+// its first view's centre held, or, where `known` gives centres (an earlier
+// adjustment's), those held and the others placed among them. False, with
+// `message`, if Ceres fails.
 bool PlaceCentres(const std::vector<const EdgeCorrespondences*>& used, const std::map<ViewId, int>& index,
-                  const BundleAdjustmentOptions& options, std::vector<AdjustedView>* views,
-                  BundleAdjustmentSummary* summary, std::string* message) {
+                  const BundleAdjustmentOptions& options, const std::unordered_map<ViewId, Eigen::Vector3d>* known,
+                  std::vector<AdjustedView>* views, BundleAdjustmentSummary* summary, std::string* message) {
   std::vector<int> linked(views->size());
   std::iota(linked.begin(), linked.end(), 0);
   for (const EdgeCorrespondences* e : used) {
     if (RotationOnly(*e)) continue;
     Unite(&linked, index.at(e->view1), index.at(e->view2));
+  }
+  std::vector<bool> given(views->size(), false);
+  std::vector<bool> group_given(views->size(), false);
+  if (known) {
+    for (std::size_t k = 0; k < views->size(); ++k) {
+      const auto it = known->find((*views)[k].id);
+      if (it == known->end() || !it->second.allFinite()) continue;
+      (*views)[k].centre = it->second;
+      (*views)[k].centre_given = true;
+      given[k] = true;
+      group_given[Root(&linked, static_cast<int>(k))] = true;
+    }
   }
   ceres::Problem problem(ProblemOptions());
   // sqrt(1 + r^2) - 1 on the norm of each edge's 3-vector: L1 beyond a
@@ -284,8 +299,9 @@ bool PlaceCentres(const std::vector<const EdgeCorrespondences*>& used, const std
     problem.SetParameterLowerBound(&scales[k], 0, 1.0);
   }
   for (std::size_t k = 0; k < views->size(); ++k) {
-    if (Root(&linked, static_cast<int>(k)) == static_cast<int>(k) &&
-        problem.HasParameterBlock((*views)[k].centre.data())) {
+    const int root = Root(&linked, static_cast<int>(k));
+    const bool hold = group_given[root] ? given[k] : root == static_cast<int>(k);
+    if (hold && problem.HasParameterBlock((*views)[k].centre.data())) {
       problem.SetParameterBlockConstant((*views)[k].centre.data());
     }
   }
@@ -303,7 +319,9 @@ bool PlaceCentres(const std::vector<const EdgeCorrespondences*>& used, const std
   // A view the directions leave out but a rotation-only pair links to one
   // they place was taken from that view's centre.
   std::vector<bool> placed(views->size());
-  for (std::size_t k = 0; k < views->size(); ++k) placed[k] = problem.HasParameterBlock((*views)[k].centre.data());
+  for (std::size_t k = 0; k < views->size(); ++k) {
+    placed[k] = given[k] || problem.HasParameterBlock((*views)[k].centre.data());
+  }
   for (bool moved = true; moved;) {
     moved = false;
     for (const EdgeCorrespondences* e : used) {
@@ -341,6 +359,70 @@ double RmsSigmas(const std::vector<AdjustedView>& views, const std::vector<Track
   }
   return n ? std::sqrt(sum / (2.0 * n)) : 0.0;
 }
+
+// Ends a stage once its cameras stand still: two successful steps in a row
+// that turn no view by more than `rotation_rad`, move no centre by more than
+// `centre_fraction` of the map's extent (the median distance of the centres
+// from their mean) and change no focal scale by more than `focal`. The cost
+// is no measure of that: points far from the cameras, which hardly hold a
+// view, creep along their rays for many iterations while every camera is
+// already where it stays (on the rendered rig the orientations settle to
+// within 1e-6 rad in 6-10 iterations and Ceres' cost-based test then takes
+// the stage to its iteration limit).
+class CamerasSettled : public ceres::IterationCallback {
+ public:
+  CamerasSettled(const std::vector<AdjustedView>* views, double rotation_rad, double centre_fraction, double focal)
+      : views_(views), rotation_rad_(rotation_rad), focal_(focal) {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (const AdjustedView& v : *views_) mean += v.centre;
+    mean /= static_cast<double>(std::max<std::size_t>(1, views_->size()));
+    std::vector<double> distance;
+    for (const AdjustedView& v : *views_) distance.push_back((v.centre - mean).norm());
+    double extent = 0.0;
+    if (!distance.empty()) {
+      std::nth_element(distance.begin(), distance.begin() + distance.size() / 2, distance.end());
+      extent = distance[distance.size() / 2];
+    }
+    centre_ = centre_fraction * extent;
+    Remember();
+  }
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary& iteration) override {
+    if (!iteration.step_is_successful || iteration.iteration == 0) return ceres::SOLVER_CONTINUE;
+    bool still = true;
+    for (std::size_t k = 0; k < views_->size() && still; ++k) {
+      const AdjustedView& v = (*views_)[k];
+      const Eigen::Matrix3d step = AngleAxisMatrix(v.angle_axis) * rotations_[k].transpose();
+      still = Eigen::AngleAxisd(step).angle() <= rotation_rad_ && (v.centre - centres_[k]).norm() <= centre_ &&
+              std::abs(v.focal_scale - focal_scales_[k]) <= focal_;
+    }
+    Remember();
+    settled_ = still ? settled_ + 1 : 0;
+    return settled_ >= 2 ? ceres::SOLVER_TERMINATE_SUCCESSFULLY : ceres::SOLVER_CONTINUE;
+  }
+
+ private:
+  static Eigen::Matrix3d AngleAxisMatrix(const Eigen::Vector3d& w) {
+    const double angle = w.norm();
+    return angle > 0.0 ? Eigen::AngleAxisd(angle, w / angle).toRotationMatrix() : Eigen::Matrix3d::Identity();
+  }
+  void Remember() {
+    rotations_.clear();
+    centres_.clear();
+    focal_scales_.clear();
+    for (const AdjustedView& v : *views_) {
+      rotations_.push_back(AngleAxisMatrix(v.angle_axis));
+      centres_.push_back(v.centre);
+      focal_scales_.push_back(v.focal_scale);
+    }
+  }
+  const std::vector<AdjustedView>* views_;
+  const double rotation_rad_, focal_;
+  double centre_ = 0.0;
+  int settled_ = 0;
+  std::vector<Eigen::Matrix3d> rotations_;
+  std::vector<Eigen::Vector3d> centres_;
+  std::vector<double> focal_scales_;
+};
 
 // Minimises the whitened reprojection errors under `loss` over points,
 // centres and (unless held) orientations and the cameras' focal scales
@@ -386,37 +468,73 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
     }
   }
   // The gauge of each group of views the tracks connect: its first view's
-  // orientation and centre are held, and one coordinate of its second
-  // view's centre (the largest offset from the first), which fixes the
-  // scale; a free gauge would leave the normal equations singular.
+  // orientation and centre are held, and one coordinate of the centre of
+  // the view farthest from it (its largest offset), which fixes the scale;
+  // a free gauge would leave the normal equations singular. The farthest:
+  // a view near the first (the next keyframe of a camera that turned in
+  // place, where step 2 put it a unit away) holds the scale by a baseline
+  // the tracks hardly see, and the adjustment then spends its iterations
+  // growing the rest of the map away from that pair (on the rendered rig,
+  // its extent 500-fold over 40 iterations, none of them converged). Where
+  // an earlier adjustment gave centres, both views are of those: the views
+  // step 2 placed among them are rough.
   std::vector<int> group(views->size());
   std::iota(group.begin(), group.end(), 0);
   for (const Track& t : *tracks) {
     for (const Observation& o : t.observations) Unite(&group, t.observations.front().view, o.view);
   }
+  std::vector<bool> group_given(views->size(), false);
+  for (std::size_t k = 0; k < views->size(); ++k) {
+    if ((*views)[k].centre_given && problem.HasParameterBlock((*views)[k].centre.data())) {
+      group_given[Root(&group, static_cast<int>(k))] = true;
+    }
+  }
+  const auto candidate = [&](std::size_t k, int g) { return !group_given[g] || (*views)[k].centre_given; };
   std::vector<int> first(views->size(), -1);
-  std::vector<bool> scaled(views->size(), false);
   for (std::size_t k = 0; k < views->size(); ++k) {
     AdjustedView& v = (*views)[k];
     if (!problem.HasParameterBlock(v.centre.data())) continue;
     ordering->AddElementToGroup(v.angle_axis.data(), 1);
     ordering->AddElementToGroup(v.centre.data(), 1);
     const int g = Root(&group, static_cast<int>(k));
-    if (hold_orientations || first[g] < 0) problem.SetParameterBlockConstant(v.angle_axis.data());
-    if (first[g] < 0) {
-      first[g] = static_cast<int>(k);
+    if (hold_orientations) problem.SetParameterBlockConstant(v.angle_axis.data());
+    if (first[g] < 0 && candidate(k, g)) first[g] = static_cast<int>(k);
+  }
+  std::vector<int> farthest(views->size(), -1);
+  std::vector<double> distance(views->size(), 0.0);
+  for (std::size_t k = 0; k < views->size(); ++k) {
+    const AdjustedView& v = (*views)[k];
+    if (!problem.HasParameterBlock(v.centre.data())) continue;
+    const int g = Root(&group, static_cast<int>(k));
+    if (first[g] == static_cast<int>(k)) {
+      problem.SetParameterBlockConstant(v.angle_axis.data());
       problem.SetParameterBlockConstant(v.centre.data());
-    } else if (!scaled[g] && (v.centre - (*views)[first[g]].centre).norm() > 0.0) {
-      // (A view at its first view's centre, across a rotation-only pair,
-      // cannot hold the scale.)
-      scaled[g] = true;
-      int axis = 0;
-      (v.centre - (*views)[first[g]].centre).cwiseAbs().maxCoeff(&axis);
-      problem.SetManifold(v.centre.data(), new ceres::SubsetManifold(3, {axis}));
+      continue;
     }
+    // (A view at its first view's centre, across a rotation-only pair,
+    // cannot hold the scale.)
+    const double d = (v.centre - (*views)[first[g]].centre).norm();
+    if (candidate(k, g) && d > distance[g]) {
+      distance[g] = d;
+      farthest[g] = static_cast<int>(k);
+    }
+  }
+  for (std::size_t g = 0; g < views->size(); ++g) {
+    if (farthest[g] < 0) continue;
+    const AdjustedView& v = (*views)[farthest[g]];
+    int axis = 0;
+    (v.centre - (*views)[first[g]].centre).cwiseAbs().maxCoeff(&axis);
+    problem.SetManifold((*views)[farthest[g]].centre.data(), new ceres::SubsetManifold(3, {axis}));
   }
   ceres::Solver::Options solver_options = SolverOptions(options.max_iterations);
   solver_options.linear_solver_ordering.reset(ordering);
+  // The first stage only places centres and points for the next (its
+  // orientations held): a thousandth of the map's extent is enough there.
+  CamerasSettled settled(views, options.settled_rotation_rad,
+                         hold_orientations ? 1e2 * options.settled_centre_fraction : options.settled_centre_fraction,
+                         options.settled_focal);
+  solver_options.update_state_every_iteration = true;
+  solver_options.callbacks.push_back(&settled);
   ceres::Solve(solver_options, &problem, ceres_summary);
   summary->iterations += static_cast<int>(ceres_summary->iterations.size()) - 1;
   for (std::size_t c = 0; c < first_view.size(); ++c) {
@@ -889,7 +1007,8 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
                                          const BundleAdjustmentOptions& options, ViewOrientations* orientations,
                                          BundleAdjustmentSummary* summary,
                                          std::unordered_map<ViewId, Eigen::Vector3d>* centres,
-                                         BundleAdjustmentCovariance* covariance, BundleAdjustmentFocal* focal) {
+                                         BundleAdjustmentCovariance* covariance, BundleAdjustmentFocal* focal,
+                                         const std::unordered_map<ViewId, Eigen::Vector3d>* start_centres) {
   HoldOpenBlasToOneThread();  // Ceres' sparse Schur solves call it every iteration
   const auto start = std::chrono::steady_clock::now();
   *summary = BundleAdjustmentSummary();
@@ -925,7 +1044,7 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   std::vector<double> focal_scales(camera_names.size(), 1.0);
   std::vector<Track> tracks = BuildTracks(used, index, options, summary);
   std::string message;
-  if (!PlaceCentres(used, index, options, &views, summary, &message)) return finish(false, "centres: " + message);
+  if (!PlaceCentres(used, index, options, start_centres, &views, summary, &message)) return finish(false, "centres: " + message);
   const double min_parallax = options.min_parallax_deg * M_PI / 180.0;
   TriangulateAll(views, min_parallax, &tracks, summary);
   if (tracks.empty()) return finish(false, "no track could be triangulated");
@@ -969,7 +1088,8 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   summary->tracks = static_cast<int>(tracks.size());
   summary->views = static_cast<int>(views.size());
   summary->edges_used = static_cast<int>(used.size());
-  summary->converged = second.termination_type == ceres::CONVERGENCE;
+  summary->converged =
+      second.termination_type == ceres::CONVERGENCE || second.termination_type == ceres::USER_SUCCESS;
   for (const AdjustedView& v : views) (*orientations)[v.id] = v.rotation;
   if (centres) {
     centres->clear();

@@ -63,6 +63,16 @@ struct BundleAdjustmentOptions {
   // their depth, and with it their pull on the orientations, is undetermined.
   double min_parallax_deg = 1.0;
   int max_iterations = 200;  // per stage
+  // A stage ends once two successful steps in a row turn no view by more
+  // than settled_rotation_rad, move no centre by more than
+  // settled_centre_fraction of the map's extent (a hundred times that in
+  // the first stage, which only places centres and points for the next) and
+  // change no focal scale by more than settled_focal; or by Ceres' own
+  // tests. 1e-6 rad is a hundredth of the orientations' errors on the best
+  // inputs (0.006 deg on the rendered rig, results/self_calibration.md).
+  double settled_rotation_rad = 1e-6;
+  double settled_centre_fraction = 1e-5;
+  double settled_focal = 1e-6;
   int min_correspondences = 8;  // edges with fewer are left out
   // The orientations' covariance (when asked for): the pixel model's, at
   // least in every direction the delete-one-cell jackknife's over a grid x
@@ -166,12 +176,18 @@ struct BundleAdjustmentSummary {
 // empty (index empty) if the normal equations are singular. With `focal`,
 // its cameras' focal lengths are estimated too (BundleAdjustmentFocal), and
 // the orientations and their covariance are those of that adjustment.
+// With `start_centres` (an earlier adjustment's `centres`, in the frame of
+// orientations near these), step 2 holds the views it gives at those centres
+// and places only the others among them: an adjustment of a map that has
+// grown since the last one starts near its minimum and needs a fraction of
+// the iterations (the node's background refinement, keyframe_refiner.h).
 bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>& edges,
                                          const BundleAdjustmentOptions& options, ViewOrientations* orientations,
                                          BundleAdjustmentSummary* summary,
                                          std::unordered_map<ViewId, Eigen::Vector3d>* centres = nullptr,
                                          BundleAdjustmentCovariance* covariance = nullptr,
-                                         BundleAdjustmentFocal* focal = nullptr);
+                                         BundleAdjustmentFocal* focal = nullptr,
+                                         const std::unordered_map<ViewId, Eigen::Vector3d>* start_centres = nullptr);
 
 }  // namespace rotation_averaging
 
