@@ -88,6 +88,57 @@ TEST(KeyframeRefiner, CorrectionsTakeTheAveragingToTheTracksInItsFrame) {
   EXPECT_EQ(stats.times.Count(), 1u);
 }
 
+TEST(KeyframeRefiner, ARefinementStartsWhereTheLastOneLeftItsKeyframes) {
+  // The next refinement of a map that has not changed much (here: the same
+  // keyframes, the averaging re-solved) starts from the published
+  // orientations and the last adjustment's centres: a fraction of the
+  // iterations, and the same corrections.
+  const ArcScene scene = MakeArcScene(10, 0.5, 5);
+  KeyframeRefiner refiner{KeyframeRefinerOptions()};
+  refiner.Add(Edges(scene, "cam"));
+  ASSERT_TRUE(refiner.Refine(Averaged(scene, "cam", 0.3, 6))) << refiner.Stats().last_report;
+  const int cold = refiner.Stats().last_iterations;
+  OnlineSolution resolved = Averaged(scene, "cam", 0.3, 7);
+  resolved.sequence = 2;
+  ASSERT_TRUE(refiner.Refine(resolved)) << refiner.Stats().last_report;
+  const int warm = refiner.Stats().last_iterations;
+  EXPECT_LT(warm, cold / 2) << cold << " then " << warm;
+  OnlineSolution published = resolved;
+  refiner.Apply(&published);
+  KeyframeRefiner fresh{KeyframeRefinerOptions()};
+  fresh.Add(Edges(scene, "cam"));
+  ASSERT_TRUE(fresh.Refine(resolved)) << fresh.Stats().last_report;
+  OnlineSolution from_cold = resolved;
+  fresh.Apply(&from_cold);
+  EXPECT_LT(MaxErrorDeg(ById(published, "cam", 10), ById(from_cold, "cam", 10)), 1e-4);
+  // After a reset it starts afresh.
+  refiner.Reset();
+  refiner.Add(Edges(scene, "cam"));
+  ASSERT_TRUE(refiner.Refine(resolved)) << refiner.Stats().last_report;
+  EXPECT_EQ(refiner.Stats().last_iterations, fresh.Stats().last_iterations);
+}
+
+TEST(KeyframeRefiner, ARefinementWhoseCamerasHaveNotSettledChangesNothing) {
+  // Two iterations per stage: the adjustment stops with its cameras still
+  // moving, and what it found is no minimum.
+  const ArcScene scene = MakeArcScene(8, 0.5, 3);
+  const OnlineSolution averaged = Averaged(scene, "cam", 0.3, 4);
+  KeyframeRefinerOptions options;
+  options.adjustment.max_iterations = 2;
+  KeyframeRefiner refiner{options};
+  refiner.Add(Edges(scene, "cam"));
+  EXPECT_FALSE(refiner.Refine(averaged));
+  const KeyframeRefinerStats stats = refiner.Stats();
+  EXPECT_EQ(stats.runs, 1u);
+  EXPECT_EQ(stats.applied, 0u);
+  EXPECT_EQ(stats.failed, 1u);
+  EXPECT_NE(stats.last_report.find("had not settled"), std::string::npos) << stats.last_report;
+  EXPECT_TRUE(stats.focal.empty());
+  OnlineSolution published = averaged;
+  refiner.Apply(&published);
+  EXPECT_LT(MaxErrorDeg(ById(published, "cam", 8), ById(averaged, "cam", 8)), 1e-12);
+}
+
 // The averaging's covariances: (sigma_deg)^2 I per keyframe, zero for the
 // gauge (view 0); `component` 0 for all.
 void WithCovariances(OnlineSolution* solution, const std::string& camera, int views, double sigma_deg) {

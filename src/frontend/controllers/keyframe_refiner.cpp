@@ -159,6 +159,12 @@ KeyframeRefiner::Input KeyframeRefiner::SelectWindow(const OnlineSolution& camer
   }
   input.camera_scales = camera_scales_;
   input.focal_held = focal_held_;
+  for (std::size_t v = 0; v < input.keys.size(); ++v) {
+    const auto correction = corrections_.find(input.keys[v]);
+    if (correction != corrections_.end()) input.start_corrections.emplace(static_cast<ViewId>(v), correction->second);
+    const auto centre = centres_.find(input.keys[v]);
+    if (centre != centres_.end()) input.start_centres.emplace(static_cast<ViewId>(v), centre->second);
+  }
   return input;
 }
 
@@ -188,7 +194,12 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   found.camera_scales = input.camera_scales;
   ViewOrientations averaged;
   for (std::size_t v = 0; v < keys.size(); ++v) averaged[static_cast<ViewId>(v)] = cameras.orientations.at(keys[v]);
+  // The adjustment starts where the last one left the keyframes both
+  // hold (the orientations published since, and their centres): it then
+  // has only the keyframes added since to settle.
   ViewOrientations adjusted = averaged;
+  for (const auto& [v, c] : input.start_corrections) adjusted[v] = c * averaged.at(v);
+  std::unordered_map<ViewId, Eigen::Vector3d> centres;
   BundleAdjustmentSummary summary;
   // (Without the averaging's covariances there is nothing to publish them
   // with: posterior_covariance_max_views.)
@@ -200,11 +211,23 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
       if (input.focal_held.count(keys[v].frame_id) == 0) focal.camera[static_cast<ViewId>(v)] = keys[v].frame_id;
     }
   }
-  bool ok = !edges.empty() && RefineRotationsWithBundleAdjustment(edges, options_.adjustment, &adjusted, &summary,
-                                                                  nullptr,
-                                                                  with_covariance ? &adjusted_covariance : nullptr,
-                                                                  options_.estimate_focal ? &focal : nullptr);
+  bool ok = !edges.empty() && RefineRotationsWithBundleAdjustment(
+                                   edges, options_.adjustment, &adjusted, &summary, &centres,
+                                   with_covariance ? &adjusted_covariance : nullptr,
+                                   options_.estimate_focal ? &focal : nullptr,
+                                   input.start_centres.empty() ? nullptr : &input.start_centres);
   std::string report = edges.empty() ? "no edge with correspondences among the solved keyframes" : summary.Report();
+  // An adjustment whose cameras still move when its last stage runs out of
+  // iterations has found no minimum: its tracks leave some keyframes free
+  // along a valley (a short chain through a strong lens: there, views moved
+  // 1-2.7 deg and kept moving at 100 iterations, and the keyframes it held
+  // best moved by 0.1-0.2 deg, several times their error). Where the tracks
+  // determine the keyframes, the adjustment settles in a fraction of its
+  // iterations (BundleAdjustmentOptions::settled_rotation_rad).
+  if (ok && !summary.converged) {
+    ok = false;
+    report += "; its cameras had not settled after refinement_max_iterations: the averaging's orientations kept";
+  }
   // The focal estimates of an adjustment that succeeded stand even where
   // its corrections are held back below: a focal length a few percent off
   // bends the averaging by more than max_correction_deg, which is what the
@@ -291,10 +314,14 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   }
 
   found.seconds = SecondsSince(start);
+  found.iterations = summary.iterations;
   found.sequence = cameras.sequence;
   found.ok = ok;
   found.report = std::move(report);
   for (const auto& [id, c] : corrections) found.corrections.emplace(keys[id], c);
+  if (ok) {
+    for (const auto& [id, c] : centres) found.centres.emplace(keys[id], c);
+  }
   std::nth_element(moved_deg.begin(), moved_deg.begin() + moved_deg.size() / 2, moved_deg.end());
   found.median_deg = moved_deg.empty() ? 0.0 : moved_deg[moved_deg.size() / 2];
   found.largest_deg = largest;
@@ -363,6 +390,7 @@ bool KeyframeRefiner::Take(const Outcome& found) {
   stats_.times.Add(found.seconds);
   stats_.last_ok = found.ok;
   stats_.last_report = found.report;
+  stats_.last_iterations = found.iterations;
   if (!found.focal.empty()) {
     // The estimates were made with the focal lengths in use as it started.
     stats_.focal.clear();
@@ -382,6 +410,7 @@ bool KeyframeRefiner::Take(const Outcome& found) {
   }
   for (const auto& [key, c] : found.corrections) corrections_[key] = c;
   for (const auto& [key, c] : found.covariances) covariances_[key] = c;
+  centres_ = found.centres;
   ++stats_.applied;
   stats_.covariance_keyframes = covariances_.size();
   stats_.solution_sequence = found.sequence;
@@ -445,6 +474,7 @@ void KeyframeRefiner::Reset() {
   edges_.clear();
   corrections_.clear();
   covariances_.clear();
+  centres_.clear();
   staged_.reset();
   stats_.edges_held = 0;
   stats_.bytes = 0;

@@ -58,6 +58,7 @@
 #include <optional>
 #include <set>
 #include <string>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -129,6 +130,7 @@ struct KeyframeRefinerStats {
   std::uint64_t focal_refinement = 0;
   TimeDistribution times;                // wall time of each refinement
   std::string last_report;               // the adjustment's summary, or why it changed nothing
+  int last_iterations = 0;               // the latest adjustment's Ceres iterations, all stages
   bool last_ok = false;
 };
 
@@ -234,6 +236,12 @@ class KeyframeRefiner {
     std::optional<KeyframeKey> oldest_kept;  // the window's oldest, when `cameras` has more than the window
     std::map<std::string, double> camera_scales;  // camera_scales_
     std::set<std::string> focal_held;             // focal_held_
+    // Where the last refinement left the views it shares with this one:
+    // their corrections (the orientations published) and centres, which
+    // this one starts from (RefineRotationsWithBundleAdjustment's
+    // start_centres); by view id.
+    std::map<ViewId, Eigen::Matrix3d> start_corrections;
+    std::unordered_map<ViewId, Eigen::Vector3d> start_centres;
   };
   // The edges among the newest max_keyframes keyframes of `cameras`, and
   // what else the refinement needs of this one's state (takes mutex_).
@@ -254,6 +262,8 @@ class KeyframeRefiner {
     std::map<KeyframeKey, RelativeCovariance> covariances;
     std::map<std::string, BundleAdjustmentFocal::Estimate> focal;
     std::map<std::string, double> camera_scales;  // camera_scales_ as it started
+    std::map<KeyframeKey, Eigen::Vector3d> centres;  // the adjusted camera centres
+    int iterations = 0;
   };
   // The adjustment's covariances of the corrected keyframes (view ids of
   // `keys`) relative to the reference keyframe; rig captures as their
@@ -275,6 +285,7 @@ class KeyframeRefiner {
   std::map<std::pair<KeyframeKey, KeyframeKey>, HeldEdge> edges_;
   std::map<KeyframeKey, Eigen::Matrix3d> corrections_;
   std::map<KeyframeKey, RelativeCovariance> covariances_;
+  std::map<KeyframeKey, Eigen::Vector3d> centres_;  // the last refinement taken's
   std::map<std::string, double> camera_scales_;  // the product of ScaleCamera's, by camera
   std::set<std::string> focal_held_;              // HoldFocal
   KeyframeRefinerStats stats_;
