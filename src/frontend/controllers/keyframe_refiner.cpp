@@ -214,8 +214,7 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   bool ok = !edges.empty() && RefineRotationsWithBundleAdjustment(
                                    edges, options_.adjustment, &adjusted, &summary, &centres,
                                    with_covariance ? &adjusted_covariance : nullptr,
-                                   options_.estimate_focal ? &focal : nullptr,
-                                   input.start_centres.empty() ? nullptr : &input.start_centres);
+                                   options_.estimate_focal ? &focal : nullptr, &input.start_centres);
   std::string report = edges.empty() ? "no edge with correspondences among the solved keyframes" : summary.Report();
   // An adjustment whose cameras still move when its last stage runs out of
   // iterations has found no minimum: its tracks leave some keyframes free

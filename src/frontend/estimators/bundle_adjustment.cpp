@@ -14,6 +14,7 @@
 #include <sstream>
 #include <tuple>
 
+#include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/frontend/estimators/relative_pose.h"
 #include "rotation_averaging/util/blas_threads.h"
 
@@ -269,7 +270,6 @@ bool PlaceCentres(const std::vector<const EdgeCorrespondences*>& used, const std
     if (RotationOnly(*e)) continue;
     Unite(&linked, index.at(e->view1), index.at(e->view2));
   }
-  std::vector<bool> given(views->size(), false);
   std::vector<bool> group_given(views->size(), false);
   if (known) {
     for (std::size_t k = 0; k < views->size(); ++k) {
@@ -277,7 +277,6 @@ bool PlaceCentres(const std::vector<const EdgeCorrespondences*>& used, const std
       if (it == known->end() || !it->second.allFinite()) continue;
       (*views)[k].centre = it->second;
       (*views)[k].centre_given = true;
-      given[k] = true;
       group_given[Root(&linked, static_cast<int>(k))] = true;
     }
   }
@@ -300,7 +299,7 @@ bool PlaceCentres(const std::vector<const EdgeCorrespondences*>& used, const std
   }
   for (std::size_t k = 0; k < views->size(); ++k) {
     const int root = Root(&linked, static_cast<int>(k));
-    const bool hold = group_given[root] ? given[k] : root == static_cast<int>(k);
+    const bool hold = group_given[root] ? (*views)[k].centre_given : root == static_cast<int>(k);
     if (hold && problem.HasParameterBlock((*views)[k].centre.data())) {
       problem.SetParameterBlockConstant((*views)[k].centre.data());
     }
@@ -320,7 +319,7 @@ bool PlaceCentres(const std::vector<const EdgeCorrespondences*>& used, const std
   // they place was taken from that view's centre.
   std::vector<bool> placed(views->size());
   for (std::size_t k = 0; k < views->size(); ++k) {
-    placed[k] = given[k] || problem.HasParameterBlock((*views)[k].centre.data());
+    placed[k] = (*views)[k].centre_given || problem.HasParameterBlock((*views)[k].centre.data());
   }
   for (bool moved = true; moved;) {
     moved = false;
@@ -391,8 +390,8 @@ class CamerasSettled : public ceres::IterationCallback {
     bool still = true;
     for (std::size_t k = 0; k < views_->size() && still; ++k) {
       const AdjustedView& v = (*views_)[k];
-      const Eigen::Matrix3d step = AngleAxisMatrix(v.angle_axis) * rotations_[k].transpose();
-      still = Eigen::AngleAxisd(step).angle() <= rotation_rad_ && (v.centre - centres_[k]).norm() <= centre_ &&
+      still = RotationAngleRad(ExpSO3(v.angle_axis) * rotations_[k].transpose()) <= rotation_rad_ &&
+              (v.centre - centres_[k]).norm() <= centre_ &&
               std::abs(v.focal_scale - focal_scales_[k]) <= focal_;
     }
     Remember();
@@ -401,16 +400,12 @@ class CamerasSettled : public ceres::IterationCallback {
   }
 
  private:
-  static Eigen::Matrix3d AngleAxisMatrix(const Eigen::Vector3d& w) {
-    const double angle = w.norm();
-    return angle > 0.0 ? Eigen::AngleAxisd(angle, w / angle).toRotationMatrix() : Eigen::Matrix3d::Identity();
-  }
   void Remember() {
     rotations_.clear();
     centres_.clear();
     focal_scales_.clear();
     for (const AdjustedView& v : *views_) {
-      rotations_.push_back(AngleAxisMatrix(v.angle_axis));
+      rotations_.push_back(ExpSO3(v.angle_axis));
       centres_.push_back(v.centre);
       focal_scales_.push_back(v.focal_scale);
     }
