@@ -33,6 +33,7 @@
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "rotation_averaging/util/text_lines.h"
 #include "report.h"
+#include "rotation_averaging/util/freed_memory.h"
 
 namespace ra = rotation_averaging;
 namespace fs = std::filesystem;
@@ -689,6 +690,7 @@ std::string KeyframeRateRows(const std::string& data_dir) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  rotation_averaging::KeepFreedMemoryForReuse();  // util/freed_memory.h: buffers of each image reused, not faulted in again
   Args args;
   if (!ParseArgs(argc, argv, &args)) return 2;
   const std::string command = ra::CommandLine("rotavg_frontend_eval", argc, argv);

@@ -25,6 +25,7 @@
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/graph_io.h"
 #include "rotation_averaging/core/io/orientation_io.h"
+#include "rotation_averaging/util/freed_memory.h"
 
 namespace ra = rotation_averaging;
 
@@ -96,6 +97,7 @@ bool LoadPairs(const std::string& path, bool keyframe_names, const std::vector<E
 }  // namespace
 
 int main(int argc, char** argv) {
+  rotation_averaging::KeepFreedMemoryForReuse();  // util/freed_memory.h: buffers of each image reused, not faulted in again
   std::string exhaustive, keyframes, gt;
   int window = 5, min_inliers = 60;
   double max_error = 2.0;

@@ -26,6 +26,7 @@
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/ros/msg_conversion.h"
 #include "rotation_averaging/util/random_draws.h"
+#include "rotation_averaging/util/freed_memory.h"
 
 namespace ra = rotation_averaging;
 
@@ -89,6 +90,7 @@ bool WaitFor(const std::function<bool()>& done, double timeout_s) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  rotation_averaging::KeepFreedMemoryForReuse();  // util/freed_memory.h: buffers of each image reused, not faulted in again
   ros::init(argc, argv, "rotavg_node_benchmark");
   ros::NodeHandle nh, pnh("~");
   const std::string output = pnh.param<std::string>("output", "results/node_benchmark.md");

@@ -15,6 +15,7 @@
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/io/graph_io.h"
 #include "rotation_averaging/core/io/orientation_io.h"
+#include "rotation_averaging/util/freed_memory.h"
 
 namespace rotation_averaging_cli {
 
@@ -153,6 +154,7 @@ inline int WriteAndScore(const Args& args, const ra::NamedOrientations& named) {
 // main() of a program with one command (rotavg_images, rotavg_vocabulary):
 // no arguments or --help print the usage; an exception becomes a message.
 inline int RunCommand(int argc, char** argv, const char* usage, int (*command)(int, char**)) {
+  rotation_averaging::KeepFreedMemoryForReuse();  // util/freed_memory.h: buffers of each image reused, not faulted in again
   if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
     std::cout << usage;
     return argc < 2 ? 2 : 0;

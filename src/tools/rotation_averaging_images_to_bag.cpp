@@ -49,6 +49,7 @@
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "rotation_averaging/sim/demo_bag.h"
 #include "rotation_averaging/ros/msg_conversion.h"
+#include "rotation_averaging/util/freed_memory.h"
 
 namespace ra = rotation_averaging;
 
@@ -286,6 +287,7 @@ int WriteFolderBag(const Args& args, const std::vector<std::string>& images, con
 }  // namespace
 
 int main(int argc, char** argv) {
+  rotation_averaging::KeepFreedMemoryForReuse();  // util/freed_memory.h: buffers of each image reused, not faulted in again
   Args args;
   const std::string refused = ParseArgs(argc, argv, &args);
   if (!refused.empty()) return Usage(refused);

@@ -41,6 +41,7 @@
 
 #include "rotation_averaging/core/io/orientation_io.h"
 #include "rotation_averaging/sim/demo_bag.h"
+#include "rotation_averaging/util/freed_memory.h"
 
 namespace ra = rotation_averaging;
 
@@ -231,6 +232,7 @@ std::string CheckRequest(const Request& r, cv::Size* image) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  rotation_averaging::KeepFreedMemoryForReuse();  // util/freed_memory.h: buffers of each image reused, not faulted in again
   Request request;
   request.bag_options.progress = true;
   std::string why = ParseArguments(argc, argv, &request);

@@ -6,8 +6,10 @@
 #include <stdexcept>
 
 #include "rotation_averaging/ros/node.h"
+#include "rotation_averaging/util/freed_memory.h"
 
 int main(int argc, char** argv) {
+  rotation_averaging::KeepFreedMemoryForReuse();  // util/freed_memory.h: buffers of each image reused, not faulted in again
   ros::init(argc, argv, "rotation_averaging_node");
   ros::NodeHandle nh, pnh("~");
   std::unique_ptr<rotation_averaging::RotationAveragingNode> node;

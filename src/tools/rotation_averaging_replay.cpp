@@ -13,6 +13,7 @@
 #include <string>
 
 #include "rotation_averaging/ros/bag_replay.h"
+#include "rotation_averaging/util/freed_memory.h"
 
 namespace {
 
@@ -36,6 +37,7 @@ int Usage(const char* why) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  rotation_averaging::KeepFreedMemoryForReuse();  // util/freed_memory.h: buffers of each image reused, not faulted in again
   rotation_averaging::ReplayOptions options;
   for (int k = 1; k < argc; ++k) {
     const std::string a = argv[k];

@@ -28,6 +28,7 @@
 
 #include "cli.h"
 #include "rotation_averaging/core/scene/synthetic_graph.h"
+#include "rotation_averaging/util/freed_memory.h"
 
 namespace {
 
@@ -295,6 +296,7 @@ int RunProgram(const char* name, int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  rotation_averaging::KeepFreedMemoryForReuse();  // util/freed_memory.h: buffers of each image reused, not faulted in again
   // The solver holds OpenBLAS to one thread (see src/core/util/backends.h). Said here,
   // before any thread exists, so that OpenBLAS never starts its pool of
   // workers when a solve loads it, nor in the programs this one runs.

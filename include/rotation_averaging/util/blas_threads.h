@@ -24,6 +24,17 @@ bool HoldOpenBlasToOneThreadIn(void* library);
 // call's answer).
 bool HoldOpenBlasToOneThread();
 
+// OpenBLAS's cblas_sgemm, when the process has OpenBLAS (the package's setup
+// installs it as the system BLAS): C = A B^T for row-major float matrices,
+// A m x k, B n x k, C m x n (leading dimensions k, k and n). Its kernels
+// are chosen for the CPU it runs on (AVX-512 or AVX2 where there is one),
+// where Eigen's are the ones this package was compiled for (SSE2 on
+// x86-64). OpenBLAS is held to one thread first, so a product is computed
+// the same way whatever calls it. Null without OpenBLAS: the caller keeps
+// its own product. Looked up once per process.
+using FloatProductByTransposed = void (*)(int m, int n, int k, const float* a, const float* b, float* c);
+FloatProductByTransposed OpenBlasFloatProductByTransposed();
+
 }  // namespace rotation_averaging
 
 #endif  // ROTATION_AVERAGING_UTIL_BLAS_THREADS_H_
