@@ -23,6 +23,10 @@ constexpr std::size_t kMinCorners = 10;
 // check) within this (px of the reduced image): a corner that slid along an
 // edge or jumped to a look-alike is not tracked.
 constexpr float kForwardBackwardPx = 1.0f;
+// KLT on the reduced images: its window (px) and pyramid levels above the
+// image.
+constexpr int kSelectionWindowPx = 21;
+constexpr int kSelectionLevels = 3;
 // Keyframe capture stamps remembered for the rig's other cameras.
 constexpr std::size_t kRememberedCaptures = 16;
 // The rotation is estimated from at least this many tracked corners.
@@ -196,6 +200,8 @@ void KeyframeSelector::MakeKeyframe(Camera& camera, const SelectorFrame& frame, 
     return;
   }
   camera.keyframe_small = small;
+  cv::buildOpticalFlowPyramid(small, camera.keyframe_pyramid, cv::Size(kSelectionWindowPx, kSelectionWindowPx),
+                              kSelectionLevels, true);
   if (options_.min_rotation_deg > 0.0) camera.keyframe_full = frame.image;  // shared, not copied
   camera.scale = static_cast<double>(small.cols) / frame.image.cols;
   camera.focal_px = 0.5 * (frame.intrinsics.k(0, 0) + frame.intrinsics.k(1, 1)) * camera.scale;
@@ -282,9 +288,15 @@ KeyframeSelector::Reason KeyframeSelector::Decide(Camera& camera, const Selector
   std::vector<cv::Point2f> next, back;
   std::vector<unsigned char> status, back_status;
   std::vector<float> err;
-  const cv::Size window(21, 21);
-  cv::calcOpticalFlowPyrLK(camera.keyframe_small, *small, camera.corners, next, status, err, window, 3);
-  cv::calcOpticalFlowPyrLK(*small, camera.keyframe_small, next, back, back_status, err, window, 3);
+  // The keyframe's pyramid is kept and the frame's built once for both
+  // directions: given images, each call would build both pyramids and the
+  // first one's derivatives again (the same values).
+  const cv::Size window(kSelectionWindowPx, kSelectionWindowPx);
+  std::vector<cv::Mat> pyramid;
+  cv::buildOpticalFlowPyramid(*small, pyramid, window, kSelectionLevels, true);
+  cv::calcOpticalFlowPyrLK(camera.keyframe_pyramid, pyramid, camera.corners, next, status, err, window,
+                           kSelectionLevels);
+  cv::calcOpticalFlowPyrLK(pyramid, camera.keyframe_pyramid, next, back, back_status, err, window, kSelectionLevels);
   std::vector<double> moved;
   std::vector<Eigen::Vector2d> from_points, to_points;
   for (std::size_t i = 0; i < camera.corners.size(); ++i) {

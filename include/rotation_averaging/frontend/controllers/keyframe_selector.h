@@ -120,6 +120,7 @@ class KeyframeSelector {
  private:
   struct Camera {
     cv::Mat keyframe_small;             // the last keyframe, reduced
+    std::vector<cv::Mat> keyframe_pyramid;  // its Lucas-Kanade pyramid, with derivatives
     cv::Mat keyframe_full;              // and at full resolution, with min_rotation_deg
     std::int64_t rotation_checked_ns = 0;  // stamp of the last rotation check (or keyframe)
     std::vector<cv::Point2f> corners;   // detected in it
