@@ -273,20 +273,42 @@ void NearestByL2(const cv::Mat& query, const cv::Mat& index, std::vector<Nearest
   const Eigen::VectorXf x_norms = x.rowwise().squaredNorm();
   RowMajorFloats dots(std::min(kMatchBlockRows, nq), ni);
   const FloatProductByTransposed product = OpenBlasFloatProductByTransposed();
+  // The index rows' nearest two, as arrays (best_i's NearestTwo, column by column).
+  std::vector<float> index_d0, index_d1;
+  std::vector<int> index_row;
+  if (best_i) {
+    index_d0.assign(ni, std::numeric_limits<float>::infinity());
+    index_d1.assign(ni, std::numeric_limits<float>::infinity());
+    index_row.assign(ni, -1);
+  }
   for (int r0 = 0; r0 < nq; r0 += kMatchBlockRows) {
     const int rows = std::min(kMatchBlockRows, nq - r0);
     if (product) product(rows, ni, dims, q.row(r0).data(), x.data(), dots.data());
     else dots.topRows(rows).noalias() = q.middleRows(r0, rows) * x.transpose();
     for (int r = 0; r < rows; ++r) {
       const float q_norm = q.row(r0 + r).squaredNorm();
-      const float* row = dots.row(r).data();
+      float* row = dots.row(r).data();
+      for (int j = 0; j < ni; ++j) row[j] = std::max(0.0f, q_norm + x_norms[j] - 2.0f * row[j]);
       NearestTwo& bq = (*best_q)[r0 + r];
+      for (int j = 0; j < ni; ++j) bq.Add(row[j], j);
+      if (!best_i) continue;
+      // NearestTwo::Add for every index row at once, without branches (the
+      // compiler vectorises it): the same values, ties to the first row.
+      const int query_row = r0 + r;
       for (int j = 0; j < ni; ++j) {
-        const float d = std::max(0.0f, q_norm + x_norms[j] - 2.0f * row[j]);
-        bq.Add(d, j);
-        if (best_i) (*best_i)[j].Add(d, r0 + r);
+        const float d = row[j];
+        const bool nearer = d < index_d0[j];
+        index_d1[j] = std::min(index_d1[j], std::max(index_d0[j], d));
+        index_d0[j] = std::min(index_d0[j], d);
+        index_row[j] = nearer ? query_row : index_row[j];
       }
     }
+  }
+  if (!best_i) return;
+  for (int j = 0; j < ni; ++j) {
+    (*best_i)[j].d0 = index_d0[j];
+    (*best_i)[j].d1 = index_d1[j];
+    (*best_i)[j].index = index_row[j];
   }
 }
 
