@@ -39,10 +39,10 @@ void ProductByTransposed(int m, int n, int k, const float* a, const float* b, fl
 FloatProductByTransposed OpenBlasFloatProductByTransposed() {
   static std::once_flag once;
   std::call_once(once, [] {
-    // cblas_sgemm from the library that holds openblas_set_num_threads:
-    // the process may also have loaded another BLAS (ATLAS comes with
-    // Ceres' and faiss' link lines) whose cblas_sgemm comes first in the
-    // global scope.
+    // cblas_sgemm from the library that holds openblas_set_num_threads: in
+    // the global scope BLAS symbols may be another BLAS's (sgemm_ is
+    // ATLAS's, which Ceres' and faiss' link lines bring; cblas_sgemm is
+    // whichever BLAS libblas.so.3 is).
     void* set = dlsym(RTLD_DEFAULT, "openblas_set_num_threads");
     Dl_info info;
     if (!set || !dladdr(set, &info) || !info.dli_fname) return;
