@@ -314,6 +314,24 @@ TEST(RelativePose, ParallaxKeepsTheEssentialModel) {
   }
 }
 
+// A short step in front of distant structure: every point lies 67-133
+// baselines away, beyond the 50 within which the pose's cheirality counts
+// a point first (the limit that rejects a plane's twisted-pair solution).
+// The pair is then decided with its far points: its pose, its translation's
+// sign and nearly all of its correspondences.
+TEST(RelativePose, AShortBaselinePairIsDecidedWithItsFarPoints) {
+  std::mt19937 rng(31);
+  const Scene s = MakeScene(0.06, rng);
+  std::vector<Eigen::Vector2d> p1, p2;
+  Observe(s, 0.2, 0.0, rng, &p1, &p2);
+  const RelativePoseResult r = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+  ASSERT_TRUE(r.success) << r.message;
+  EXPECT_EQ(r.model, TwoViewModel::kEssential);
+  EXPECT_LT(RadToDeg(AngularDistanceRad(r.rotation, s.rotation)), 0.2);
+  EXPECT_LT(RadToDeg(std::acos(std::min(1.0, r.translation.dot(s.translation.normalized())))), 10.0);
+  EXPECT_GT(r.inliers.size(), 270u);
+}
+
 // Sideways steps along an arc, as a camera passes an object: the rotation
 // about the vertical axis and the sideways translation are nearly
 // interchangeable for such pairs (the rotation-translation valley). A robust
