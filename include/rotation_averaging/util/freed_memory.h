@@ -5,8 +5,8 @@
 // large buffers every image: the Lucas-Kanade pyramids of each image (a few
 // MiB), and per keyframe SIFT's scale space of the doubled image (about
 // 70 MiB). Each came back as new pages, and every page's first touch is a
-// page fault: half a million of them on a 30 s two-camera stream, a third of
-// SIFT's time, more where threads fault at once (docs/decisions.md,
+// page fault: half a million of them on a 30 s two-camera stream, where
+// threads fault at once, and nearly half of SIFT's time (docs/decisions.md,
 // "Freed memory kept for reuse").
 #ifndef ROTATION_AVERAGING_UTIL_FREED_MEMORY_H_
 #define ROTATION_AVERAGING_UTIL_FREED_MEMORY_H_
