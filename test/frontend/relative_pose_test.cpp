@@ -61,6 +61,14 @@ void Observe(const Scene& s, double sigma_px, double outlier_ratio, std::mt19937
   }
 }
 
+// The pair's pose from the scene's points seen with pixel noise `sigma_px`
+// and a share `outlier_ratio` of random correspondences.
+RelativePoseResult EstimateOnScene(const Scene& s, double sigma_px, double outlier_ratio, std::mt19937& rng) {
+  std::vector<Eigen::Vector2d> p1, p2;
+  Observe(s, sigma_px, outlier_ratio, rng, &p1, &p2);
+  return EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+}
+
 // The refinement's closed-form derivative of the Sampson error against
 // automatic differentiation of the same formula, on fundamental matrices of
 // pixel scale and points near and far from their epipolar lines.
@@ -88,9 +96,7 @@ TEST(RelativePose, SampsonGradientMatchesAutomaticDerivatives) {
 TEST(RelativePose, RecoversThePoseWithOutliers) {
   std::mt19937 rng(1);
   const Scene s = MakeScene(0.8, rng);
-  std::vector<Eigen::Vector2d> p1, p2;
-  Observe(s, 0.5, 0.2, rng, &p1, &p2);
-  const RelativePoseResult r = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+  const RelativePoseResult r = EstimateOnScene(s, 0.5, 0.2, rng);
   ASSERT_TRUE(r.success) << r.message;
   // Within three predicted standard deviations (this geometry, with its
   // rotation-translation ambiguity, gives about 0.15 deg at 0.5 px), and small.
@@ -322,9 +328,7 @@ TEST(RelativePose, ParallaxKeepsTheEssentialModel) {
 TEST(RelativePose, AShortBaselinePairIsDecidedWithItsFarPoints) {
   std::mt19937 rng(31);
   const Scene s = MakeScene(0.06, rng);
-  std::vector<Eigen::Vector2d> p1, p2;
-  Observe(s, 0.2, 0.0, rng, &p1, &p2);
-  const RelativePoseResult r = EstimateRelativePoseWithCovariance(p1, p2, s.k, s.k);
+  const RelativePoseResult r = EstimateOnScene(s, 0.2, 0.0, rng);
   ASSERT_TRUE(r.success) << r.message;
   EXPECT_EQ(r.model, TwoViewModel::kEssential);
   EXPECT_LT(RadToDeg(AngularDistanceRad(r.rotation, s.rotation)), 0.2);
