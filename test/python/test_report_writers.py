@@ -113,8 +113,12 @@ def test_budget_rows_hold_each_runs_times_and_the_keyframe_bins(tmp_path):
         (tmp_path / ("stream_%scam.txt" % cameras)).write_text(
             summary(keyframes, 0.0054, images=600 * int(cameras), selection="motion",
                     extra=extra + ([focal] if cameras == "2" else [])))
+        # The same bag with `refinement: false`: its speed-up and median in columns of their own.
+        (tmp_path / ("stream_%scam_unrefined.txt" % cameras)).write_text(
+            summary(keyframes, 0.0060, images=600 * int(cameras), wall=10.0, selection="motion", extra=extra))
     (tmp_path / "every_image_300.txt").write_text(
         summary(600, 0.0050, extra=budget_lines((0.1, 0.2), (200.0, 300.0), (30.0, 60.0), 600, 2400)))
+    (tmp_path / "every_image_300_unrefined.txt").write_text(summary(600, 0.0052, wall=10.0))
     os.makedirs(tmp_path / "every_image_300")
     with open(tmp_path / "every_image_300" / "frontend_cost.csv", "w") as f:
         f.write("keyframe,features_ms,retrieval_ms,pairs_ms,total_ms\n")
@@ -122,15 +126,15 @@ def test_budget_rows_hold_each_runs_times_and_the_keyframe_bins(tmp_path):
             f.write("%d,80,5,100,%d\n" % (k + 1, 100 + k))  # 100..249 ms
     text = run("budget_report.py", tmp_path, "1,2")
     row = table_row(text, "2")
-    assert row[1:4] == ["1200", "66", "2.95x"]
-    assert row[4:7] == ["2.10 / 3.40", "180.00 / 260.00", "31.50 / 70.20"]
-    assert row[7:10] == ["3.0", "8, 420.00 / 610.00", "0.0054"]
+    assert row[1:5] == ["1200", "66", "2.95x", "5.90x"]
+    assert row[5:8] == ["2.10 / 3.40", "180.00 / 260.00", "31.50 / 70.20"]
+    assert row[8:12] == ["3.0", "8, 420.00 / 610.00", "0.0054", "0.0060"]
     # A run without the check's estimates says so rather than showing another's.
-    assert table_row(text, "1")[2] == "40" and table_row(text, "1")[8] == "-"
+    assert table_row(text, "1")[2] == "40" and table_row(text, "1")[9] == "-"
     # Bins of 100 keyframes by nearest rank: 1-100 hold 100..199 ms, 101-150 hold 200..249 ms.
     assert table_row(text, "1-100") == ["1-100", "149.0", "194.0"]
     assert table_row(text, "101-150") == ["101-150", "224.0", "247.0"]
-    assert "600 keyframes; 2.95x real time; per keyframe median 200.00 ms" in text
+    assert "600 keyframes; 2.95x real time, 5.90x with `refinement: false`; per keyframe median 200.00 ms" in text
 
 
 def test_posterior_rows_hold_each_inputs_nees(tmp_path):
