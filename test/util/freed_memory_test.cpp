@@ -29,9 +29,7 @@ bool Sanitized() {
 // threshold) and unmapped when freed: its pages faulted in again next time.
 TEST(FreedMemory, AFreedLargeBlockStaysWithTheProcess) {
   if (Sanitized()) GTEST_SKIP() << "a sanitizer's allocator replaces glibc's";
-  const char* tunables = std::getenv("GLIBC_TUNABLES");
-  if ((tunables && std::strstr(tunables, "glibc.malloc.")) || std::getenv("MALLOC_MMAP_THRESHOLD_") ||
-      std::getenv("MALLOC_TRIM_THRESHOLD_") || std::getenv("MALLOC_TOP_PAD_") || std::getenv("MALLOC_MMAP_MAX_")) {
+  if (AllocatorSetByTheUser()) {
     EXPECT_FALSE(KeepFreedMemoryForReuse());  // the user's settings are left alone
     GTEST_SKIP() << "the allocator's settings are the user's here";
   }
@@ -46,6 +44,16 @@ TEST(FreedMemory, AFreedLargeBlockStaysWithTheProcess) {
   std::free(block);
   const struct mallinfo2 after = mallinfo2();
   EXPECT_GE(after.fordblks, before.fordblks + size) << "the freed block went back to the system";
+}
+
+// A MALLOC_*_ variable the user set is the user's setting: it is left alone.
+TEST(FreedMemory, AUsersAllocatorVariableIsLeftAlone) {
+  if (AllocatorSetByTheUser()) GTEST_SKIP() << "the allocator's settings are the user's here";
+  setenv("MALLOC_TOP_PAD_", "0", 1);
+  EXPECT_TRUE(AllocatorSetByTheUser());
+  EXPECT_FALSE(KeepFreedMemoryForReuse());
+  unsetenv("MALLOC_TOP_PAD_");
+  EXPECT_FALSE(AllocatorSetByTheUser());
 }
 
 }  // namespace

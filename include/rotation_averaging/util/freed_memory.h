@@ -24,6 +24,10 @@ namespace rotation_averaging {
 constexpr std::size_t kHeapBlockLimit = std::size_t{32} << 20;   // glibc's largest
 constexpr std::size_t kKeptFreeMemory = std::size_t{256} << 20;  // several keyframes' SIFT
 bool KeepFreedMemoryForReuse();
+// The user set the allocator: GLIBC_TUNABLES holds a glibc.malloc tunable,
+// or a MALLOC_*_ variable that sets a threshold, the top pad or the count
+// of mappings is set.
+bool AllocatorSetByTheUser();
 
 }  // namespace rotation_averaging
 

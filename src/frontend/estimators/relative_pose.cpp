@@ -250,7 +250,8 @@ int PoseInFront(const cv::Mat& essential, const cv::Mat& n1, const cv::Mat& n2, 
   cv::Mat r1, r2, t_cv;
   cv::decomposeEssentialMat(essential, r1, r2, t_cv);
   const Eigen::Vector3d t0(t_cv.at<double>(0), t_cv.at<double>(1), t_cv.at<double>(2));
-  const Eigen::Matrix3d rotations[4] = {CvToEigen3(r1), CvToEigen3(r2), CvToEigen3(r1), CvToEigen3(r2)};
+  const Eigen::Matrix3d first = CvToEigen3(r1), second = CvToEigen3(r2);
+  const Eigen::Matrix3d rotations[4] = {first, second, first, second};
   const Eigen::Vector3d translations[4] = {t0, t0, -t0, -t0};
   const int n = n1.rows;
   std::vector<unsigned char> good[4];
