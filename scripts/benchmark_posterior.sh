@@ -12,7 +12,8 @@
 # jackknife over 3 x 3 cells), with the jackknife's grid at 0 (the pixel
 # model alone), 2 and 4, with the averaging's covariances
 # (refinement_covariances: false), and without the refinement, with and
-# without the averaging's covariance floor. The Strecha scenes are scored
+# without the averaging's covariance floor; the rig's inputs (and its four
+# cameras at 20 Hz) also with the rig's joint covariances. The Strecha scenes are scored
 # twice: against their LIDAR-registered cameras, and against `rotavg images`
 # on the full-resolution photographs (every pair, focal self-calibration,
 # bundle adjustment), sixteen times the pixels the bags have. EuRoC's
@@ -48,6 +49,27 @@ INPUTS=(demo stream one_camera)
 replay demo "$DEMO" "$DEMO" "${demo[@]}"
 replay stream "$STREAM" "$STREAM" "${stream[@]}" "keyframe_selection: motion"
 replay one_camera "$ONE" "$ONE" "${one[@]}" 'image_topics: ["/cam_front/image_raw"]' "keyframe_selection: motion"
+
+# A rig's keyframes with the covariances of the joint problem the rig makes
+# (refinement_rig_joint_covariance: true) against each camera's own (the
+# default): the two-camera bags, and the rig's four cameras at 20 Hz.
+FOUR=build/demo/demo_20hz_600_4cam.bag  # benchmark_budget.sh plays it too
+[ -f "$FOUR" ] || "$BIN/rotation_averaging_make_demo_bag" --output "$FOUR" --captures 600 --period 0.05 \
+  --cameras 4 > /dev/null 2>&1
+rig_replay() {  # name bag config-lines...
+  local name=$1 bag=$2
+  shift 2
+  printf '%s\n' "$@" > "$OUT/$name.yaml"
+  "$BIN/rotation_averaging_replay" --bag "$bag" --config "$OUT/$name.yaml" --gt "$bag" \
+    --output-dir "$OUT/$name" --no-progress > "$OUT/$name.txt" 2>&1
+}
+JOINT="refinement_rig_joint_covariance: true"
+rig_replay demo_rig_joint "$DEMO" "${demo[@]}" "$JOINT"
+rig_replay stream_rig_joint "$STREAM" "${stream[@]}" "keyframe_selection: motion" "$JOINT"
+FOUR_CONFIG=("${one[@]}" 'image_topics: ["/cam_front/image_raw", "/cam_left/image_raw", "/cam_back/image_raw", "/cam_right/image_raw"]'
+             "keyframe_selection: motion")
+rig_replay four_cameras_default "$FOUR" "${FOUR_CONFIG[@]}"
+rig_replay four_cameras_rig_joint "$FOUR" "${FOUR_CONFIG[@]}" "$JOINT"
 
 PHOTO_CONFIG=('image_topics: ["/camera/image_raw"]' "keyframe_selection: all" "features: sift" "max_features: 4000")
 for s in castle-P19 entry-P10 fountain-P11; do

@@ -246,6 +246,83 @@ TEST(BundleAdjustmentCovariance, TheJackknifeWidensWhatARegionOfAnImageShares) {
   EXPECT_LT(Mean(both), 7.5);
 }
 
+// Every view of a MakeRigScene as its capture's camera.
+BundleAdjustmentRig TwoCameraRig(const Scene& scene) {
+  BundleAdjustmentRig rig;
+  for (const auto& [v, r] : scene.truth) {
+    rig.views[v] = {static_cast<std::int64_t>(v / 2), v % 2 ? RigCameraFromRig() : Eigen::Matrix3d::Identity()};
+  }
+  return rig;
+}
+
+// RMS angle (deg) of camera 0's views relative to view 0 against the truth:
+// what the adjustment determines with or without the rig.
+double FirstCameraRmsErrorDeg(const ViewOrientations& estimate, const ViewOrientations& truth) {
+  double sum = 0.0;
+  int n = 0;
+  for (const auto& [v, r] : truth) {
+    if (v % 2 != 0) continue;
+    sum += std::pow(RadToDeg(LogSO3(estimate.at(v) * estimate.at(0).transpose() * truth.at(0) * r.transpose()).norm()), 2);
+    ++n;
+  }
+  return std::sqrt(sum / n);
+}
+
+TEST(BundleAdjustmentRig, ACapturesCamerasTurnTogetherAndEachCameraHoldsTheOther) {
+  // Two cameras looking apart share no track: alone, each camera's
+  // keyframes are held by its own tracks only. As a rig, every capture's
+  // rotation is held by both cameras' tracks.
+  double alone = 0.0, together = 0.0;
+  std::vector<double> pixel;
+  for (std::uint32_t seed = 1; seed <= 12; ++seed) {
+    const Scene scene = MakeRigScene(8, 0.5, seed);
+    const ViewOrientations start = Perturbed(scene.truth, 0.2, 200 + seed);
+    ViewOrientations separate = start, joined = start;
+    BundleAdjustmentSummary summary;
+    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &separate, &summary))
+        << summary.Report();
+    BundleAdjustmentCovariance covariance;
+    const BundleAdjustmentRig rig = TwoCameraRig(scene);
+    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &joined, &summary, nullptr,
+                                                    &covariance, nullptr, nullptr, &rig))
+        << summary.Report();
+    for (int c = 0; c < 8; ++c) {
+      EXPECT_LT(RotationAngleRad(joined.at(2 * c + 1) * (RigCameraFromRig() * joined.at(2 * c)).transpose()), 1e-12);
+    }
+    alone += FirstCameraRmsErrorDeg(separate, scene.truth) / 12.0;
+    together += FirstCameraRmsErrorDeg(joined, scene.truth) / 12.0;
+    // Both cameras' views relative to view 0: one group through the rig.
+    ASSERT_EQ(covariance.index.size(), 16u);
+    const std::vector<double> nees = NeesRelativeToViewZero(joined, scene.truth, covariance, true);
+    ASSERT_EQ(nees.size(), 15u);
+    pixel.insert(pixel.end(), nees.begin(), nees.end());
+    // Each camera's own covariance, at the same solution: wider, and camera
+    // 1's keyframes not tied to camera 0's by any track.
+    BundleAdjustmentRig own = rig;
+    own.joint_covariance = false;
+    ViewOrientations again = start;
+    BundleAdjustmentCovariance per_camera;
+    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &again, &summary, nullptr,
+                                                    &per_camera, nullptr, nullptr, &own));
+    for (ViewId v = 1; v < 16; ++v) {
+      EXPECT_EQ(again.at(v), joined.at(v));
+      Eigen::Matrix3d wide, narrow;
+      ASSERT_TRUE(covariance.Relative(v, 0, &narrow));
+      if (v % 2) {
+        EXPECT_FALSE(per_camera.Relative(v, 0, &wide));
+        continue;
+      }
+      ASSERT_TRUE(per_camera.Relative(v, 0, &wide));
+      EXPECT_GT(wide.trace(), narrow.trace());
+    }
+  }
+  std::cout << "camera 0's RMS error: alone " << alone << " deg, as a rig " << together
+            << " deg; mean NEES of the rig's pixel model " << Mean(pixel) << "\n";
+  EXPECT_LT(together, 0.85 * alone);
+  EXPECT_GT(Mean(pixel), 2.2);
+  EXPECT_LT(Mean(pixel), 3.8);
+}
+
 BundleAdjustmentFocal OneCamera(const Scene& scene) {
   BundleAdjustmentFocal focal;
   for (const auto& [v, r] : scene.truth) focal.camera[v] = "cam";

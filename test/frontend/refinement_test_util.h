@@ -159,6 +159,54 @@ inline ArcScene MakePathScene(int views, double noise_px, double focal_scale, st
   return scene;
 }
 
+// A rig of two cameras looking 90 degrees apart (camera 1 turned about the
+// rig's y axis: R_1 = E R_0, E = RigCameraFromRig()), carried along a path
+// through a room of points, turning about every axis: view 2c + k is
+// camera k of capture c. Each camera's captures that share 30 points make an
+// edge; the two cameras share no edge (they look apart), as a rig's
+// cameras whose extrinsics are known. (ArcScene's fields; `keypoints`
+// holds every point, seen or not.)
+inline Eigen::Matrix3d RigCameraFromRig() {
+  return Eigen::AngleAxisd(DegToRad(90.0), Eigen::Vector3d::UnitY()).toRotationMatrix();
+}
+
+inline ArcScene MakeRigScene(int captures, double noise_px, std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, noise_px / kArcSceneFocal);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  ArcScene scene;
+  while (scene.points.size() < 2500) {
+    const Eigen::Vector3d p = 10.0 * DrawVector3(rng, u);
+    if (p.head<2>().norm() > 5.0 || std::abs(p.z()) > 5.0) scene.points.push_back(p);
+  }
+  const Eigen::Matrix3d from_rig[2] = {Eigen::Matrix3d::Identity(), RigCameraFromRig()};
+  std::vector<std::vector<bool>> visible(2 * captures);
+  for (int c = 0; c < captures; ++c) {
+    const Eigen::Vector3d centre(-2.0 + 4.0 * c / (captures - 1), 0.3 * u(rng), 0.3 * u(rng));
+    const Eigen::Matrix3d rig =
+        ExpSO3(Eigen::Vector3d(DegToRad(8.0) * u(rng), DegToRad(10.0) * u(rng), DegToRad(8.0) * u(rng)));
+    for (int k = 0; k < 2; ++k) {
+      const int v = 2 * c + k;
+      const Eigen::Matrix3d r = from_rig[k] * rig;
+      scene.truth[static_cast<ViewId>(v)] = r;
+      scene.centres.push_back(centre);
+      std::vector<Eigen::Vector2d> seen;
+      for (const Eigen::Vector3d& p : scene.points) {
+        const Eigen::Vector3d y = r * (p - centre);
+        const Eigen::Vector2d x = y.hnormalized() + DrawVector2(rng, noise);
+        visible[v].push_back(y.z() > 0.5 && x.cwiseAbs().maxCoeff() < 0.6);
+        seen.push_back(x);
+      }
+      scene.keypoints.push_back(seen);
+    }
+  }
+  AddSceneEdges(noise_px, visible, 30, &scene);
+  scene.edges.erase(std::remove_if(scene.edges.begin(), scene.edges.end(),
+                                   [](const EdgeCorrespondences& e) { return (e.view1 - e.view2) % 2 != 0; }),
+                    scene.edges.end());
+  return scene;
+}
+
 }  // namespace rotation_averaging
 
 #endif  // ROTATION_AVERAGING_TEST_REFINEMENT_TEST_UTIL_H_

@@ -148,7 +148,11 @@ def test_posterior_rows_hold_each_inputs_nees(tmp_path):
         (tmp_path / ("demo_%s.txt" % variant)).write_text(summary(120, 0.0048, extra=[line(median, within)]))
         (tmp_path / ("castle-P19_full_resolution_%s.txt" % variant)).write_text(summary(19, 0.05))
     (tmp_path / "castle-P19_full_resolution.txt").write_text("median error: 0.0309 deg\n")
+    (tmp_path / "demo_rig_joint.txt").write_text(summary(120, 0.0048, extra=[line("7.46", "50.8")]))
     text = run("posterior_report.py", tmp_path, "demo,castle-P19_full_resolution")
+    # The rig's section: a row for each rig input with both runs, each camera's own covariance first.
+    assert table_row(text, "the demo bag (two cameras, 1 Hz)")[1:] == ["0.0048", "1.62 / 98.3 (meets)", "7.46 / 50.8"]
+    assert "the rig at 20 Hz (two cameras)" not in text
     demo = table_row(text, "the demo bag: rendered two-camera rig, 1 Hz, every image a keyframe")
     assert demo[1:] == ["120", "0.0048", "1.62", "6.29", "98.3", "118", "yes"]
     assert table_row(text, "demo")[1:] == ["2.17 / 98.3 (meets)", "0.89 / 98.3", "1.62 / 98.3 (meets)",

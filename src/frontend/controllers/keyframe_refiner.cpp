@@ -211,10 +211,24 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
       if (input.focal_held.count(keys[v].frame_id) == 0) focal.camera[static_cast<ViewId>(v)] = keys[v].frame_id;
     }
   }
+  // The cameras of a rig capture turn together in the adjustment, as the
+  // averaging holds them: each camera's tracks then hold every camera of
+  // its captures.
+  BundleAdjustmentRig rig_views;
+  rig_views.joint_covariance = options_.rig_joint_covariance;
+  {
+    std::map<KeyframeKey, std::int64_t> numbered;
+    for (std::size_t v = 0; v < keys.size(); ++v) {
+      const auto it = rig.find(keys[v]);
+      if (it == rig.end()) continue;
+      const auto capture = numbered.emplace(it->second.first, static_cast<std::int64_t>(numbered.size())).first;
+      rig_views.views[static_cast<ViewId>(v)] = BundleAdjustmentRig::Member{capture->second, it->second.second};
+    }
+  }
   bool ok = !edges.empty() && RefineRotationsWithBundleAdjustment(
                                    edges, options_.adjustment, &adjusted, &summary, &centres,
                                    with_covariance ? &adjusted_covariance : nullptr,
-                                   options_.estimate_focal ? &focal : nullptr, &input.start_centres);
+                                   options_.estimate_focal ? &focal : nullptr, &input.start_centres, &rig_views);
   std::string report = edges.empty() ? "no edge with correspondences among the solved keyframes" : summary.Report();
   // An adjustment whose cameras still move when its last stage runs out of
   // iterations has found no minimum: its tracks leave some keyframes free
@@ -239,15 +253,23 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   // turned against another is the mode it determines worst (on the rendered
   // rig at 20 Hz, 320x240, without extrinsics: each camera as a whole 0.4-0.6
   // deg from the averaging, in opposite directions). How the cameras sit
-  // relative to each other is the averaging's, from its rig pairs.
+  // relative to each other is the averaging's, from its rig pairs. The
+  // cameras of a rig with known extrinsics turned together in the
+  // adjustment: their keyframes keep it as one.
   std::vector<int> group(keys.size());
   std::iota(group.begin(), group.end(), 0);
   for (const EdgeCorrespondences& e : edges) group[Root(&group, e.view1)] = Root(&group, e.view2);
+  std::map<std::int64_t, ViewId> first_of_capture;
+  for (const auto& [id, member] : rig_views.views) {
+    const ViewId first = first_of_capture.emplace(member.capture, id).first->second;
+    group[Root(&group, static_cast<int>(id))] = Root(&group, static_cast<int>(first));
+  }
   std::map<ViewId, Eigen::Matrix3d> corrections;
   if (ok) {
     std::map<std::pair<int, std::string>, std::vector<ViewId>> members;
     for (const auto& [id, r] : adjusted) {
-      members[{Root(&group, static_cast<int>(id)), keys[id].frame_id}].push_back(id);
+      members[{Root(&group, static_cast<int>(id)), rig.count(keys[id]) ? std::string() : keys[id].frame_id}]
+          .push_back(id);
     }
     for (const auto& [g, ids] : members) {
       std::vector<Eigen::Matrix3d> from, to;

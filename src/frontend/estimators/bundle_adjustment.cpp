@@ -11,6 +11,7 @@
 #include <cmath>
 #include <map>
 #include <numeric>
+#include <optional>
 #include <sstream>
 #include <tuple>
 
@@ -21,17 +22,32 @@
 namespace rotation_averaging {
 namespace {
 
-// Whitened reprojection error of one observation: the point X in the camera
-// with angle-axis orientation w (world to camera) and centre c projects to
-// (y0 / y2, y1 / y2), y = R(w) (X - c).
+// y = E R(w) (X - c): the point X in the camera with angle-axis orientation
+// w (world to camera; a rig camera's: its capture's, E its camera_from_rig)
+// and centre c.
+template <typename T>
+void InCamera(const T* w, const T* c, const T* point, const std::optional<Eigen::Matrix3d>& from_rig, T* y) {
+  const T d[3] = {point[0] - c[0], point[1] - c[1], point[2] - c[2]};
+  if (!from_rig) {
+    ceres::AngleAxisRotatePoint(w, d, y);
+    return;
+  }
+  T z[3];
+  ceres::AngleAxisRotatePoint(w, d, z);
+  const Eigen::Matrix3d& e = *from_rig;
+  for (int r = 0; r < 3; ++r) y[r] = T(e(r, 0)) * z[0] + T(e(r, 1)) * z[1] + T(e(r, 2)) * z[2];
+}
+
+// Whitened reprojection error of one observation: y (InCamera) projects to
+// (y0 / y2, y1 / y2).
 struct WhitenedReprojection {
-  WhitenedReprojection(const Eigen::Vector2d& x, double inverse_sigma) : x_(x), inverse_sigma_(inverse_sigma) {}
+  WhitenedReprojection(const Eigen::Vector2d& x, double inverse_sigma, std::optional<Eigen::Matrix3d> from_rig)
+      : x_(x), inverse_sigma_(inverse_sigma), from_rig_(std::move(from_rig)) {}
 
   template <typename T>
   bool operator()(const T* w, const T* c, const T* point, T* residual) const {
-    const T d[3] = {point[0] - c[0], point[1] - c[1], point[2] - c[2]};
     T y[3];
-    ceres::AngleAxisRotatePoint(w, d, y);
+    InCamera(w, c, point, from_rig_, y);
     residual[0] = T(inverse_sigma_) * (y[0] / y[2] - T(x_.x()));
     residual[1] = T(inverse_sigma_) * (y[1] / y[2] - T(x_.y()));
     return true;
@@ -39,18 +55,19 @@ struct WhitenedReprojection {
 
   Eigen::Vector2d x_;
   double inverse_sigma_;
+  std::optional<Eigen::Matrix3d> from_rig_;
 };
 
 // The same with the camera's focal length a multiple a of the one the
 // observation was normalised with: x = a proj(y) (BundleAdjustmentFocal).
 struct WhitenedReprojectionWithFocal {
-  WhitenedReprojectionWithFocal(const Eigen::Vector2d& x, double inverse_sigma) : x_(x), inverse_sigma_(inverse_sigma) {}
+  WhitenedReprojectionWithFocal(const Eigen::Vector2d& x, double inverse_sigma, std::optional<Eigen::Matrix3d> from_rig)
+      : x_(x), inverse_sigma_(inverse_sigma), from_rig_(std::move(from_rig)) {}
 
   template <typename T>
   bool operator()(const T* w, const T* c, const T* point, const T* a, T* residual) const {
-    const T d[3] = {point[0] - c[0], point[1] - c[1], point[2] - c[2]};
     T y[3];
-    ceres::AngleAxisRotatePoint(w, d, y);
+    InCamera(w, c, point, from_rig_, y);
     residual[0] = T(inverse_sigma_) * (a[0] * y[0] / y[2] - T(x_.x()));
     residual[1] = T(inverse_sigma_) * (a[0] * y[1] / y[2] - T(x_.y()));
     return true;
@@ -58,6 +75,7 @@ struct WhitenedReprojectionWithFocal {
 
   Eigen::Vector2d x_;
   double inverse_sigma_;
+  std::optional<Eigen::Matrix3d> from_rig_;
 };
 
 // c_j - c_i - s d: the least-unsquared-deviations residual of one edge.
@@ -111,7 +129,65 @@ struct AdjustedView {
   int camera = -1;
   double focal_scale = 1.0;
   bool centre_given = false;  // its centre from an earlier adjustment (start_centres)
+  // A rig camera (BundleAdjustmentRig): the view that holds its capture's
+  // rotation (the capture's first; -1: it turns alone, by angle_axis), and
+  // its camera_from_rig E, so that rotation = E Exp(that view's rig_angle_axis).
+  int capture = -1;
+  Eigen::Matrix3d from_rig = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d rig_angle_axis = Eigen::Vector3d::Zero();  // the capture's, on the view that holds it
 };
+
+// The parameter block of a view's rotation: its own, or its capture's.
+double* RotationBlock(std::vector<AdjustedView>* views, int k) {
+  AdjustedView& v = (*views)[k];
+  return v.capture >= 0 ? (*views)[v.capture].rig_angle_axis.data() : v.angle_axis.data();
+}
+
+std::optional<Eigen::Matrix3d> FromRig(const AdjustedView& v) {
+  return v.capture >= 0 ? std::optional<Eigen::Matrix3d>(v.from_rig) : std::nullopt;
+}
+
+Eigen::Matrix3d AngleAxisToRotation(const Eigen::Vector3d& w) {
+  return Eigen::AngleAxisd(w.norm(), w.norm() > 0.0 ? w.normalized() : Eigen::Vector3d::UnitX()).toRotationMatrix();
+}
+
+// The view's rotation from its parameter block.
+Eigen::Matrix3d CurrentRotation(const std::vector<AdjustedView>& views, const AdjustedView& v) {
+  return v.capture >= 0 ? Eigen::Matrix3d(v.from_rig * AngleAxisToRotation(views[v.capture].rig_angle_axis))
+                        : AngleAxisToRotation(v.angle_axis);
+}
+
+// The rig's captures with two or more views here: each view's capture and
+// E; the capture's rotation the chordal mean of E^T R of its views, and
+// each view's rotation E times it.
+void JoinRigCaptures(const BundleAdjustmentRig& rig, std::vector<AdjustedView>* views) {
+  std::map<std::int64_t, std::vector<int>> captures;
+  for (std::size_t k = 0; k < views->size(); ++k) {
+    const auto it = rig.views.find((*views)[k].id);
+    if (it != rig.views.end() && it->second.camera_from_rig.allFinite()) {
+      captures[it->second.capture].push_back(static_cast<int>(k));
+    }
+  }
+  for (const auto& [capture, members] : captures) {
+    if (members.size() < 2) continue;
+    Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
+    for (int k : members) {
+      const Eigen::Matrix3d e = ProjectToSO3(rig.views.at((*views)[k].id).camera_from_rig);
+      sum += e.transpose() * (*views)[k].rotation;
+    }
+    const Eigen::AngleAxisd mean(ProjectToSO3(sum));
+    AdjustedView& holder = (*views)[members.front()];
+    holder.rig_angle_axis = mean.angle() * mean.axis();
+    for (int k : members) {
+      AdjustedView& v = (*views)[k];
+      v.capture = members.front();
+      v.from_rig = ProjectToSO3(rig.views.at(v.id).camera_from_rig);
+      v.rotation = CurrentRotation(*views, v);
+      const Eigen::AngleAxisd own(v.rotation);
+      v.angle_axis = own.angle() * own.axis();
+    }
+  }
+}
 
 Eigen::Vector3d Ray(const AdjustedView& v, const Eigen::Vector2d& x) {
   return (v.rotation.transpose() * (x / v.focal_scale).homogeneous()).normalized();
@@ -390,7 +466,7 @@ class CamerasSettled : public ceres::IterationCallback {
     bool still = true;
     for (std::size_t k = 0; k < views_->size() && still; ++k) {
       const AdjustedView& v = (*views_)[k];
-      still = RotationAngleRad(ExpSO3(v.angle_axis) * rotations_[k].transpose()) <= rotation_rad_ &&
+      still = RotationAngleRad(Rotation(v) * rotations_[k].transpose()) <= rotation_rad_ &&
               (v.centre - centres_[k]).norm() <= centre_ &&
               std::abs(v.focal_scale - focal_scales_[k]) <= focal_;
     }
@@ -405,10 +481,14 @@ class CamerasSettled : public ceres::IterationCallback {
     centres_.clear();
     focal_scales_.clear();
     for (const AdjustedView& v : *views_) {
-      rotations_.push_back(ExpSO3(v.angle_axis));
+      rotations_.push_back(Rotation(v));
       centres_.push_back(v.centre);
       focal_scales_.push_back(v.focal_scale);
     }
+  }
+  Eigen::Matrix3d Rotation(const AdjustedView& v) const {
+    return v.capture >= 0 ? Eigen::Matrix3d(v.from_rig * ExpSO3((*views_)[v.capture].rig_angle_axis))
+                          : ExpSO3(v.angle_axis);
   }
   const std::vector<AdjustedView>* views_;
   const double rotation_rad_, focal_;
@@ -447,17 +527,18 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
     ordering->AddElementToGroup(t.point.data(), 0);
     for (const Observation& o : t.observations) {
       AdjustedView& v = (*views)[o.view];
+      double* w = RotationBlock(views, o.view);
       if (v.camera >= 0) {
         double* a = &(*views)[first_view[v.camera]].focal_scale;
         problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojectionWithFocal, 2, 3, 3, 3, 1>(
-                                     new WhitenedReprojectionWithFocal(o.x, 1.0 / v.sigma)),
-                                 loss, v.angle_axis.data(), v.centre.data(), t.point.data(), a);
+                                     new WhitenedReprojectionWithFocal(o.x, 1.0 / v.sigma, FromRig(v))),
+                                 loss, w, v.centre.data(), t.point.data(), a);
         ordering->AddElementToGroup(a, 1);
         if (hold_orientations) problem.SetParameterBlockConstant(a);
       } else {
         problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojection, 2, 3, 3, 3>(
-                                     new WhitenedReprojection(o.x, 1.0 / v.sigma)),
-                                 loss, v.angle_axis.data(), v.centre.data(), t.point.data());
+                                     new WhitenedReprojection(o.x, 1.0 / v.sigma, FromRig(v))),
+                                 loss, w, v.centre.data(), t.point.data());
       }
       ++summary->observations;
     }
@@ -473,11 +554,20 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
   // its extent 500-fold over 40 iterations, none of them converged). Where
   // an earlier adjustment gave centres, both views are of those: the views
   // step 2 placed among them are rough.
+  // A rig's captures tie the groups their cameras' tracks make: each group
+  // of views the tracks or the captures connect has one rotation held (its
+  // first group's first view's), and each group the tracks connect its own
+  // centre and scale.
   std::vector<int> group(views->size());
   std::iota(group.begin(), group.end(), 0);
   for (const Track& t : *tracks) {
     for (const Observation& o : t.observations) Unite(&group, t.observations.front().view, o.view);
   }
+  std::vector<int> turning(group);
+  for (std::size_t k = 0; k < views->size(); ++k) {
+    if ((*views)[k].capture >= 0) Unite(&turning, static_cast<int>(k), (*views)[k].capture);
+  }
+  std::vector<bool> rotation_held(views->size(), false);
   std::vector<bool> group_given(views->size(), false);
   for (std::size_t k = 0; k < views->size(); ++k) {
     if ((*views)[k].centre_given && problem.HasParameterBlock((*views)[k].centre.data())) {
@@ -489,10 +579,11 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
   for (std::size_t k = 0; k < views->size(); ++k) {
     AdjustedView& v = (*views)[k];
     if (!problem.HasParameterBlock(v.centre.data())) continue;
-    ordering->AddElementToGroup(v.angle_axis.data(), 1);
+    double* w = RotationBlock(views, static_cast<int>(k));
+    ordering->AddElementToGroup(w, 1);
     ordering->AddElementToGroup(v.centre.data(), 1);
     const int g = Root(&group, static_cast<int>(k));
-    if (hold_orientations) problem.SetParameterBlockConstant(v.angle_axis.data());
+    if (hold_orientations) problem.SetParameterBlockConstant(w);
     if (first[g] < 0 && candidate(k, g)) first[g] = static_cast<int>(k);
   }
   std::vector<int> farthest(views->size(), -1);
@@ -502,7 +593,9 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
     if (!problem.HasParameterBlock(v.centre.data())) continue;
     const int g = Root(&group, static_cast<int>(k));
     if (first[g] == static_cast<int>(k)) {
-      problem.SetParameterBlockConstant(v.angle_axis.data());
+      const int turns = Root(&turning, static_cast<int>(k));
+      if (!rotation_held[turns]) problem.SetParameterBlockConstant(RotationBlock(views, static_cast<int>(k)));
+      rotation_held[turns] = true;
       problem.SetParameterBlockConstant(v.centre.data());
       continue;
     }
@@ -536,9 +629,11 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
     if (first_view[c] >= 0) (*focal_scales)[c] = (*views)[first_view[c]].focal_scale;
   }
   for (AdjustedView& v : *views) {
-    v.rotation = Eigen::AngleAxisd(v.angle_axis.norm(), v.angle_axis.norm() > 0.0 ? v.angle_axis.normalized()
-                                                                                  : Eigen::Vector3d::UnitX())
-                     .toRotationMatrix();
+    v.rotation = CurrentRotation(*views, v);
+    if (v.capture >= 0) {
+      const Eigen::AngleAxisd own(v.rotation);
+      v.angle_axis = own.angle() * own.axis();
+    }
     if (v.camera >= 0) v.focal_scale = (*focal_scales)[v.camera];
   }
   return ceres_summary->IsSolutionUsable();
@@ -618,6 +713,34 @@ Eigen::Matrix3d Skew(const Eigen::Vector3d& v) {
   return m;
 }
 
+// A view's variables in the covariance's normal equations: the first of
+// its rotation's three and the first of its centre's three (-1: held).
+struct ViewVariables {
+  std::array<int, 2> at{-1, -1};
+  bool All() const { return at[0] >= 0 && at[1] >= 0; }
+  // Of its q-th of six (rotation, centre); -1: held.
+  int Index(int q) const { return at[q / 3] >= 0 ? at[q / 3] + q % 3 : -1; }
+};
+
+// s(i, j) += m, m over the six of each view; held parts left out.
+template <typename M>
+void AddBlock(const ViewVariables& i, const ViewVariables& j, const M& m, Eigen::MatrixXd* s) {
+  for (int p = 0; p < 2; ++p) {
+    if (i.at[p] < 0) continue;
+    for (int q = 0; q < 2; ++q) {
+      if (j.at[q] >= 0) s->block<3, 3>(i.at[p], j.at[q]) += m.template block<3, 3>(3 * p, 3 * q);
+    }
+  }
+}
+
+// column `c` of `m` at the view's variables += v (six).
+template <typename V>
+void AddSegment(const ViewVariables& i, const V& v, int c, Eigen::MatrixXd* m) {
+  for (int p = 0; p < 2; ++p) {
+    if (i.at[p] >= 0) m->col(c).segment<3>(i.at[p]) += v.template segment<3>(3 * p);
+  }
+}
+
 // The orientations' joint covariance at the adjusted solution under Cauchy's
 // loss of scale `loss_scale` (see BundleAdjustmentCovariance): the normal
 // equations over each view's left rotation perturbation and centre, each
@@ -649,18 +772,37 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
       observed[o.view] = true;
     }
   }
-  std::vector<int> var(n, -1), held(n, -1);
+  // As Adjust holds them: each group the tracks connect its first view's
+  // centre (and its scale, below), each group the tracks or a rig's
+  // captures connect one rotation, that of its first view. A view's
+  // variables (ViewVariables): its rotation's (a rig camera's: its
+  // capture's, which its cameras share), then its centre's.
+  std::vector<int> turning(group);
+  for (int k = 0; k < n; ++k) {
+    if (views[k].capture >= 0) Unite(&turning, k, views[k].capture);
+  }
+  std::vector<ViewVariables> var(n);
+  std::vector<int> held(n, -1), block_variable(n, -1);  // by rotation block: -2 held
+  std::vector<bool> rotation_held(n, false);
   int dim = 0, groups = 0;
   for (int k = 0; k < n; ++k) {
     if (!observed[k]) continue;
     const int g = Root(&group, k);
+    int& block = block_variable[views[k].capture >= 0 ? views[k].capture : k];
+    bool centre_held = false;
     if (held[g] < 0) {
       held[g] = k;
       ++groups;
-      continue;
+      centre_held = true;
+      // (The first view of its rotation's group too, if the first of its
+      // groups: no view of that group has placed the block before it.)
+      const int t = Root(&turning, k);
+      if (!rotation_held[t] && block == -1) block = -2;
+      rotation_held[t] = true;
     }
-    var[k] = dim;
-    dim += 6;
+    if (block == -1) block = dim, dim += 3;
+    var[k].at[0] = std::max(block, -1);
+    if (!centre_held) var[k].at[1] = dim, dim += 3;
   }
   if (dim == 0) return false;
   // After the views' variables: each estimated camera's focal scale, then
@@ -691,7 +833,7 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   // eliminated), for its leverage; and the view's first variable (-1: held).
   std::vector<Eigen::Matrix<double, 6, 6>> cell_information(grid > 0 ? cells : 0,
                                                             Eigen::Matrix<double, 6, 6>::Zero());
-  std::vector<int> cell_variable(grid > 0 ? cells : 0, -1);
+  std::vector<int> cell_view(grid > 0 ? cells : 0, -1);
   const double a2 = loss_scale * loss_scale;
   double weighted_squares = 0.0;
   std::size_t residuals = 0;
@@ -736,6 +878,8 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
       const double w = 1.0 / (1.0 + r.squaredNorm() / a2);
       Matrix26 jc;
       jc.leftCols<3>() = -p * Skew(y);
+      // A rig camera turns by its capture's perturbation: d_view = E d_capture.
+      if (v.capture >= 0) jc.leftCols<3>() = (jc.leftCols<3>() * v.from_rig).eval();
       jc.rightCols<3>() = -p * v.rotation;
       const Eigen::Matrix<double, 2, 3> jx = p * v.rotation;
       hpp.noalias() += w * jx.transpose() * jx;
@@ -763,22 +907,25 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 0.0)) continue;
     const Eigen::Matrix3d hpp_inv = ldlt.solve(Eigen::Matrix3d::Identity());
     for (std::size_t i = 0; i < m; ++i) {
-      const int vi = var[t.observations[i].view];
-      if (vi < 0) continue;
-      s.block<6, 6>(vi, vi) += a[i];
+      const ViewVariables& vi = var[t.observations[i].view];
+      if (vi.at[0] < 0 && vi.at[1] < 0) continue;
+      AddBlock(vi, vi, a[i], &s);
       const Matrix63 bi = b[i] * hpp_inv;
       if (grid > 0) {
-        scores.col(cell_of[k][i]).segment<6>(vi) += gc[i];
+        AddSegment(vi, gc[i], cell_of[k][i], &scores);
         cell_information[cell_of[k][i]] += a[i] - bi * b[i].transpose();
-        cell_variable[cell_of[k][i]] = vi;
+        // (A view with its rotation or centre held has no leverage
+        // correction: its cell's block is not of its own variables.)
+        if (vi.All()) cell_view[cell_of[k][i]] = t.observations[i].view;
       }
       for (std::size_t j = 0; j < m; ++j) {
-        const int vj = var[t.observations[j].view];
-        if (vj >= 0) s.block<6, 6>(vi, vj).noalias() -= bi * b[j].transpose();
+        const Eigen::Matrix<double, 6, 6> cross = -(bi * b[j].transpose());
+        AddBlock(vi, var[t.observations[j].view], cross, &s);
       }
       if (grid > 0) {
         for (std::size_t j = 0; j < m; ++j) {
-          scores.col(cell_of[k][j]).segment<6>(vi).noalias() -= bi * gx[j];
+          const Vector6d pull = -(bi * gx[j]);
+          AddSegment(vi, pull, cell_of[k][j], &scores);
         }
       }
     }
@@ -786,27 +933,29 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
       // The focal scales' and principal points' rows and columns: the
       // same elimination of the point, element by element.
       for (std::size_t i = 0; i < m; ++i) {
-        const int vi = var[t.observations[i].view];
+        const ViewVariables& vi = var[t.observations[i].view];
         if (ei[i][0] < 0) continue;
         const Eigen::Matrix3d bei = be[i] * hpp_inv;
         for (int p = 0; p < 3; ++p) {
           for (int q = 0; q < 3; ++q) s(ei[i][p], ei[i][q]) += aee[i](p, q);
-          if (vi >= 0) {
-            for (int q = 0; q < 6; ++q) {
-              s(ei[i][p], vi + q) += aec[i](p, q);
-              s(vi + q, ei[i][p]) += aec[i](p, q);
-            }
+          for (int q = 0; q < 6; ++q) {
+            const int at = vi.Index(q);
+            if (at < 0) continue;
+            s(ei[i][p], at) += aec[i](p, q);
+            s(at, ei[i][p]) += aec[i](p, q);
           }
           if (grid > 0 && p == 0) scores(ei[i][0], cell_of[k][i]) += ge[i](0);
         }
         for (std::size_t j = 0; j < m; ++j) {
-          const int vj = var[t.observations[j].view];
-          if (vj >= 0) {
+          const ViewVariables& vj = var[t.observations[j].view];
+          {
             const Eigen::Matrix<double, 3, 6> cross = bei * b[j].transpose();
             for (int p = 0; p < 3; ++p) {
               for (int q = 0; q < 6; ++q) {
-                s(ei[i][p], vj + q) -= cross(p, q);
-                s(vj + q, ei[i][p]) -= cross(p, q);
+                const int at = vj.Index(q);
+                if (at < 0) continue;
+                s(ei[i][p], at) -= cross(p, q);
+                s(at, ei[i][p]) -= cross(p, q);
               }
             }
           }
@@ -822,16 +971,21 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     }
   }
   // Each view's own block, before the scale's penalty: the cells' leverage.
-  std::vector<Eigen::Matrix<double, 6, 6>> view_blocks(view_dim / 6);
-  for (int k = 0; k < view_dim / 6; ++k) view_blocks[k] = s.block<6, 6>(6 * k, 6 * k);
+  std::vector<Eigen::Matrix<double, 6, 6>> view_blocks(n);
+  for (int k = 0; k < n; ++k) {
+    if (!var[k].All()) continue;
+    for (int p = 0; p < 6; ++p) {
+      for (int q = 0; q < 6; ++q) view_blocks[k](p, q) = s(var[k].Index(p), var[k].Index(q));
+    }
+  }
   // The scale direction of each group, held by a penalty on its own scale.
   const double penalty = s.topLeftCorner(view_dim, view_dim).trace() / view_dim;
   for (int g = 0; g < n; ++g) {
     if (held[g] < 0) continue;
     Eigen::VectorXd direction = Eigen::VectorXd::Zero(view_dim);
     for (int k = 0; k < n; ++k) {
-      if (var[k] >= 0 && Root(&group, k) == g) {
-        direction.segment<3>(var[k] + 3) = views[k].centre - views[held[g]].centre;
+      if (var[k].at[1] >= 0 && Root(&group, k) == g) {
+        direction.segment<3>(var[k].at[1]) = views[k].centre - views[held[g]].centre;
       }
     }
     if (direction.norm() > 0.0) direction.normalize();
@@ -853,7 +1007,7 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     return eigen.eigenvectors() * (inverse.asDiagonal() * (eigen.eigenvectors().transpose() * rhs));
   };
   // The rotation rows of S^-1.
-  std::vector<int> rotation_rows;
+  std::vector<int> rotation_rows, rotation_views;
   out->index.clear();
   out->orientations.clear();
   out->group.clear();
@@ -861,8 +1015,9 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     if (!observed[k]) continue;
     out->index[views[k].id] = static_cast<int>(out->orientations.size());
     out->orientations.push_back(views[k].rotation);
-    out->group.push_back(Root(&group, k));
-    rotation_rows.push_back(var[k]);
+    out->group.push_back(Root(&turning, k));
+    rotation_rows.push_back(var[k].at[0]);
+    rotation_views.push_back(k);
   }
   const int blocks = static_cast<int>(rotation_rows.size());
   // The rotations' columns, then the focal scales'; of the system without
@@ -870,7 +1025,12 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   const int focal_columns = focal_dim - view_dim;
   Eigen::MatrixXd selector = Eigen::MatrixXd::Zero(focal_dim, 3 * blocks + focal_columns);
   for (int k = 0; k < blocks; ++k) {
-    if (rotation_rows[k] >= 0) selector.block<3, 3>(rotation_rows[k], 3 * k).setIdentity();
+    // d_view = E d_capture for a rig camera: the selector's block is E^T.
+    const AdjustedView& v = views[rotation_views[k]];
+    if (rotation_rows[k] >= 0) {
+      selector.block<3, 3>(rotation_rows[k], 3 * k) =
+          v.capture >= 0 ? Eigen::Matrix3d(v.from_rig.transpose()) : Eigen::Matrix3d::Identity();
+    }
   }
   for (int f = 0; f < focal_columns; ++f) selector(view_dim + f, 3 * blocks + f) = 1.0;
   const Eigen::MatrixXd columns =
@@ -896,9 +1056,9 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     // = Q diag(l) Q^T (l in [0, 1]), the score gains
     // D_c S_vv^-1/2 Q diag(g(l)) Q^T S_vv^-1/2 u_cv, g(l) = ((1 - l)^-1/2 - 1) / l.
     for (int c = 0; c < cells; ++c) {
-      const int v = cell_variable[c];
+      const int v = cell_view[c];
       if (v < 0) continue;
-      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> block(view_blocks[v / 6]);
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> block(view_blocks[v]);
       if (!(block.eigenvalues().minCoeff() > 0.0)) continue;
       const Eigen::Matrix<double, 6, 6> root_inverse = block.eigenvectors() *
                                                        block.eigenvalues().cwiseSqrt().cwiseInverse().asDiagonal() *
@@ -910,9 +1070,11 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
         const double leverage = std::clamp(h.eigenvalues()[i], 0.0, 0.99);
         g[i] = leverage > 1e-9 ? (1.0 / std::sqrt(1.0 - leverage) - 1.0) / leverage : 0.5;
       }
-      const Vector6d own = scores.col(c).segment<6>(v);
-      scores.col(c).segment<6>(v) +=
+      Vector6d own;
+      for (int q = 0; q < 6; ++q) own[q] = scores(var[v].Index(q), c);
+      const Vector6d gain =
           d * root_inverse * h.eigenvectors() * g.asDiagonal() * h.eigenvectors().transpose() * root_inverse * own;
+      AddSegment(var[v], gain, c, &scores);
     }
     // 3 blocks (and the focal scales) x cells: Z u_c (Z symmetric).
     const Eigen::MatrixXd steps = columns.transpose() * scores.topRows(focal_dim);
@@ -1003,7 +1165,8 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
                                          BundleAdjustmentSummary* summary,
                                          std::unordered_map<ViewId, Eigen::Vector3d>* centres,
                                          BundleAdjustmentCovariance* covariance, BundleAdjustmentFocal* focal,
-                                         const std::unordered_map<ViewId, Eigen::Vector3d>* start_centres) {
+                                         const std::unordered_map<ViewId, Eigen::Vector3d>* start_centres,
+                                         const BundleAdjustmentRig* rig) {
   HoldOpenBlasToOneThread();  // Ceres' sparse Schur solves call it every iteration
   const auto start = std::chrono::steady_clock::now();
   *summary = BundleAdjustmentSummary();
@@ -1017,6 +1180,7 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   std::vector<const EdgeCorrespondences*> used;
   SelectEdgesAndViews(edges, options, *orientations, &used, &index, &views, summary);
   if (used.empty()) return finish(false, "no edge with enough correspondences between oriented views");
+  if (rig) JoinRigCaptures(*rig, &views);
   // The cameras whose focal lengths are estimated, in name order.
   std::vector<std::string> camera_names;
   if (focal) {
@@ -1086,6 +1250,27 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   summary->converged =
       second.termination_type == ceres::CONVERGENCE || second.termination_type == ceres::USER_SUCCESS;
   for (const AdjustedView& v : views) (*orientations)[v.id] = v.rotation;
+  if (rig) {
+    // A rig camera without a usable edge turns with its capture's cameras
+    // that have one.
+    std::map<std::int64_t, const AdjustedView*> adjusted_capture;
+    for (const AdjustedView& v : views) {
+      const auto it = rig->views.find(v.id);
+      if (it != rig->views.end() && it->second.camera_from_rig.allFinite()) {
+        adjusted_capture.emplace(it->second.capture, &v);
+      }
+    }
+    for (const auto& [id, member] : rig->views) {
+      const auto it = adjusted_capture.find(member.capture);
+      if (index.count(id) || it == adjusted_capture.end() || !member.camera_from_rig.allFinite() ||
+          !orientations->count(id)) {
+        continue;
+      }
+      const AdjustedView& v = *it->second;
+      (*orientations)[id] = ProjectToSO3(member.camera_from_rig) *
+                            ProjectToSO3(rig->views.at(v.id).camera_from_rig).transpose() * v.rotation;
+    }
+  }
   if (centres) {
     centres->clear();
     for (const AdjustedView& v : views) (*centres)[v.id] = v.centre;
@@ -1102,7 +1287,12 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
     BundleAdjustmentCovariance own;
     BundleAdjustmentCovariance* out = covariance ? covariance : &own;
     *out = BundleAdjustmentCovariance();
-    if (!ComputeCovariance(views, tracks, scale, options.covariance_cell_grid,
+    std::vector<AdjustedView> alone;
+    if (rig && !rig->joint_covariance) {
+      alone = views;
+      for (AdjustedView& v : alone) v.capture = -1;
+    }
+    if (!ComputeCovariance(alone.empty() ? views : alone, tracks, scale, options.covariance_cell_grid,
                            focal ? focal->principal_point_sigma : 0.0, out, focal ? &estimates : nullptr)) {
       *out = BundleAdjustmentCovariance();
       for (BundleAdjustmentFocal::Estimate& e : estimates) e.determined = false;

@@ -35,6 +35,7 @@
 #define ROTATION_AVERAGING_FRONTEND_ESTIMATORS_BUNDLE_ADJUSTMENT_H_
 
 #include <Eigen/Core>
+#include <cstdint>
 #include <map>
 #include <string>
 #include <unordered_map>
@@ -91,7 +92,7 @@ struct BundleAdjustmentOptions {
 // The adjusted orientations' covariance: left perturbations of the
 // world-to-camera rotations, R = Exp(d) R_hat (d in the camera's frame), over
 // the adjustment's normal equations with the points and centres eliminated.
-// In each group of views the tracks connect, one view is held (the gauge):
+// In each group of views the tracks (or a rig's captures) connect, one view is held (the gauge):
 // the covariance of a view relative to another of its group is what it
 // describes, and that is the same whichever view the adjustment held.
 struct BundleAdjustmentCovariance {
@@ -141,6 +142,25 @@ struct BundleAdjustmentFocal {
   std::map<std::string, Estimate> estimates;  // out: by camera, those with adjusted views
 };
 
+// Cameras of a rig whose extrinsics are known: each view's orientation is
+// its camera_from_rig rotation E times its capture's, R_view = E R_capture,
+// and the adjustment turns the capture, so that every camera's tracks hold
+// all of them (each camera's centre stays its own). Without it the rig's
+// cameras meet only through the few tracks two of them see, and the
+// adjustment of each is as good as that camera's tracks alone.
+struct BundleAdjustmentRig {
+  struct Member {
+    std::int64_t capture = 0;  // views of one capture share its rotation
+    Eigen::Matrix3d camera_from_rig = Eigen::Matrix3d::Identity();
+  };
+  std::map<ViewId, Member> views;  // views that are not here turn alone
+  // The covariance (RefineRotationsWithBundleAdjustment's `covariance`) of
+  // the problem the rig makes, every camera's tracks holding each capture;
+  // false: each view's as if it turned alone (at the rig's solution), what
+  // its own camera's tracks determine.
+  bool joint_covariance = true;
+};
+
 struct BundleAdjustmentSummary {
   int views = 0;
   int edges_used = 0;
@@ -181,13 +201,19 @@ struct BundleAdjustmentSummary {
 // and places only the others among them: an adjustment of a map that has
 // grown since the last one starts near its minimum and needs a fraction of
 // the iterations (the node's background refinement, keyframe_refiner.h).
+// With `rig`, the views of each of its captures (two or more adjusted) turn
+// together (BundleAdjustmentRig), starting from the chordal mean of their
+// orientations in the rig's frame, and their covariance is of that problem;
+// a view of `orientations` that no usable edge reaches turns with its
+// capture's adjusted cameras.
 bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>& edges,
                                          const BundleAdjustmentOptions& options, ViewOrientations* orientations,
                                          BundleAdjustmentSummary* summary,
                                          std::unordered_map<ViewId, Eigen::Vector3d>* centres = nullptr,
                                          BundleAdjustmentCovariance* covariance = nullptr,
                                          BundleAdjustmentFocal* focal = nullptr,
-                                         const std::unordered_map<ViewId, Eigen::Vector3d>* start_centres = nullptr);
+                                         const std::unordered_map<ViewId, Eigen::Vector3d>* start_centres = nullptr,
+                                         const BundleAdjustmentRig* rig = nullptr);
 
 }  // namespace rotation_averaging
 
