@@ -20,7 +20,9 @@
 // averaging's frame: the adjustment holds one view of each group where it
 // was, which would turn the whole group by that one view's error, and it
 // relates two cameras only through the few tracks both see, so how the
-// cameras sit relative to each other stays the averaging's. Later solutions are published with the
+// cameras sit relative to each other stays the averaging's (the cameras of
+// a rig with known extrinsics turn together in the adjustment, and count as
+// one camera here). Later solutions are published with the
 // corrections applied, R_i = C_i R_averaged_i: a correction is the
 // keyframe's own error, in its camera's frame, which the averaging's later
 // changes (a loop closure moving a whole stretch) do not undo. Keyframes
