@@ -62,7 +62,7 @@ std::map<KeyframeKey, std::vector<ViewId>> ByCapture(const std::map<ViewId, Eige
 }  // namespace
 
 KeyframeRefinerOptions::KeyframeRefinerOptions() {
-  adjustment.max_iterations = 20;
+  adjustment.max_iterations = 50;  // docs/decisions.md, "50 iterations per stage"
 }
 
 bool KeyframeRefinerOptions::Validate(std::string* error) const {
