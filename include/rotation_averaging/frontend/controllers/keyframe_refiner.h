@@ -105,13 +105,12 @@ struct KeyframeRefinerOptions {
   // Those of the joint problem describe independent pixel noise (mean NEES
   // 2.9 on a simulated two-camera rig, bundle_adjustment_test), but on the
   // rendered two-camera rig the errors were two to three times their
-  // deviations (NEES median 7.5 on the demo bag, 11.6 on its 20 Hz stream,
+  // deviations (NEES median 7.4 on the demo bag, 11.2 on its 20 Hz stream,
   // 51% and 29% of keyframes within chi-square's 95% bound), with each
-  // camera's own 0.9 and 1.7 (100% and 98%): an error the rendered images'
-  // keypoints share across keyframes, which neither the residuals nor the
-  // jackknife's cells show (neither cells over eight keyframes nor over
-  // whole tracks took the demo's below 6). A filter that trusts a
-  // covariance too much diverges; one too wide only weighs it less.
+  // camera's own 0.9 and 1.6 (100% and 98%; results/posterior.md, "A rig's
+  // covariances"): an error neither the residuals nor the jackknife's
+  // cells show. A filter that trusts a covariance too much diverges; one
+  // too wide only weighs it less.
   bool rig_joint_covariance = false;
   // Each camera's focal length estimated in the adjustment with its
   // deviation (BundleAdjustmentFocal; Stats().focal), relative to the focal
