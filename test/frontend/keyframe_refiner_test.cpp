@@ -1,8 +1,6 @@
 #include "rotation_averaging/frontend/controllers/keyframe_refiner.h"
 
 #include <gtest/gtest.h>
-
-#include <iostream>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>

@@ -137,6 +137,15 @@ struct AdjustedView {
   Eigen::Vector3d rig_angle_axis = Eigen::Vector3d::Zero();  // the capture's, on the view that holds it
 };
 
+// `group` (union-find parents over the views) with each rig camera joined
+// to its capture's: the views that turn as one, or by one held rotation.
+std::vector<int> WithCaptures(std::vector<int> group, const std::vector<AdjustedView>& views) {
+  for (std::size_t k = 0; k < views.size(); ++k) {
+    if (views[k].capture >= 0) Unite(&group, static_cast<int>(k), views[k].capture);
+  }
+  return group;
+}
+
 // The parameter block of a view's rotation: its own, or its capture's.
 double* RotationBlock(std::vector<AdjustedView>* views, int k) {
   AdjustedView& v = (*views)[k];
@@ -563,10 +572,7 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
   for (const Track& t : *tracks) {
     for (const Observation& o : t.observations) Unite(&group, t.observations.front().view, o.view);
   }
-  std::vector<int> turning(group);
-  for (std::size_t k = 0; k < views->size(); ++k) {
-    if ((*views)[k].capture >= 0) Unite(&turning, static_cast<int>(k), (*views)[k].capture);
-  }
+  std::vector<int> turning = WithCaptures(group, *views);
   std::vector<bool> rotation_held(views->size(), false);
   std::vector<bool> group_given(views->size(), false);
   for (std::size_t k = 0; k < views->size(); ++k) {
@@ -777,10 +783,7 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   // captures connect one rotation, that of its first view. A view's
   // variables (ViewVariables): its rotation's (a rig camera's: its
   // capture's, which its cameras share), then its centre's.
-  std::vector<int> turning(group);
-  for (int k = 0; k < n; ++k) {
-    if (views[k].capture >= 0) Unite(&turning, k, views[k].capture);
-  }
+  std::vector<int> turning = WithCaptures(group, views);
   std::vector<ViewVariables> var(n);
   std::vector<int> held(n, -1), block_variable(n, -1);  // by rotation block: -2 held
   std::vector<bool> rotation_held(n, false);
@@ -948,15 +951,13 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
         }
         for (std::size_t j = 0; j < m; ++j) {
           const ViewVariables& vj = var[t.observations[j].view];
-          {
-            const Eigen::Matrix<double, 3, 6> cross = bei * b[j].transpose();
-            for (int p = 0; p < 3; ++p) {
-              for (int q = 0; q < 6; ++q) {
-                const int at = vj.Index(q);
-                if (at < 0) continue;
-                s(ei[i][p], at) -= cross(p, q);
-                s(at, ei[i][p]) -= cross(p, q);
-              }
+          const Eigen::Matrix<double, 3, 6> cross = bei * b[j].transpose();
+          for (int p = 0; p < 3; ++p) {
+            for (int q = 0; q < 6; ++q) {
+              const int at = vj.Index(q);
+              if (at < 0) continue;
+              s(ei[i][p], at) -= cross(p, q);
+              s(at, ei[i][p]) -= cross(p, q);
             }
           }
           if (ei[j][0] >= 0) {
