@@ -33,7 +33,11 @@ KeyframePipeline::KeyframePipeline(const PipelineConfig& config)
   auto add_edge = [this](const KeyframeRelativeRotation& m, std::string* error) { return AddMeasurement(m, error); };
   if (!config_.image_topics.empty()) {
     config_.frontend.keep_correspondences = config_.refinement;
-    if (config_.refinement) refiner_ = std::make_unique<KeyframeRefiner>(config_.refiner);
+    if (config_.refinement) {
+      KeyframeRefinerOptions refiner = config_.refiner;
+      refiner.focal_min_correction = config_.frontend.focal_monitor.focal.min_correction;  // as the corrector judges
+      refiner_ = std::make_unique<KeyframeRefiner>(refiner);
+    }
     frontend_ = std::make_unique<KeyframeFrontend>(config_.frontend);
     if (config_.frontend.focal_monitor.enabled) {
       focal_checker_ = std::make_unique<FocalChecker>(config_.frontend.focal_monitor.focal);

@@ -101,6 +101,8 @@ void AddFrontend(const NodeStatus& s, diagnostic_updater::DiagnosticStatusWrappe
     for (const auto& [camera, e] : r.focal) {
       status->add("focal length scale of " + camera + " by the refinement (estimated / in use)", e.scale);
       status->add("focal length scale of " + camera + " by the refinement, standard deviation", e.sigma);
+      status->add("focal length of " + camera + " held by the refinement (agreed)",
+                  r.focal_agreed.count(camera) ? "true" : "false");
     }
   }
   if (s.focal_check_times.Count() > 0) {

@@ -303,8 +303,8 @@ std::string ReplayResult::Summary() const {
         << " edges, " << r.bytes / (1024.0 * 1024.0) << " MiB\n";
     if (!r.last_report.empty()) out << "refinement, latest: " << r.last_report << "\n";
     for (const auto& [camera, e] : r.focal) {
-      out << "focal length by the refinement, " << camera << ": " << DescribeFocalEstimate(e)
-          << " of the one in use\n";
+      out << "focal length by the refinement, " << camera << ": " << DescribeFocalEstimate(e) << " of the one in use"
+          << (r.focal_agreed.count(camera) ? " (agrees: held in the later refinements)" : "") << "\n";
     }
   }
   if (!rig_cameras.empty()) {

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "frontend/refinement_test_util.h"
+#include "rotation_averaging/frontend/controllers/focal_corrector.h"
 #include "rotation_averaging/core/eval/rotation_evaluation.h"
 #include "rotation_averaging/core/geometry/so3.h"
 
@@ -93,9 +94,12 @@ TEST(KeyframeRefiner, ARefinementStartsWhereTheLastOneLeftItsKeyframes) {
   // The next refinement of a map that has not changed much (here: the same
   // keyframes, the averaging re-solved) starts from the published
   // orientations and the last adjustment's centres: a fraction of the
-  // iterations, and the same corrections.
+  // iterations, and the same corrections. (Each with the focal length free:
+  // held once it agrees, the second would solve another problem.)
   const ArcScene scene = MakeArcScene(10, 0.5, 5);
-  KeyframeRefiner refiner{KeyframeRefinerOptions()};
+  KeyframeRefinerOptions options;
+  options.hold_agreed_focal = false;
+  KeyframeRefiner refiner{options};
   refiner.Add(Edges(scene, "cam"));
   ASSERT_TRUE(refiner.Refine(Averaged(scene, "cam", 0.3, 6))) << refiner.Stats().last_report;
   const int cold = refiner.Stats().last_iterations;
@@ -106,7 +110,7 @@ TEST(KeyframeRefiner, ARefinementStartsWhereTheLastOneLeftItsKeyframes) {
   EXPECT_LT(warm, cold / 2) << cold << " then " << warm;
   OnlineSolution published = resolved;
   refiner.Apply(&published);
-  KeyframeRefiner fresh{KeyframeRefinerOptions()};
+  KeyframeRefiner fresh{options};
   fresh.Add(Edges(scene, "cam"));
   ASSERT_TRUE(fresh.Refine(resolved)) << fresh.Stats().last_report;
   OnlineSolution from_cold = resolved;
@@ -493,7 +497,9 @@ TEST(KeyframeRefiner, EachCamerasFocalLengthIsEstimatedRelativeToTheOneInUse) {
   OnlineSolution averaged;
   averaged.sequence = 1;
   for (const auto& [id, r] : Perturbed(scene.truth, 0.2, 6)) averaged.orientations[Key("cam", id)] = r;
-  KeyframeRefiner refiner{KeyframeRefinerOptions()};
+  KeyframeRefinerOptions options;
+  options.hold_agreed_focal = false;  // every refinement estimates it
+  KeyframeRefiner refiner{options};
   refiner.Add(Edges(scene, "cam"));
   ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
   KeyframeRefinerStats stats = refiner.Stats();
@@ -533,6 +539,50 @@ TEST(KeyframeRefiner, EachCamerasFocalLengthIsEstimatedRelativeToTheOneInUse) {
 
 // A saved map keeps the corrections: written and read back to the bit of
 // their quaternions, and a damaged file is refused with the reason.
+TEST(KeyframeRefiner, AFocalLengthThatAgreesIsHeldUntilItIsCorrected) {
+  // hold_agreed_focal: a camera_info 3% short is estimated (disagrees, not
+  // held); once corrected, the next refinement finds the new focal length
+  // agreeing, and the one after holds it (no estimate); a correction frees
+  // it again.
+  const double truth = 1.0 / 0.97;
+  const ArcScene scene = MakePathScene(10, 0.5, truth, 5);
+  OnlineSolution averaged;
+  averaged.sequence = 1;
+  for (const auto& [id, r] : Perturbed(scene.truth, 0.2, 6)) averaged.orientations[Key("cam", id)] = r;
+  KeyframeRefinerOptions options;
+  options.hold_agreed_focal = true;
+  KeyframeRefiner refiner{options};
+  refiner.Add(Edges(scene, "cam"));
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  ASSERT_EQ(refiner.Stats().focal_refinement, 1u);
+  const double found = refiner.Stats().focal.at("cam").scale;
+  EXPECT_GT(std::abs(found - 1.0), 0.02);
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  EXPECT_EQ(refiner.Stats().focal_refinement, 2u);  // disagreed: estimated again
+  refiner.ScaleCamera("cam", found);
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  KeyframeRefinerStats stats = refiner.Stats();
+  EXPECT_EQ(stats.focal_refinement, 3u);
+  const BundleAdjustmentFocal::Estimate agreed = stats.focal.at("cam");
+  ASSERT_EQ(JudgeFocalEstimate(agreed, options.focal_min_correction), FocalVerdict::kAgrees);
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  stats = refiner.Stats();
+  EXPECT_EQ(stats.runs, 4u);
+  EXPECT_EQ(stats.focal_refinement, 3u);  // held: no new estimate
+  EXPECT_EQ(stats.focal.at("cam").scale, agreed.scale);
+  refiner.ScaleCamera("cam", 1.001);
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  EXPECT_EQ(refiner.Stats().focal_refinement, 5u);  // freed by the correction
+
+  // Without the option every refinement estimates it.
+  KeyframeRefinerOptions each_time;
+  each_time.hold_agreed_focal = false;
+  KeyframeRefiner free{each_time};
+  free.Add(Edges(scene, "cam"));
+  for (int run = 0; run < 2; ++run) ASSERT_TRUE(free.Refine(averaged));
+  EXPECT_EQ(free.Stats().focal_refinement, 2u);
+}
+
 TEST(KeyframeRefiner, CorrectionsAreSavedAndReadBackAndDamageIsRefused) {
   const ArcScene scene = MakeArcScene(8, 0.5, 23);
   KeyframeRefiner refiner{KeyframeRefinerOptions()};

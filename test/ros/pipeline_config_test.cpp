@@ -79,7 +79,7 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
                     {"refinement_max_iterations", "7"}, {"refinement_max_correction_deg", "0.5"},
                     {"refinement_niceness", "5"}, {"image_transport_queue", "12"},
                     {"refinement_covariances", "false"}, {"refinement_jackknife_grid", "2"}, {"refinement_focal", "false"},
-                    {"refinement_rig_joint_covariance", "true"}},
+                    {"refinement_rig_joint_covariance", "true"}, {"refinement_hold_agreed_focal", "false"}},
                    &c, &warnings, &error))
       << error;
   EXPECT_TRUE(warnings.empty());
@@ -107,6 +107,7 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
   EXPECT_EQ(c.refiner.background_niceness, 5);
   EXPECT_FALSE(c.refiner.covariances);
   EXPECT_FALSE(c.refiner.estimate_focal);
+  EXPECT_FALSE(c.refiner.hold_agreed_focal);
   EXPECT_EQ(c.refiner.adjustment.covariance_cell_grid, 2);
   EXPECT_TRUE(c.refiner.rig_joint_covariance);
   EXPECT_EQ(c.image_transport_queue, 12u);

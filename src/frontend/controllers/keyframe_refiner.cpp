@@ -1,5 +1,7 @@
 #include "rotation_averaging/frontend/controllers/keyframe_refiner.h"
 
+#include "rotation_averaging/frontend/controllers/focal_corrector.h"
+
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
@@ -107,6 +109,8 @@ void KeyframeRefiner::Add(std::vector<KeyframeCorrespondences> edges) {
 void KeyframeRefiner::ScaleCamera(const std::string& frame_id, double scale) {
   if (!(scale > 0.0) || !std::isfinite(scale)) return;
   std::lock_guard<std::mutex> lock(mutex_);
+  focal_agreed_.erase(frame_id);  // the next refinement checks the new focal length
+  stats_.focal_agreed = focal_agreed_;
   const auto scaled = camera_scales_.emplace(frame_id, 1.0).first;
   scaled->second *= scale;
   const auto estimate = stats_.focal.find(frame_id);
@@ -159,6 +163,7 @@ KeyframeRefiner::Input KeyframeRefiner::SelectWindow(const OnlineSolution& camer
   }
   input.camera_scales = camera_scales_;
   input.focal_held = focal_held_;
+  if (options_.hold_agreed_focal) input.focal_held.insert(focal_agreed_.begin(), focal_agreed_.end());
   for (std::size_t v = 0; v < input.keys.size(); ++v) {
     const auto correction = corrections_.find(input.keys[v]);
     if (correction != corrections_.end()) input.start_corrections.emplace(static_cast<ViewId>(v), correction->second);
@@ -414,7 +419,10 @@ bool KeyframeRefiner::Take(const Outcome& found) {
   stats_.last_iterations = found.iterations;
   if (!found.focal.empty()) {
     // The estimates were made with the focal lengths in use as it started.
-    stats_.focal.clear();
+    // A camera held since it agreed keeps its last estimate.
+    for (auto it = stats_.focal.begin(); it != stats_.focal.end();) {
+      it = focal_agreed_.count(it->first) ? std::next(it) : stats_.focal.erase(it);
+    }
     for (auto [camera, e] : found.focal) {
       const auto then = found.camera_scales.find(camera);
       const auto now = camera_scales_.find(camera);
@@ -422,8 +430,13 @@ bool KeyframeRefiner::Take(const Outcome& found) {
                         (now == camera_scales_.end() ? 1.0 : now->second),
                     &e);
       stats_.focal[camera] = e;
+      if (options_.hold_agreed_focal && found.ok &&
+          JudgeFocalEstimate(e, options_.focal_min_correction) == FocalVerdict::kAgrees) {
+        focal_agreed_.insert(camera);
+      }
     }
     stats_.focal_refinement = stats_.runs;
+    stats_.focal_agreed = focal_agreed_;
   }
   if (!found.ok) {
     ++stats_.failed;
@@ -496,6 +509,8 @@ void KeyframeRefiner::Reset() {
   corrections_.clear();
   covariances_.clear();
   centres_.clear();
+  focal_agreed_.clear();
+  stats_.focal_agreed.clear();
   staged_.reset();
   stats_.edges_held = 0;
   stats_.bytes = 0;

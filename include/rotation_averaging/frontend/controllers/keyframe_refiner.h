@@ -118,6 +118,19 @@ struct KeyframeRefinerOptions {
   // camera's tracks over many keyframes, every view tied by its points).
   // The corrected orientations are those of that adjustment.
   bool estimate_focal = true;
+  // With estimate_focal: a camera whose focal length a refinement found to
+  // agree with the one in use (JudgeFocalEstimate with
+  // focal_min_correction: within its deviation, known to that) keeps the
+  // one in use in the later refinements, until a correction (ScaleCamera)
+  // frees it again. The averaging's pairs are estimated with the focal
+  // length in use: an adjustment that takes its own (within its deviation,
+  // never exactly it) turns its orientations against theirs by that error
+  // times the angle the window turns through. On the rendered rig, whose
+  // camera_info is exact, the free adjustments put it at x1.0002-1.0005,
+  // and the refined orientations drifted about the vertical along each
+  // window (results/refinement.md, "A focal length that agrees").
+  bool hold_agreed_focal = true;
+  double focal_min_correction = 0.005;  // FocalCalibrationOptions::min_correction (the node passes its own)
   // The bundle adjustment's options; the refinement's own defaults in the
   // constructor.
   BundleAdjustmentOptions adjustment;
@@ -144,6 +157,9 @@ struct KeyframeRefinerStats {
   // them), and that refinement's number (`runs` then).
   std::map<std::string, BundleAdjustmentFocal::Estimate> focal;
   std::uint64_t focal_refinement = 0;
+  // hold_agreed_focal: the cameras whose focal length later refinements
+  // hold, their estimate having agreed with the one in use.
+  std::set<std::string> focal_agreed;
   TimeDistribution times;                // wall time of each refinement
   std::string last_report;               // the adjustment's summary, or why it changed nothing
   int last_iterations = 0;               // the latest adjustment's Ceres iterations, all stages
@@ -303,6 +319,7 @@ class KeyframeRefiner {
   std::map<KeyframeKey, Eigen::Vector3d> centres_;  // the last refinement taken's
   std::map<std::string, double> camera_scales_;  // the product of ScaleCamera's, by camera
   std::set<std::string> focal_held_;              // HoldFocal
+  std::set<std::string> focal_agreed_;            // hold_agreed_focal: agreed since the last ScaleCamera
   KeyframeRefinerStats stats_;
   std::mutex run_mutex_;  // one refinement at a time
   std::atomic<bool> running_{false};
