@@ -259,3 +259,14 @@ def test_refinement_rows_hold_each_runs_figures_and_the_ratio_to_offline(tmp_pat
     stream = table_row(text, "20 Hz two-camera stream, one loop in 30 s")
     assert stream[1] == "on" and stream[11:] == ["-", "-"]
     assert "EuRoC" not in text
+    assert "## A focal length that agrees" not in text  # none of its runs
+    # The focal length held once it agrees against free in every refinement.
+    focal = ("focal length by the refinement, cam_front: x1.0004 +- 0.0055 (matches 0.0055, principal point "
+             "0.0001), 100 keyframes of the one in use")
+    (tmp_path / "long_false.txt").write_text(summary(600, 0.0055))
+    (tmp_path / "long_true.txt").write_text(summary(600, 0.0085, extra=[refined, nees]))
+    (tmp_path / "long_free_focal.txt").write_text(summary(600, 0.0124, extra=[refined, nees, focal]))
+    text = run("refinement_report.py", tmp_path, "door", tmp_path / "no_euroc")
+    assert "## A focal length that agrees" in text
+    long = table_row(text, "600 keyframes (two cameras, 300 captures, every image a keyframe)")
+    assert long[1:] == ["600", "0.0055", "0.0085", "0.0124", "0.83 / 0.83", "cam_front x1.0004 +- 0.0055"]
