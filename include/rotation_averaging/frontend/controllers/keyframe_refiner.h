@@ -105,9 +105,9 @@ struct KeyframeRefinerOptions {
   // Those of the joint problem describe independent pixel noise (mean NEES
   // 2.9 on a simulated two-camera rig, bundle_adjustment_test), but on the
   // rendered two-camera rig the errors were two to three times their
-  // deviations (NEES median 7.4 on the demo bag, 11.2 on its 20 Hz stream,
-  // 51% and 29% of keyframes within chi-square's 95% bound), with each
-  // camera's own 0.9 and 1.6 (100% and 98%; results/posterior.md, "A rig's
+  // deviations (NEES median 7.7 on the demo bag, 10.9 on its 20 Hz stream,
+  // 51% and 33% of keyframes within chi-square's 95% bound), with each
+  // camera's own 0.94 and 1.7 (100% and 98%; results/posterior.md, "A rig's
   // covariances"): an error neither the residuals nor the jackknife's
   // cells show. A filter that trusts a covariance too much diverges; one
   // too wide only weighs it less.
