@@ -490,7 +490,7 @@ TEST(KeyframeRefiner, ACorrectedFocalLengthRescalesThePointsHeld) {
 // short, and an averaging of it about 0.2 deg off.
 struct ShortFocalPath {
   double truth = 1.0 / 0.97;
-  ArcScene scene = MakePathScene(10, 0.5, 1.0 / 0.97, 5);
+  ArcScene scene = MakePathScene(10, 0.5, truth, 5);  // (after truth: members are initialised in order)
   OnlineSolution averaged;
   ShortFocalPath() {
     averaged.sequence = 1;

@@ -110,7 +110,6 @@ void KeyframeRefiner::ScaleCamera(const std::string& frame_id, double scale) {
   if (!(scale > 0.0) || !std::isfinite(scale)) return;
   std::lock_guard<std::mutex> lock(mutex_);
   focal_agreed_.erase(frame_id);  // the next refinement checks the new focal length
-  stats_.focal_agreed = focal_agreed_;
   const auto scaled = camera_scales_.emplace(frame_id, 1.0).first;
   scaled->second *= scale;
   const auto estimate = stats_.focal.find(frame_id);
@@ -436,7 +435,6 @@ bool KeyframeRefiner::Take(const Outcome& found) {
       }
     }
     stats_.focal_refinement = stats_.runs;
-    stats_.focal_agreed = focal_agreed_;
   }
   if (!found.ok) {
     ++stats_.failed;
@@ -510,7 +508,6 @@ void KeyframeRefiner::Reset() {
   covariances_.clear();
   centres_.clear();
   focal_agreed_.clear();
-  stats_.focal_agreed.clear();
   staged_.reset();
   stats_.edges_held = 0;
   stats_.bytes = 0;
@@ -614,7 +611,9 @@ void KeyframeRefiner::Apply(OnlineSolution* cameras) const {
 
 KeyframeRefinerStats KeyframeRefiner::Stats() const {
   std::lock_guard<std::mutex> lock(mutex_);
-  return stats_;
+  KeyframeRefinerStats out = stats_;
+  out.focal_agreed = focal_agreed_;
+  return out;
 }
 
 }  // namespace rotation_averaging
