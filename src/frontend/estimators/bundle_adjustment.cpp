@@ -12,6 +12,7 @@
 #include <map>
 #include <numeric>
 #include <optional>
+#include <set>
 #include <sstream>
 #include <tuple>
 
@@ -129,6 +130,7 @@ struct AdjustedView {
   int camera = -1;
   double focal_scale = 1.0;
   bool centre_given = false;  // its centre from an earlier adjustment (start_centres)
+  bool orientation_held = false;  // held where it was given, in every stage (held_orientations)
   // A rig camera (BundleAdjustmentRig): the view that holds its capture's
   // rotation (the capture's first; -1: it turns alone, by angle_axis), and
   // its camera_from_rig E, so that rotation = E Exp(that view's rig_angle_axis).
@@ -179,8 +181,11 @@ void JoinRigCaptures(const BundleAdjustmentRig& rig, std::vector<AdjustedView>* 
   }
   for (const auto& [capture, members] : captures) {
     if (members.size() < 2) continue;
+    // A capture with a view given as held turns as that view has it.
+    const bool held = std::any_of(members.begin(), members.end(), [&](int k) { return (*views)[k].orientation_held; });
     Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
     for (int k : members) {
+      if (held && !(*views)[k].orientation_held) continue;
       const Eigen::Matrix3d e = ProjectToSO3(rig.views.at((*views)[k].id).camera_from_rig);
       sum += e.transpose() * (*views)[k].rotation;
     }
@@ -574,6 +579,14 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
   }
   std::vector<int> turning = WithCaptures(group, *views);
   std::vector<bool> rotation_held(views->size(), false);
+  // A view given as held holds its rotation (its capture's), and with it
+  // the rotation gauge of every view that turns with it or that the tracks
+  // tie to it: the group's first view then holds its centre only.
+  for (std::size_t k = 0; k < views->size(); ++k) {
+    if (!(*views)[k].orientation_held || !problem.HasParameterBlock((*views)[k].centre.data())) continue;
+    problem.SetParameterBlockConstant(RotationBlock(views, static_cast<int>(k)));
+    rotation_held[Root(&turning, static_cast<int>(k))] = true;
+  }
   std::vector<bool> group_given(views->size(), false);
   for (std::size_t k = 0; k < views->size(); ++k) {
     if ((*views)[k].centre_given && problem.HasParameterBlock((*views)[k].centre.data())) {
@@ -787,6 +800,13 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   std::vector<ViewVariables> var(n);
   std::vector<int> held(n, -1), block_variable(n, -1);  // by rotation block: -2 held
   std::vector<bool> rotation_held(n, false);
+  // (A view given as held has no rotation variables, and holds the rotation
+  // gauge of its group: Adjust.)
+  for (int k = 0; k < n; ++k) {
+    if (!observed[k] || !views[k].orientation_held) continue;
+    block_variable[views[k].capture >= 0 ? views[k].capture : k] = -2;
+    rotation_held[Root(&turning, k)] = true;
+  }
   int dim = 0, groups = 0;
   for (int k = 0; k < n; ++k) {
     if (!observed[k]) continue;
@@ -1126,7 +1146,9 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
 
 std::string BundleAdjustmentSummary::Report() const {
   std::ostringstream out;
-  out << "bundle adjustment: " << views << " views, " << edges_used << " edges (" << edges_rotation_only
+  out << "bundle adjustment: " << views << " views";
+  if (views_held > 0) out << " (" << views_held << " held)";
+  out << ", " << edges_used << " edges (" << edges_rotation_only
       << " of the rotation-only model, " << edges_skipped << " unusable), "
       << tracks << " tracks (" << tracks_inconsistent << " inconsistent, " << tracks_short << " in too few views, "
       << tracks_unconstrained
@@ -1167,7 +1189,8 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
                                          std::unordered_map<ViewId, Eigen::Vector3d>* centres,
                                          BundleAdjustmentCovariance* covariance, BundleAdjustmentFocal* focal,
                                          const std::unordered_map<ViewId, Eigen::Vector3d>* start_centres,
-                                         const BundleAdjustmentRig* rig) {
+                                         const BundleAdjustmentRig* rig,
+                                         const std::set<ViewId>* held_orientations) {
   HoldOpenBlasToOneThread();  // Ceres' sparse Schur solves call it every iteration
   const auto start = std::chrono::steady_clock::now();
   *summary = BundleAdjustmentSummary();
@@ -1181,6 +1204,9 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   std::vector<const EdgeCorrespondences*> used;
   SelectEdgesAndViews(edges, options, *orientations, &used, &index, &views, summary);
   if (used.empty()) return finish(false, "no edge with enough correspondences between oriented views");
+  if (held_orientations) {
+    for (AdjustedView& v : views) v.orientation_held = held_orientations->count(v.id) > 0;
+  }
   if (rig) JoinRigCaptures(*rig, &views);
   // The cameras whose focal lengths are estimated, in name order.
   std::vector<std::string> camera_names;
@@ -1247,10 +1273,16 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   summary->final_rms_sigmas = RmsSigmas(views, tracks);
   summary->tracks = static_cast<int>(tracks.size());
   summary->views = static_cast<int>(views.size());
+  summary->views_held =
+      static_cast<int>(std::count_if(views.begin(), views.end(), [](const AdjustedView& v) { return v.orientation_held; }));
   summary->edges_used = static_cast<int>(used.size());
   summary->converged =
       second.termination_type == ceres::CONVERGENCE || second.termination_type == ceres::USER_SUCCESS;
-  for (const AdjustedView& v : views) (*orientations)[v.id] = v.rotation;
+  // (A held view keeps the very matrix it was given, not its round trip
+  // through the angle-axis block.)
+  for (const AdjustedView& v : views) {
+    if (!v.orientation_held) (*orientations)[v.id] = v.rotation;
+  }
   if (rig) {
     // A rig camera without a usable edge turns with its capture's cameras
     // that have one.
@@ -1288,10 +1320,16 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
     BundleAdjustmentCovariance own;
     BundleAdjustmentCovariance* out = covariance ? covariance : &own;
     *out = BundleAdjustmentCovariance();
+    // The held views turn in the covariance's problem: their orientations
+    // are estimates (a window's published neighbours), and a covariance
+    // that took them as exact would be as much too narrow as they are off.
     std::vector<AdjustedView> alone;
-    if (rig && !rig->joint_covariance) {
+    if ((rig && !rig->joint_covariance) || summary->views_held > 0) {
       alone = views;
-      for (AdjustedView& v : alone) v.capture = -1;
+      for (AdjustedView& v : alone) {
+        if (rig && !rig->joint_covariance) v.capture = -1;
+        v.orientation_held = false;
+      }
     }
     if (!ComputeCovariance(alone.empty() ? views : alone, tracks, scale, options.covariance_cell_grid,
                            focal ? focal->principal_point_sigma : 0.0, out, focal ? &estimates : nullptr)) {

@@ -37,6 +37,7 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <map>
+#include <set>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -163,6 +164,7 @@ struct BundleAdjustmentRig {
 
 struct BundleAdjustmentSummary {
   int views = 0;
+  int views_held = 0;           // of views, held where they were given (held_orientations)
   int edges_used = 0;
   int edges_rotation_only = 0;  // of edges_used: in the tracks, not in the centres (step 2)
   int edges_skipped = 0;        // too few correspondences, unknown views, bad numbers
@@ -205,7 +207,12 @@ struct BundleAdjustmentSummary {
 // together (BundleAdjustmentRig), starting from the chordal mean of their
 // orientations in the rig's frame, and their covariance is of that problem;
 // a view of `orientations` that no usable edge reaches turns with its
-// capture's adjusted cameras.
+// capture's adjusted cameras. With `held_orientations`, those views keep
+// the orientations given (a rig capture one of whose views is held turns as
+// that view has it): they take part with their centres and tracks, and hold
+// the frame of every group the tracks tie to them, in place of the first
+// view's orientation. The covariance does not take their orientations as
+// exact (they are estimates too): it is of the problem in which they turn.
 bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>& edges,
                                          const BundleAdjustmentOptions& options, ViewOrientations* orientations,
                                          BundleAdjustmentSummary* summary,
@@ -213,7 +220,8 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
                                          BundleAdjustmentCovariance* covariance = nullptr,
                                          BundleAdjustmentFocal* focal = nullptr,
                                          const std::unordered_map<ViewId, Eigen::Vector3d>* start_centres = nullptr,
-                                         const BundleAdjustmentRig* rig = nullptr);
+                                         const BundleAdjustmentRig* rig = nullptr,
+                                         const std::set<ViewId>* held_orientations = nullptr);
 
 }  // namespace rotation_averaging
 
