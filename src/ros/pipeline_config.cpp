@@ -219,6 +219,7 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("refinement_rig_joint_covariance", &c.refiner.rig_joint_covariance);
   r.Read("refinement_focal", &c.refiner.estimate_focal);
   r.Read("refinement_hold_agreed_focal", &c.refiner.hold_agreed_focal);
+  r.Read("refinement_hold_outside", &c.refiner.hold_outside);
   r.Read("use_rig_extrinsics", &c.rig.enabled);
   r.Read("rig_frame", &c.rig.rig_frame);
   r.Read("covisibility_window", &f.covisibility_window);

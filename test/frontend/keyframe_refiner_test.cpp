@@ -396,6 +396,54 @@ TEST(KeyframeRefiner, TheWindowLetsGoOfEdgesOlderThanIt) {
   EXPECT_EQ(refiner.Stats().bytes, 0u);
 }
 
+// The arc's oldest five keyframes where the truth has them (a well-held
+// stretch of the map), the newest five 0.3 deg off: the averaging of a long
+// run whose window (five keyframes) has moved on.
+OnlineSolution OldestFiveTrue(const ArcScene& scene, std::uint32_t seed) {
+  OnlineSolution averaged = Averaged(scene, "cam", 0.3, seed);
+  for (int v = 0; v < 5; ++v) averaged.orientations[Key("cam", v)] = scene.truth.at(v);
+  return averaged;
+}
+
+// Largest angle (deg) of the keyframes from..to-1 from the truth, in the
+// truth's frame (no gauge taken out).
+double WorstInTheTruthsFrame(const OnlineSolution& published, const ArcScene& scene, int from, int to) {
+  double worst = 0.0;
+  for (int v = from; v < to; ++v) {
+    worst = std::max(worst, RadToDeg(AngularDistanceRad(published.orientations.at(Key("cam", v)), scene.truth.at(v))));
+  }
+  return worst;
+}
+
+TEST(KeyframeRefiner, KeyframesBeforeTheWindowHoldItWhereTheAveragingHasThem) {
+  // Held (hold_outside), the older keyframes the window's edges reach put
+  // its keyframes in their frame; without them the window is an arc of its
+  // own, turned to the averaging's keyframes of the window as a whole, and
+  // keeps their common error.
+  const ArcScene scene = MakeArcScene(10, 0.5, 23);
+  double with_hold = 0.0, without = 0.0;
+  for (bool hold : {true, false}) {
+    KeyframeRefinerOptions options;
+    options.max_keyframes = 5;
+    options.hold_outside = hold;
+    KeyframeRefiner refiner(options);
+    refiner.Add(Edges(scene, "cam"));
+    const OnlineSolution averaged = OldestFiveTrue(scene, 24);
+    ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+    EXPECT_EQ(refiner.Stats().last_report.find("(5 held)") != std::string::npos, hold) << refiner.Stats().last_report;
+    EXPECT_EQ(refiner.Stats().corrected_keyframes, 5u);
+    OnlineSolution published = averaged;
+    refiner.Apply(&published);
+    for (int v = 0; v < 5; ++v) EXPECT_EQ(published.orientations.at(Key("cam", v)), averaged.orientations.at(Key("cam", v)));
+    (hold ? with_hold : without) = WorstInTheTruthsFrame(published, scene, 5, 10);
+  }
+  std::cout << "the window's worst error in the truth's frame: older keyframes held " << with_hold << " deg, not held "
+            << without << " deg\n";
+  EXPECT_GT(WorstInTheTruthsFrame(OldestFiveTrue(scene, 24), scene, 5, 10), 0.2);
+  EXPECT_LT(with_hold, 0.05);
+  EXPECT_LT(with_hold, 0.5 * without);
+}
+
 TEST(KeyframeRefiner, BackgroundRefinementCallsBackAndApplies) {
   const ArcScene scene = MakeArcScene(8, 0.5, 19);
   auto averaged = std::make_shared<const OnlineSolution>(Averaged(scene, "cam", 0.3, 20));

@@ -79,7 +79,8 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
                     {"refinement_max_iterations", "7"}, {"refinement_max_correction_deg", "0.5"},
                     {"refinement_niceness", "5"}, {"image_transport_queue", "12"},
                     {"refinement_covariances", "false"}, {"refinement_jackknife_grid", "2"}, {"refinement_focal", "false"},
-                    {"refinement_rig_joint_covariance", "true"}, {"refinement_hold_agreed_focal", "false"}},
+                    {"refinement_rig_joint_covariance", "true"}, {"refinement_hold_agreed_focal", "false"},
+                    {"refinement_hold_outside", "false"}},
                    &c, &warnings, &error))
       << error;
   EXPECT_TRUE(warnings.empty());
@@ -108,6 +109,7 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
   EXPECT_FALSE(c.refiner.covariances);
   EXPECT_FALSE(c.refiner.estimate_focal);
   EXPECT_FALSE(c.refiner.hold_agreed_focal);
+  EXPECT_FALSE(c.refiner.hold_outside);
   EXPECT_EQ(c.refiner.adjustment.covariance_cell_grid, 2);
   EXPECT_TRUE(c.refiner.rig_joint_covariance);
   EXPECT_EQ(c.image_transport_queue, 12u);

@@ -146,13 +146,25 @@ KeyframeRefiner::Input KeyframeRefiner::SelectWindow(const OnlineSolution& camer
   newest.resize(window);
   if (window > 0 && window < cameras.orientations.size()) input.oldest_kept = newest.back();
   std::map<KeyframeKey, ViewId> ids;
+  const auto in_window = [&](const KeyframeKey& k) { return std::binary_search(newest.begin(), newest.end(), k, Newer); };
   for (const auto& [key, held] : edges_) {
-    const auto in_window = [&](const KeyframeKey& k) {
-      return std::binary_search(newest.begin(), newest.end(), k, Newer);
-    };
-    if (!in_window(held.keyframe1) || !in_window(held.keyframe2)) continue;
+    const bool first = in_window(held.keyframe1), second = in_window(held.keyframe2);
+    if (!first && !second) continue;
+    if (!(first && second)) {
+      // An edge from the window to an older keyframe (its sequential and
+      // window pairs at the window's end, loop closures to places seen
+      // before it): that keyframe joins the adjustment with its orientation
+      // held as the averaging has it, so that the window's two ends and its
+      // loops stay where the whole map's averaging puts them; an adjustment
+      // of the window alone is an open arc that bends along its length.
+      // (Held as published, with a correction it kept from an earlier
+      // window, it carries that correction's error into this one.)
+      const KeyframeKey& outside = first ? held.keyframe2 : held.keyframe1;
+      if (!options_.hold_outside || cameras.orientations.count(outside) == 0) continue;
+    }
     for (const KeyframeKey* k : {&held.keyframe1, &held.keyframe2}) {
       if (ids.count(*k) == 0) {
+        if (!in_window(*k)) input.held.insert(static_cast<ViewId>(input.keys.size()));
         ids.emplace(*k, static_cast<ViewId>(input.keys.size()));
         input.keys.push_back(*k);
       }
@@ -164,6 +176,9 @@ KeyframeRefiner::Input KeyframeRefiner::SelectWindow(const OnlineSolution& camer
   input.focal_held = focal_held_;
   if (options_.hold_agreed_focal) input.focal_held.insert(focal_agreed_.begin(), focal_agreed_.end());
   for (std::size_t v = 0; v < input.keys.size(); ++v) {
+    // (A keyframe older than the window is held as the averaging has it:
+    // SelectWindow's comment.)
+    if (input.held.count(static_cast<ViewId>(v))) continue;
     const auto correction = corrections_.find(input.keys[v]);
     if (correction != corrections_.end()) input.start_corrections.emplace(static_cast<ViewId>(v), correction->second);
     const auto centre = centres_.find(input.keys[v]);
@@ -232,7 +247,8 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   bool ok = !edges.empty() && RefineRotationsWithBundleAdjustment(
                                    edges, options_.adjustment, &adjusted, &summary, &centres,
                                    with_covariance ? &adjusted_covariance : nullptr,
-                                   options_.estimate_focal ? &focal : nullptr, &input.start_centres, &rig_views);
+                                   options_.estimate_focal ? &focal : nullptr, &input.start_centres, &rig_views,
+                                   &input.held);
   std::string report = edges.empty() ? "no edge with correspondences among the solved keyframes" : summary.Report();
   // An adjustment whose cameras still move when its last stage runs out of
   // iterations has found no minimum: its tracks leave some keyframes free
@@ -270,10 +286,19 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   }
   std::map<ViewId, Eigen::Matrix3d> corrections;
   if (ok) {
+    // A camera whose keyframes before the window were held keeps the frame
+    // they hold: that is the averaging's already, and a rotation fitted to
+    // the window's keyframes would turn it away from them.
     std::map<std::pair<int, std::string>, std::vector<ViewId>> members;
+    std::set<std::pair<int, std::string>> anchored;
     for (const auto& [id, r] : adjusted) {
-      members[{Root(&group, static_cast<int>(id)), rig.count(keys[id]) ? std::string() : keys[id].frame_id}]
-          .push_back(id);
+      const std::pair<int, std::string> camera{Root(&group, static_cast<int>(id)),
+                                               rig.count(keys[id]) ? std::string() : keys[id].frame_id};
+      if (input.held.count(id)) {
+        anchored.insert(camera);
+      } else {
+        members[camera].push_back(id);
+      }
     }
     for (const auto& [g, ids] : members) {
       std::vector<Eigen::Matrix3d> from, to;
@@ -281,7 +306,8 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
         from.push_back(adjusted.at(id));
         to.push_back(averaged.at(id));
       }
-      const Eigen::Matrix3d align = AlignRotations(from, to);  // adjusted * align ~ averaged
+      const Eigen::Matrix3d align =
+          anchored.count(g) ? Eigen::Matrix3d::Identity() : AlignRotations(from, to);  // adjusted * align ~ averaged
       for (ViewId id : ids) {
         const Eigen::Matrix3d c = ProjectToSO3(adjusted.at(id) * align * averaged.at(id).transpose());
         if (!c.allFinite()) {
