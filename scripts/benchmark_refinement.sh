@@ -69,6 +69,15 @@ for r in false true; do
 done
 replay_with "four_cameras_free_focal" "$FOUR" "${four[@]}" "refinement_hold_agreed_focal: false"
 replay_with "long_free_focal" "$LONG" "${demo[@]}" "refinement_hold_agreed_focal: false"
+# The keyframes before the window: the window adjusted alone, turned to the
+# averaging's frame, against with the older keyframes its edges reach held
+# (the default); each keyframe's error, for the errors along the bag.
+replay_with "four_cameras_window_alone" "$FOUR" "${four[@]}" "refinement_hold_outside: false"
+replay_with "long_window_alone" "$LONG" "${demo[@]}" "refinement_hold_outside: false"
+for run in four_cameras_false four_cameras_true four_cameras_window_alone long_false long_true long_window_alone; do
+  "$BIN/rotavg" eval --estimate "$OUT/$run/orientations.csv" --gt "$OUT/$run/ground_truth.csv" --per-view \
+    > "$OUT/$run/per_view.txt"
+done
 
 EUROC="$DATA/euroc_v1_01_micro/mav0"
 if [ -d "$EUROC" ]; then

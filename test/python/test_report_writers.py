@@ -270,3 +270,38 @@ def test_refinement_rows_hold_each_runs_figures_and_the_ratio_to_offline(tmp_pat
     assert "## A focal length that agrees" in text
     long = table_row(text, "600 keyframes (two cameras, 300 captures, every image a keyframe)")
     assert long[1:] == ["600", "0.0055", "0.0085", "0.0124", "0.83 / 0.83", "cam_front x1.0004 +- 0.0055"]
+
+
+def test_the_window_section_holds_each_runs_figures_and_its_errors_along_the_bag(tmp_path):
+    nees = ("posterior covariances against the ground truth: NEES median %s (2.37 if honest), mean 4.00, "
+            "%s%% within chi-square's 95%% bound, 600 keyframes")
+    latest = ("refinement, latest: bundle adjustment: %s views%s, 764 edges (1 of the rotation-only model, 0 unusable), "
+              "12473 tracks")
+    (tmp_path / "long_false.txt").write_text(summary(600, 0.0055, extra=[nees % ("5.43", "72.2")]))
+    (tmp_path / "long_window_alone.txt").write_text(
+        summary(600, 0.0085, extra=[nees % ("3.94", "60.0"), latest % (200, "")]))
+    (tmp_path / "long_true.txt").write_text(
+        summary(600, 0.0052, extra=[nees % ("3.71", "86.6"), latest % (215, " (15 held)")]))
+    # Per-view errors of the held run only, out of stamp order: twelve keyframes, two per sixth.
+    os.makedirs(tmp_path / "long_true")
+    views = ["view cam@%d %.4f" % (stamp, error) for stamp, error in
+             [(12, 0.0060), (1, 0.0010), (2, 0.0012), (3, 0.0020), (4, 0.0022), (5, 0.0030), (6, 0.0032),
+              (7, 0.0040), (8, 0.0042), (9, 0.0050), (10, 0.0052), (11, 0.0058)]]
+    (tmp_path / "long_true" / "per_view.txt").write_text("median error: 0.0035 deg\n" + "\n".join(views) + "\n")
+    text = run("refinement_report.py", tmp_path, "door", tmp_path / "no_euroc")
+    assert "## The keyframes before the window" in text
+    label = "| 600 keyframes (two cameras, 300 captures, every image a keyframe) |"
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in text.splitlines()
+            if line.startswith(label)]
+    table = [r for r in rows if len(r) == 7]
+    assert [r[1:] for r in table] == [["refinement off", "600", "0.0055", "5.43", "72.2", "-"],
+                                      ["window alone", "600", "0.0085", "3.94", "60.0", "0"],
+                                      ["older keyframes held", "600", "0.0052", "3.71", "86.6", "15"]]
+    # Along the bag: only the run with its per-view errors, each sixth's median in stamp order.
+    along = [r for r in rows if len(r) == 8]
+    assert along == [["600 keyframes (two cameras, 300 captures, every image a keyframe)", "older keyframes held",
+                      "0.0011", "0.0021", "0.0031", "0.0041", "0.0051", "0.0059"]]
+    # Without the window-alone run, no section.
+    os.remove(tmp_path / "long_window_alone.txt")
+    assert "## The keyframes before the window" not in run("refinement_report.py", tmp_path, "door",
+                                                           tmp_path / "no_euroc")
