@@ -146,19 +146,23 @@ KeyframeRefiner::Input KeyframeRefiner::SelectWindow(const OnlineSolution& camer
   newest.resize(window);
   if (window > 0 && window < cameras.orientations.size()) input.oldest_kept = newest.back();
   std::map<KeyframeKey, ViewId> ids;
-  const auto in_window = [&](const KeyframeKey& k) { return std::binary_search(newest.begin(), newest.end(), k, Newer); };
+  const auto in_window = [&](const KeyframeKey& k) {
+    return std::binary_search(newest.begin(), newest.end(), k, Newer);
+  };
   for (const auto& [key, held] : edges_) {
     const bool first = in_window(held.keyframe1), second = in_window(held.keyframe2);
     if (!first && !second) continue;
     if (!(first && second)) {
-      // An edge from the window to an older keyframe (its sequential and
-      // window pairs at the window's end, loop closures to places seen
-      // before it): that keyframe joins the adjustment with its orientation
-      // held as the averaging has it, so that the window's two ends and its
-      // loops stay where the whole map's averaging puts them; an adjustment
-      // of the window alone is an open arc that bends along its length.
-      // (Held as published, with a correction it kept from an earlier
-      // window, it carries that correction's error into this one.)
+      // An edge from the window to an older keyframe (the pairs of the
+      // window's oldest keyframes, loop closures to places seen before it):
+      // that keyframe joins the adjustment with its orientation held as the
+      // averaging has it, so that the window's older end and its loops stay
+      // where the whole map's averaging puts them; an adjustment of the
+      // window alone is an open arc that bends along its length. (Held as
+      // published instead, with the corrections earlier windows left it, or
+      // with the fitted rotation below kept, the long runs came out less
+      // accurate: docs/decisions.md, "The keyframes before the window are
+      // held".)
       const KeyframeKey& outside = first ? held.keyframe2 : held.keyframe1;
       if (!options_.hold_outside || cameras.orientations.count(outside) == 0) continue;
     }

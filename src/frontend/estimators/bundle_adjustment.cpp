@@ -1273,8 +1273,8 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   summary->final_rms_sigmas = RmsSigmas(views, tracks);
   summary->tracks = static_cast<int>(tracks.size());
   summary->views = static_cast<int>(views.size());
-  summary->views_held =
-      static_cast<int>(std::count_if(views.begin(), views.end(), [](const AdjustedView& v) { return v.orientation_held; }));
+  summary->views_held = static_cast<int>(
+      std::count_if(views.begin(), views.end(), [](const AdjustedView& v) { return v.orientation_held; }));
   summary->edges_used = static_cast<int>(used.size());
   summary->converged =
       second.termination_type == ceres::CONVERGENCE || second.termination_type == ceres::USER_SUCCESS;
