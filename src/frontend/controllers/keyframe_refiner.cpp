@@ -166,9 +166,9 @@ KeyframeRefiner::Input KeyframeRefiner::SelectWindow(const OnlineSolution& camer
       const KeyframeKey& outside = first ? held.keyframe2 : held.keyframe1;
       if (!options_.hold_outside || cameras.orientations.count(outside) == 0) continue;
     }
-    for (const KeyframeKey* k : {&held.keyframe1, &held.keyframe2}) {
+    for (const auto& [k, inside] : {std::pair(&held.keyframe1, first), std::pair(&held.keyframe2, second)}) {
       if (ids.count(*k) == 0) {
-        if (!in_window(*k)) input.held.insert(static_cast<ViewId>(input.keys.size()));
+        if (!inside) input.held.insert(static_cast<ViewId>(input.keys.size()));
         ids.emplace(*k, static_cast<ViewId>(input.keys.size()));
         input.keys.push_back(*k);
       }

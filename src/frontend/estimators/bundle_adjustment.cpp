@@ -800,13 +800,6 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   std::vector<ViewVariables> var(n);
   std::vector<int> held(n, -1), block_variable(n, -1);  // by rotation block: -2 held
   std::vector<bool> rotation_held(n, false);
-  // (A view given as held has no rotation variables, and holds the rotation
-  // gauge of its group: Adjust.)
-  for (int k = 0; k < n; ++k) {
-    if (!observed[k] || !views[k].orientation_held) continue;
-    block_variable[views[k].capture >= 0 ? views[k].capture : k] = -2;
-    rotation_held[Root(&turning, k)] = true;
-  }
   int dim = 0, groups = 0;
   for (int k = 0; k < n; ++k) {
     if (!observed[k]) continue;
@@ -1320,16 +1313,14 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
     BundleAdjustmentCovariance own;
     BundleAdjustmentCovariance* out = covariance ? covariance : &own;
     *out = BundleAdjustmentCovariance();
-    // The held views turn in the covariance's problem: their orientations
-    // are estimates (a window's published neighbours), and a covariance
-    // that took them as exact would be as much too narrow as they are off.
+    // (The held views turn in the covariance's problem, which does not read
+    // orientation_held: their orientations are estimates, a window's older
+    // neighbours, and a covariance that took them as exact would be as much
+    // too narrow as they are off.)
     std::vector<AdjustedView> alone;
-    if ((rig && !rig->joint_covariance) || summary->views_held > 0) {
+    if (rig && !rig->joint_covariance) {
       alone = views;
-      for (AdjustedView& v : alone) {
-        if (rig && !rig->joint_covariance) v.capture = -1;
-        v.orientation_held = false;
-      }
+      for (AdjustedView& v : alone) v.capture = -1;
     }
     if (!ComputeCovariance(alone.empty() ? views : alone, tracks, scale, options.covariance_cell_grid,
                            focal ? focal->principal_point_sigma : 0.0, out, focal ? &estimates : nullptr)) {

@@ -35,9 +35,10 @@
 // a whole, to an averaging that drifts until its loops close, so that its
 // corrections hold that day's error. With `hold_outside` the older
 // keyframes its edges reach join the adjustment with their orientations held
-// as the averaging has them (not as published: a correction kept from an
-// earlier window would carry its error into this one), and hold the frame
-// of each camera (each rig) they belong to in place of G.
+// as the averaging has them (held as published, with the corrections of
+// earlier windows, the long runs came out less accurate: docs/decisions.md,
+// "The keyframes before the window are held"), and hold the frame of each
+// camera (each rig) they belong to in place of G.
 //
 // The published posterior covariances of the corrected keyframes come from
 // the adjustment too (KeyframeRefinerOptions::covariances): the averaging's
