@@ -522,6 +522,14 @@ class Replayer {
         if (!pipeline_.MaybeRefine(*solution, when.toSec(), true, KeyframePipeline::RefineIn::kHere)) return;
         refined_sequence_ = solution->sequence;
       }
+      // The keyframes the windows had no room for, swept back over
+      // (refinement_sweep_back) as the node does once its input is quiet.
+      for (std::size_t pending = pipeline_.RefinementPending(*solution); pending > 0;) {
+        if (!pipeline_.MaybeRefine(*solution, when.toSec(), true, KeyframePipeline::RefineIn::kHere)) break;
+        const std::size_t left = pipeline_.RefinementPending(*solution);
+        if (left >= pending) break;
+        pending = left;
+      }
       out_.write("/rotation_averaging/orientations", when,
                  pipeline_.OrientationsMsg(pipeline_.CameraSolution(*solution), when));
       std::vector<std::string> warnings;

@@ -396,12 +396,7 @@ bool KeyframePipeline::MaybeRefine(const OnlineSolution& solution, double now_s,
     last_refine_s_ = now_s;
   }
   auto cameras = std::make_shared<const OnlineSolution>(CameraSolution(solution, false));
-  KeyframeRefiner::RigCaptures rig;
-  const auto rig_cameras = rig_.RigCameras();
-  for (const auto& [key, r] : cameras->orientations) {
-    const auto camera = rig_cameras.find(key.frame_id);
-    if (camera != rig_cameras.end()) rig[key] = {rig_.VariableOfKnown(key), camera->second.second};
-  }
+  KeyframeRefiner::RigCaptures rig = RefinerRig(*cameras);
   if (where != RefineIn::kHere) {
     return refiner_->RefineInBackground(std::move(cameras), std::move(rig), std::move(done),
                                         where == RefineIn::kStaged);
@@ -409,6 +404,22 @@ bool KeyframePipeline::MaybeRefine(const OnlineSolution& solution, double now_s,
   const bool ok = refiner_->Refine(*cameras, rig);
   if (done) done(ok);
   return true;
+}
+
+KeyframeRefiner::RigCaptures KeyframePipeline::RefinerRig(const OnlineSolution& cameras) const {
+  KeyframeRefiner::RigCaptures rig;
+  const auto rig_cameras = rig_.RigCameras();
+  for (const auto& [key, r] : cameras.orientations) {
+    const auto camera = rig_cameras.find(key.frame_id);
+    if (camera != rig_cameras.end()) rig[key] = {rig_.VariableOfKnown(key), camera->second.second};
+  }
+  return rig;
+}
+
+std::size_t KeyframePipeline::RefinementPending(const OnlineSolution& solution) const {
+  if (!refiner_ || solution.orientations.empty()) return 0;
+  const OnlineSolution cameras = CameraSolution(solution, false);
+  return refiner_->Pending(cameras, RefinerRig(cameras));
 }
 
 void KeyframePipeline::CommitRefinement() {

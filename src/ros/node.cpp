@@ -134,11 +134,13 @@ void RotationAveragingNode::SetUpServices(ros::NodeHandle& nh, ros::NodeHandle& 
   }
   // Input gone quiet (the robot stopped, the bag ended): the latest solution
   // is refined without waiting for refinement_period_s, as the replay
-  // refines its final one.
+  // refines its final one, and again while it has keyframes the windows
+  // had no room for (refinement_sweep_back).
   if (pipeline_->HasRefiner()) {
     refine_timer_ = pnh.createWallTimer(ros::WallDuration(1.0), [this](const ros::WallTimerEvent&) {
       const std::shared_ptr<const OnlineSolution> latest = averager_->Solution();
-      if (!latest || latest->sequence == refined_sequence_) return;
+      if (!latest || pipeline_->RefinerRunning()) return;
+      if (latest->sequence == refined_sequence_ && pipeline_->RefinementPending(*latest) == 0) return;
       if (ros::WallTime::now().toSec() - last_solution_wall_s_ < kRefineWhenQuietS) return;
       Refine(*latest, true);
     });

@@ -220,6 +220,8 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("refinement_focal", &c.refiner.estimate_focal);
   r.Read("refinement_hold_agreed_focal", &c.refiner.hold_agreed_focal);
   r.Read("refinement_hold_outside", &c.refiner.hold_outside);
+  r.Read("refinement_sweep_back", &c.refiner.sweep_back);
+  r.Read("refinement_max_correspondence_mib", &c.refiner.max_correspondence_mib);
   r.Read("use_rig_extrinsics", &c.rig.enabled);
   r.Read("rig_frame", &c.rig.rig_frame);
   r.Read("covisibility_window", &f.covisibility_window);

@@ -374,10 +374,11 @@ TEST(KeyframeRefiner, BadCorrespondencesAreNotHeld) {
   EXPECT_EQ(refiner.Stats().corrected_keyframes, 0u);
 }
 
-TEST(KeyframeRefiner, TheWindowLetsGoOfEdgesOlderThanIt) {
+TEST(KeyframeRefiner, WithoutTheSweepBackTheWindowLetsGoOfEdgesOlderThanIt) {
   const ArcScene scene = MakeArcScene(8, 0.5, 17);
   KeyframeRefinerOptions options;
   options.max_keyframes = 4;
+  options.sweep_back = false;
   KeyframeRefiner refiner(options);
   refiner.Add(Edges(scene, "cam"));
   EXPECT_EQ(refiner.Stats().edges_held, 28u);
@@ -394,6 +395,97 @@ TEST(KeyframeRefiner, TheWindowLetsGoOfEdgesOlderThanIt) {
   refiner.Reset();
   EXPECT_EQ(refiner.Stats().edges_held, 0u);
   EXPECT_EQ(refiner.Stats().bytes, 0u);
+}
+
+TEST(KeyframeRefiner, ARefinementOfTheSameSolutionSweepsBackOverTheKeyframesTheWindowHadNoRoomFor) {
+  // A trajectory: each keyframe paired with its next two.
+  ArcScene scene = MakeArcScene(10, 0.5, 31);
+  scene.edges.erase(std::remove_if(scene.edges.begin(), scene.edges.end(),
+                                   [](const EdgeCorrespondences& e) {
+                                     return std::abs(static_cast<int>(e.view1) - static_cast<int>(e.view2)) > 2;
+                                   }),
+                    scene.edges.end());
+  KeyframeRefinerOptions options;
+  options.max_keyframes = 4;
+  KeyframeRefiner refiner(options);
+  refiner.Add(Edges(scene, "cam"));
+  const OnlineSolution averaged = Averaged(scene, "cam", 0.3, 32);
+  EXPECT_EQ(refiner.Pending(averaged), 10u);
+  // The first refinement of a solution: the newest four.
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  EXPECT_EQ(refiner.Stats().corrected_keyframes, 4u);
+  EXPECT_EQ(refiner.Pending(averaged), 6u);
+  EXPECT_EQ(refiner.Stats().edges_held, 17u);  // the sweep needs them all
+  OnlineSolution first = averaged;
+  refiner.Apply(&first);
+  // Again: the newest four of the other six, with those the first one
+  // adjusted that their edges reach held as published (its newer end, two
+  // keyframes) and the two older ones as averaged; then the last two.
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  EXPECT_EQ(refiner.Stats().corrected_keyframes, 8u);
+  EXPECT_NE(refiner.Stats().last_report.find("views (4 held)"), std::string::npos) << refiner.Stats().last_report;
+  EXPECT_EQ(refiner.Pending(averaged), 2u);
+  OnlineSolution second = averaged;
+  refiner.Apply(&second);
+  for (int v = 0; v < 10; ++v) {
+    const Eigen::Matrix3d& r = second.orientations.at(Key("cam", v));
+    if (v >= 6) {
+      EXPECT_EQ(r, first.orientations.at(Key("cam", v))) << v;  // held as published
+    } else if (v >= 2) {
+      EXPECT_NE(r, averaged.orientations.at(Key("cam", v))) << v;  // swept
+    } else {
+      EXPECT_EQ(r, averaged.orientations.at(Key("cam", v))) << v;  // next
+    }
+  }
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  EXPECT_EQ(refiner.Stats().corrected_keyframes, 10u);
+  EXPECT_EQ(refiner.Pending(averaged), 0u);
+  // Nothing left: the newest again. A later solution has them all pending.
+  ASSERT_TRUE(refiner.Refine(averaged)) << refiner.Stats().last_report;
+  EXPECT_EQ(refiner.Pending(averaged), 0u);
+  OnlineSolution later = averaged;
+  later.sequence = 2;
+  EXPECT_EQ(refiner.Pending(later), 10u);
+  // Without the sweep back nothing is pending, and the second refinement
+  // adjusts the newest four again.
+  options.sweep_back = false;
+  KeyframeRefiner newest(options);
+  newest.Add(Edges(scene, "cam"));
+  ASSERT_TRUE(newest.Refine(averaged));
+  EXPECT_EQ(newest.Pending(averaged), 0u);
+  ASSERT_TRUE(newest.Refine(averaged));
+  EXPECT_EQ(newest.Stats().corrected_keyframes, 4u);
+}
+
+TEST(KeyframeRefiner, WithTheSweepBackTheOldestEdgesGoBeyondTheBudget) {
+  const ArcScene scene = MakeArcScene(10, 0.5, 33);
+  KeyframeRefinerOptions options;
+  KeyframeRefiner all(options);
+  all.Add(Edges(scene, "cam"));
+  const std::size_t bytes = all.Stats().bytes;
+  options.max_correspondence_mib = 0.5 * static_cast<double>(bytes) / (1024.0 * 1024.0);
+  KeyframeRefiner budget(options);
+  budget.Add(Edges(scene, "cam"));
+  const KeyframeRefinerStats stats = budget.Stats();
+  EXPECT_LE(static_cast<double>(stats.bytes), 0.9 * 0.5 * static_cast<double>(bytes));
+  EXPECT_LT(stats.edges_held, 45u);
+  // The edges among the oldest keyframes went first: the pair of the newest
+  // two is held, and a refinement of them adjusts both.
+  options.max_keyframes = 2;
+  KeyframeRefiner newest(options);
+  newest.Add(Edges(scene, "cam"));
+  const OnlineSolution averaged = Averaged(scene, "cam", 0.3, 34);
+  ASSERT_TRUE(newest.Refine(averaged)) << newest.Stats().last_report;
+  EXPECT_EQ(newest.Stats().corrected_keyframes, 2u);
+  OnlineSolution published = averaged;
+  newest.Apply(&published);
+  EXPECT_NE(published.orientations.at(Key("cam", 8)), averaged.orientations.at(Key("cam", 8)));
+  EXPECT_NE(published.orientations.at(Key("cam", 9)), averaged.orientations.at(Key("cam", 9)));
+  KeyframeRefinerOptions bad;
+  bad.max_correspondence_mib = 0.0;
+  std::string error;
+  EXPECT_FALSE(bad.Validate(&error));
+  EXPECT_NE(error.find("refinement_max_correspondence_mib"), std::string::npos) << error;
 }
 
 // The arc's oldest five keyframes where the truth has them (a well-held

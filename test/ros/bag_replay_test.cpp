@@ -227,6 +227,31 @@ TEST_F(BagReplay, RefinementsDuringTheBagLandAtTheSameBagTimesOnEveryRun) {
   EXPECT_EQ(runs[0], runs[1]);
 }
 
+// A map larger than the refinement's window: the final solution is refined
+// once (the newest keyframes), then swept back over the rest a window at a
+// time (refinement_sweep_back), so that every keyframe ends adjusted in it;
+// without the sweep back the older ones keep the averaging's orientations.
+TEST_F(BagReplay, TheFinalSolutionIsSweptBackOverTheKeyframesTheWindowHadNoRoomFor) {
+  for (const bool sweep : {true, false}) {
+    const auto [bag, config] = WriteRigBagAndConfig(std::string("solve_period: 2.0\nrefinement_max_keyframes: 12\n") +
+                                                    "refinement_sweep_back: " + (sweep ? "true" : "false") + "\n");
+    ASSERT_FALSE(HasFailure());
+    ReplayOptions o = Options(bag, sweep ? "sweep" : "newest");
+    o.config_path = config;
+    o.ground_truth_path = bag;
+    const ReplayResult result = ReplayBags(o);
+    ASSERT_TRUE(result.ok) << result.error;
+    EXPECT_EQ(result.keyframes, 32u);
+    // The bag is shorter than refinement_period_s: the final solution's
+    // refinements only, 12 keyframes (six captures) at a time.
+    EXPECT_EQ(result.refinement_stats.runs, sweep ? 3u : 1u) << result.Summary();
+    EXPECT_EQ(result.refinement_stats.applied, result.refinement_stats.runs) << result.Summary();
+    EXPECT_EQ(result.refinement_stats.corrected_keyframes, sweep ? 32u : 12u) << result.Summary();
+    ASSERT_TRUE(result.have_scores);
+    EXPECT_LT(result.scores.median_error_deg, 0.5);
+  }
+}
+
 // The rendered rig as a 20 Hz driver publishes it, replayed with tracks:
 // its keyframes' window pairs come from the tracks, the orientations are
 // accurate, and the keyframes, the graph and the orientations are the same

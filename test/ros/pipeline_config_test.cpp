@@ -80,7 +80,8 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
                     {"refinement_niceness", "5"}, {"image_transport_queue", "12"},
                     {"refinement_covariances", "false"}, {"refinement_jackknife_grid", "2"}, {"refinement_focal", "false"},
                     {"refinement_rig_joint_covariance", "true"}, {"refinement_hold_agreed_focal", "false"},
-                    {"refinement_hold_outside", "false"}},
+                    {"refinement_hold_outside", "false"}, {"refinement_sweep_back", "false"},
+                    {"refinement_max_correspondence_mib", "32"}},
                    &c, &warnings, &error))
       << error;
   EXPECT_TRUE(warnings.empty());
@@ -110,6 +111,8 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
   EXPECT_FALSE(c.refiner.estimate_focal);
   EXPECT_FALSE(c.refiner.hold_agreed_focal);
   EXPECT_FALSE(c.refiner.hold_outside);
+  EXPECT_FALSE(c.refiner.sweep_back);
+  EXPECT_EQ(c.refiner.max_correspondence_mib, 32.0);
   EXPECT_EQ(c.refiner.adjustment.covariance_cell_grid, 2);
   EXPECT_TRUE(c.refiner.rig_joint_covariance);
   EXPECT_EQ(c.image_transport_queue, 12u);
@@ -155,6 +158,7 @@ TEST(PipelineConfig, ValuesOutOfRangeAndUnknownChoicesAreRefusedByName) {
       {{{"refinement_max_iterations", "0"}}, "refinement_max_iterations must be at least 1"},
       {{{"refinement_max_correction_deg", "nan"}}, "refinement_max_correction_deg must be above 0"},
       {{{"refinement_niceness", "20"}}, "refinement_niceness must be in [0, 19]"},
+      {{{"refinement_max_correspondence_mib", "0"}}, "refinement_max_correspondence_mib must be above 0"},
       {{{"refinement_jackknife_grid", "17"}}, "refinement_jackknife_grid must be in [0, 16]"},
       {{{"image_transport_queue", "0"}}, "image_transport_queue must be at least 1"},
   };

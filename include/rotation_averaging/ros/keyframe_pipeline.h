@@ -184,8 +184,13 @@ class KeyframePipeline {
   // True if one ran or started.
   enum class RefineIn { kBackground, kStaged, kHere };
   bool HasRefiner() const { return refiner_ != nullptr; }
+  bool RefinerRunning() const { return refiner_ && refiner_->Running(); }
   bool MaybeRefine(const OnlineSolution& solution, double now_s, bool force, RefineIn where,
                    std::function<void(bool)> done = nullptr);
+  // The keyframes a refinement of `solution` would still adjust
+  // (KeyframeRefiner::Pending): the node, once its input is quiet, and the
+  // replay at the bag's end refine the final solution until none is left.
+  std::size_t RefinementPending(const OnlineSolution& solution) const;
   // Waits for a staged refinement and takes what it found.
   void CommitRefinement();
   void WaitForRefinement();
@@ -246,6 +251,8 @@ class KeyframePipeline {
   bool Validate(const std::string& frame, const ros::Time& stamp, const cv::Mat& grey,
                 const sensor_msgs::CameraInfo& info, bool rectified, PendingKeyframe* out, std::string* error);
   bool Reject(std::uint64_t* counter, const std::string& why, std::string* error);
+  // The rig captures of a camera solution, as the refiner takes them.
+  KeyframeRefiner::RigCaptures RefinerRig(const OnlineSolution& cameras) const;
   // Into the averager through the rig model (one variable per rig capture).
   bool AddMeasurement(const KeyframeRelativeRotation& m, std::string* error, bool* queue_full = nullptr);
 

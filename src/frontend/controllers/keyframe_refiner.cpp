@@ -71,6 +71,7 @@ bool KeyframeRefinerOptions::Validate(std::string* error) const {
   return OptionCheck()
       .AtLeast("refinement_max_keyframes", max_keyframes, 3)
       .Above("refinement_max_correction_deg", max_correction_deg, 0.0)
+      .Above("refinement_max_correspondence_mib", max_correspondence_mib, 0.0)
       .AtLeast("refinement min_correspondences", adjustment.min_correspondences, 5)
       .AtLeast("refinement_max_iterations", adjustment.max_iterations, 1)
       .Within("refinement_niceness", background_niceness, 0, 19)
@@ -104,6 +105,7 @@ void KeyframeRefiner::Add(std::vector<KeyframeCorrespondences> edges) {
     stats_.bytes += EdgeBytes(*held.points);
   }
   stats_.edges_held = edges_.size();
+  if (options_.sweep_back) LetGoBeyondBudget();
 }
 
 void KeyframeRefiner::ScaleCamera(const std::string& frame_id, double scale) {
@@ -135,25 +137,79 @@ void KeyframeRefiner::HoldFocal(const std::string& frame_id) {
   stats_.focal.erase(frame_id);
 }
 
-KeyframeRefiner::Input KeyframeRefiner::SelectWindow(const OnlineSolution& cameras) const {
+std::map<KeyframeKey, bool> KeyframeRefiner::Current(const OnlineSolution& cameras, const RigCaptures& rig,
+                                                     std::map<KeyframeKey, int>* edges) const {
+  for (const auto& [key, held] : edges_) {
+    ++(*edges)[held.keyframe1];
+    ++(*edges)[held.keyframe2];
+  }
+  std::map<KeyframeKey, bool> by_capture;
+  const auto capture = [&rig](const KeyframeKey& key) -> const KeyframeKey& {
+    const auto member = rig.find(key);
+    return member == rig.end() ? key : member->second.first;
+  };
+  for (const auto& [key, count] : *edges) {
+    if (cameras.orientations.count(key) == 0) continue;
+    const auto then = tried_.find(key);
+    const bool current = then != tried_.end() && then->second.sequence == cameras.sequence && count <= then->second.edges;
+    auto [it, added] = by_capture.emplace(capture(key), current);
+    it->second = it->second && current;
+  }
+  std::map<KeyframeKey, bool> out;
+  for (const auto& [key, count] : *edges) {
+    if (cameras.orientations.count(key)) out.emplace(key, by_capture.at(capture(key)));
+  }
+  return out;
+}
+
+std::size_t KeyframeRefiner::Pending(const OnlineSolution& cameras, const RigCaptures& rig) const {
+  if (!options_.sweep_back) return 0;
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::map<KeyframeKey, int> edges;
+  std::size_t pending = 0;
+  for (const auto& [key, current] : Current(cameras, rig, &edges)) pending += !current;
+  return pending;
+}
+
+KeyframeRefiner::Input KeyframeRefiner::SelectWindow(const OnlineSolution& cameras, const RigCaptures& rig) const {
   std::lock_guard<std::mutex> lock(mutex_);
   Input input;
+  const std::size_t window = std::min(cameras.orientations.size(), static_cast<std::size_t>(options_.max_keyframes));
+  std::map<KeyframeKey, bool> current;
+  if (options_.sweep_back) current = Current(cameras, rig, &input.edges);
+  // The first refinement of a solution adjusts its newest keyframes, as the
+  // front end adds them. Refined again (the input gone quiet, the end of a
+  // bag), it sweeps back over those the earlier windows had no room for, a
+  // window at a time, newest first: a window of the keyframes the averaging
+  // had moved furthest since their last correction, scattered along the
+  // map, came out less accurate than the averaging alone on a 600-keyframe
+  // bag (docs/decisions.md, "The sweep back").
+  const bool again = std::any_of(current.begin(), current.end(), [](const auto& c) { return c.second; }) &&
+                     std::any_of(current.begin(), current.end(), [](const auto& c) { return !c.second; });
   std::vector<KeyframeKey> newest;
   newest.reserve(cameras.orientations.size());
-  for (const auto& [key, r] : cameras.orientations) newest.push_back(key);
-  const std::size_t window = std::min(newest.size(), static_cast<std::size_t>(options_.max_keyframes));
-  std::partial_sort(newest.begin(), newest.begin() + window, newest.end(), Newer);
-  newest.resize(window);
-  if (window > 0 && window < cameras.orientations.size()) input.oldest_kept = newest.back();
+  if (!again) {
+    for (const auto& [key, r] : cameras.orientations) newest.push_back(key);
+  } else {
+    for (const auto& [key, c] : current) {
+      if (!c) newest.push_back(key);
+    }
+  }
+  const std::size_t taken = std::min(window, newest.size());
+  std::partial_sort(newest.begin(), newest.begin() + taken, newest.end(), Newer);
+  newest.resize(taken);
+  if (!again && taken > 0 && taken < cameras.orientations.size()) input.oldest_kept = newest.back();
+  const std::set<KeyframeKey> chosen(newest.begin(), newest.end());
+  for (const KeyframeKey& key : newest) {
+    if (input.edges.count(key)) input.window.push_back(key);
+  }
   std::map<KeyframeKey, ViewId> ids;
-  const auto in_window = [&](const KeyframeKey& k) {
-    return std::binary_search(newest.begin(), newest.end(), k, Newer);
-  };
+  const auto in_window = [&](const KeyframeKey& k) { return chosen.count(k) > 0; };
   for (const auto& [key, held] : edges_) {
     const bool first = in_window(held.keyframe1), second = in_window(held.keyframe2);
     if (!first && !second) continue;
     if (!(first && second)) {
-      // An edge from the window to an older keyframe (the pairs of the
+      // An edge from the window to a keyframe outside it (the pairs of the
       // window's oldest keyframes, loop closures to places seen before it):
       // that keyframe joins the adjustment with its orientation held as the
       // averaging has it, so that the window's older end and its loops stay
@@ -180,10 +236,21 @@ KeyframeRefiner::Input KeyframeRefiner::SelectWindow(const OnlineSolution& camer
   input.focal_held = focal_held_;
   if (options_.hold_agreed_focal) input.focal_held.insert(focal_agreed_.begin(), focal_agreed_.end());
   for (std::size_t v = 0; v < input.keys.size(); ++v) {
-    // (A keyframe older than the window is held as the averaging has it:
+    // (A keyframe outside the window is held as the averaging has it:
     // SelectWindow's comment.)
-    if (input.held.count(static_cast<ViewId>(v))) continue;
     const auto correction = corrections_.find(input.keys[v]);
+    if (input.held.count(static_cast<ViewId>(v))) {
+      // Sweeping back, the keyframes a window adjusted in this solution are
+      // held as published: the newer end of the sweep's window is where
+      // they put it (on the four-camera 20 Hz stream, held as the averaging
+      // has them: 0.0027 deg against 0.0023; docs/decisions.md, "The sweep
+      // back").
+      const auto c = current.find(input.keys[v]);
+      if (again && c != current.end() && c->second && correction != corrections_.end()) {
+        input.start_corrections.emplace(static_cast<ViewId>(v), correction->second);
+      }
+      continue;
+    }
     if (correction != corrections_.end()) input.start_corrections.emplace(static_cast<ViewId>(v), correction->second);
     const auto centre = centres_.find(input.keys[v]);
     if (centre != centres_.end()) input.start_centres.emplace(static_cast<ViewId>(v), centre->second);
@@ -200,7 +267,7 @@ void KeyframeRefiner::ScaleEstimate(double factor, BundleAdjustmentFocal::Estima
 
 bool KeyframeRefiner::Refine(const OnlineSolution& cameras, const RigCaptures& rig) {
   std::lock_guard<std::mutex> run(run_mutex_);  // after a background one
-  return Run(cameras, rig, SelectWindow(cameras), false);
+  return Run(cameras, rig, SelectWindow(cameras, rig), false);
 }
 
 bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig, const Input& input, bool staged) {
@@ -374,6 +441,10 @@ bool KeyframeRefiner::Run(const OnlineSolution& cameras, const RigCaptures& rig,
   found.ok = ok;
   found.report = std::move(report);
   for (const auto& [id, c] : corrections) found.corrections.emplace(keys[id], c);
+  // Every keyframe chosen, also one whose edges all lead to keyframes the
+  // solution has not placed: another refinement of this solution would
+  // find it the same.
+  for (const KeyframeKey& key : input.window) found.tried.emplace(key, Tried{cameras.sequence, input.edges.at(key)});
   if (ok) {
     for (const auto& [id, c] : centres) found.centres.emplace(keys[id], c);
   }
@@ -466,6 +537,9 @@ bool KeyframeRefiner::Take(const Outcome& found) {
     }
     stats_.focal_refinement = stats_.runs;
   }
+  // A refinement that changed nothing has tried its keyframes all the
+  // same: the same solution would fail the same way.
+  for (const auto& [key, t] : found.tried) tried_[key] = t;
   if (!found.ok) {
     ++stats_.failed;
     return false;
@@ -482,7 +556,7 @@ bool KeyframeRefiner::Take(const Outcome& found) {
   stats_.held_back = found.held_back;
   // Edges both of whose keyframes are older than the window will not be
   // refined again: let them go.
-  if (found.oldest_kept) {
+  if (!options_.sweep_back && found.oldest_kept) {
     const KeyframeKey& oldest_kept = *found.oldest_kept;
     for (auto it = edges_.begin(); it != edges_.end();) {
       if (Newer(oldest_kept, it->second.keyframe1) && Newer(oldest_kept, it->second.keyframe2)) {
@@ -497,11 +571,35 @@ bool KeyframeRefiner::Take(const Outcome& found) {
   return true;
 }
 
+void KeyframeRefiner::LetGoBeyondBudget() {
+  const double budget = options_.max_correspondence_mib * 1024.0 * 1024.0;
+  if (static_cast<double>(stats_.bytes) <= budget) return;
+  // Oldest first by the newer of the two keyframes: an edge goes when
+  // neither of its keyframes is younger than those of the edges kept.
+  std::vector<std::pair<KeyframeKey, std::pair<KeyframeKey, KeyframeKey>>> by_age;
+  by_age.reserve(edges_.size());
+  for (const auto& [key, held] : edges_) {
+    by_age.emplace_back(Newer(held.keyframe1, held.keyframe2) ? held.keyframe1 : held.keyframe2, key);
+  }
+  std::sort(by_age.begin(), by_age.end(), [](const auto& a, const auto& b) {
+    if (a.first == b.first) return a.second < b.second;
+    return Newer(b.first, a.first);
+  });
+  // A tenth below the budget, so that the next edges do not sort them all again.
+  for (const auto& [newer, key] : by_age) {
+    if (static_cast<double>(stats_.bytes) <= 0.9 * budget) break;
+    const auto it = edges_.find(key);
+    stats_.bytes -= EdgeBytes(*it->second.points);
+    edges_.erase(it);
+  }
+  stats_.edges_held = edges_.size();
+}
+
 bool KeyframeRefiner::RefineInBackground(std::shared_ptr<const OnlineSolution> cameras, RigCaptures rig,
                                          std::function<void(bool)> done, bool staged) {
   if (running_.exchange(true)) return false;
   if (background_.valid()) background_.get();  // finished: running_ was false
-  Input input = SelectWindow(*cameras);
+  Input input = SelectWindow(*cameras, rig);
   background_ = std::async(std::launch::async, [this, cameras = std::move(cameras), rig = std::move(rig),
                                                 input = std::move(input), done = std::move(done), staged] {
     LowerThisThreadsPriority(options_.background_niceness);
@@ -535,6 +633,7 @@ void KeyframeRefiner::Reset() {
   std::lock_guard<std::mutex> lock(mutex_);
   edges_.clear();
   corrections_.clear();
+  tried_.clear();
   covariances_.clear();
   centres_.clear();
   focal_agreed_.clear();

@@ -27,7 +27,10 @@
 // keyframe's own error, in its camera's frame, which the averaging's later
 // changes (a loop closure moving a whole stretch) do not undo. Keyframes
 // newer than the last refinement are published as the averaging has them;
-// those that left the window keep their last correction.
+// those that left the window keep their last correction, fitted against
+// the averaging of its day, until a refinement of a solution already
+// refined (the input gone quiet, the end of a bag) sweeps back over them
+// (sweep_back).
 //
 // A window shorter than the map (a long run) is an open arc, its loop
 // closures to the places seen before it outside it: adjusted alone it bends
@@ -139,21 +142,39 @@ struct KeyframeRefinerOptions {
   // times the angle the window turns through. On the rendered rig, whose
   // camera_info is exact, the free adjustments put it at x0.9999-1.0003;
   // held once it agrees, the median error of the four-camera stream went
-  // 0.0029 -> 0.0026 deg and of a 600-keyframe bag 0.0061 -> 0.0052 deg,
-  // the others within 0.0001 deg (results/refinement.md, "A focal length
-  // that agrees").
+  // 0.0022 -> 0.0020 deg, the others within 0.0001 deg (results/
+  // refinement.md, "A focal length that agrees").
   bool hold_agreed_focal = true;
   // The older keyframes the window's edges reach (the pairs of its first
   // keyframes, its loop closures) take part in each refinement, held as the
   // averaging has them (see above); false: the window alone, turned to the
   // averaging's frame by G. On a 600-keyframe bag (two cameras, every image
-  // a keyframe, a window of 200) the median error went 0.0085 -> 0.0052 deg
-  // (the averaging alone: 0.0055) and its covariances' NEES median 3.94 ->
-  // 3.71 with 60% -> 87% of the keyframes within the bound, on the
-  // four-camera 20 Hz stream (316 keyframes) 0.0032 -> 0.0026 deg; runs
+  // a keyframe, a window of 200) the median error went 0.0065 -> 0.0036 deg
+  // (the averaging alone: 0.0055), on the four-camera 20 Hz stream (316
+  // keyframes) 0.0031 -> 0.0020 deg, both swept back (sweep_back); runs
   // within one window are unchanged (results/refinement.md, "The keyframes
-  // before the window").
+  // before the window, and the sweep back").
   bool hold_outside = true;
+  // A refinement of a solution that an earlier one has already refined
+  // (the input gone quiet, the end of a bag: KeyframeRefiner::Pending)
+  // sweeps back over the keyframes the earlier windows had no room for, a
+  // window of the newest of them at a time, the keyframes adjusted in this
+  // solution held as published; false: it adjusts the newest again. While
+  // the input flows each window's corrections are fitted against the
+  // averaging of its day, before the loops that close later: a keyframe
+  // that leaves the window keeps that day's error plus the averaging's
+  // move since. On the 600-keyframe bag the median error went 0.0052 ->
+  // 0.0036 deg, on the four-camera 20 Hz stream 0.0026 -> 0.0020 deg,
+  // maps within one window unchanged (results/refinement.md, "The keyframes
+  // before the window, and the sweep back"). Its edges are held for it
+  // (max_correspondence_mib).
+  bool sweep_back = true;
+  // With sweep_back, the correspondences held (KeyframeRefinerStats::bytes)
+  // are let go beyond this many MiB, the edges whose newer keyframe is the
+  // oldest first: the keyframes they leave without edges keep their last
+  // correction. Without it the edges of keyframes older than the window go
+  // after each refinement.
+  double max_correspondence_mib = 128.0;
   double focal_min_correction = 0.005;  // FocalCalibrationOptions::min_correction (the node passes its own)
   // The bundle adjustment's options; the refinement's own defaults in the
   // constructor.
@@ -235,6 +256,12 @@ class KeyframeRefiner {
   bool RefineInBackground(std::shared_ptr<const OnlineSolution> cameras, RigCaptures rig,
                           std::function<void(bool)> done, bool staged = false);
   bool Running() const { return running_; }
+  // With sweep_back: the keyframes with edges that no window has adjusted
+  // in this averaging solution with the edges they have now, which a
+  // refinement of it would sweep back over (the node refines the solution
+  // it publishes, once its input is quiet, until none is left; 0 without
+  // sweep_back).
+  std::size_t Pending(const OnlineSolution& cameras, const RigCaptures& rig = {}) const;
   // Waits for a background refinement under way; from the thread that
   // starts them.
   void Wait();
@@ -297,14 +324,33 @@ class KeyframeRefiner {
     // start_centres); by view id.
     std::map<ViewId, Eigen::Matrix3d> start_corrections;
     std::unordered_map<ViewId, Eigen::Vector3d> start_centres;
-    std::set<ViewId> held;  // keyframes older than the window that its edges reach (hold_outside)
+    std::set<ViewId> held;  // keyframes outside the window that its edges reach (hold_outside)
+    std::map<KeyframeKey, int> edges;  // sweep_back: the edges each keyframe has
+    std::vector<KeyframeKey> window;   // sweep_back: the keyframes chosen
   };
-  // The edges among the newest max_keyframes keyframes of `cameras`, and
+  // The edges among the max_keyframes keyframes of `cameras` the window
+  // takes (the newest, or with sweep_back the newest of those Pending), and
   // what else the refinement needs of this one's state (takes mutex_).
-  Input SelectWindow(const OnlineSolution& cameras) const;
+  Input SelectWindow(const OnlineSolution& cameras, const RigCaptures& rig) const;
+  // Under mutex_ (sweep_back): lets go of the edges whose newer keyframe
+  // is the oldest until the bytes held are within max_correspondence_mib.
+  void LetGoBeyondBudget();
   static std::size_t EdgeBytes(const EdgeCorrespondences& e);
   // A focal estimate relative to a focal length `factor` times shorter.
   static void ScaleEstimate(double factor, BundleAdjustmentFocal::Estimate* e);
+  // What a keyframe's latest window adjusted it in (sweep_back): the
+  // averaging solution's sequence and the edges the keyframe had.
+  struct Tried {
+    std::uint64_t sequence = 0;
+    int edges = 0;
+  };
+  // The keyframes with edges in `cameras`, each true if a window has
+  // adjusted it in this solution with the edges it has now (under mutex_).
+  // A rig capture's cameras are one variable of the averaging and get one
+  // correction: the capture is current when all of them are. `edges`: each
+  // keyframe's count.
+  std::map<KeyframeKey, bool> Current(const OnlineSolution& cameras, const RigCaptures& rig,
+                                      std::map<KeyframeKey, int>* edges) const;
   // What one refinement found, before it is taken.
   struct Outcome {
     double seconds = 0.0;
@@ -312,6 +358,7 @@ class KeyframeRefiner {
     bool ok = false;
     std::string report;
     std::map<KeyframeKey, Eigen::Matrix3d> corrections;
+    std::map<KeyframeKey, Tried> tried;  // sweep_back: the window's keyframes
     double median_deg = 0.0, largest_deg = 0.0;  // of the corrections
     std::size_t held_back = 0;
     std::optional<KeyframeKey> oldest_kept;  // the window's oldest, when keyframes are older
@@ -340,6 +387,7 @@ class KeyframeRefiner {
   mutable std::mutex mutex_;  // edges_, corrections_, stats_
   std::map<std::pair<KeyframeKey, KeyframeKey>, HeldEdge> edges_;
   std::map<KeyframeKey, Eigen::Matrix3d> corrections_;
+  std::map<KeyframeKey, Tried> tried_;  // sweep_back
   std::map<KeyframeKey, RelativeCovariance> covariances_;
   std::map<KeyframeKey, Eigen::Vector3d> centres_;  // the last refinement taken's
   std::map<std::string, double> camera_scales_;  // the product of ScaleCamera's, by camera
