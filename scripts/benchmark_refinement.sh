@@ -74,7 +74,12 @@ replay_with "long_free_focal" "$LONG" "${demo[@]}" "refinement_hold_agreed_focal
 # (the default); each keyframe's error, for the errors along the bag.
 replay_with "four_cameras_window_alone" "$FOUR" "${four[@]}" "refinement_hold_outside: false"
 replay_with "long_window_alone" "$LONG" "${demo[@]}" "refinement_hold_outside: false"
-for run in four_cameras_false four_cameras_true four_cameras_window_alone long_false long_true long_window_alone; do
+# The sweep back: the final solution refined again over the keyframes the
+# windows had no room for (the default) against the newest window alone.
+replay_with "four_cameras_no_sweep" "$FOUR" "${four[@]}" "refinement_sweep_back: false"
+replay_with "long_no_sweep" "$LONG" "${demo[@]}" "refinement_sweep_back: false"
+for run in four_cameras_false four_cameras_true four_cameras_window_alone four_cameras_no_sweep \
+  long_false long_true long_window_alone long_no_sweep; do
   "$BIN/rotavg" eval --estimate "$OUT/$run/orientations.csv" --gt "$OUT/$run/ground_truth.csv" --per-view \
     > "$OUT/$run/per_view.txt"
 done

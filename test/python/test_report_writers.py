@@ -280,8 +280,10 @@ def test_the_window_section_holds_each_runs_figures_and_its_errors_along_the_bag
     (tmp_path / "long_false.txt").write_text(summary(600, 0.0055, extra=[nees % ("5.43", "72.2")]))
     (tmp_path / "long_window_alone.txt").write_text(
         summary(600, 0.0085, extra=[nees % ("3.94", "60.0"), latest % (200, "")]))
-    (tmp_path / "long_true.txt").write_text(
+    (tmp_path / "long_no_sweep.txt").write_text(
         summary(600, 0.0052, extra=[nees % ("3.71", "86.6"), latest % (215, " (15 held)")]))
+    (tmp_path / "long_true.txt").write_text(
+        summary(600, 0.0036, extra=[nees % ("1.28", "97.5"), latest % (226, " (26 held)")]))
     # Per-view errors of the held run only, out of stamp order: twelve keyframes, two per sixth.
     os.makedirs(tmp_path / "long_true")
     views = ["view cam@%d %.4f" % (stamp, error) for stamp, error in
@@ -293,13 +295,16 @@ def test_the_window_section_holds_each_runs_figures_and_its_errors_along_the_bag
     label = "| 600 keyframes (two cameras, 300 captures, every image a keyframe) |"
     rows = [[c.strip() for c in line.strip("|").split("|")] for line in text.splitlines()
             if line.startswith(label)]
-    table = [r for r in rows if len(r) == 7]
-    assert [r[1:] for r in table] == [["refinement off", "600", "0.0055", "5.43", "72.2", "-"],
-                                      ["window alone", "600", "0.0085", "3.94", "60.0", "0"],
-                                      ["older keyframes held", "600", "0.0052", "3.71", "86.6", "15"]]
+    table = [r for r in rows if len(r) == 9]
+    assert [r[1:7] for r in table] == [["refinement off", "600", "0.0055", "5.43", "72.2", "-"],
+                                       ["window alone, swept back", "600", "0.0085", "3.94", "60.0", "0"],
+                                       ["older keyframes held, no sweep back", "600", "0.0052", "3.71", "86.6", "15"],
+                                       ["older keyframes held, swept back (the defaults)", "600", "0.0036", "1.28",
+                                        "97.5", "26"]]
     # Along the bag: only the run with its per-view errors, each sixth's median in stamp order.
     along = [r for r in rows if len(r) == 8]
-    assert along == [["600 keyframes (two cameras, 300 captures, every image a keyframe)", "older keyframes held",
+    assert along == [["600 keyframes (two cameras, 300 captures, every image a keyframe)",
+                      "older keyframes held, swept back (the defaults)",
                       "0.0011", "0.0021", "0.0031", "0.0041", "0.0051", "0.0059"]]
     # Without the window-alone run, no section.
     os.remove(tmp_path / "long_window_alone.txt")
