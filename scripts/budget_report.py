@@ -80,8 +80,9 @@ matching and estimation on the thread that ran it. Medians and 95th percentiles 
 The replay runs the node's pipeline as fast as the CPU allows: speed-up = bag duration / wall time. With
 the defaults the background refinement (`refinement: true`) bundle adjusts the newest keyframes on a
 thread of its own, by bag time, the replay taking each refinement when the next is due and refining its
-final solution once more: its time is in the speed-up, and each bag is also replayed with `refinement:
-false` (the front end and the averaging alone). The per-image, per-keyframe and per-pair times are those of
+final solution once more (and, where the keyframes outnumber the window, sweeping back over the rest:
+`refinement_sweep_back`, which the node does once its input is quiet): its time is in the speed-up, and each
+bag is also replayed with `refinement: false` (the front end and the averaging alone). The per-image, per-keyframe and per-pair times are those of
 the run with the defaults.
 
 ## Against the camera count
