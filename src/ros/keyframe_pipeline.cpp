@@ -417,7 +417,7 @@ KeyframeRefiner::RigCaptures KeyframePipeline::RefinerRig(const OnlineSolution& 
 }
 
 std::size_t KeyframePipeline::RefinementPending(const OnlineSolution& solution) const {
-  if (!refiner_ || solution.orientations.empty()) return 0;
+  if (!refiner_ || !config_.refiner.sweep_back || solution.orientations.empty()) return 0;
   const OnlineSolution cameras = CameraSolution(solution, false);
   return refiner_->Pending(cameras, RefinerRig(cameras));
 }

@@ -140,8 +140,8 @@ void RotationAveragingNode::SetUpServices(ros::NodeHandle& nh, ros::NodeHandle& 
     refine_timer_ = pnh.createWallTimer(ros::WallDuration(1.0), [this](const ros::WallTimerEvent&) {
       const std::shared_ptr<const OnlineSolution> latest = averager_->Solution();
       if (!latest || pipeline_->RefinerRunning()) return;
-      if (latest->sequence == refined_sequence_ && pipeline_->RefinementPending(*latest) == 0) return;
       if (ros::WallTime::now().toSec() - last_solution_wall_s_ < kRefineWhenQuietS) return;
+      if (latest->sequence == refined_sequence_ && pipeline_->RefinementPending(*latest) == 0) return;
       Refine(*latest, true);
     });
   }

@@ -151,7 +151,8 @@ std::map<KeyframeKey, bool> KeyframeRefiner::Current(const OnlineSolution& camer
   for (const auto& [key, count] : *edges) {
     if (cameras.orientations.count(key) == 0) continue;
     const auto then = tried_.find(key);
-    const bool current = then != tried_.end() && then->second.sequence == cameras.sequence && count <= then->second.edges;
+    const bool current =
+        then != tried_.end() && then->second.sequence == cameras.sequence && count <= then->second.edges;
     auto [it, added] = by_capture.emplace(capture(key), current);
     it->second = it->second && current;
   }
@@ -199,12 +200,13 @@ KeyframeRefiner::Input KeyframeRefiner::SelectWindow(const OnlineSolution& camer
   std::partial_sort(newest.begin(), newest.begin() + taken, newest.end(), Newer);
   newest.resize(taken);
   if (!again && taken > 0 && taken < cameras.orientations.size()) input.oldest_kept = newest.back();
-  const std::set<KeyframeKey> chosen(newest.begin(), newest.end());
   for (const KeyframeKey& key : newest) {
     if (input.edges.count(key)) input.window.push_back(key);
   }
   std::map<KeyframeKey, ViewId> ids;
-  const auto in_window = [&](const KeyframeKey& k) { return chosen.count(k) > 0; };
+  const auto in_window = [&](const KeyframeKey& k) {
+    return std::binary_search(newest.begin(), newest.end(), k, Newer);
+  };
   for (const auto& [key, held] : edges_) {
     const bool first = in_window(held.keyframe1), second = in_window(held.keyframe2);
     if (!first && !second) continue;
