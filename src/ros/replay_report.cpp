@@ -12,6 +12,7 @@
 
 #include "rotation_averaging/frontend/controllers/focal_corrector.h"
 #include "rotation_averaging/frontend/eval/error_plot.h"
+#include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/core/io/orientation_io.h"
 
 namespace rotation_averaging {
@@ -137,6 +138,22 @@ bool ScoreAgainstGroundTruth(const NamedOrientations& named, const NamedOrientat
   }
   result->ground_truth_csv = output_dir + "/ground_truth.csv";
   if (!WriteOrientationsCsv(result->ground_truth_csv, ground_truth, error)) return false;
+  if (!result->posterior.nees.empty()) {
+    // Which keyframes' covariances tell the truth and which do not, for a
+    // user fusing them (and for the covariances' own benchmarks).
+    result->posterior_csv = output_dir + "/posterior.csv";
+    std::ofstream csv(result->posterior_csv);
+    csv << "name,gauge,error_deg,sigma_deg,nees\n" << std::setprecision(6);
+    const PosteriorCalibration& p = result->posterior;
+    for (const auto& [name, nees] : p.nees) {
+      csv << name << ',' << p.gauges.at(name) << ',' << RadToDeg(p.errors.at(name).norm()) << ','
+          << RadToDeg(p.sigmas.at(name)) << ',' << nees << '\n';
+    }
+    if (!csv) {
+      *error = "cannot write " + result->posterior_csv;
+      return false;
+    }
+  }
   std::map<std::string, ErrorSeries> series;
   std::int64_t first_stamp = std::numeric_limits<std::int64_t>::max();
   for (const auto& [key, r] : solution.orientations) first_stamp = std::min(first_stamp, key.stamp_ns);
@@ -332,6 +349,7 @@ std::string ReplayResult::Summary() const {
   out << "outputs:\n  " << orientations_csv << "\n  " << graph_file << "\n  " << output_bag;
   if (!scores_file.empty()) out << "\n  " << scores_file;
   if (!ground_truth_csv.empty()) out << "\n  " << ground_truth_csv;
+  if (!posterior_csv.empty()) out << "\n  " << posterior_csv;
   if (!plot_png.empty()) out << "\n  " << plot_png;
   if (!frontend_cost_csv.empty()) out << "\n  " << frontend_cost_csv;
   if (!frontend_cost_png.empty()) out << "\n  " << frontend_cost_png;

@@ -22,6 +22,7 @@
 #include <random>
 #include <set>
 #include <sstream>
+#include <vector>
 
 #include "rotation_averaging/RelativePose.h"
 #include <opencv2/imgcodecs.hpp>
@@ -152,6 +153,31 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
     const EvaluationResult rescored = EvaluateOrientations(estimate, written_truth);
     EXPECT_EQ(rescored.views_common, 32u);
     EXPECT_NEAR(rescored.median_error_deg, first.scores.median_error_deg, 1e-9);
+  }
+  // Each scored keyframe's posterior, one row each: its NEES is its error
+  // whitened by a covariance whose trace is 3 sigma^2, so at least
+  // (error / sigma)^2 / 3 (d^T C^-1 d >= |d|^2 / trace C).
+  {
+    const std::string csv = ReadAll(first.posterior_csv);
+    EXPECT_EQ(csv.rfind("name,gauge,error_deg,sigma_deg,nees\n", 0), 0u) << csv.substr(0, 80);
+    std::istringstream rows(csv);
+    std::string row;
+    std::getline(rows, row);
+    std::size_t count = 0;
+    while (std::getline(rows, row)) {
+      std::vector<std::string> f;
+      std::istringstream fields(row);
+      for (std::string x; std::getline(fields, x, ',');) f.push_back(x);
+      ASSERT_EQ(f.size(), 5u) << row;
+      EXPECT_EQ(first.posterior.nees.count(f[0]), 1u) << row;
+      const double error = std::stod(f[2]), sigma = std::stod(f[3]), nees = std::stod(f[4]);
+      EXPECT_GT(sigma, 0.0) << row;
+      EXPECT_NEAR(nees, first.posterior.nees.at(f[0]), 1e-5 * (1.0 + nees)) << row;
+      EXPECT_GE(nees * (1.0 + 1e-3), (error / sigma) * (error / sigma) / 3.0) << row;
+      ++count;
+    }
+    EXPECT_EQ(count, first.posterior.views_scored);
+    EXPECT_GT(count, 0u);
   }
   // The background refinement (on by default): the bag is shorter than
   // refinement_period_s, so only the final solution is refined, the cameras

@@ -99,6 +99,10 @@ struct ReplayResult {
   // (those of orientations.csv and graph.txt): what `rotavg solve graph.txt
   // --gt` and `rotavg eval --gt` score a re-solve of the graph against.
   std::string ground_truth_csv;
+  // Each scored keyframe's posterior: its error against the truth relative
+  // to its gauge, its covariance's standard deviation and its NEES
+  // (PosteriorCalibration); empty when none is scored.
+  std::string posterior_csv;
   // The map the replay started from (load_graph) and the one it saved at
   // the end (save_on_shutdown), as KeyframePipeline::LoadMap and SaveMap
   // described them; empty when not asked for.

@@ -384,6 +384,9 @@ PosteriorCalibration EvaluatePosteriorCovariances(const NamedOrientations& estim
       const Eigen::Vector3d d = LogSO3(estimate.at(names[k]) * align * truth->second.transpose());
       const double nees = d.dot(ldlt.solve(d));
       out.nees[names[k]] = nees;
+      out.errors[names[k]] = d;
+      out.sigmas[names[k]] = std::sqrt(c.trace() / 3.0);
+      out.gauges[names[k]] = gauge;
       values.push_back(nees);
     }
   }
