@@ -57,8 +57,9 @@ def main():
 perturbation of the world-to-camera rotation, relative to its component's gauge keyframe). Each replay here
 scores its last solution's covariances against a reference: the keyframe's error relative to the gauge,
 d = Log(R_k R_g^T R_g,ref R_k,ref^T), whitened by its covariance, NEES = d^T C^-1 d
-(`EvaluatePosteriorCovariances`; the gauge and the other cameras of its rig capture are held, not scored).
-Honest covariances give chi-square with 3 degrees of freedom: median 2.37, mean 3, 95% of keyframes within
+(`EvaluatePosteriorCovariances`; the gauge and the other cameras of its rig capture are held, not scored;
+every replay writes each keyframe's error, standard deviation and NEES to `posterior.csv` in its output
+directory). Honest covariances give chi-square with 3 degrees of freedom: median 2.37, mean 3, 95% of keyframes within
 7.81. The target is a NEES median within 1.5-6 and at least 85% within the bound on every input. The
 EuRoC excerpt in ../shared/data has no ground truth and is not scored.
 
@@ -126,8 +127,9 @@ but the last two.
 
 With the rig's extrinsics known, the refinement turns each capture's cameras together, every camera's tracks
 holding the capture. The refined keyframes' covariances by default come from each camera's own tracks at that
-solution, a capture's cameras getting the mean of theirs (`refinement_rig_joint_covariance: false`); here also
-those of the joint problem the rig makes (`true`). The four-camera rig: the demo renderer's rig as a 20 Hz driver
+solution, relative to its own camera's view of the reference capture, a capture's cameras getting that of the
+camera its tracks hold best (`refinement_rig_joint_covariance: false`); here also those of the joint problem the
+rig makes (`true`). The four-camera rig: the demo renderer's rig as a 20 Hz driver
 publishes it (`--captures 600 --period 0.05 --cameras 4`), `keyframe_selection: motion`. NEES median / % within
 the bound; the orientations are the same in both columns.
 """)

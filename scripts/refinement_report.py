@@ -184,8 +184,9 @@ sixths, whose last windows ended long before the loop closed) is more than twice
 sweep; the newest sixth, which the final window adjusts either way, is the same. The sweep costs the replay time
 at the end of the bag: one refinement more on the four-camera stream, two on the 600-keyframe bag (the node
 sweeps only once its input is quiet). The swept keyframes' covariances are wider than their errors (NEES median
-below 1.5 on both bags), each relative to a reference keyframe of its window; why the held keyframes, which turn
-in the covariance, leave them that wide is not measured yet.""")
+below 1.5 on both bags): each is relative to the keyframe the averaging holds best inside its window, plus that
+keyframe's covariance in the averaging: an open arc through the window, where the adjustment closes it on the
+keyframes held at both its ends (docs/decisions.md, "A rig capture's covariance", with what was tried).""")
 
 
 def main():

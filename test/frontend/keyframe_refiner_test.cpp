@@ -276,6 +276,71 @@ TEST(KeyframeRefiner, TheCamerasOfARigCaptureShareOneCorrection) {
   EXPECT_EQ(refiner.Stats().corrected_keyframes, 16u);
 }
 
+TEST(KeyframeRefiner, ARigCaptureGetsTheCovarianceOfTheCameraItsTracksHoldBest) {
+  // A rig of two cameras on one arc, no track between them; the side
+  // camera sees an eighth of the points. With each camera's own
+  // covariance, a capture is held at least as well as by the front
+  // camera's tracks alone: it gets the front camera's covariance, relative
+  // to the front camera's view of the reference capture (the side camera's
+  // covariances relative to its own). The mean of the two would be more
+  // than half the side camera's.
+  const ArcScene scene = MakeArcScene(8, 0.5, 11);
+  const Eigen::Matrix3d e = ExpSO3(Eigen::Vector3d(0.0, DegToRad(10.0), 0.0));
+  std::vector<KeyframeCorrespondences> sparse = Edges(scene, "side", e);
+  for (KeyframeCorrespondences& k : sparse) {
+    EdgeCorrespondences kept = k.points;
+    kept.points1.clear();
+    kept.points2.clear();
+    const ViewId view1 = static_cast<ViewId>(k.keyframe1.stamp_ns / 1000000000LL - 1);
+    for (std::size_t i = 0; i < k.points.points1.size(); ++i) {
+      // Of every eighth point of the scene, as each view sees it: the
+      // tracks stay whole.
+      for (std::size_t p = 0; p < scene.points.size(); p += 8) {
+        if ((e * scene.keypoints[view1][p].homogeneous()).hnormalized().isApprox(k.points.points1[i], 1e-12)) {
+          kept.points1.push_back(k.points.points1[i]);
+          kept.points2.push_back(k.points.points2[i]);
+        }
+      }
+    }
+    k.points = std::move(kept);
+  }
+  ASSERT_GE(sparse.front().points.points1.size(), 30u);
+  OnlineSolution averaged = Averaged(scene, "front", 0.3, 12);
+  const OnlineSolution side = Averaged(scene, "side", 0.3, 13, e);
+  averaged.orientations.insert(side.orientations.begin(), side.orientations.end());
+  WithCovariances(&averaged, "front", 8, 0.3);
+  WithCovariances(&averaged, "side", 8, 0.3);
+  KeyframeRefiner::RigCaptures rig;
+  for (int v = 0; v < 8; ++v) {
+    const KeyframeKey capture{"rig", Key("front", v).stamp_ns};
+    rig[Key("front", v)] = {capture, Eigen::Matrix3d::Identity()};
+    rig[Key("side", v)] = {capture, e};
+  }
+  KeyframeRefinerOptions options;
+  options.estimate_focal = false;  // (an arc: with the focal length free, its uncertainty is in every orientation's)
+  options.rig_joint_covariance = false;
+  const auto published = [&](const std::vector<std::vector<KeyframeCorrespondences>>& cameras,
+                             const KeyframeRefiner::RigCaptures& given) {
+    KeyframeRefiner refiner{options};
+    for (const auto& edges : cameras) refiner.Add(edges);
+    EXPECT_TRUE(refiner.Refine(averaged, given)) << refiner.Stats().last_report;
+    OnlineSolution out = averaged;
+    refiner.Apply(&out);
+    return out;
+  };
+  const OnlineSolution both = published({Edges(scene, "front"), sparse}, rig);
+  const OnlineSolution front_alone = published({Edges(scene, "front")}, {});
+  const OnlineSolution side_alone = published({sparse}, {});
+  for (int v = 1; v < 8; ++v) {
+    const Eigen::Matrix3d& front = both.covariance.at(Key("front", v));
+    EXPECT_LT((both.covariance.at(Key("side", v)) - e * front * e.transpose()).norm(), 1e-9 * front.norm()) << v;
+    const double alone = front_alone.covariance.at(Key("front", v)).trace();
+    EXPECT_GT(front.trace(), 0.7 * alone) << v;
+    EXPECT_LT(front.trace(), 1.4 * alone) << v;
+    EXPECT_LT(front.trace(), 0.4 * side_alone.covariance.at(Key("side", v)).trace()) << v;
+  }
+}
+
 // A MakeRigScene's views as keyframes of cameras "c0" and "c1", captures
 // one second apart.
 KeyframeKey RigKey(ViewId v) { return Key(v % 2 ? "c1" : "c0", static_cast<int>(v / 2)); }

@@ -483,30 +483,58 @@ std::map<KeyframeKey, KeyframeRefiner::RelativeCovariance> KeyframeRefiner::Cova
   }
   if (!reference) return out;
   const auto reference_rig = rig.find(keys[*reference]);
+  // The reference capture's view of each camera: with each camera's own
+  // covariance (refinement_rig_joint_covariance: false) a view is tied to
+  // its own camera's views by its tracks, and to another camera's only
+  // through the few tracks both see; relative to that camera's view of the
+  // reference capture, which the rig's extrinsics hold to the reference.
+  std::map<std::string, ViewId> reference_of_camera;
+  if (reference_rig != rig.end()) {
+    for (std::size_t v = 0; v < keys.size(); ++v) {
+      const auto member = rig.find(keys[v]);
+      if (member != rig.end() && member->second.first == reference_rig->second.first &&
+          adjusted.index.count(static_cast<ViewId>(v))) {
+        reference_of_camera.emplace(keys[v].frame_id, static_cast<ViewId>(v));
+      }
+    }
+  }
   std::map<ViewId, Eigen::Matrix3d> relative;
   for (const auto& [id, c] : corrections) {
     const auto in_rig = rig.find(keys[id]);
     Eigen::Matrix3d covariance;
+    const auto own_camera =
+        in_rig == rig.end() ? reference_of_camera.end() : reference_of_camera.find(keys[id].frame_id);
+    const ViewId against = own_camera == reference_of_camera.end() ? *reference : own_camera->second;
     if (id == *reference || (reference_rig != rig.end() && in_rig != rig.end() &&
                              in_rig->second.first == reference_rig->second.first)) {
       covariance.setZero();  // the reference's capture: held to it by the rig's extrinsics
-    } else if (!adjusted.Relative(id, *reference, &covariance)) {
+    } else if (!adjusted.Relative(id, against, &covariance)) {
       continue;  // not tied to the reference by the tracks: the averaging's stays
     }
     relative[id] = covariance;
   }
   // The cameras of a rig capture share one correction, the mean of theirs in
-  // the rig's frame, and get the mean of their covariances there: at least
-  // the mean's, however correlated they are.
+  // the rig's frame, and the covariance of the camera its own tracks hold
+  // best (the smallest trace): the capture is held at least as well as by
+  // that camera's tracks alone. The mean of theirs let a camera that sees
+  // little widen every capture; their information summed, or the joint
+  // problem's, counts the cameras' tracks as independent, and was too
+  // narrow on the two-camera streams (results/posterior.md, "A rig's covariances";
+  // docs/decisions.md, "A rig capture's covariance").
   for (const auto& [capture, ids] : ByCapture(relative, keys, rig)) {
-    Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
+    Eigen::Matrix3d best;
+    double smallest_trace = std::numeric_limits<double>::infinity();
     for (ViewId id : ids) {
       const Eigen::Matrix3d& e = rig.at(keys[id]).second;
-      sum += e.transpose() * relative.at(id) * e;
+      const Eigen::Matrix3d in_rig = e.transpose() * relative.at(id) * e;
+      if (in_rig.trace() < smallest_trace) {
+        smallest_trace = in_rig.trace();
+        best = in_rig;
+      }
     }
     for (ViewId id : ids) {
       const Eigen::Matrix3d& e = rig.at(keys[id]).second;
-      relative[id] = e * (sum / static_cast<double>(ids.size())) * e.transpose();
+      relative[id] = e * best * e.transpose();
     }
   }
   for (const auto& [id, c] : relative) out[keys[id]] = RelativeCovariance{keys[*reference], c};

@@ -115,16 +115,17 @@ struct KeyframeRefinerOptions {
   // The covariances of a rig's keyframes (RigCaptures) from the problem the
   // rig makes, every camera's tracks holding each capture
   // (BundleAdjustmentRig::joint_covariance); false: from each camera's own
-  // tracks, at the rig's solution, a capture's cameras the mean of theirs.
-  // Those of the joint problem describe independent pixel noise (mean NEES
-  // 2.9 on a simulated two-camera rig, bundle_adjustment_test), but on the
-  // rendered two-camera rig the errors were two to three times their
-  // deviations (NEES median 7.7 on the demo bag, 10.9 on its 20 Hz stream,
-  // 51% and 33% of keyframes within chi-square's 95% bound), with each
-  // camera's own 0.94 and 1.7 (100% and 98%; results/posterior.md, "A rig's
-  // covariances"): an error neither the residuals nor the jackknife's
-  // cells show. A filter that trusts a covariance too much diverges; one
-  // too wide only weighs it less.
+  // tracks, at the rig's solution, relative to its own camera's view of the
+  // reference capture, a capture's cameras that of the camera its tracks
+  // hold best. Those of the joint problem describe independent pixel noise
+  // (mean NEES 2.9 on a simulated two-camera rig, bundle_adjustment_test),
+  // but on the rendered two-camera rig the errors were two to three times
+  // their deviations (NEES median 7.7 on the demo bag, 10.9 on its 20 Hz
+  // stream, 51% and 33% of keyframes within chi-square's 95% bound), with
+  // each camera's own 3.2 and 3.2 (98% and 92%; results/posterior.md, "A
+  // rig's covariances"): an error neither the residuals nor the
+  // jackknife's cells show. A filter that trusts a covariance too much
+  // diverges; one too wide only weighs it less.
   bool rig_joint_covariance = false;
   // Each camera's focal length estimated in the adjustment with its
   // deviation (BundleAdjustmentFocal; Stats().focal), relative to the focal

@@ -84,9 +84,10 @@ struct BundleAdjustmentOptions {
   // the pixel model counts them as independent: as the two-view covariances'
   // jackknife (RelativePoseOptions::jackknife_grid) does for a pair. 3: of
   // 2, 3 and 4, with 2 the grid whose NEES is within 1.5-6 on the most
-  // inputs with a reference, and not too wide on the demo bag as 2 is
-  // (results/posterior.md, "The jackknife's grid"): the errors are shared
-  // by large regions of an image, which a finer grid splits.
+  // inputs with a reference (results/posterior.md, "The jackknife's grid"),
+  // and not as wide as 2 on the longer bags (docs/decisions.md, "Grid 3"):
+  // the errors are shared by large regions of an image, which a finer grid
+  // splits.
   int covariance_cell_grid = 3;
 };
 
