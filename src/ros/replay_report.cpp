@@ -138,16 +138,15 @@ bool ScoreAgainstGroundTruth(const NamedOrientations& named, const NamedOrientat
   }
   result->ground_truth_csv = output_dir + "/ground_truth.csv";
   if (!WriteOrientationsCsv(result->ground_truth_csv, ground_truth, error)) return false;
-  if (!result->posterior.nees.empty()) {
+  if (!result->posterior.views.empty()) {
     // Which keyframes' covariances tell the truth and which do not, for a
     // user fusing them (and for the covariances' own benchmarks).
     result->posterior_csv = output_dir + "/posterior.csv";
     std::ofstream csv(result->posterior_csv);
     csv << "name,gauge,error_deg,sigma_deg,nees\n" << std::setprecision(6);
-    const PosteriorCalibration& p = result->posterior;
-    for (const auto& [name, nees] : p.nees) {
-      csv << name << ',' << p.gauges.at(name) << ',' << RadToDeg(p.errors.at(name).norm()) << ','
-          << RadToDeg(p.sigmas.at(name)) << ',' << nees << '\n';
+    for (const auto& [name, v] : result->posterior.views) {
+      csv << name << ',' << v.gauge << ',' << RadToDeg(v.error.norm()) << ',' << RadToDeg(v.sigma) << ',' << v.nees
+          << '\n';
     }
     if (!csv) {
       *error = "cannot write " + result->posterior_csv;

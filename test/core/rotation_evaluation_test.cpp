@@ -241,7 +241,7 @@ TEST(PosteriorCalibration, CovariancesThatDescribeTheErrorsGiveChiSquare) {
   const PosteriorCalibration honest = PosteriorCheck(2002, 1.0);
   EXPECT_EQ(honest.views_with_covariance, 2002u);
   EXPECT_EQ(honest.views_scored, 2000u);  // the gauge and the camera of its capture are held
-  EXPECT_EQ(honest.nees.count("v0") + honest.nees.count("v1"), 0u);
+  EXPECT_EQ(honest.views.count("v0") + honest.views.count("v1"), 0u);
   EXPECT_NEAR(honest.nees_median, 2.37, 0.2);
   EXPECT_NEAR(honest.nees_mean, 3.0, 0.25);
   EXPECT_NEAR(honest.within_95, 0.95, 0.015);

@@ -169,10 +169,10 @@ TEST_F(BagReplay, RenderedRigEndToEndIsAccurateAndDeterministic) {
       std::istringstream fields(row);
       for (std::string x; std::getline(fields, x, ',');) f.push_back(x);
       ASSERT_EQ(f.size(), 5u) << row;
-      EXPECT_EQ(first.posterior.nees.count(f[0]), 1u) << row;
+      EXPECT_EQ(first.posterior.views.count(f[0]), 1u) << row;
       const double error = std::stod(f[2]), sigma = std::stod(f[3]), nees = std::stod(f[4]);
       EXPECT_GT(sigma, 0.0) << row;
-      EXPECT_NEAR(nees, first.posterior.nees.at(f[0]), 1e-5 * (1.0 + nees)) << row;
+      EXPECT_NEAR(nees, first.posterior.views.at(f[0]).nees, 1e-5 * (1.0 + nees)) << row;
       EXPECT_GE(nees * (1.0 + 1e-3), (error / sigma) * (error / sigma) / 3.0) << row;
       ++count;
     }

@@ -383,10 +383,7 @@ PosteriorCalibration EvaluatePosteriorCovariances(const NamedOrientations& estim
       if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 0.0)) continue;
       const Eigen::Vector3d d = LogSO3(estimate.at(names[k]) * align * truth->second.transpose());
       const double nees = d.dot(ldlt.solve(d));
-      out.nees[names[k]] = nees;
-      out.errors[names[k]] = d;
-      out.sigmas[names[k]] = std::sqrt(c.trace() / 3.0);
-      out.gauges[names[k]] = gauge;
+      out.views[names[k]] = PosteriorCalibration::View{nees, d, std::sqrt(c.trace() / 3.0), gauge};
       values.push_back(nees);
     }
   }

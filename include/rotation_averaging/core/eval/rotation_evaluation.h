@@ -123,13 +123,16 @@ struct PosteriorCalibration {
   double nees_median = 0.0;          // NaN if no view is scored
   double nees_mean = 0.0;
   double within_95 = 0.0;            // fraction of scored views with NEES <= 7.81
-  std::map<std::string, double> nees;  // by view name
-  // Of each scored view: d_k (radians), the root-mean-square standard
+  // A scored view: its NEES, d_k (radians), the root-mean-square standard
   // deviation of its covariance per axis, sqrt(trace / 3) (radians), and the
   // gauge view it is relative to.
-  std::map<std::string, Eigen::Vector3d> errors;
-  std::map<std::string, double> sigmas;
-  std::map<std::string, std::string> gauges;
+  struct View {
+    double nees = 0.0;
+    Eigen::Vector3d error = Eigen::Vector3d::Zero();
+    double sigma = 0.0;
+    std::string gauge;
+  };
+  std::map<std::string, View> views;  // by view name
   // "posterior covariances against the ground truth: NEES median 4.12 (2.37 if
   // honest), 71.3% within chi-square's 95% bound, 118 keyframes"
   std::string Describe() const;
