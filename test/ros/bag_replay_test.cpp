@@ -396,40 +396,47 @@ TEST_F(BagReplay, ABinnedRegionOfTheSensorIsReadWithItsCamera) {
       << "whole sensor: " << whole.scores.median_error_deg << " deg";
 }
 
-// A camera_info whose focal length is 3% short: the replay's check of each
-// camera's focal length finds it out (the sideways camera; the forward one,
-// moving along its optical axis, cannot tell), warns, and the output bag's
-// focal-check messages carry it. With focal_calibration: apply the sideways
-// camera is not corrected, and the replay says why, once.
+// A camera_info whose focal length is 3% short on both cameras: the replay's
+// check of each camera's focal length finds it out (the sideways camera; the
+// forward one, moving along its optical axis, cannot tell) and warns; with
+// focal_calibration: apply it does not correct the sideways camera alone (a
+// rig's cameras would disagree) and says why, once. The refinement, which
+// turns the rig's cameras together, tells both, and both are corrected by its
+// estimates to within 0.5%; the output bag's focal-check messages carry it.
 TEST_F(BagReplay, ACameraInfoWithAWrongFocalLengthIsFoundOut) {
   const RigScene scene(CheckScene());
   const ReplayResult result =
       ReplayCheckScene(scene, "short_focal", CameraIntrinsics(), 0.97, "focal_calibration: apply\n");
   ASSERT_TRUE(result.ok) << result.error;
-  std::string checks;
-  for (const std::string& c : result.focal_checks) checks += c + "\n";
-  bool left_disagrees = false;
-  for (const std::string& c : result.focal_checks) {
-    if (c.rfind("cam_left:", 0) == 0) left_disagrees = c.find("disagrees") != std::string::npos;
-  }
-  EXPECT_TRUE(left_disagrees) << checks;
+  std::string said;
+  for (const std::string& w : result.warnings) said += w + "\n";
+  for (const std::string& c : result.focal_corrections) said += c + "\n";
   bool warned = false;
-  for (const std::string& w : result.warnings) warned |= w.find("camera_info check: cam_left") != std::string::npos;
-  EXPECT_TRUE(warned);
-  // Held back for the rig, whose forward camera cannot be checked, and said
-  // once; not for a lens distortion: the ideal lens's pairs bent by the
-  // wrong focal length are explained by the focal length alone (docs/node.md,
-  // "Checking camera_info's focal length").
+  for (const std::string& w : result.warnings) {
+    if (w.find("camera_info check: cam_left: focal length x") == std::string::npos) continue;
+    warned |= w.find("disagrees") != std::string::npos;
+    // Not a lens distortion: the ideal lens's pairs bent by the wrong focal
+    // length are explained by the focal length alone (docs/node.md,
+    // "Checking camera_info's focal length").
+    EXPECT_EQ(w.find("distorted"), std::string::npos) << w;
+  }
+  EXPECT_TRUE(warned) << said;
   int held_back = 0, for_the_rig = 0;
   for (const std::string& n : result.focal_notices) {
     if (n.rfind("cam_left: focal length not corrected: ", 0) != 0) continue;
     ++held_back;
     for_the_rig += n.find("other cameras of its rig") != std::string::npos;
   }
-  EXPECT_EQ(held_back, 1) << checks;
-  EXPECT_EQ(for_the_rig, 1) << checks;
-  for (const std::string& c : result.focal_checks) {
-    if (c.rfind("cam_left:", 0) == 0) EXPECT_EQ(c.find("distorted"), std::string::npos) << c;
+  EXPECT_EQ(held_back, 1) << said;
+  EXPECT_EQ(for_the_rig, 1) << said;
+  std::map<std::string, double> corrected;
+  for (const std::string& c : result.focal_corrections) {
+    const std::size_t x = c.find("camera_info's focal length x");
+    if (x != std::string::npos) corrected[c.substr(0, c.find(':'))] = std::stod(c.substr(x + 28));
+  }
+  for (const std::string camera : {"cam_front", "cam_left"}) {
+    ASSERT_TRUE(corrected.count(camera)) << said;
+    EXPECT_NEAR(corrected.at(camera) * 0.97, 1.0, 0.005) << camera;
   }
   EXPECT_NE(result.Summary().find("camera_info check"), std::string::npos);
   // Each camera's estimates are timed (the replay runs every one that came
@@ -437,25 +444,26 @@ TEST_F(BagReplay, ACameraInfoWithAWrongFocalLengthIsFoundOut) {
   EXPECT_GE(result.focal_check_times.Count(), result.focal_checks.size());
   EXPECT_GT(result.focal_check_times.Median(), 0.0);
   EXPECT_NE(result.Summary().find("time per camera_info check estimate"), std::string::npos);
-  // The last focal-check message says so too, with the estimate.
+  // The focal-check messages carry the sideways camera's estimate that
+  // disagreed (a camera's check starts again at its corrected focal length).
   rosbag::Bag out(result.output_bag, rosbag::bagmode::Read);
   rosbag::View checks_topic(out, rosbag::TopicQuery("/rotation_averaging/camera_info_checks"));
-  CameraInfoCheckArray::ConstPtr last;
-  for (const rosbag::MessageInstance& m : checks_topic) last = m.instantiate<CameraInfoCheckArray>();
-  ASSERT_TRUE(last);
   bool found = false;
-  for (const CameraInfoCheck& c : last->cameras) {
-    if (c.frame_id != "cam_left") continue;
-    found = true;
-    EXPECT_TRUE(c.estimated);
-    EXPECT_TRUE(c.disagrees);
-    EXPECT_NEAR(c.scale * 0.97, 1.0, 0.01);
-    EXPECT_GT(c.scale_stddev, 0.0);
-    EXPECT_GE(c.pairs_seen, 20u);
-    EXPECT_NEAR(c.given_focal_px, 0.97 * scene.Intrinsics()(0, 0), 1e-6);
-    EXPECT_EQ(c.applied_scale, 1.0);  // held back: reported, not corrected
+  for (const rosbag::MessageInstance& m : checks_topic) {
+    const CameraInfoCheckArray::ConstPtr checks = m.instantiate<CameraInfoCheckArray>();
+    ASSERT_TRUE(checks);
+    for (const CameraInfoCheck& c : checks->cameras) {
+      if (c.frame_id != "cam_left" || !c.disagrees) continue;
+      found = true;
+      EXPECT_TRUE(c.estimated);
+      EXPECT_NEAR(c.scale * 0.97, 1.0, 0.01);
+      EXPECT_GT(c.scale_stddev, 0.0);
+      EXPECT_GE(c.pairs_seen, 20u);
+      EXPECT_NEAR(c.given_focal_px, 0.97 * scene.Intrinsics()(0, 0), 1e-6);
+      EXPECT_EQ(c.applied_scale, 1.0);  // held back for the rig: reported, not corrected
+    }
   }
-  EXPECT_TRUE(found) << checks;
+  EXPECT_TRUE(found) << said;
 }
 
 // Raw images of a distorting lens whose camera_info is read as if they were
