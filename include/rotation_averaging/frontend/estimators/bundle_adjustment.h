@@ -82,12 +82,12 @@ struct BundleAdjustmentOptions {
   // Errors a region of an image shares (keypoints biased alike, a repeated
   // structure matched to its neighbour) move the orientations together, where
   // the pixel model counts them as independent: as the two-view covariances'
-  // jackknife (RelativePoseOptions::jackknife_grid) does for a pair. 3: of
-  // 2, 3 and 4, with 2 the grid whose NEES is within 1.5-6 on the most
-  // inputs with a reference (results/posterior.md, "The jackknife's grid"),
-  // and not as wide as 2 on the longer bags (docs/decisions.md, "Grid 3"):
-  // the errors are shared by large regions of an image, which a finer grid
-  // splits.
+  // jackknife (RelativePoseOptions::jackknife_grid) does for a pair. 3:
+  // 2, 3 and 4 give the pixel model's NEES within 6% on every input with a
+  // reference but one (results/posterior.md, "The jackknife's grid"), whose
+  // errors a region shares are not what it misses; 3 keeps the guard where
+  // they are, for a few percent of the adjustment's time (docs/decisions.md,
+  // "Grid 3").
   int covariance_cell_grid = 3;
 };
 
