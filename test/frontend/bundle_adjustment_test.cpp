@@ -308,20 +308,11 @@ Scene MakeCorridorScene(int views, double noise_px, std::uint32_t seed) {
     const Eigen::Vector3d d = DrawVector3(rng, u);
     scene.points.emplace_back(0.5 * length + (0.5 * length + 4.0) * d.x(), 2.0 * d.y(), 6.0 + 2.0 * d.z());
   }
-  std::vector<std::vector<bool>> visible(views);
+  std::vector<std::vector<bool>> visible;
   for (int v = 0; v < views; ++v) {
     const Eigen::Vector3d centre(0.4 * v, 0.1 * u(rng), 0.1 * u(rng));
     const Eigen::Matrix3d r = ExpSO3(Eigen::Vector3d(DegToRad(3.0) * u(rng), DegToRad(3.0) * u(rng), DegToRad(3.0) * u(rng)));
-    scene.truth[static_cast<ViewId>(v)] = r;
-    scene.centres.push_back(centre);
-    std::vector<Eigen::Vector2d> seen;
-    for (const Eigen::Vector3d& p : scene.points) {
-      const Eigen::Vector3d y = r * (p - centre);
-      const Eigen::Vector2d x = y.hnormalized() + DrawVector2(rng, noise);
-      visible[v].push_back(y.z() > 0.5 && x.cwiseAbs().maxCoeff() < 0.5);
-      seen.push_back(x);
-    }
-    scene.keypoints.push_back(seen);
+    ObservePoints(r, centre, 1.0, 0.5, &noise, &rng, &scene, &visible);
   }
   AddSceneEdges(noise_px, visible, 30, &scene);
   return scene;

@@ -124,6 +124,27 @@ inline ArcScene MakeArcScene(int views, double noise_px, std::uint32_t seed) {
   return scene;
 }
 
+// Adds a view of every point of `scene` from `centre`, turned by `r`, its
+// keypoints normalised by a focal length `focal_scale` times too short and
+// drawn with `noise`; `visible` gains which points are in front of it and
+// within `half_width` of its image's centre (normalised).
+inline void ObservePoints(const Eigen::Matrix3d& r, const Eigen::Vector3d& centre, double focal_scale,
+                          double half_width, std::normal_distribution<double>* noise, std::mt19937* rng,
+                          ArcScene* scene, std::vector<std::vector<bool>>* visible) {
+  scene->truth[static_cast<ViewId>(scene->keypoints.size())] = r;
+  scene->centres.push_back(centre);
+  std::vector<Eigen::Vector2d> seen;
+  std::vector<bool> in_view;
+  for (const Eigen::Vector3d& p : scene->points) {
+    const Eigen::Vector3d y = r * (p - centre);
+    const Eigen::Vector2d x = focal_scale * y.hnormalized() + DrawVector2(*rng, *noise);
+    in_view.push_back(y.z() > 0.5 && x.cwiseAbs().maxCoeff() < half_width);
+    seen.push_back(x);
+  }
+  scene->keypoints.push_back(std::move(seen));
+  visible->push_back(std::move(in_view));
+}
+
 // Cameras on a path past a deep box of points, turned about every axis
 // (general motion for focal self-calibration): each sees the points in its
 // field of view with the keypoints normalised by a focal length
@@ -139,21 +160,12 @@ inline ArcScene MakePathScene(int views, double noise_px, double focal_scale, st
     const Eigen::Vector3d d = DrawVector3(rng, u);
     scene.points.emplace_back(6.0 * d.x(), 3.0 * d.y(), 8.0 + 4.0 * d.z());
   }
-  std::vector<std::vector<bool>> visible(views);
+  std::vector<std::vector<bool>> visible;
   for (int v = 0; v < views; ++v) {
     const Eigen::Vector3d centre(-2.0 + 4.0 * v / (views - 1), 0.3 * u(rng), 0.5 * u(rng));
     const Eigen::Matrix3d r =
         ExpSO3(Eigen::Vector3d(DegToRad(8.0) * u(rng), DegToRad(15.0) * u(rng), DegToRad(15.0) * u(rng)));
-    scene.truth[static_cast<ViewId>(v)] = r;
-    scene.centres.push_back(centre);
-    std::vector<Eigen::Vector2d> seen;
-    for (const Eigen::Vector3d& p : scene.points) {
-      const Eigen::Vector3d y = r * (p - centre);
-      const Eigen::Vector2d x = focal_scale * y.hnormalized() + DrawVector2(rng, noise);
-      visible[v].push_back(y.z() > 0.5 && x.cwiseAbs().maxCoeff() < 0.6);
-      seen.push_back(x);
-    }
-    scene.keypoints.push_back(seen);
+    ObservePoints(r, centre, focal_scale, 0.6, &noise, &rng, &scene, &visible);
   }
   AddSceneEdges(noise_px, visible, 30, &scene);
   return scene;
@@ -180,25 +192,12 @@ inline ArcScene MakeRigScene(int captures, double noise_px, std::uint32_t seed) 
     if (p.head<2>().norm() > 5.0 || std::abs(p.z()) > 5.0) scene.points.push_back(p);
   }
   const Eigen::Matrix3d from_rig[2] = {Eigen::Matrix3d::Identity(), RigCameraFromRig()};
-  std::vector<std::vector<bool>> visible(2 * captures);
+  std::vector<std::vector<bool>> visible;
   for (int c = 0; c < captures; ++c) {
     const Eigen::Vector3d centre(-2.0 + 4.0 * c / (captures - 1), 0.3 * u(rng), 0.3 * u(rng));
     const Eigen::Matrix3d rig =
         ExpSO3(Eigen::Vector3d(DegToRad(8.0) * u(rng), DegToRad(10.0) * u(rng), DegToRad(8.0) * u(rng)));
-    for (int k = 0; k < 2; ++k) {
-      const int v = 2 * c + k;
-      const Eigen::Matrix3d r = from_rig[k] * rig;
-      scene.truth[static_cast<ViewId>(v)] = r;
-      scene.centres.push_back(centre);
-      std::vector<Eigen::Vector2d> seen;
-      for (const Eigen::Vector3d& p : scene.points) {
-        const Eigen::Vector3d y = r * (p - centre);
-        const Eigen::Vector2d x = y.hnormalized() + DrawVector2(rng, noise);
-        visible[v].push_back(y.z() > 0.5 && x.cwiseAbs().maxCoeff() < 0.6);
-        seen.push_back(x);
-      }
-      scene.keypoints.push_back(seen);
-    }
+    for (int k = 0; k < 2; ++k) ObservePoints(from_rig[k] * rig, centre, 1.0, 0.6, &noise, &rng, &scene, &visible);
   }
   AddSceneEdges(noise_px, visible, 30, &scene);
   scene.edges.erase(std::remove_if(scene.edges.begin(), scene.edges.end(),
