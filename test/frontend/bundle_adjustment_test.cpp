@@ -141,20 +141,24 @@ TEST(BundleAdjustment, AFirstViewNextToTheSecondDoesNotHoldTheScale) {
   EXPECT_LT(MaxErrorDeg(adjusted, from_truth), 1e-3) << summary.Report();
 }
 
+// `covariance` without its jackknife: Relative gives the pixel model's alone.
+BundleAdjustmentCovariance PixelModelAlone(const BundleAdjustmentCovariance& covariance) {
+  BundleAdjustmentCovariance pixel = covariance;
+  pixel.jackknife.resize(0, 0);
+  return pixel;
+}
+
 // NEES of every view but view 0 relative to it, d = Log(R_hat_v R_hat_0^T R_0
-// R_v^T), against `covariance` (Relative, or one model's blocks alone).
+// R_v^T), against `covariance` (Relative, or the pixel model's alone).
 std::vector<double> NeesRelativeToViewZero(const ViewOrientations& estimate, const ViewOrientations& truth,
                                            const BundleAdjustmentCovariance& covariance, bool pixel_model_alone) {
   std::vector<double> out;
+  const BundleAdjustmentCovariance pixel = pixel_model_alone ? PixelModelAlone(covariance) : covariance;
   for (const auto& [v, r] : estimate) {
     if (v == 0) continue;
     Eigen::Matrix3d c;
     if (!covariance.Relative(v, 0, &c)) continue;
-    if (pixel_model_alone) {
-      BundleAdjustmentCovariance pixel = covariance;
-      pixel.jackknife.resize(0, 0);
-      EXPECT_TRUE(pixel.Relative(v, 0, &c));
-    }
+    if (pixel_model_alone) EXPECT_TRUE(pixel.Relative(v, 0, &c));
     const Eigen::Vector3d d = LogSO3(r * estimate.at(0).transpose() * truth.at(0) * truth.at(v).transpose());
     out.push_back(d.dot(c.ldlt().solve(d)));
   }
@@ -338,9 +342,7 @@ TEST(BundleAdjustmentCovariance, TheJackknifeStaysWithThePixelModelAlongALongWin
     ASSERT_EQ(covariance.index.size(), 30u);
     Eigen::Matrix3d with_jackknife, pixel_model;
     ASSERT_TRUE(covariance.Relative(29, 0, &with_jackknife));
-    BundleAdjustmentCovariance pixel = covariance;
-    pixel.jackknife.resize(0, 0);
-    ASSERT_TRUE(pixel.Relative(29, 0, &pixel_model));
+    ASSERT_TRUE(PixelModelAlone(covariance).Relative(29, 0, &pixel_model));
     ratio.push_back(std::sqrt(with_jackknife.trace() / pixel_model.trace()));
     for (double n : NeesRelativeToViewZero(adjusted, scene.truth, covariance, false)) both.push_back(n);
   }
