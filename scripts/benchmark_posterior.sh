@@ -8,9 +8,10 @@
 # 20 Hz driver publishes it (600 captures, keyframe_selection: motion), its
 # forward camera alone, the Strecha scenes and lund_door as bags (quarter
 # resolution, every image a keyframe). Each input with the defaults (the
-# refined keyframes' covariances from the bundle adjustment, with its cell
-# jackknife over 3 x 3 cells), with the jackknife's grid at 0 (the pixel
-# model alone), 2 and 4, with the averaging's covariances
+# refined keyframes' covariances from the bundle adjustment, with its
+# jackknives over 3 x 3 cells and over clusters of the tracks that start in
+# one), with the cells' alone, with the grid at 0 (the pixel model alone), 2
+# and 4, with the averaging's covariances
 # (refinement_covariances: false), and without the refinement, with and
 # without the averaging's covariance floor; the rig's inputs (and its four
 # cameras at 20 Hz) also with the rig's joint covariances. The Strecha scenes are scored
@@ -24,10 +25,11 @@ bash scripts/setup.sh > /dev/null
 OUT=build/benchmark_posterior
 mkdir -p "$OUT"
 
-VARIANTS=(default grid0 grid2 grid4 averaging no_refinement no_refinement_no_floor)
+VARIANTS=(default cells_alone grid0 grid2 grid4 averaging no_refinement no_refinement_no_floor)
 variant_lines() {  # variant: its config lines
   case $1 in
     default) ;;
+    cells_alone) echo "refinement_jackknife_tracks: false" ;;
     grid*) echo "refinement_jackknife_grid: ${1#grid}" ;;
     averaging) echo "refinement_covariances: false" ;;
     no_refinement) echo "refinement: false" ;;

@@ -66,8 +66,10 @@ EuRoC excerpt in ../shared/data has no ground truth and is not scored.
 With the defaults the refinement (`refinement: true`) publishes its keyframes with the bundle adjustment's
 covariances (`refinement_covariances: true`, docs/node.md "Background refinement"): the pixel model over the
 adjustment's normal equations, scaled by its variance factor, at least in every direction the delete-one-cell
-jackknife's over a 3 x 3 grid of each keyframe's observations (`refinement_jackknife_grid`), relative to the
-keyframe the averaging holds best, plus that keyframe's own covariance in the averaging.""")
+jackknife's over a 3 x 3 grid of each keyframe's observations (`refinement_jackknife_grid`) and the jackknife's
+over clusters of whole tracks, those that start in one of those cells (`refinement_jackknife_tracks`: errors a
+feature carries along its track), relative to the keyframe the averaging holds best, plus that keyframe's own
+covariance in the averaging.""")
     print("""
 ## The defaults
 
@@ -96,14 +98,16 @@ shares the images, K and the method with the node, so an error they share cannot
 ## The jackknife's grid, and the averaging's covariances
 
 NEES median / % within the bound of the same replays with the adjustment's covariances as the pixel model alone
-(`refinement_jackknife_grid: 0`) and with the jackknife over 2 x 2, 3 x 3 (the default) and 4 x 4 cells; with the
+(`refinement_jackknife_grid: 0`), with the jackknives over 2 x 2, 3 x 3 (the default) and 4 x 4 cells (the cells' and
+the track clusters'), with the cells' alone over 3 x 3 (`refinement_jackknife_tracks: false`); with the
 averaging's covariances for the refined orientations (`refinement_covariances: false`); and without the refinement
 (`refinement: false`: the averaging's orientations and covariances), with the covariance floor of its residuals
 (`posterior_covariance_floor: true`, the default) and without it. The orientations are the same in every column
 but the last two.
 """)
     columns = [("grid0", "pixel model alone"), ("grid2", "2 x 2"), ("default", "3 x 3 (default)"),
-               ("grid4", "4 x 4"), ("averaging", "the averaging's, refined orientations"),
+               ("grid4", "4 x 4"), ("cells_alone", "3 x 3, the cells' alone"),
+               ("averaging", "the averaging's, refined orientations"),
                ("no_refinement", "no refinement, with the floor"),
                ("no_refinement_no_floor", "no refinement, without the floor")]
     print("| input | " + " | ".join(label for _, label in columns) + " |")

@@ -216,6 +216,7 @@ bool ReadPipelineConfig(const ParameterSource& params, PipelineConfig* config, s
   r.Read("refinement_niceness", &c.refiner.background_niceness);
   r.Read("refinement_covariances", &c.refiner.covariances);
   r.Read("refinement_jackknife_grid", &c.refiner.adjustment.covariance_cell_grid);
+  r.Read("refinement_jackknife_tracks", &c.refiner.adjustment.covariance_track_clusters);
   r.Read("refinement_rig_joint_covariance", &c.refiner.rig_joint_covariance);
   r.Read("refinement_focal", &c.refiner.estimate_focal);
   r.Read("refinement_hold_agreed_focal", &c.refiner.hold_agreed_focal);

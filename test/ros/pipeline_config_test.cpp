@@ -78,7 +78,8 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
                     {"refinement", "false"}, {"refinement_period_s", "3"}, {"refinement_max_keyframes", "50"},
                     {"refinement_max_iterations", "7"}, {"refinement_max_correction_deg", "0.5"},
                     {"refinement_niceness", "5"}, {"image_transport_queue", "12"},
-                    {"refinement_covariances", "false"}, {"refinement_jackknife_grid", "2"}, {"refinement_focal", "false"},
+                    {"refinement_covariances", "false"}, {"refinement_jackknife_grid", "2"},
+                    {"refinement_jackknife_tracks", "false"}, {"refinement_focal", "false"},
                     {"refinement_rig_joint_covariance", "true"}, {"refinement_hold_agreed_focal", "false"},
                     {"refinement_hold_outside", "false"}, {"refinement_sweep_back", "false"},
                     {"refinement_max_correspondence_mib", "32"}},
@@ -114,6 +115,7 @@ TEST(PipelineConfig, DefaultsValidateAndParametersSetTheFieldsOfTheirName) {
   EXPECT_FALSE(c.refiner.sweep_back);
   EXPECT_EQ(c.refiner.max_correspondence_mib, 32.0);
   EXPECT_EQ(c.refiner.adjustment.covariance_cell_grid, 2);
+  EXPECT_FALSE(c.refiner.adjustment.covariance_track_clusters);
   EXPECT_TRUE(c.refiner.rig_joint_covariance);
   EXPECT_EQ(c.image_transport_queue, 12u);
 }

@@ -760,6 +760,58 @@ void AddSegment(const ViewVariables& i, const V& v, int c, Eigen::MatrixXd* m) {
   }
 }
 
+// What the bias-reduced linearisation adds to a cluster's score u, with D
+// its information and K the block of S^-1 over its variables: D g(K D) K u,
+// g(l) = ((1 - l)^-1/2 - 1) / l on the eigenvalues l of the leverage K D
+// (in [0, 1]; clamped to 0.99). By Lanczos' method in the inner product
+// <x, y> = x^T D y, in which K D is symmetric: k steps over the Krylov space
+// of K D and K u (fully reorthogonalised), g taken on the k x k
+// tridiagonal's eigenvalues. What of K u the inner product does not see is
+// in the null space of D, where g(K D) is g(0) and D then takes it out. A
+// cluster of tracks spans tens to hundreds of variables, where factoring or
+// diagonalising for each cluster would be most of the covariance's time; g
+// is smooth on [0, 0.99], and 24 steps (all of them, below 24 variables)
+// leave it exact where the leverage has few large eigenvalues.
+Eigen::VectorXd LeverageGain(const Eigen::MatrixXd& k_block, const Eigen::MatrixXd& d, const Eigen::VectorXd& u) {
+  const int n = static_cast<int>(u.size());
+  const Eigen::VectorXd z = k_block * u;
+  Eigen::VectorXd dz = d * z;
+  const double norm2 = z.dot(dz);
+  if (!(norm2 > 0.0)) return Eigen::VectorXd::Zero(n);
+  const double norm = std::sqrt(norm2);
+  const int k_max = std::min(n, 24);
+  Eigen::MatrixXd q(n, k_max), dq(n, k_max);  // the basis, and D times it
+  Eigen::VectorXd alpha(k_max), beta(k_max);
+  q.col(0) = z / norm;
+  dq.col(0) = dz / norm;
+  int k = 0;
+  while (k < k_max) {
+    Eigen::VectorXd v = k_block * dq.col(k);
+    alpha[k] = dq.col(k).dot(v);
+    for (int twice = 0; twice < 2; ++twice) v -= q.leftCols(k + 1) * (dq.leftCols(k + 1).transpose() * v);
+    const Eigen::VectorXd dv = d * v;
+    const double b2 = v.dot(dv);
+    beta[k] = b2 > 0.0 ? std::sqrt(b2) : 0.0;
+    ++k;
+    if (k == k_max || !(beta[k - 1] > 1e-12 * (std::abs(alpha[k - 1]) + 1.0))) break;
+    q.col(k) = v / beta[k - 1];
+    dq.col(k) = dv / beta[k - 1];
+  }
+  Eigen::MatrixXd t = Eigen::MatrixXd::Zero(k, k);
+  for (int i = 0; i < k; ++i) {
+    t(i, i) = alpha[i];
+    if (i + 1 < k) t(i, i + 1) = t(i + 1, i) = beta[i];
+  }
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(t);
+  Eigen::VectorXd g(k);
+  for (int i = 0; i < k; ++i) {
+    const double leverage = std::clamp(eigen.eigenvalues()[i], 0.0, 0.99);
+    g[i] = leverage > 1e-9 ? (1.0 / std::sqrt(1.0 - leverage) - 1.0) / leverage : 0.5;
+  }
+  // D Q_k g(T) e_1 |z|_D.
+  return norm * (dq.leftCols(k) * (eigen.eigenvectors() * (g.asDiagonal() * eigen.eigenvectors().row(0).transpose())));
+}
+
 // The orientations' joint covariance at the adjusted solution under Cauchy's
 // loss of scale `loss_scale` (see BundleAdjustmentCovariance): the normal
 // equations over each view's left rotation perturbation and centre, each
@@ -772,14 +824,16 @@ void AddSegment(const ViewVariables& i, const V& v, int c, Eigen::MatrixXd* m) {
 // The jackknife: each cell's move, S^-1 u_c with u_c its score on the
 // reduced system (corrected for its leverage, below), the one Gauss-Newton
 // step its observations pull the solution by, and
-// C = (g - 1) / g sum_c (m_c - mean)(m_c - mean)^T over the g cells.
+// C = (g - 1) / g sum_c (m_c - mean)(m_c - mean)^T over the g cells. With
+// `track_clusters`, the same over clusters of whole tracks, those that
+// start in one cell (their points eliminated within the cluster).
 // With `focal` (one entry per estimated camera, AdjustedView::camera), each
 // camera's focal scale is a variable too, and its deviation is filled in
 // (BundleAdjustmentFocal): its principal point's offset is a further
 // variable there, of prior deviation `principal_point_sigma` times the
 // width of the camera's observations, for that part alone.
 bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector<Track>& tracks, double loss_scale,
-                       int grid, double principal_point_sigma, BundleAdjustmentCovariance* out,
+                       int grid, bool track_clusters, double principal_point_sigma, BundleAdjustmentCovariance* out,
                        std::vector<BundleAdjustmentFocal::Estimate>* focal) {
   const int n = static_cast<int>(views.size());
   std::vector<int> group(n);
@@ -878,6 +932,39 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     std::vector<int> focal_row;
   };
   std::vector<Eliminated> eliminated(grid > 0 ? tracks.size() : 0);
+  // The clusters of whole tracks (track_clusters): the tracks that start in
+  // one cell, each cluster's information and score over its own variables
+  // (its tracks' views' and focal scales', sorted), the points eliminated.
+  struct TrackCluster {
+    std::vector<int> variables;
+    Eigen::MatrixXd information;
+    Eigen::VectorXd score;
+    int tracks = 0;
+  };
+  std::vector<TrackCluster> clusters(track_clusters && grid > 0 ? cells : 0);
+  const auto observation_variables = [&](const Observation& o) {
+    std::array<int, 7> at;
+    for (int q = 0; q < 6; ++q) at[q] = var[o.view].Index(q);
+    const int c = views[o.view].camera;
+    at[6] = c >= 0 && c < cameras ? var_f[c] : -1;
+    return at;
+  };
+  if (!clusters.empty()) {
+    for (std::size_t k = 0; k < tracks.size(); ++k) {
+      std::vector<int>& v = clusters[cell_of[k][0]].variables;
+      for (const Observation& o : tracks[k].observations) {
+        for (const int at : observation_variables(o)) {
+          if (at >= 0) v.push_back(at);
+        }
+      }
+    }
+    for (TrackCluster& c : clusters) {
+      std::sort(c.variables.begin(), c.variables.end());
+      c.variables.erase(std::unique(c.variables.begin(), c.variables.end()), c.variables.end());
+      c.information = Eigen::MatrixXd::Zero(c.variables.size(), c.variables.size());
+      c.score = Eigen::VectorXd::Zero(c.variables.size());
+    }
+  }
   for (std::size_t k = 0; k < tracks.size(); ++k) {
     const Track& t = tracks[k];
     const std::size_t m = t.observations.size();
@@ -944,6 +1031,59 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
           e.focal_b.push_back(be[i].row(0));
           e.focal_view.push_back(aec[i].row(0));
           e.focal_row.push_back(ei[i][0]);
+        }
+      }
+    }
+    if (!clusters.empty()) {
+      // The track's reduced information and score: over each observation's
+      // view (six) and focal scale (one), D = A - B Hpp^-1 B^T and
+      // u = g - B Hpp^-1 g_x, scattered into its cluster's.
+      TrackCluster& cluster = clusters[cell_of[k][0]];
+      ++cluster.tracks;
+      using Matrix73 = Eigen::Matrix<double, 7, 3>;
+      std::vector<std::array<int, 7>> local(m);
+      std::vector<Matrix73> b7(m, Matrix73::Zero());
+      Eigen::Vector3d gx_sum = Eigen::Vector3d::Zero();
+      for (std::size_t i = 0; i < m; ++i) gx_sum += gx[i];
+      for (std::size_t i = 0; i < m; ++i) {
+        const std::array<int, 7> at = observation_variables(t.observations[i]);
+        for (int q = 0; q < 7; ++q) {
+          local[i][q] = at[q] < 0 ? -1
+                                  : static_cast<int>(std::lower_bound(cluster.variables.begin(),
+                                                                      cluster.variables.end(), at[q]) -
+                                                     cluster.variables.begin());
+        }
+        b7[i].topRows<6>() = b[i];
+        Eigen::Matrix<double, 7, 7> a7 = Eigen::Matrix<double, 7, 7>::Zero();
+        a7.topLeftCorner<6, 6>() = a[i];
+        Eigen::Matrix<double, 7, 1> g7 = Eigen::Matrix<double, 7, 1>::Zero();
+        g7.head<6>() = gc[i];
+        if (cameras > 0 && ei[i][0] >= 0) {
+          b7[i].row(6) = be[i].row(0);
+          a7.block<1, 6>(6, 0) = aec[i].row(0);
+          a7.block<6, 1>(0, 6) = aec[i].row(0).transpose();
+          a7(6, 6) = aee[i](0, 0);
+          g7[6] = ge[i](0);
+        }
+        g7 -= b7[i] * (hpp_inv * gx_sum);
+        for (int p = 0; p < 7; ++p) {
+          if (local[i][p] < 0) continue;
+          cluster.score[local[i][p]] += g7[p];
+          for (int q = 0; q < 7; ++q) {
+            if (local[i][q] >= 0) cluster.information(local[i][p], local[i][q]) += a7(p, q);
+          }
+        }
+      }
+      for (std::size_t i = 0; i < m; ++i) {
+        const Matrix73 bi = b7[i] * hpp_inv;
+        for (std::size_t j = 0; j < m; ++j) {
+          const Eigen::Matrix<double, 7, 7> cross = bi * b7[j].transpose();
+          for (int p = 0; p < 7; ++p) {
+            if (local[i][p] < 0) continue;
+            for (int q = 0; q < 7; ++q) {
+              if (local[j][q] >= 0) cluster.information(local[i][p], local[j][q]) -= cross(p, q);
+            }
+          }
         }
       }
     }
@@ -1072,8 +1212,25 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     }
   }
   for (int f = 0; f < focal_columns; ++f) selector(view_dim + f, 3 * blocks + f) = 1.0;
-  const Eigen::MatrixXd columns =
-      inverse_columns(dim == focal_dim ? s : Eigen::MatrixXd(s.topLeftCorner(focal_dim, focal_dim)), selector);
+  const Eigen::MatrixXd reduced =
+      dim == focal_dim ? s : Eigen::MatrixXd(s.topLeftCorner(focal_dim, focal_dim));
+  // The clusters' leverage needs S^-1 over each cluster's variables, which
+  // together are all of them: then the whole inverse, and its columns.
+  const Eigen::MatrixXd inverse =
+      clusters.empty() ? Eigen::MatrixXd() : inverse_columns(reduced, Eigen::MatrixXd::Identity(focal_dim, focal_dim));
+  if (!clusters.empty() && (inverse.rows() != focal_dim || !inverse.allFinite())) return false;
+  // (The selector's columns are unit vectors, or a rig camera's E^T over its
+  // capture's three: each column of S^-1 S_sel is a few of S^-1's.)
+  const auto select = [&](const Eigen::MatrixXd& m) {
+    Eigen::MatrixXd picked = Eigen::MatrixXd::Zero(m.rows(), selector.cols());
+    for (int c = 0; c < selector.cols(); ++c) {
+      for (int r = 0; r < selector.rows(); ++r) {
+        if (selector(r, c) != 0.0) picked.col(c) += selector(r, c) * m.col(r);
+      }
+    }
+    return picked;
+  };
+  const Eigen::MatrixXd columns = clusters.empty() ? inverse_columns(reduced, selector) : select(inverse);
   if (columns.rows() != focal_dim || !columns.allFinite()) return false;
   const double redundancy = static_cast<double>(residuals) - (focal_dim - groups) - 3.0 * tracks.size();
   out->variance_factor =
@@ -1154,6 +1311,44 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   } else {
     out->jackknife.resize(0, 0);
   }
+  out->track_clusters = 0;
+  out->track_jackknife.resize(0, 0);
+  std::vector<int> used_clusters;
+  for (int c = 0; c < static_cast<int>(clusters.size()); ++c) {
+    if (clusters[c].tracks > 0) used_clusters.push_back(c);
+  }
+  if (used_clusters.size() >= 2) {
+    // Each cluster's score corrected for its leverage as the cells' are
+    // (the bias-reduced linearisation), here exactly: a cluster's points are
+    // its own, so its leverage is K D over its views' (and focal scales')
+    // variables alone, K the block of S^-1 there, with every other variable
+    // free; the score gains D g(K D) K u (LeverageGain). D annihilates a
+    // rigid turn of all views and points, so the gain, like the score, is
+    // balanced.
+    Eigen::MatrixXd steps(columns.cols(), used_clusters.size());
+    for (std::size_t u = 0; u < used_clusters.size(); ++u) {
+      const TrackCluster& cluster = clusters[used_clusters[u]];
+      const int size = static_cast<int>(cluster.variables.size());
+      Eigen::MatrixXd k(size, size);
+      for (int p = 0; p < size; ++p) {
+        for (int q = 0; q < size; ++q) k(p, q) = inverse(cluster.variables[p], cluster.variables[q]);
+      }
+      const Eigen::VectorXd corrected = cluster.score + LeverageGain(k, cluster.information, cluster.score);
+      // Z u_c, u_c nonzero on the cluster's variables alone.
+      steps.col(u).setZero();
+      for (int p = 0; p < size; ++p) steps.col(u) += corrected[p] * columns.row(cluster.variables[p]).transpose();
+    }
+    const int g = static_cast<int>(used_clusters.size());
+    const Eigen::MatrixXd centred = steps.colwise() - steps.rowwise().mean();
+    const Eigen::MatrixXd jackknife = (static_cast<double>(g - 1) / g) * (centred * centred.transpose());
+    out->track_jackknife = jackknife.topLeftCorner(3 * blocks, 3 * blocks);
+    out->track_clusters = g;
+    for (int c = 0; c < cameras; ++c) {
+      if (var_f[c] < 0) continue;
+      const int f = var_f[c] - view_dim + 3 * blocks;
+      (*focal)[c].sigma_matches = std::max((*focal)[c].sigma_matches, jackknife(f, f));
+    }
+  }
   if (focal_columns > 0) {
     // The principal points: a prior of principal_point_sigma of each
     // camera's width (in the variance factor's units, so that the scaled
@@ -1180,7 +1375,7 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
       e.determined = std::isfinite(e.sigma) && e.sigma > 0.0;
     }
   }
-  if (!out->pixel_model.allFinite() || !out->jackknife.allFinite()) {
+  if (!out->pixel_model.allFinite() || !out->jackknife.allFinite() || !out->track_jackknife.allFinite()) {
     out->index.clear();
     return false;
   }
@@ -1224,7 +1419,7 @@ bool BundleAdjustmentCovariance::Relative(ViewId view, ViewId reference, Eigen::
                               r * joint.block<3, 3>(3 * j, 3 * j) * r.transpose();
     return 0.5 * (c + c.transpose());
   };
-  *covariance = LoewnerMax(relative(pixel_model), relative(jackknife));
+  *covariance = LoewnerMax(LoewnerMax(relative(pixel_model), relative(jackknife)), relative(track_jackknife));
   return covariance->allFinite();
 }
 
@@ -1375,6 +1570,7 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
       for (AdjustedView& v : alone) v.capture = -1;
     }
     if (!ComputeCovariance(alone.empty() ? views : alone, tracks, scale, options.covariance_cell_grid,
+                           options.covariance_track_clusters,
                            focal ? focal->principal_point_sigma : 0.0, out, focal ? &estimates : nullptr)) {
       *out = BundleAdjustmentCovariance();
       for (BundleAdjustmentFocal::Estimate& e : estimates) e.determined = false;

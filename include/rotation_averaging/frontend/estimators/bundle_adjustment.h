@@ -89,6 +89,12 @@ struct BundleAdjustmentOptions {
   // they are, for a few percent of the adjustment's time (docs/decisions.md,
   // "Grid 3").
   int covariance_cell_grid = 3;
+  // And at least the jackknife's over clusters of whole tracks, the tracks
+  // that start in one cell of that grid: errors a feature carries along its
+  // track (a tracker's drift, a point matched a little off in every view)
+  // move the orientations together across the views that see it, where the
+  // pixel model and the cells count each observation on its own.
+  bool covariance_track_clusters = true;
 };
 
 // The adjusted orientations' covariance: left perturbations of the
@@ -102,13 +108,15 @@ struct BundleAdjustmentCovariance {
   std::vector<Eigen::Matrix3d> orientations;  // adjusted, by block
   std::vector<int> group;                     // by block
   // Joint covariances (rad^2) of the blocks' d, 3 rows per block: the pixel
-  // model's (scaled by the variance factor) and the cell jackknife's.
-  Eigen::MatrixXd pixel_model, jackknife;
+  // model's (scaled by the variance factor), the cell jackknife's and the
+  // track clusters' jackknife's (empty when not asked for).
+  Eigen::MatrixXd pixel_model, jackknife, track_jackknife;
   double variance_factor = 1.0;  // weighted mean squared whitened residual over the redundancy
   int cells = 0;                 // non-empty cells of the jackknife
+  int track_clusters = 0;        // non-empty clusters of the track jackknife
   // Covariance of view's orientation relative to reference's, of
   // d = Log(R_hat_v R_hat_r^T R_r R_v^T) (what the published covariances
-  // describe): the larger of the two models in every direction. False if
+  // describe): the largest of the three in every direction. False if
   // either view is not adjusted or they are in different groups.
   bool Relative(ViewId view, ViewId reference, Eigen::Matrix3d* covariance) const;
 };
@@ -122,7 +130,7 @@ struct BundleAdjustmentCovariance {
 //
 // Its deviation has two parts, as the two-view focal check's
 // (FocalCalibrationOptions): the matches' (the pixel model's variance, at
-// least the cell jackknife's, as the orientations' covariance) and the
+// least the jackknives', as the orientations' covariance) and the
 // principal point's, the variance the focal length gains when each camera's
 // principal point is a further unknown with a prior of
 // `principal_point_sigma` of the width its observations span. Where the
