@@ -461,6 +461,14 @@ TEST(FocalMonitor, TheCorrectorAppliesTheRefinementsEstimates) {
   BundleAdjustmentFocal::Estimate undetermined = off;
   undetermined.determined = false;
   EXPECT_EQ(JudgeFocalEstimate(undetermined, 0.005), FocalVerdict::kCannotTell);
+  // Described with two significant digits of its smallest deviation.
+  BundleAdjustmentFocal::Estimate precise = off;
+  precise.scale = 1.0309, precise.sigma = 0.000046, precise.sigma_matches = 0.000041;
+  precise.sigma_principal_point = 0.000021, precise.views = 600;
+  EXPECT_EQ(DescribeFocalEstimate(precise),
+            "x1.030900 +- 0.000046 (matches 0.000041, principal point 0.000021), 600 keyframes");
+  unsure.sigma_matches = 0.0101, unsure.sigma_principal_point = 0.0388, unsure.views = 12;
+  EXPECT_EQ(DescribeFocalEstimate(unsure), "x1.0300 +- 0.0400 (matches 0.0101, principal point 0.0388), 12 keyframes");
 
   const std::unique_ptr<ShortFocalRun> run = RunShortFocal(true);
   const std::string front = run->scene->Cameras()[0].frame_id, left = run->scene->Cameras()[1].frame_id;

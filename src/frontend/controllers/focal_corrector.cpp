@@ -31,8 +31,18 @@ FocalVerdict JudgeFocalEstimate(const BundleAdjustmentFocal::Estimate& e, double
 }
 
 std::string DescribeFocalEstimate(const BundleAdjustmentFocal::Estimate& e) {
+  // Decimals enough for two significant digits of the smallest deviation
+  // (at least four, at most eight): a rig's refinement over hundreds of
+  // keyframes knows its focal length to a few parts in a hundred thousand,
+  // which four decimals print as 0.0000.
+  double smallest = INFINITY;
+  for (const double d : {e.sigma, e.sigma_matches, e.sigma_principal_point}) {
+    if (std::isfinite(d) && d > 0.0) smallest = std::min(smallest, d);
+  }
+  const int decimals =
+      std::isfinite(smallest) ? std::clamp(1 - static_cast<int>(std::floor(std::log10(smallest))), 4, 8) : 4;
   std::ostringstream out;
-  out << std::fixed << std::setprecision(4) << "x" << e.scale << " +- " << e.sigma << " (matches " << e.sigma_matches
+  out << std::fixed << std::setprecision(decimals) << "x" << e.scale << " +- " << e.sigma << " (matches " << e.sigma_matches
       << ", principal point " << e.sigma_principal_point << "), " << e.views << " keyframes";
   return out.str();
 }

@@ -36,7 +36,8 @@ namespace rotation_averaging {
 // the points' depths or the principal point: its deviation says so).
 enum class FocalVerdict { kAgrees, kDisagrees, kCannotTell };
 FocalVerdict JudgeFocalEstimate(const BundleAdjustmentFocal::Estimate& estimate, double min_correction);
-// "x1.0309 +- 0.0005 (matches 0.0005, principal point 0.0001), 60 keyframes".
+// "x1.0309 +- 0.0005 (matches 0.0005, principal point 0.0001), 60 keyframes",
+// with decimals enough for two significant digits of every deviation.
 std::string DescribeFocalEstimate(const BundleAdjustmentFocal::Estimate& estimate);
 
 struct FocalCorrectorOptions {
