@@ -42,6 +42,21 @@ def nees(text):
     return "%s / %s%%" % (m.group(1), m.group(2)) if m else ""
 
 
+def decimals(*deviations):
+    """Decimals enough for two significant digits of the smallest positive deviation (4 to 8), as the node
+    prints them."""
+    positive = [d for d in deviations if d > 0]
+    return min(max(1 - math.floor(math.log10(min(positive))), 4), 8) if positive else 4
+
+
+def described(e, with_parts):
+    n = decimals(e["sd"], e["matches"], e["pp"]) if with_parts else decimals(e["sd"])
+    text = "x%.*f +- %.*f" % (n, e["scale"], n, e["sd"])
+    if with_parts:
+        text += " (%.*f, %.*f), %d keyframes" % (n, e["matches"], n, e["pp"], e["views"])
+    return text
+
+
 def estimates(text):
     return {m.group(1): {"scale": float(m.group(2)), "sd": float(m.group(3)), "matches": float(m.group(4)),
                          "pp": float(m.group(5)), "views": int(m.group(6))} for m in ESTIMATE.finditer(text)}
@@ -85,8 +100,7 @@ def main():
             row = [NAMES.get(base, base), "x%g" % scale, camera,
                    " / ".join(median(t) for t in (fixed, warn, apply))]
             if e:
-                row.append("x%.4f +- %.4f (%.4f, %.4f), %d keyframes" % (e["scale"], e["sd"], e["matches"], e["pp"],
-                                                                        e["views"]))
+                row.append(described(e, True))
                 row.append("%+.1f" % ((e["scale"] - 1.0 / scale) / e["sd"]) if truth_known and e["sd"] > 0 else "")
             else:
                 row += ["not estimated", ""]
@@ -100,9 +114,9 @@ def main():
                 row.append("x%.5f of camera_info's%s" % (correction, "" if camera in corrected else " (not corrected)"))
             a = apply_estimates.get(camera)
             if a and truth_known and a["sd"] > 0:
-                row.append("x%.4f +- %.4f: %+.1f" % (a["scale"], a["sd"], (a["scale"] - 1.0 / ended) / a["sd"]))
+                row.append("%s: %+.1f" % (described(a, False), (a["scale"] - 1.0 / ended) / a["sd"]))
             elif a:
-                row.append("x%.4f +- %.4f" % (a["scale"], a["sd"]))
+                row.append(described(a, False))
             else:
                 row.append("")
             row.append("; ".join(nees(t) for t in (fixed, warn, apply)) if truth_known else "")

@@ -312,3 +312,26 @@ def test_the_window_section_holds_each_runs_figures_and_its_errors_along_the_bag
     os.remove(tmp_path / "long_window_alone.txt")
     assert "## The keyframes before the window" not in run("refinement_report.py", tmp_path, "door",
                                                            tmp_path / "no_euroc")
+
+
+def test_self_calibration_rows_print_each_estimate_to_two_significant_digits_of_its_deviation(tmp_path):
+    def estimate(scale, sd, matches, pp):
+        return ("focal length by the refinement, cam_front: x%s +- %s (matches %s, principal point %s), "
+                "60 keyframes of the one in use" % (scale, sd, matches, pp))
+    nees = ("posterior covariances against the ground truth: NEES median 2.79 (2.37 if honest), mean 3.00, "
+            "98.3% within chi-square's 95% bound, 118 keyframes")
+    (tmp_path / "demo_0.97_fixed.txt").write_text(summary(120, 0.3058, extra=[nees]))
+    (tmp_path / "demo_0.97_warn.txt").write_text(
+        summary(120, 0.0034, extra=[nees, estimate("1.0309832", "0.0000500", "0.0000495", "0.0000074")]))
+    (tmp_path / "demo_0.97_apply.txt").write_text(summary(120, 0.0043, extra=[
+        nees, estimate("0.999700", "0.000052", "0.000051", "0.000008"),
+        "focal length corrected (focal_calibration: apply): cam_front: camera_info's focal length x1.0312"]))
+    text = run("self_calibration_report.py", tmp_path, "demo_0.97")
+    row = table_row(text, "demo rig")
+    assert row[1:3] == ["x0.97", "cam_front"]
+    # The warn run's estimate with its parts; how far from the true 1 / 0.97 in its deviations.
+    assert row[4] == "x1.0309832 +- 0.0000500 (0.0000495, 0.0000074), 60 keyframes"
+    assert row[5] == "+1.1"
+    # With apply: ended at 0.97 x 1.0312; the last estimate against the truth in the focal length in use.
+    assert row[7] == "x1.00026 (+0.03%)"
+    assert row[8] == "x0.999700 +- 0.000052: -0.7"
