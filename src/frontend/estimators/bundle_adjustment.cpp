@@ -760,10 +760,18 @@ void AddSegment(const ViewVariables& i, const V& v, int c, Eigen::MatrixXd* m) {
   }
 }
 
+// The bias-reduced linearisation's gain g(l) = ((1 - l)^-1/2 - 1) / l for a
+// leverage l in [0, 1], clamped to 0.99 (where one cell or cluster alone
+// fixes a direction, (1 - l)^-1/2 diverges): (I - H)^-1/2 u = u + H g(H) u.
+double BiasReducedGain(double leverage) {
+  const double l = std::clamp(leverage, 0.0, 0.99);
+  return l > 1e-9 ? (1.0 / std::sqrt(1.0 - l) - 1.0) / l : 0.5;
+}
+
 // What the bias-reduced linearisation adds to a cluster's score u, with D
 // its information and K the block of S^-1 over its variables: D g(K D) K u,
-// g(l) = ((1 - l)^-1/2 - 1) / l on the eigenvalues l of the leverage K D
-// (in [0, 1]; clamped to 0.99). By Lanczos' method in the inner product
+// g (BiasReducedGain) on the eigenvalues of the leverage K D. By Lanczos'
+// method in the inner product
 // <x, y> = x^T D y, in which K D is symmetric: k steps over the Krylov space
 // of K D and K u (fully reorthogonalised), g taken on the k x k
 // tridiagonal's eigenvalues. What of K u the inner product does not see is
@@ -805,8 +813,7 @@ Eigen::VectorXd LeverageGain(const Eigen::MatrixXd& k_block, const Eigen::Matrix
   const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(t);
   Eigen::VectorXd g(k);
   for (int i = 0; i < k; ++i) {
-    const double leverage = std::clamp(eigen.eigenvalues()[i], 0.0, 0.99);
-    g[i] = leverage > 1e-9 ? (1.0 / std::sqrt(1.0 - leverage) - 1.0) / leverage : 0.5;
+    g[i] = BiasReducedGain(eigen.eigenvalues()[i]);
   }
   // D Q_k g(T) e_1 |z|_D.
   return norm * (dq.leftCols(k) * (eigen.eigenvectors() * (g.asDiagonal() * eigen.eigenvectors().row(0).transpose())));
@@ -1265,8 +1272,7 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
       const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> h(root_inverse * d * root_inverse);
       Vector6d g;
       for (int i = 0; i < 6; ++i) {
-        const double leverage = std::clamp(h.eigenvalues()[i], 0.0, 0.99);
-        g[i] = leverage > 1e-9 ? (1.0 / std::sqrt(1.0 - leverage) - 1.0) / leverage : 0.5;
+        g[i] = BiasReducedGain(h.eigenvalues()[i]);
       }
       Vector6d own;
       for (int q = 0; q < 6; ++q) own[q] = scores(var[v].Index(q), c);
