@@ -166,6 +166,18 @@ std::vector<double> NeesRelativeToViewZero(const ViewOrientations& estimate, con
   return out;
 }
 
+// Adjusts `scene` from `adjusted` with the default options, its orientations'
+// covariance asked for.
+testing::AssertionResult AdjustedWithCovariance(const Scene& scene, ViewOrientations* adjusted,
+                                                BundleAdjustmentCovariance* covariance) {
+  BundleAdjustmentSummary summary;
+  if (RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), adjusted, &summary, nullptr,
+                                          covariance)) {
+    return testing::AssertionSuccess();
+  }
+  return testing::AssertionFailure() << summary.Report();
+}
+
 double Mean(const std::vector<double>& values) {
   double sum = 0.0;
   for (double v : values) sum += v;
@@ -182,11 +194,8 @@ TEST(BundleAdjustmentCovariance, CalibratedOnIndependentPixelNoise) {
   for (std::uint32_t seed = 1; seed <= 30; ++seed) {
     const Scene scene = MakeScene(6, 0.5, seed);
     ViewOrientations adjusted = Perturbed(scene.truth, 0.3, 100 + seed);
-    BundleAdjustmentSummary summary;
     BundleAdjustmentCovariance covariance;
-    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &adjusted, &summary,
-                                                    nullptr, &covariance))
-        << summary.Report();
+    ASSERT_TRUE(AdjustedWithCovariance(scene, &adjusted, &covariance));
     ASSERT_EQ(covariance.index.size(), 6u);
     EXPECT_NEAR(covariance.variance_factor, 1.0, 0.15);
     EXPECT_GE(covariance.cells, 6 * 8);  // 3 x 3 (the default) of each view's
@@ -349,11 +358,8 @@ TEST(BundleAdjustmentCovariance, TheJackknifeStaysWithThePixelModelAlongALongWin
   for (std::uint32_t seed = 1; seed <= 6; ++seed) {
     const Scene scene = MakeCorridorScene(30, 0.5, seed);
     ViewOrientations adjusted = Perturbed(scene.truth, 0.2, 100 + seed);
-    BundleAdjustmentSummary summary;
     BundleAdjustmentCovariance covariance;
-    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &adjusted, &summary,
-                                                    nullptr, &covariance))
-        << summary.Report();
+    ASSERT_TRUE(AdjustedWithCovariance(scene, &adjusted, &covariance));
     ASSERT_EQ(covariance.index.size(), 30u);
     Eigen::Matrix3d with_jackknife, pixel_model;
     ASSERT_TRUE(covariance.Relative(29, 0, &with_jackknife));
@@ -381,11 +387,8 @@ TEST(BundleAdjustmentCovariance, TheTrackJackknifeWidensWhatATrackCarriesAlongIt
   for (std::uint32_t seed = 1; seed <= 8; ++seed) {
     const Scene scene = MakeCorridorScene(16, 0.1, seed, 0.1);
     ViewOrientations adjusted = Perturbed(scene.truth, 0.2, 100 + seed);
-    BundleAdjustmentSummary summary;
     BundleAdjustmentCovariance covariance;
-    ASSERT_TRUE(RefineRotationsWithBundleAdjustment(scene.edges, BundleAdjustmentOptions(), &adjusted, &summary,
-                                                    nullptr, &covariance))
-        << summary.Report();
+    ASSERT_TRUE(AdjustedWithCovariance(scene, &adjusted, &covariance));
     // Most tracks start in the first view or at the side of the image the
     // points come in from: a few clusters a view.
     EXPECT_GE(covariance.track_clusters, 2 * 16);
