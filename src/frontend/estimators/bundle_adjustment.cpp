@@ -948,9 +948,6 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   struct TrackCluster {
     std::vector<int> variables;
     std::vector<std::size_t> members;  // its tracks
-    Eigen::MatrixXd information;
-    Eigen::VectorXd score;
-    int tracks = 0;  // of them, those with a determined point
   };
   std::vector<TrackCluster> clusters(track_clusters && grid > 0 ? cells : 0);
   const auto observation_variables = [&](const Observation& o) {
@@ -1033,11 +1030,11 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   };
   // The track's reduced information and score, of what linearise left:
   // over each observation's view (six) and focal scale (one),
-  // D = A - B Hpp^-1 B^T and u = g - B Hpp^-1 g_x, added to its cluster's.
-  const auto add_to_cluster = [&](const Track& t, const Eigen::Matrix3d& hpp_inv, TrackCluster* out) {
-    TrackCluster& cluster = *out;
+  // D = A - B Hpp^-1 B^T and u = g - B Hpp^-1 g_x, added to its cluster's
+  // (over the cluster's variables).
+  const auto add_to_cluster = [&](const Track& t, const Eigen::Matrix3d& hpp_inv, const TrackCluster& cluster,
+                                  Eigen::MatrixXd* information, Eigen::VectorXd* score) {
     const std::size_t m = t.observations.size();
-    ++cluster.tracks;
     using Matrix73 = Eigen::Matrix<double, 7, 3>;
     std::vector<std::array<int, 7>> local(m);
     std::vector<Matrix73> b7(m, Matrix73::Zero());
@@ -1066,9 +1063,9 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
       g7 -= b7[i] * (hpp_inv * gx_sum);
       for (int p = 0; p < 7; ++p) {
         if (local[i][p] < 0) continue;
-        cluster.score[local[i][p]] += g7[p];
+        (*score)[local[i][p]] += g7[p];
         for (int q = 0; q < 7; ++q) {
-          if (local[i][q] >= 0) cluster.information(local[i][p], local[i][q]) += a7(p, q);
+          if (local[i][q] >= 0) (*information)(local[i][p], local[i][q]) += a7(p, q);
         }
       }
     }
@@ -1079,7 +1076,7 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
         for (int p = 0; p < 7; ++p) {
           if (local[i][p] < 0) continue;
           for (int q = 0; q < 7; ++q) {
-            if (local[j][q] >= 0) cluster.information(local[i][p], local[j][q]) -= cross(p, q);
+            if (local[j][q] >= 0) (*information)(local[i][p], local[j][q]) -= cross(p, q);
           }
         }
       }
@@ -1343,28 +1340,27 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     // balanced.
     Eigen::MatrixXd steps(columns.cols(), clusters.size());
     int used = 0;
-    for (TrackCluster& cluster : clusters) {
+    for (const TrackCluster& cluster : clusters) {
       const int size = static_cast<int>(cluster.variables.size());
-      cluster.information = Eigen::MatrixXd::Zero(size, size);
-      cluster.score = Eigen::VectorXd::Zero(size);
+      Eigen::MatrixXd information = Eigen::MatrixXd::Zero(size, size);
+      Eigen::VectorXd score = Eigen::VectorXd::Zero(size);
+      bool any = false;  // a track with a determined point
       for (const std::size_t k : cluster.members) {
         const Eigen::LDLT<Eigen::Matrix3d> ldlt(linearise(k, nullptr));
         if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 0.0)) continue;  // (as above)
-        add_to_cluster(tracks[k], ldlt.solve(Eigen::Matrix3d::Identity()), &cluster);
+        add_to_cluster(tracks[k], ldlt.solve(Eigen::Matrix3d::Identity()), cluster, &information, &score);
+        any = true;
       }
-      if (cluster.tracks > 0) {
-        Eigen::MatrixXd k(size, size);
-        for (int p = 0; p < size; ++p) {
-          for (int q = 0; q < size; ++q) k(p, q) = inverse(cluster.variables[p], cluster.variables[q]);
-        }
-        const Eigen::VectorXd corrected = cluster.score + LeverageGain(k, cluster.information, cluster.score);
-        // Z u_c, u_c nonzero on the cluster's variables alone.
-        steps.col(used).setZero();
-        for (int p = 0; p < size; ++p) steps.col(used) += corrected[p] * columns.row(cluster.variables[p]).transpose();
-        ++used;
+      if (!any) continue;
+      Eigen::MatrixXd k(size, size);
+      for (int p = 0; p < size; ++p) {
+        for (int q = 0; q < size; ++q) k(p, q) = inverse(cluster.variables[p], cluster.variables[q]);
       }
-      cluster.information.resize(0, 0);
-      cluster.score.resize(0);
+      const Eigen::VectorXd corrected = score + LeverageGain(k, information, score);
+      // Z u_c, u_c nonzero on the cluster's variables alone.
+      steps.col(used).setZero();
+      for (int p = 0; p < size; ++p) steps.col(used) += corrected[p] * columns.row(cluster.variables[p]).transpose();
+      ++used;
     }
     if (used >= 2) {
       const int g = used;

@@ -120,11 +120,11 @@ struct KeyframeRefinerOptions {
   // hold best. Those of the joint problem describe independent pixel noise
   // (mean NEES 2.9 on a simulated two-camera rig, bundle_adjustment_test),
   // but on the rendered two-camera rig the errors were two to three times
-  // their deviations (NEES median 8.4 on the demo bag, 10.9 on its 20 Hz
-  // stream, 49% and 33% of keyframes within chi-square's 95% bound), with
-  // each camera's own 3.7 and 5.6 (90% and 70%; results/posterior.md, "A
+  // their deviations (NEES median 6.0 on the demo bag, 8.7 on its 20 Hz
+  // stream, 61% and 40% of keyframes within chi-square's 95% bound), with
+  // each camera's own 2.8 and 3.9 (98% and 89%; results/posterior.md, "A
   // rig's covariances"): an error neither the residuals nor the
-  // jackknife's cells show. A filter that trusts a covariance too much
+  // jackknives show. A filter that trusts a covariance too much
   // diverges; one too wide only weighs it less.
   bool rig_joint_covariance = false;
   // Each camera's focal length estimated in the adjustment with its

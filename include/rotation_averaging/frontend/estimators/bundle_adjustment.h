@@ -83,11 +83,12 @@ struct BundleAdjustmentOptions {
   // structure matched to its neighbour) move the orientations together, where
   // the pixel model counts them as independent: as the two-view covariances'
   // jackknife (RelativePoseOptions::jackknife_grid) does for a pair. 3:
-  // 2, 3 and 4 give the pixel model's NEES within 6% on every input with a
-  // reference but one (results/posterior.md, "The jackknife's grid"), whose
-  // errors a region shares are not what it misses; 3 keeps the guard where
-  // they are, for a few percent of the adjustment's time (docs/decisions.md,
-  // "Grid 3").
+  // with the cells alone, 2, 3 and 4 give the pixel model's NEES within 6%
+  // on every input with a reference but one, whose errors a region shares
+  // are not what it misses; with the track clusters below, whose size the
+  // grid sets, each meets the NEES target on the same four inputs
+  // (results/posterior.md, "The jackknife's grid"); 3 keeps the guard where
+  // such errors are (docs/decisions.md, "Grid 3").
   int covariance_cell_grid = 3;
   // And at least the jackknife's over clusters of whole tracks, the tracks
   // that start in one cell of that grid: errors a feature carries along its
