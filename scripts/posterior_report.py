@@ -68,8 +68,9 @@ covariances (`refinement_covariances: true`, docs/node.md "Background refinement
 adjustment's normal equations, scaled by its variance factor, at least in every direction the delete-one-cell
 jackknife's over a 3 x 3 grid of each keyframe's observations (`refinement_jackknife_grid`) and the jackknife's
 over clusters of whole tracks, those that start in one of those cells (`refinement_jackknife_tracks`: errors a
-feature carries along its track), relative to the keyframe the averaging holds best, plus that keyframe's own
-covariance in the averaging.""")
+feature carries along its track), both jackknives' moves scaled to the robust loss' expected Hessian (sum w /
+sum w^2 of Cauchy's weights, docs/decisions.md), relative to the keyframe the averaging holds best, plus that
+keyframe's own covariance in the averaging.""")
     print("""
 ## The defaults
 

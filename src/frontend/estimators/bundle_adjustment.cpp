@@ -913,6 +913,9 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   std::vector<int> cell_view(grid > 0 ? cells : 0, -1);
   const double a2 = loss_scale * loss_scale;
   double weighted_squares = 0.0;
+  // Sums of Cauchy's weights and of their squares over the observations:
+  // the jackknives' bread (below).
+  double weight_sum = 0.0, squared_weight_sum = 0.0;
   std::size_t residuals = 0;
   using Matrix63 = Eigen::Matrix<double, 6, 3>;
   using Matrix26 = Eigen::Matrix<double, 2, 6>;
@@ -1024,7 +1027,11 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
         ge[i] = w * je.transpose() * r;
         ei[i] = {var_f[v.camera], var_p[v.camera], var_p[v.camera] + 1};
       }
-      if (squares) *squares += w * r.squaredNorm();
+      if (squares) {
+        *squares += w * r.squaredNorm();
+        weight_sum += w;
+        squared_weight_sum += w * w;
+      }
     }
     return hpp;
   };
@@ -1254,6 +1261,22 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
   out->variance_factor =
       redundancy >= 10.0 ? weighted_squares / (CauchyWeightedSquaresFraction(loss_scale) * redundancy) : 1.0;
   const Eigen::MatrixXd joint = out->variance_factor * (selector.transpose() * columns);
+  // The jackknives' bread. A cell's or a cluster's move is S^-1 u_c, S the
+  // normal equations on Cauchy's weights w (IRLS), but how far the robust
+  // estimate follows its data is set by the robust cost's Hessian, whose
+  // part from an observation is (w I + 2 w' r r^T) J^T J-wise, w' = dw/ds of
+  // its squared whitened residual s: with r of any isotropic distribution
+  // its expectation is E[w + s w'] J^T J = E[w^2] J^T J (Cauchy's w + s w' =
+  // w^2), where S has E[w] J^T J. Each move is then sum w / sum w^2 times
+  // S^-1 u_c (1.17 on Gaussian noise at the pixel model's sigma, the loss at
+  // 3 sigma), and the jackknives' covariances its square; the leverage K D
+  // is unchanged (K grows as D shrinks). The expectation, not the realised
+  // Hessian: that one is indefinite for every residual beyond the loss'
+  // scale, and keeps S's structure only up to a rank-one term per
+  // observation. (The pixel model is normalised to Gaussian noise by
+  // CauchyWeightedSquaresFraction instead.)
+  out->jackknife_bread = squared_weight_sum > 0.0 ? weight_sum / squared_weight_sum : 1.0;
+  const double bread2 = out->jackknife_bread * out->jackknife_bread;
   out->pixel_model = joint.topLeftCorner(3 * blocks, 3 * blocks);
   out->cells = grid > 0 ? cells : 0;
   if (grid > 0 && cells >= 2) {
@@ -1320,7 +1343,7 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     const Eigen::MatrixXd steps = columns.transpose() * scores.topRows(focal_dim);
     const Eigen::VectorXd mean = steps.rowwise().mean();
     const Eigen::MatrixXd centred = steps.colwise() - mean;
-    const Eigen::MatrixXd jackknife = (static_cast<double>(cells - 1) / cells) * (centred * centred.transpose());
+    const Eigen::MatrixXd jackknife = (bread2 * (cells - 1) / cells) * (centred * centred.transpose());
     out->jackknife = jackknife.topLeftCorner(3 * blocks, 3 * blocks);
     for (int c = 0; c < cameras; ++c) {
       if (var_f[c] >= 0) (*focal)[c].sigma_matches = jackknife(var_f[c] - view_dim + 3 * blocks, var_f[c] - view_dim + 3 * blocks);
@@ -1365,7 +1388,7 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     if (used >= 2) {
       const int g = used;
       const Eigen::MatrixXd centred = steps.leftCols(g).colwise() - steps.leftCols(g).rowwise().mean();
-      const Eigen::MatrixXd jackknife = (static_cast<double>(g - 1) / g) * (centred * centred.transpose());
+      const Eigen::MatrixXd jackknife = (bread2 * (g - 1) / g) * (centred * centred.transpose());
       out->track_jackknife = jackknife.topLeftCorner(3 * blocks, 3 * blocks);
       out->track_clusters = g;
       for (int c = 0; c < cameras; ++c) {

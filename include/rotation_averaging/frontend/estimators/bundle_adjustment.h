@@ -113,6 +113,10 @@ struct BundleAdjustmentCovariance {
   // track clusters' jackknife's (empty when not asked for).
   Eigen::MatrixXd pixel_model, jackknife, track_jackknife;
   double variance_factor = 1.0;  // weighted mean squared whitened residual over the redundancy
+  // What the jackknives' moves are scaled by: sum w / sum w^2 of Cauchy's
+  // weights, the normal equations' information over the robust cost's
+  // expected Hessian (ComputeCovariance); 1 without the loss' effect.
+  double jackknife_bread = 1.0;
   int cells = 0;                 // non-empty cells of the jackknife
   int track_clusters = 0;        // non-empty clusters of the track jackknife
   // Covariance of view's orientation relative to reference's, of
