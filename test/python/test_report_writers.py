@@ -272,6 +272,13 @@ def test_refinement_rows_hold_each_runs_figures_and_the_ratio_to_offline(tmp_pat
     assert "## A focal length that agrees" in text
     long = table_row(text, "600 keyframes (two cameras, 300 captures, every image a keyframe)")
     assert long[1:] == ["600", "0.0055", "0.0085", "0.0124", "0.83 / 0.83", "cam_front x1.0004 +- 0.0055"]
+    assert "x1), every one within two of its deviations." in text
+    # An estimate beyond two of its deviations is named, with how far.
+    far = focal.replace("x1.0004 +- 0.0055", "x1.0004 +- 0.0001")
+    (tmp_path / "long_free_focal.txt").write_text(summary(600, 0.0124, extra=[refined, nees, far]))
+    text = run("refinement_report.py", tmp_path, "door", tmp_path / "no_euroc")
+    assert ("within two of their deviations but for the 600 keyframes (two cameras, 300 captures, every image a "
+            "keyframe)'s cam_front, 4.0 deviations off.") in text
 
 
 def test_the_window_section_holds_each_runs_figures_and_its_errors_along_the_bag(tmp_path):

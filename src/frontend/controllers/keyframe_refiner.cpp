@@ -519,7 +519,7 @@ std::map<KeyframeKey, KeyframeRefiner::RelativeCovariance> KeyframeRefiner::Cova
   // that camera's tracks alone. The mean of theirs let a camera that sees
   // little widen every capture; their information summed, or the joint
   // problem's, counts the cameras' tracks as independent, and was too
-  // narrow on the two-camera streams (results/posterior.md, "A rig's covariances";
+  // narrow on the two-camera 20 Hz stream (results/posterior.md, "A rig's covariances";
   // docs/decisions.md, "A rig capture's covariance").
   for (const auto& [capture, ids] : ByCapture(relative, keys, rig)) {
     Eigen::Matrix3d best;

@@ -119,11 +119,11 @@ struct KeyframeRefinerOptions {
   // reference capture, a capture's cameras that of the camera its tracks
   // hold best. Those of the joint problem describe independent pixel noise
   // (mean NEES 2.9 on a simulated two-camera rig, bundle_adjustment_test),
-  // but on the rendered two-camera rig the errors were two to three times
-  // their deviations (NEES median 6.0 on the demo bag, 8.7 on its 20 Hz
-  // stream, 61% and 40% of keyframes within chi-square's 95% bound), with
-  // each camera's own 2.8 and 3.9 (98% and 89%; results/posterior.md, "A
-  // rig's covariances"): an error neither the residuals nor the
+  // but on the rendered two-camera rig's 20 Hz stream the errors are two to
+  // three times their deviations (NEES median 7.0, 57% of keyframes within
+  // chi-square's 95% bound; 4.8 and 88% on the demo bag), with each
+  // camera's own 3.1 and 2.1 (98% and 100%; results/posterior.md, "A rig's
+  // covariances"): an error neither the residuals nor the
   // jackknives show. A filter that trusts a covariance too much
   // diverges; one too wide only weighs it less.
   bool rig_joint_covariance = false;

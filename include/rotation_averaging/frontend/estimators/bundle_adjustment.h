@@ -83,7 +83,7 @@ struct BundleAdjustmentOptions {
   // structure matched to its neighbour) move the orientations together, where
   // the pixel model counts them as independent: as the two-view covariances'
   // jackknife (RelativePoseOptions::jackknife_grid) does for a pair. 3:
-  // with the cells alone, 2, 3 and 4 give the pixel model's NEES within 6%
+  // with the cells alone, 2, 3 and 4 give the pixel model's NEES within 10%
   // on every input with a reference but one, whose errors a region shares
   // are not what it misses; with the track clusters below, whose size the
   // grid sets, each meets the NEES target on the same four inputs
