@@ -65,10 +65,14 @@ def row(out, name, refinement, offline=None, error=None):
     return "| " + " | ".join(cells) + " |"
 
 
+def refined_focal(text):
+    """(camera, scale, deviation) as printed, of the refinement's latest focal estimates in a replay's summary."""
+    return re.findall(r"^focal length by the refinement, (\S+): x([\d.]+) \+- ([\d.]+)", text, re.M)
+
+
 def focal_estimates(text):
     """The refinement's latest focal estimates of a replay's summary, one per camera."""
-    found = re.findall(r"^focal length by the refinement, (\S+): x([\d.]+) \+- ([\d.]+)", text, re.M)
-    return ", ".join("%s x%s +- %s" % f for f in found) or "-"
+    return ", ".join("%s x%s +- %s" % f for f in refined_focal(text)) or "-"
 
 
 def focal_section(out):
@@ -82,8 +86,7 @@ def focal_section(out):
         t_on, t_off, t_free = (read(out, name + suffix) for suffix in ("_true", "_false", "_free_focal"))
         if not (t_on and t_off and t_free):
             continue
-        for camera, scale, sigma in re.findall(r"^focal length by the refinement, (\S+): x([\d.]+) \+- ([\d.]+)",
-                                               t_free, re.M):
+        for camera, scale, sigma in refined_focal(t_free):
             off = abs(float(scale) - 1.0) / float(sigma) if float(sigma) > 0.0 else float("inf")
             if off > 2.0:
                 far.append((label, camera, off))

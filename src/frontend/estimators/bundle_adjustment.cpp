@@ -976,9 +976,10 @@ bool ComputeCovariance(const std::vector<AdjustedView>& views, const std::vector
     }
   }
   // A track's observations linearised at the solution (b, gx, a, gc and
-  // the focal rows above; their weighted squared residuals added to
-  // *squares, if given): its point's information, which eliminating the
-  // point inverts.
+  // the focal rows above; if *squares is given, their weighted squared
+  // residuals added to it and their weights to weight_sum and
+  // squared_weight_sum, once per track in the first pass): its point's
+  // information, which eliminating the point inverts.
   const auto linearise = [&](std::size_t k, double* squares) -> Eigen::Matrix3d {
     const Track& t = tracks[k];
     const std::size_t m = t.observations.size();
