@@ -1,7 +1,6 @@
 #include "rotation_averaging/frontend/estimators/bundle_adjustment.h"
 
 #include <ceres/ceres.h>
-#include <ceres/rotation.h>
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
@@ -16,68 +15,13 @@
 #include <sstream>
 #include <tuple>
 
+#include "frontend/estimators/reprojection_cost.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/frontend/estimators/relative_pose.h"
 #include "rotation_averaging/util/blas_threads.h"
 
 namespace rotation_averaging {
 namespace {
-
-// y = E R(w) (X - c): the point X in the camera with angle-axis orientation
-// w (world to camera; a rig camera's: its capture's, E its camera_from_rig)
-// and centre c.
-template <typename T>
-void InCamera(const T* w, const T* c, const T* point, const std::optional<Eigen::Matrix3d>& from_rig, T* y) {
-  const T d[3] = {point[0] - c[0], point[1] - c[1], point[2] - c[2]};
-  if (!from_rig) {
-    ceres::AngleAxisRotatePoint(w, d, y);
-    return;
-  }
-  T z[3];
-  ceres::AngleAxisRotatePoint(w, d, z);
-  const Eigen::Matrix3d& e = *from_rig;
-  for (int r = 0; r < 3; ++r) y[r] = T(e(r, 0)) * z[0] + T(e(r, 1)) * z[1] + T(e(r, 2)) * z[2];
-}
-
-// Whitened reprojection error of one observation: y (InCamera) projects to
-// (y0 / y2, y1 / y2).
-struct WhitenedReprojection {
-  WhitenedReprojection(const Eigen::Vector2d& x, double inverse_sigma, std::optional<Eigen::Matrix3d> from_rig)
-      : x_(x), inverse_sigma_(inverse_sigma), from_rig_(std::move(from_rig)) {}
-
-  template <typename T>
-  bool operator()(const T* w, const T* c, const T* point, T* residual) const {
-    T y[3];
-    InCamera(w, c, point, from_rig_, y);
-    residual[0] = T(inverse_sigma_) * (y[0] / y[2] - T(x_.x()));
-    residual[1] = T(inverse_sigma_) * (y[1] / y[2] - T(x_.y()));
-    return true;
-  }
-
-  Eigen::Vector2d x_;
-  double inverse_sigma_;
-  std::optional<Eigen::Matrix3d> from_rig_;
-};
-
-// The same with the camera's focal length a multiple a of the one the
-// observation was normalised with: x = a proj(y) (BundleAdjustmentFocal).
-struct WhitenedReprojectionWithFocal {
-  WhitenedReprojectionWithFocal(const Eigen::Vector2d& x, double inverse_sigma, std::optional<Eigen::Matrix3d> from_rig)
-      : x_(x), inverse_sigma_(inverse_sigma), from_rig_(std::move(from_rig)) {}
-
-  template <typename T>
-  bool operator()(const T* w, const T* c, const T* point, const T* a, T* residual) const {
-    T y[3];
-    InCamera(w, c, point, from_rig_, y);
-    residual[0] = T(inverse_sigma_) * (a[0] * y[0] / y[2] - T(x_.x()));
-    residual[1] = T(inverse_sigma_) * (a[0] * y[1] / y[2] - T(x_.y()));
-    return true;
-  }
-
-  Eigen::Vector2d x_;
-  double inverse_sigma_;
-  std::optional<Eigen::Matrix3d> from_rig_;
-};
 
 // c_j - c_i - s d: the least-unsquared-deviations residual of one edge.
 struct CentreDeviation {
@@ -513,6 +457,29 @@ class CamerasSettled : public ceres::IterationCallback {
   std::vector<double> focal_scales_;
 };
 
+// The reduced camera system's size up to which the adjustment eliminates
+// the points into a dense matrix (DENSE_SCHUR) rather than a sparse one.
+// Up to a few hundred views the dense matrix is indexed directly where the
+// sparse one looks every block up in a hash map as the points are
+// eliminated, and its Cholesky factor costs a few milliseconds
+// (docs/decisions.md). Beyond it (an offline map of thousands of views) the
+// dense factor's cubic cost takes over.
+constexpr int kDenseSchurMaxDimension = 1500;
+
+// The tangent dimension of the variables the Schur complement keeps: the
+// ordering's second group (views, captures and focal scales) less those
+// held constant.
+int CameraSystemDimension(const ceres::Problem& problem, const ceres::ParameterBlockOrdering& ordering) {
+  const auto& groups = ordering.group_to_elements();
+  const auto it = groups.find(1);
+  if (it == groups.end()) return 0;
+  int dimension = 0;
+  for (double* block : it->second) {
+    if (!problem.IsParameterBlockConstant(block)) dimension += problem.ParameterBlockTangentSize(block);
+  }
+  return dimension;
+}
+
 // Minimises the whitened reprojection errors under `loss` over points,
 // centres and (unless held) orientations and the cameras' focal scales
 // (`focal_scales`, by AdjustedView::camera). True if the solution is usable.
@@ -544,15 +511,13 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
       double* w = RotationBlock(views, o.view);
       if (v.camera >= 0) {
         double* a = &(*views)[first_view[v.camera]].focal_scale;
-        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojectionWithFocal, 2, 3, 3, 3, 1>(
-                                     new WhitenedReprojectionWithFocal(o.x, 1.0 / v.sigma, FromRig(v))),
-                                 loss, w, v.centre.data(), t.point.data(), a);
+        problem.AddResidualBlock(new ReprojectionCost(o.x, 1.0 / v.sigma, FromRig(v), true), loss, w,
+                                 v.centre.data(), t.point.data(), a);
         ordering->AddElementToGroup(a, 1);
         if (hold_orientations) problem.SetParameterBlockConstant(a);
       } else {
-        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<WhitenedReprojection, 2, 3, 3, 3>(
-                                     new WhitenedReprojection(o.x, 1.0 / v.sigma, FromRig(v))),
-                                 loss, w, v.centre.data(), t.point.data());
+        problem.AddResidualBlock(new ReprojectionCost(o.x, 1.0 / v.sigma, FromRig(v), false), loss, w,
+                                 v.centre.data(), t.point.data());
       }
       ++summary->observations;
     }
@@ -634,6 +599,9 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
     problem.SetManifold((*views)[farthest[g]].centre.data(), new ceres::SubsetManifold(3, {axis}));
   }
   ceres::Solver::Options solver_options = SolverOptions(options.max_iterations);
+  if (CameraSystemDimension(problem, *ordering) <= kDenseSchurMaxDimension) {
+    solver_options.linear_solver_type = ceres::DENSE_SCHUR;
+  }
   solver_options.linear_solver_ordering.reset(ordering);
   // The first stage only places centres and points for the next (its
   // orientations held): a thousandth of the map's extent is enough there.
