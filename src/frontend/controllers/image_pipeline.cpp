@@ -172,10 +172,12 @@ using PointWarp = std::function<std::vector<Eigen::Vector2d>(const std::vector<E
 
 // Each pair's part of the profile's cost with intrinsics k. Every pair's
 // pose is refined from its estimate on the matches within its threshold,
-// which are selected again at the refined pose (twice), and scored by the
-// truncated squared Sampson error of all its matches in units of its noise.
-// Selecting the inliers anew matters: those the pose kept with the given
-// intrinsics favour them.
+// which are selected again at the refined pose (twice, unless they come
+// out as they went in: the pose refined on them again is the one it is,
+// and a fifth of the profile's refinements went to that), and scored by
+// the truncated squared Sampson error of all its matches in units of its
+// noise. Selecting the inliers anew matters: those the pose kept with the
+// given intrinsics favour them.
 std::vector<double> PairCosts(const std::vector<ProfilePair>& used, const Eigen::Matrix3d& k, const PointWarp* warp,
                               int min_inliers, int threads) {
   std::vector<double> per_pair(used.size(), 0.0);
@@ -191,20 +193,22 @@ std::vector<double> PairCosts(const std::vector<ProfilePair>& used, const Eigen:
     const std::vector<Eigen::Vector2d>& all2 = warp ? warped2 : *p.points2;
     Eigen::Matrix3d rotation = p.pose->rotation;
     Eigen::Vector3d translation = p.pose->translation;
-    std::vector<int> inliers = p.pose->inliers;
+    std::vector<int> inliers = p.pose->inliers, selected;
     const double threshold = used[u].threshold;
     double truncated = 0.0;
     for (int round = 0; round < 3; ++round) {
       if (static_cast<int>(inliers.size()) < min_inliers / 2) break;
       RefinePoseOnInliers(all1, all2, inliers, k, k, &rotation, &translation);
       const Eigen::Matrix3d f = k_inv.transpose() * Hat(translation) * rotation * k_inv;
-      inliers.clear();
+      selected.clear();
       truncated = 0.0;
       for (std::size_t m = 0; m < all1.size() && m < all2.size(); ++m) {
         const double r = SampsonError<double>(f, all1[m].homogeneous(), all2[m].homogeneous());
-        if (std::abs(r) < threshold) inliers.push_back(static_cast<int>(m));
+        if (std::abs(r) < threshold) selected.push_back(static_cast<int>(m));
         truncated += std::min(r * r, threshold * threshold);
       }
+      if (selected == inliers) break;
+      inliers.swap(selected);
     }
     per_pair[u] = truncated / (used[u].sigma * used[u].sigma);
   });
