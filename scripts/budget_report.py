@@ -23,10 +23,20 @@ def budget(text):
     return tuple(m.groups() if m else missing for m in (image, keyframe, pair))
 
 
-def focal_check(text):
-    """"count, median / p95 ms" of the camera_info check's estimates; "-" without them."""
-    m = re.search(r"^time per camera_info check estimate .*?: " + TIME, text, re.M)
+def counted_times(text, pattern):
+    """"count, median / p95 ms" of the times after `pattern` in a replay summary; "-" without them."""
+    m = re.search(pattern + TIME, text, re.M)
     return "%s, %s / %s" % (m.group(3), m.group(1), m.group(2)) if m else "-"
+
+
+def focal_check(text):
+    """The camera_info check's estimates: counted_times."""
+    return counted_times(text, r"^time per camera_info check estimate .*?: ")
+
+
+def refinements(text):
+    """The background refinement's runs (bundle adjustments): counted_times."""
+    return counted_times(text, r"^refinement \(bundle adjustment .*?time per refinement: ")
 
 
 def quantile(sorted_values, q):
@@ -52,6 +62,7 @@ def stream_row(cameras, text, unrefined):
         "%s / %s" % (p[0], p[1]),
         "%.1f" % (pairs / keyframes) if keyframes else "-",
         focal_check(text),
+        refinements(text),
         value(text, r"^median error: ([\d.]+) deg", "-"),
         value(unrefined, r"^median error: ([\d.]+) deg", "-"),
     ]
@@ -92,10 +103,11 @@ The demo renderer's rig as a 20 Hz driver publishes it (`rotation_averaging_make
 otherwise). A keyframe's pairs: its previous keyframe and the window (`window_pairs`), loop candidates, and
 the cameras of its capture whose extrinsics are not known. The camera_info check (`focal_calibration:
 apply`, the default) estimates each camera's focal length on a thread of its own at 20, 40, 80, ... of its
-pairs; the replay waits for each estimate (the node runs it beside its front end).
+pairs; the replay waits for each estimate (the node runs it beside its front end). A refinement's time is
+that of one run of it on its own thread: the bundle adjustment of its window, its covariance included.
 
-| cameras | images | keyframes | speed-up | speed-up, `refinement: false` | per image (ms): median / p95 | per keyframe (ms): median / p95 | per pair (ms): median / p95 | pairs per keyframe | camera_info check: estimates, ms median / p95 | median error (deg) | median error, `refinement: false` (deg) |
-|---|---|---|---|---|---|---|---|---|---|---|---|""")
+| cameras | images | keyframes | speed-up | speed-up, `refinement: false` | per image (ms): median / p95 | per keyframe (ms): median / p95 | per pair (ms): median / p95 | pairs per keyframe | camera_info check: estimates, ms median / p95 | refinement: runs, ms median / p95 | median error (deg) | median error, `refinement: false` (deg) |
+|---|---|---|---|---|---|---|---|---|---|---|---|---|""")
     for n in cameras:
         text = open(os.path.join(out, "stream_%scam.txt" % n)).read()
         unrefined = open(os.path.join(out, "stream_%scam_unrefined.txt" % n)).read()
@@ -108,13 +120,14 @@ pairs; the replay waits for each estimate (the node runs it beside its front end
 
 A 1 Hz two-camera bag whose every image is a keyframe (`--captures 300 --cameras 2`, config/demo.yaml:
 600 keyframes; %s real time, %s with `refinement: false`; per keyframe median %s ms, p95 %s ms; per pair
-median %s ms, p95 %s ms over %s pairs). The front end's time per keyframe in bins of 100 keyframes in arrival
+median %s ms, p95 %s ms over %s pairs; refinements, runs and ms median / p95: %s). The front end's time per keyframe in bins of 100 keyframes in arrival
 order (the replay's frontend_cost.csv): whether it grows with the map, where retrieval and the loop
 candidates it verifies could make it grow.
 
 | keyframes | median (ms) | p95 (ms) |
 |---|---|---|""" % (value(long_text, r"\(([\d.]+x) real time\)", "-"),
-                  value(long_unrefined, r"\(([\d.]+x) real time\)", "-"), k[0], k[1], p[0], p[1], p[2]))
+                  value(long_unrefined, r"\(([\d.]+x) real time\)", "-"), k[0], k[1], p[0], p[1], p[2],
+                  refinements(long_text)))
     for r in keyframe_bins(os.path.join(out, "every_image_300", "frontend_cost.csv"), 100):
         print(r)
 

@@ -108,11 +108,13 @@ def budget_lines(image, keyframe, pair, keyframes, pairs):
 def test_budget_rows_hold_each_runs_times_and_the_keyframe_bins(tmp_path):
     focal = "time per camera_info check estimate (one camera's pairs; the node runs it beside the front end): " \
             "median 420.00 ms, p95 610.00 ms (of 8)"
+    refined = "refinement (bundle adjustment of the newest keyframes): 2 runs, 2 applied, 0 changed nothing; " \
+              "time per refinement: median 4524.54 ms, p95 4669.08 ms (of 2); correspondences held: 512 edges"
     for cameras, keyframes in (("1", 40), ("2", 66)):
         extra = budget_lines((2.1, 3.4), (180.0, 260.0), (31.5, 70.2), keyframes, 3 * keyframes)
         (tmp_path / ("stream_%scam.txt" % cameras)).write_text(
             summary(keyframes, 0.0054, images=600 * int(cameras), selection="motion",
-                    extra=extra + ([focal] if cameras == "2" else [])))
+                    extra=extra + ([focal, refined] if cameras == "2" else [])))
         # The same bag with `refinement: false`: its speed-up and median in columns of their own.
         (tmp_path / ("stream_%scam_unrefined.txt" % cameras)).write_text(
             summary(keyframes, 0.0060, images=600 * int(cameras), wall=10.0, selection="motion", extra=extra))
@@ -128,9 +130,9 @@ def test_budget_rows_hold_each_runs_times_and_the_keyframe_bins(tmp_path):
     row = table_row(text, "2")
     assert row[1:5] == ["1200", "66", "2.95x", "5.90x"]
     assert row[5:8] == ["2.10 / 3.40", "180.00 / 260.00", "31.50 / 70.20"]
-    assert row[8:12] == ["3.0", "8, 420.00 / 610.00", "0.0054", "0.0060"]
-    # A run without the check's estimates says so rather than showing another's.
-    assert table_row(text, "1")[2] == "40" and table_row(text, "1")[9] == "-"
+    assert row[8:13] == ["3.0", "8, 420.00 / 610.00", "2, 4524.54 / 4669.08", "0.0054", "0.0060"]
+    # A run without the check's estimates or a refinement says so rather than showing another's.
+    assert table_row(text, "1")[2] == "40" and table_row(text, "1")[9:11] == ["-", "-"]
     # Bins of 100 keyframes by nearest rank: 1-100 hold 100..199 ms, 101-150 hold 200..249 ms.
     assert table_row(text, "1-100") == ["1-100", "149.0", "194.0"]
     assert table_row(text, "101-150") == ["101-150", "224.0", "247.0"]
