@@ -15,6 +15,7 @@
 #include <sstream>
 #include <tuple>
 
+#include "frontend/estimators/adjustment_tracks.h"
 #include "frontend/estimators/reprojection_cost.h"
 #include "rotation_averaging/core/geometry/so3.h"
 #include "rotation_averaging/frontend/estimators/relative_pose.h"
@@ -22,6 +23,12 @@
 
 namespace rotation_averaging {
 namespace {
+
+using adjustment::AdjustedView;
+using adjustment::Observation;
+using adjustment::Ray;
+using adjustment::Track;
+using adjustment::Triangulate;
 
 // c_j - c_i - s d: the least-unsquared-deviations residual of one edge.
 struct CentreDeviation {
@@ -51,37 +58,6 @@ void Unite(std::vector<int>* parent, int a, int b) {
   b = Root(parent, b);
   if (a != b) (*parent)[std::max(a, b)] = std::min(a, b);
 }
-
-struct Observation {
-  int view = 0;  // index into the views
-  Eigen::Vector2d x;
-};
-
-struct Track {
-  std::vector<Observation> observations;
-  Eigen::Vector3d point = Eigen::Vector3d::Zero();
-};
-
-struct AdjustedView {
-  ViewId id = 0;
-  Eigen::Matrix3d rotation;
-  Eigen::Vector3d angle_axis = Eigen::Vector3d::Zero();
-  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
-  double sigma = 0.0;  // pixel noise over the focal length
-  // The camera whose focal length is estimated (an index into the focal
-  // scales; -1: none) and that scale (BundleAdjustmentFocal; exactly 1
-  // where none is, so that the arithmetic is what it is without it).
-  int camera = -1;
-  double focal_scale = 1.0;
-  bool centre_given = false;  // its centre from an earlier adjustment (start_centres)
-  bool orientation_held = false;  // held where it was given, in every stage (held_orientations)
-  // A rig camera (BundleAdjustmentRig): the view that holds its capture's
-  // rotation (the capture's first; -1: it turns alone, by angle_axis), and
-  // its camera_from_rig E, so that rotation = E Exp(that view's rig_angle_axis).
-  int capture = -1;
-  Eigen::Matrix3d from_rig = Eigen::Matrix3d::Identity();
-  Eigen::Vector3d rig_angle_axis = Eigen::Vector3d::Zero();  // the capture's, on the view that holds it
-};
 
 // `group` (union-find parents over the views) with each rig camera joined
 // to its capture's: the views that turn as one, or by one held rotation.
@@ -147,10 +123,6 @@ void JoinRigCaptures(const BundleAdjustmentRig& rig, std::vector<AdjustedView>* 
   }
 }
 
-Eigen::Vector3d Ray(const AdjustedView& v, const Eigen::Vector2d& x) {
-  return (v.rotation.transpose() * (x / v.focal_scale).homogeneous()).normalized();
-}
-
 ceres::Solver::Options SolverOptions(int max_iterations) {
   ceres::Solver::Options options;
   options.linear_solver_type = ceres::SPARSE_SCHUR;
@@ -161,35 +133,6 @@ ceres::Solver::Options SolverOptions(int max_iterations) {
   options.num_threads = 1;
   options.logging_type = ceres::SILENT;
   return options;
-}
-
-// Midpoint of the track's rays: the point nearest to all of them. False if
-// the rays are nearly parallel or the point is behind a camera.
-bool Triangulate(const std::vector<AdjustedView>& views, double min_parallax_rad, Track* track) {
-  Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
-  Eigen::Vector3d b = Eigen::Vector3d::Zero();
-  double max_angle = 0.0;
-  std::vector<Eigen::Vector3d> rays;
-  for (const Observation& o : track->observations) {
-    const AdjustedView& v = views[o.view];
-    const Eigen::Vector3d r = Ray(v, o.x);
-    const Eigen::Matrix3d p = Eigen::Matrix3d::Identity() - r * r.transpose();
-    a += p;
-    b += p * v.centre;
-    for (const Eigen::Vector3d& earlier : rays) {
-      max_angle = std::max(max_angle, std::acos(std::clamp(r.dot(earlier), -1.0, 1.0)));
-    }
-    rays.push_back(r);
-  }
-  if (max_angle < min_parallax_rad) return false;
-  const Eigen::Vector3d point = a.ldlt().solve(b);
-  if (!point.allFinite()) return false;
-  for (const Observation& o : track->observations) {
-    const AdjustedView& v = views[o.view];
-    if ((v.rotation * (point - v.centre)).z() <= 0.0) return false;
-  }
-  track->point = point;
-  return true;
 }
 
 double WhitenedSquaredError(const AdjustedView& v, const Track& t, const Observation& o) {
@@ -1503,6 +1446,10 @@ bool RefineRotationsWithBundleAdjustment(const std::vector<EdgeCorrespondences>&
   if (!Adjust(true, &huber, options, &views, &tracks, &focal_scales, summary, &first)) {
     return finish(false, "centres and points: " + first.message);
   }
+  // Points the first stage took behind a camera or onto its centre start
+  // the next from the midpoint of their rays (adjustment_tracks.h).
+  summary->tracks_unconstrained += adjustment::RetriangulateStrayPoints(views, min_parallax, &tracks);
+  if (tracks.empty()) return finish(false, "no track left after placing the centres");
   // Then everything: with the orientations held, their errors (a tenth of a
   // degree is tens of sigma at a tenth of a pixel) are in every residual,
   // and only once they are adjusted do the residuals say which observations
