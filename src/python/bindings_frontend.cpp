@@ -235,6 +235,7 @@ void BindBundleAdjustment(py::module_& m) {
                                d["initial_rms_sigmas"] = s.initial_rms_sigmas;
                                d["final_rms_sigmas"] = s.final_rms_sigmas;
                                d["iterations"] = s.iterations;
+                               d["failed_steps"] = s.failed_steps;
                                d["time_s"] = s.time_s;
                                d["converged"] = s.converged;
                                d["status"] = s.status;

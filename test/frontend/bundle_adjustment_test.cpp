@@ -67,6 +67,7 @@ TEST(BundleAdjustment, TracksPinRotationsBetterThanThePairsAlone) {
     // Whitened by the true noise, the residuals are about one sigma.
     EXPECT_NEAR(summary.final_rms_sigmas, 1.0, 0.15) << summary.Report();
     EXPECT_EQ(summary.observations_dropped, 0u) << summary.Report();
+    EXPECT_EQ(summary.failed_steps, 0) << summary.Report();
     EXPECT_LT(MaxErrorDeg(adjusted, scene.truth), MaxErrorDeg(pairwise, scene.truth)) << summary.Report();
     // The minimum it reaches is the one at the truth.
     ViewOrientations from_truth = scene.truth;
@@ -76,6 +77,15 @@ TEST(BundleAdjustment, TracksPinRotationsBetterThanThePairsAlone) {
     pairwise_sum += MaxErrorDeg(pairwise, scene.truth);
   }
   EXPECT_LT(adjusted_sum, 0.7 * pairwise_sum) << adjusted_sum << " vs " << pairwise_sum;
+}
+
+TEST(BundleAdjustmentSummary, TheReportTellsOfFailedStepsOnlyWhereThereWereAny) {
+  BundleAdjustmentSummary summary;
+  summary.iterations = 40;
+  EXPECT_NE(summary.Report().find("40 iterations, "), std::string::npos) << summary.Report();
+  EXPECT_EQ(summary.Report().find("failed"), std::string::npos) << summary.Report();
+  summary.failed_steps = 21;
+  EXPECT_NE(summary.Report().find("40 iterations (21 failed steps), "), std::string::npos) << summary.Report();
 }
 
 TEST(BundleAdjustment, StartedFromAnEarlierAdjustmentsCentresItSettlesSooner) {

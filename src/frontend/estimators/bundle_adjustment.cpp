@@ -555,6 +555,9 @@ bool Adjust(bool hold_orientations, ceres::LossFunction* loss, const BundleAdjus
   solver_options.callbacks.push_back(&settled);
   ceres::Solve(solver_options, &problem, ceres_summary);
   summary->iterations += static_cast<int>(ceres_summary->iterations.size()) - 1;
+  summary->failed_steps += static_cast<int>(
+      std::count_if(ceres_summary->iterations.begin() + (ceres_summary->iterations.empty() ? 0 : 1),
+                    ceres_summary->iterations.end(), [](const ceres::IterationSummary& i) { return !i.step_is_valid; }));
   for (std::size_t c = 0; c < first_view.size(); ++c) {
     if (first_view[c] >= 0) (*focal_scales)[c] = (*views)[first_view[c]].focal_scale;
   }
@@ -1357,7 +1360,9 @@ std::string BundleAdjustmentSummary::Report() const {
       << " without parallax or behind a camera), " << observations << " observations (" << observations_dropped
       << " dropped), rms reprojection error " << initial_rms_sigmas << " sigma at the centres from the pairs, "
       << final_rms_sigmas << " sigma adjusted, "
-      << iterations << " iterations, " << time_s << " s" << (converged ? "" : " (not converged)");
+      << iterations << " iterations";
+  if (failed_steps > 0) out << " (" << failed_steps << " failed steps)";
+  out << ", " << time_s << " s" << (converged ? "" : " (not converged)");
   if (covariance_time_s > 0.0) out << " (covariance " << covariance_time_s << " s)";
   if (!status.empty()) out << ": " << status;
   return out.str();

@@ -193,6 +193,10 @@ struct BundleAdjustmentSummary {
   double initial_rms_sigmas = 0.0;
   double final_rms_sigmas = 0.0;
   int iterations = 0;           // of every stage
+  // Of iterations, the steps whose linear system could not be solved (its
+  // factorisation failed) or whose cost could not be evaluated: many of
+  // them mean a stage spent its iterations stalled.
+  int failed_steps = 0;
   double time_s = 0.0;
   double covariance_time_s = 0.0;  // of it, the covariance's (when asked for)
   bool converged = false;
