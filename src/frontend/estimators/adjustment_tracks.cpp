@@ -7,6 +7,12 @@
 
 namespace rotation_averaging {
 namespace adjustment {
+namespace {
+
+// The point's depth along the view's optical axis (negative: behind it).
+double Depth(const AdjustedView& v, const Eigen::Vector3d& point) { return (v.rotation * (point - v.centre)).z(); }
+
+}  // namespace
 
 Eigen::Vector3d Ray(const AdjustedView& v, const Eigen::Vector2d& x) {
   return (v.rotation.transpose() * (x / v.focal_scale).homogeneous()).normalized();
@@ -32,8 +38,7 @@ bool Triangulate(const std::vector<AdjustedView>& views, double min_parallax_rad
   const Eigen::Vector3d point = a.ldlt().solve(b);
   if (!point.allFinite()) return false;
   for (const Observation& o : track->observations) {
-    const AdjustedView& v = views[o.view];
-    if ((v.rotation * (point - v.centre)).z() <= 0.0) return false;
+    if (Depth(views[o.view], point) <= 0.0) return false;
   }
   track->point = point;
   return true;
@@ -49,24 +54,20 @@ bool Triangulate(const std::vector<AdjustedView>& views, double min_parallax_rad
 // stage runs to its iteration limit (docs/decisions.md).
 int RetriangulateStrayPoints(const std::vector<AdjustedView>& views, double min_parallax_rad,
                              std::vector<Track>* tracks) {
-  int left_out = 0;
   std::vector<double> depths;
   for (const Track& t : *tracks) {
-    for (const Observation& o : t.observations) {
-      const AdjustedView& v = views[o.view];
-      depths.push_back((v.rotation * (t.point - v.centre)).z());
-    }
+    for (const Observation& o : t.observations) depths.push_back(Depth(views[o.view], t.point));
   }
   if (depths.empty()) return 0;
   std::nth_element(depths.begin(), depths.begin() + depths.size() / 2, depths.end());
   const double min_depth = kStrayDepthFraction * depths[depths.size() / 2];
+  int left_out = 0;
   std::vector<Track> kept;
   kept.reserve(tracks->size());
   for (Track& t : *tracks) {
-    const bool stray = std::any_of(t.observations.begin(), t.observations.end(), [&](const Observation& o) {
-      const AdjustedView& v = views[o.view];
-      return !((v.rotation * (t.point - v.centre)).z() > min_depth);
-    });
+    // (Not greater: a NaN depth counts as stray too.)
+    const bool stray = std::any_of(t.observations.begin(), t.observations.end(),
+                                   [&](const Observation& o) { return !(Depth(views[o.view], t.point) > min_depth); });
     if (!stray || Triangulate(views, min_parallax_rad, &t)) {
       kept.push_back(std::move(t));
     } else {
